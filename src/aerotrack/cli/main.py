@@ -1,0 +1,105 @@
+"""``aerotrack``: the command group, logging set-up and the one-line error contract.
+
+Every deliberate error (:class:`~aerotrack.errors.AerotrackError`) becomes one line on stderr and
+exit code 2; click's own usage errors also exit with 2. Commands live one per module in this package
+and are registered in ``COMMANDS``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import AerotrackError
+
+# (module in aerotrack.cli, attribute): one entry per subcommand.
+COMMANDS = [
+    ("eval_cmd", "eval_command"),
+    ("synth_cmd", "synth_command"),
+    ("track_cmd", "track_command"),
+    ("detect_cmd", "detect_command"),
+    ("predict_cmd", "predict_command"),
+    ("mosaic_cmd", "mosaic_command"),
+    ("demo_cmd", "demo_command"),
+]
+
+log = logging.getLogger("aerotrack")
+
+
+def configure_logging(verbose: int, quiet: bool) -> None:
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("aerotrack: %(levelname)s: %(message)s"))
+    root = logging.getLogger("aerotrack")
+    root.handlers[:] = [handler]
+    root.setLevel(level)
+    root.propagate = False
+
+
+@click.group(
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
+)
+@click.version_option(__version__, "--version", prog_name="aerotrack")
+@click.option("-v", "--verbose", count=True, help="More messages (-vv for debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
+    """Persistent multi-target tracking in aerial video from a moving platform.
+
+    Finds every moving vehicle without a trained detector, keeps one ID per object through
+    occlusions and exits from the view, and reports positions in map and lon/lat coordinates.
+
+    \b
+    Quick start:
+      aerotrack demo                       # render a scene, track it, write a report
+      aerotrack track video.mp4 --out run/ --map map.tif --map-init h.txt
+      aerotrack eval --gt gt.txt --pred run/tracks.csv
+    """
+    configure_logging(verbose, quiet)
+    ctx.obj = {"verbose": verbose, "quiet": quiet}
+
+
+def _register() -> None:
+    for module, attr in COMMANDS:
+        try:
+            mod = importlib.import_module(f".{module}", __package__)
+        except ModuleNotFoundError as exc:
+            if exc.name == f"{__package__}.{module}":
+                continue  # command not built yet
+            raise
+        cli.add_command(getattr(mod, attr))
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: run the CLI, mapping aerotrack errors to exit code 2."""
+    try:
+        cli.main(args=argv, prog_name="aerotrack", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("aerotrack: interrupted", err=True)
+        sys.exit(130)
+    except KeyboardInterrupt:
+        click.echo("aerotrack: interrupted; finished work is kept in the output's .partial/ "
+                   "(continue with --resume)", err=True)
+        sys.exit(130)
+    except click.exceptions.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    except AerotrackError as exc:
+        click.echo(f"aerotrack: error: {exc}", err=True)
+        sys.exit(2)
+    except MemoryError:
+        click.echo("aerotrack: error: out of memory", err=True)
+        sys.exit(2)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

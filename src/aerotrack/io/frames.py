@@ -1,0 +1,162 @@
+"""Frame sources: a video file or a folder of images, streamed one frame at a time.
+
+Frame n (1-based) is the n-th decoded frame of a video, or the n-th image file in lexicographic order
+of names. Never more than one frame is held in memory by a source.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..types import Frame
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm"}
+DEFAULT_FOLDER_FPS = 30.0
+
+
+class FrameSource:
+    """Base class: iterate to get :class:`~aerotrack.types.Frame` objects in order.
+
+    Attributes
+    ----------
+    path : Path
+    fps : float
+        Frames per second (given, read from the container, or 30 for image folders).
+    size : (int, int)
+        (width, height) in pixels.
+    count : int or None
+        Number of frames when known in advance (an estimate for some video containers).
+    """
+
+    path: Path
+    fps: float
+    size: tuple[int, int]
+    count: int | None
+
+    def __iter__(self) -> Iterator[Frame]:
+        return self.frames()
+
+    def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
+        """Frames ``start, start+stride, ...`` up to and including ``stop`` (1-based)."""
+        raise NotImplementedError
+
+    def __len__(self) -> int:
+        return int(self.count or 0)
+
+
+def _check_fps(fps: float | None, label: str) -> float | None:
+    if fps is None:
+        return None
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise InputError(f"--fps {fps}: must be a positive number (got for {label})")
+    return float(fps)
+
+
+class VideoSource(FrameSource):
+    """A video file anything OpenCV/FFmpeg decodes."""
+
+    def __init__(self, path: str | Path, fps: float | None = None) -> None:
+        self.path = Path(path)
+        fps = _check_fps(fps, str(self.path))
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            if not cap.isOpened():
+                raise InputError(f"{self.path}: cannot open as a video (unknown format or corrupt)")
+            ok, img = cap.read()
+            if not ok or img is None:
+                raise InputError(f"{self.path}: video has no decodable frames")
+            native = cap.get(cv2.CAP_PROP_FPS)
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        finally:
+            cap.release()
+        self.size = (img.shape[1], img.shape[0])
+        self.fps = fps or (float(native) if native and math.isfinite(native) and native > 0
+                           else DEFAULT_FOLDER_FPS)
+        self.count = n if n > 0 else None
+
+    def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            index = 0
+            while True:
+                ok = cap.grab()
+                if not ok:
+                    return
+                index += 1
+                if stop is not None and index > stop:
+                    return
+                if index < start or (index - start) % stride:
+                    continue
+                ok, img = cap.retrieve()
+                if not ok or img is None:
+                    return
+                if img.ndim == 2:
+                    img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+                yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+        finally:
+            cap.release()
+
+
+class ImageFolderSource(FrameSource):
+    """A folder of images, frame n = n-th image file in lexicographic order of names.
+
+    Files whose suffix is not an image type are ignored. All images must have the size of the
+    first one; a different size is an error naming the file.
+    """
+
+    def __init__(self, path: str | Path, fps: float | None = None) -> None:
+        self.path = Path(path)
+        self.fps = _check_fps(fps, str(self.path)) or DEFAULT_FOLDER_FPS
+        self.files = sorted(
+            (p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
+            key=lambda p: p.name,
+        )
+        if not self.files:
+            raise InputError(f"{self.path}: folder holds no image files")
+        first = self._read(self.files[0])
+        self.size = (first.shape[1], first.shape[0])
+        self.count = len(self.files)
+
+    def _read(self, p: Path) -> np.ndarray:
+        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputError(f"{p}: cannot decode image")
+        return img
+
+    def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
+        last = len(self.files) if stop is None else min(stop, len(self.files))
+        for index in range(start, last + 1, stride):
+            p = self.files[index - 1]
+            img = self._read(p)
+            if (img.shape[1], img.shape[0]) != self.size:
+                raise InputError(
+                    f"{p}: image is {img.shape[1]}x{img.shape[0]}, expected "
+                    f"{self.size[0]}x{self.size[1]} like the first image"
+                )
+            yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+
+
+def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
+    """Open a video file or an image folder.
+
+    Raises
+    ------
+    InputError
+        Missing path, unreadable video, empty folder, or a bad ``fps``.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file or folder")
+    if p.is_dir():
+        return ImageFolderSource(p, fps)
+    if p.stat().st_size == 0:
+        raise InputError(f"{p}: file is empty")
+    if p.suffix.lower() in IMAGE_SUFFIXES:
+        raise InputError(f"{p}: is a single image; give a video file or a folder of images")
+    return VideoSource(p, fps)

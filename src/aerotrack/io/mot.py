@@ -1,0 +1,143 @@
+"""MOTChallenge text files: ``frame,id,bb_left,bb_top,bb_width,bb_height,conf,x,y,z``.
+
+Frames are 1-based in every file aerotrack reads or writes. Rows may have 6 to 10 columns on input
+(missing conf defaults to 1, missing x, y, z to -1); output always has 10.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FormatError, InputError
+from .output import atomic_write
+
+MOT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "conf", "x", "y", "z")
+
+
+def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6) -> np.ndarray:
+    """Parse MOT rows into an (N, 10) float64 array.
+
+    Blank lines and lines starting with ``#`` are skipped; fields are comma- or
+    whitespace-separated.
+
+    Raises
+    ------
+    FormatError
+        A row has fewer than ``min_columns`` or more than 10 fields, a non-numeric or non-finite
+        cell, or a frame number that is not a positive integer. The message names the line.
+    """
+    rows: list[list[float]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = [p for p in s.replace(",", " ").split()]
+        if not (min_columns <= len(parts) <= 10):
+            raise FormatError(
+                f"{name} line {lineno}: expected {min_columns} to 10 columns, found {len(parts)}"
+            )
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            bad = next(p for p in parts if not _is_float(p))
+            raise FormatError(f"{name} line {lineno}: non-numeric value {bad!r}") from None
+        if not all(np.isfinite(vals)):
+            raise FormatError(f"{name} line {lineno}: NaN or infinite value")
+        if vals[0] < 1 or not float(vals[0]).is_integer():
+            raise FormatError(
+                f"{name} line {lineno}: frame must be a positive integer (1-based), got {parts[0]}"
+            )
+        vals += [1.0, -1.0, -1.0, -1.0][len(vals) - 6:] if len(vals) < 10 else []
+        rows.append(vals[:10])
+    if not rows:
+        return np.zeros((0, 10))
+    return np.asarray(rows, dtype=np.float64)
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True,
+             allow_empty: bool = True) -> np.ndarray:
+    """Read a MOTChallenge file into an (N, 10) array sorted by (frame, id).
+
+    Parameters
+    ----------
+    path : path
+        The file.
+    option : str, optional
+        Command-line option the file came from, for messages (``--pred``).
+    strict : bool
+        Refuse boxes with a negative width or height and exact-duplicate (frame, id) rows
+        (``--pred``, ``--detections``). Ground truth is read with ``strict=False``.
+    allow_empty : bool
+        Whether a file with no rows is acceptable.
+
+    Raises
+    ------
+    InputError, FormatError
+    """
+    p = Path(path)
+    label = f"{option} {p}" if option else str(p)
+    if not p.exists():
+        raise InputError(f"{label}: file not found")
+    if p.is_dir():
+        raise InputError(f"{label}: is a folder, expected a MOTChallenge text file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{label}: cannot read ({exc})") from None
+    data = parse_mot_text(text, label)
+    if not len(data) and not allow_empty:
+        raise InputError(f"{label}: no rows")
+    if strict and len(data):
+        neg = np.flatnonzero((data[:, 4] < 0) | (data[:, 5] < 0))
+        if len(neg):
+            raise FormatError(f"{label}: row {neg[0] + 1} has a negative box width or height")
+        ids = data[:, 1]
+        has_ids = np.any(ids >= 0)
+        if has_ids:
+            key = data[:, 0] * 1e9 + ids
+            uniq, counts = np.unique(key, return_counts=True)
+            if np.any(counts > 1):
+                k = uniq[counts > 1][0]
+                raise FormatError(
+                    f"{label}: repeated (frame, id) = ({int(k // 1e9)}, {int(k % 1e9)})"
+                )
+    order = np.lexsort((data[:, 1], data[:, 0])) if len(data) else np.zeros(0, int)
+    return data[order]
+
+
+def format_mot_rows(rows: Iterable[Iterable[float]]) -> str:
+    """Format 10-column rows: integer frame and id, 3 decimals for boxes, 7 for x, y, z
+    (x, y may be degrees)."""
+    out = []
+    for r in rows:
+        r = list(r)
+        out.append(
+            f"{int(r[0])},{int(r[1])},{r[2]:.3f},{r[3]:.3f},{r[4]:.3f},{r[5]:.3f},"
+            f"{r[6]:.4f},{_num(r[7])},{_num(r[8])},{_num(r[9])}"
+        )
+    return "\n".join(out) + ("\n" if out else "")
+
+
+def _num(v: float) -> str:
+    return "-1" if v == -1 else f"{v:.7f}"
+
+
+def write_mot(path: str | Path, rows: np.ndarray | Iterable[Iterable[float]]) -> None:
+    """Write rows atomically as a 10-column MOTChallenge file (no header)."""
+    arr = np.asarray(list(rows) if not isinstance(rows, np.ndarray) else rows, dtype=np.float64)
+    if arr.size and arr.shape[1] < 10:
+        pad = np.full((len(arr), 10 - arr.shape[1]), -1.0)
+        arr = np.hstack([arr, pad])
+    with atomic_write(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(format_mot_rows(arr))

@@ -1,0 +1,114 @@
+"""Atomic outputs and the output-folder protocol of the CLI contract.
+
+Final files appear atomically: each is written beside its destination under a temporary name and
+renamed into place (``os.replace``), so a killed run never leaves a file that looks complete. Work in
+progress lives in ``DIR/.partial/``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+from ..errors import OutputError
+
+PARTIAL = ".partial"
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
+    """Open a temporary file beside ``path``; on success rename it to ``path``, on error delete it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        with open(tmp, mode, **kwargs) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    with atomic_write(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    with atomic_write(path, "wb") as fh:
+        fh.write(data)
+
+
+class OutputDir:
+    """An output folder under the contract's rules.
+
+    ``--out`` may be missing or an existing empty folder. A folder that already holds results is
+    refused unless ``overwrite`` (results are replaced) or ``resume`` (``.partial/`` is kept and
+    continued from) is set.
+
+    Parameters
+    ----------
+    path : path
+        The folder.
+    overwrite, resume : bool
+        What to do with a folder that already holds results (mutually exclusive).
+    option : str
+        Option name used in messages (``--out``).
+    """
+
+    def __init__(self, path: str | Path, *, overwrite: bool = False, resume: bool = False,
+                 option: str = "--out") -> None:
+        if overwrite and resume:
+            raise OutputError("--overwrite and --resume cannot be used together")
+        self.path = Path(path)
+        self.resume = resume
+        p = self.path
+        if p.exists() and not p.is_dir():
+            raise OutputError(f"{option} {p}: exists and is not a folder")
+        if p.is_dir():
+            entries = [e for e in p.iterdir()]
+            if entries and not (overwrite or resume):
+                raise OutputError(
+                    f"{option} {p}: folder already holds results; use --overwrite or --resume"
+                )
+            if overwrite:
+                for e in entries:
+                    if e.is_dir() and not e.is_symlink():
+                        shutil.rmtree(e)
+                    else:
+                        e.unlink()
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+            self.partial.mkdir(exist_ok=True)
+            probe = self.partial / ".write-test"
+            probe.write_text("")
+            probe.unlink()
+        except OSError as exc:
+            raise OutputError(f"{option} {p}: cannot write there ({exc.strerror or exc})") from None
+
+    @property
+    def partial(self) -> Path:
+        """Folder for work in progress (kept on interruption, used by ``--resume``)."""
+        return self.path / PARTIAL
+
+    def file(self, name: str) -> Path:
+        return self.path / name
+
+    def write_text(self, name: str, text: str) -> Path:
+        dest = self.file(name)
+        atomic_write_text(dest, text)
+        return dest
+
+    def finish(self) -> None:
+        """Remove ``.partial/`` once every final file is in place."""
+        shutil.rmtree(self.partial, ignore_errors=True)
