@@ -7,6 +7,7 @@ Map pixels are (col, row), continuous, in the convention of the raster's affine 
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +43,10 @@ class GeoMap:
         if not self.path.exists():
             raise InputError(f"{label}: file not found")
         try:
-            with rasterio.open(self.path) as ds:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                ds = rasterio.open(self.path)
+            with ds:
                 self.crs = ds.crs
                 self.transform = ds.transform
                 self.width, self.height, self.count = ds.width, ds.height, ds.count

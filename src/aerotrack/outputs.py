@@ -1,0 +1,148 @@
+"""Writes a :class:`~aerotrack.pipeline.Result` as the CLI contract's files.
+
+``tracks.csv`` holds the frames in which a target is believed in view (observed, bridged, standing
+still); ``predicted.csv`` the frames in which it is believed out of view, with the predicted box in
+that frame's pixels. x, y are the ground point in the map CRS with a map, else -1.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .config import Config, dumps_config
+from .geo import GeoMap
+from .io.mot import write_mot
+from .io.output import OutputDir, atomic_write_text
+from .pipeline import Result
+from .types import Registration, Track, apply_homography
+
+log = logging.getLogger(__name__)
+
+IN_VIEW = ("observed", "bridged", "stationary")
+
+
+def track_rows(result: Result, geomap: GeoMap | None) -> tuple[np.ndarray, np.ndarray]:
+    """(tracks rows, predicted rows) as (N, 10) MOT arrays sorted by frame and id."""
+    regs = result.registrations
+    inview, predicted = [], []
+    for t in result.tracks:
+        last_size = None
+        for p in t.points:
+            box = None if p.box is None else np.asarray(p.box, dtype=np.float64)
+            if box is not None and np.all(np.isfinite(box)) and box[2] > 0 and box[3] > 0:
+                last_size = box[2:]
+            else:
+                box = _box_from_world(p, regs.get(p.frame), last_size)
+                if box is None:
+                    continue
+            x = y = -1.0
+            if geomap is not None:
+                x, y = geomap.pixel_to_crs(np.asarray(p.world, dtype=np.float64)[None])[0]
+            row = [p.frame, t.id, *box, float(p.conf), x, y, -1.0]
+            (inview if p.kind in IN_VIEW else predicted).append(row)
+    return _sorted(inview), _sorted(predicted)
+
+
+def _box_from_world(p, reg: Registration | None, size) -> np.ndarray | None:
+    """A box in frame pixels around the point's world position (predicted points)."""
+    if reg is None:
+        if size is None:
+            return None
+        c = np.asarray(p.world, dtype=np.float64)
+    else:
+        c = apply_homography(np.linalg.inv(reg.H), np.asarray(p.world)[None])[0]
+    if size is None and p.size_world is not None and reg is not None:
+        w = np.asarray(p.size_world, dtype=np.float64)
+        inv = np.linalg.inv(reg.H)
+        corner = apply_homography(inv, (np.asarray(p.world) + w / 2)[None])[0]
+        size = 2 * np.abs(corner - c)
+    if size is None or not np.all(np.isfinite(c)):
+        return None
+    return np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])
+
+
+def _sorted(rows: list) -> np.ndarray:
+    if not rows:
+        return np.zeros((0, 10))
+    a = np.asarray(rows, dtype=np.float64)
+    return a[np.lexsort((a[:, 1], a[:, 0]))]
+
+
+def detection_rows(result: Result) -> np.ndarray:
+    rows = []
+    for d in result.detections:
+        for b, c in zip(np.asarray(d.boxes).reshape(-1, 4), np.asarray(d.conf).reshape(-1)):
+            rows.append([d.frame, -1, *b, c, -1, -1, -1])
+    return _sorted(rows)
+
+
+def write_registration_csv(path: Path, registrations: dict[int, Registration]) -> None:
+    """``frame,h00..h22,status,inliers,inlier_ratio,error`` (frame pixels -> world)."""
+    lines = ["frame,h00,h01,h02,h10,h11,h12,h20,h21,h22,status,inliers,inlier_ratio,error,reason"]
+    for idx in sorted(registrations):
+        r = registrations[idx]
+        H = np.asarray(r.H, dtype=np.float64).reshape(-1)
+        reason = r.reason.replace(",", ";").replace("\n", " ")
+        lines.append(
+            f"{idx}," + ",".join(f"{v:.12g}" for v in H)
+            + f",{r.status},{int(r.inliers)},{_f(r.inlier_ratio)},{_f(r.error)},{reason}"
+        )
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _f(v: float) -> str:
+    return "" if v is None or not math.isfinite(v) else f"{v:.4f}"
+
+
+def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: GeoMap | None,
+                  run_info: dict | None = None) -> dict:
+    """Write every contract file into ``out`` (atomically) and return the summary dict."""
+    tracks, predicted = track_rows(result, geomap)
+    write_mot(out.file("tracks.csv"), tracks)
+    write_mot(out.file("predicted.csv"), predicted)
+    write_mot(out.file("detections.csv"), detection_rows(result))
+    if result.registrations:
+        write_registration_csv(out.file("registration.csv"), result.registrations)
+    if geomap is not None:
+        try:
+            from .io.geojson import write_tracks_geojson
+        except ImportError:
+            log.warning("GeoJSON writer unavailable; tracks.geojson not written")
+        else:
+            write_tracks_geojson(out.file("tracks.geojson"), tracks, predicted, geomap, result.fps)
+    out.write_text("config.toml", dumps_config(config))
+    failures = [
+        {"frame": i, "status": r.status, "reason": r.reason}
+        for i, r in sorted(result.registrations.items()) if r.status not in ("ok", "refined")
+    ]
+    n_ids = len(np.unique(tracks[:, 1])) if len(tracks) else 0
+    total = sum(result.timings.values())
+    summary = {
+        "aerotrack_version": __version__,
+        **(run_info or {}),
+        "fps": result.fps,
+        "frames": result.frames,
+        "first_frame": result.first_frame,
+        "last_frame": result.last_frame,
+        "frame_size": list(result.frame_size) if result.frame_size else None,
+        "metres_per_unit": result.metres_per_unit,
+        "counts": {
+            "detections": int(sum(len(d) for d in result.detections)),
+            "tracks": n_ids,
+            "track_rows": int(len(tracks)),
+            "predicted_rows": int(len(predicted)),
+            "registered_frames": len(result.registrations),
+            "registration_failures": len(failures),
+        },
+        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
+        "frames_per_second": round(result.frames / total, 2) if total > 0 else None,
+        "registration_failures": failures,
+    }
+    out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
+    return summary

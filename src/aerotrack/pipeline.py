@@ -1,0 +1,310 @@
+"""Wires the stages: frames -> registration -> detection -> local association -> global linking.
+
+Two APIs over one implementation:
+
+* push: ``Pipeline(...).step(frame)`` for each frame, then ``.finish()``;
+* pull: ``run(source, ...)`` iterates a frame source (or runs association alone on a detections file).
+
+Both return a :class:`Result` holding the tracks (in world coordinates, with each point's box in its
+frame's pixels), the registrations and the detections; :func:`aerotrack.outputs.write_outputs` writes
+them as the CLI contract's files.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import Config
+from .errors import InputError
+from .geo import GeoMap
+from .types import Detections, Frame, Registration, Track, TrackPoint, apply_homography
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Result:
+    """What a run produced.
+
+    Attributes
+    ----------
+    tracks : list of Track
+        Final tracks after global linking; points of kind observed, bridged, stationary, predicted.
+    registrations : dict of int -> Registration
+        Frame index -> registration used (frame pixels -> world).
+    detections : list of Detections
+        Every frame's detections, in frame order.
+    fps : float
+    frame_size : (int, int) or None
+        (width, height) of the frames, None for association alone.
+    metres_per_unit : float or None
+        Metres per world unit (map pixel), when known.
+    timings : dict
+        Seconds spent in each stage.
+    frames : int
+        Number of frames processed.
+    """
+
+    tracks: list[Track]
+    registrations: dict[int, Registration]
+    detections: list[Detections]
+    fps: float
+    frame_size: tuple[int, int] | None
+    metres_per_unit: float | None
+    timings: dict[str, float] = field(default_factory=dict)
+    frames: int = 0
+    first_frame: int = 1
+    last_frame: int = 0
+
+
+class Pipeline:
+    """The whole tracker, fed one frame at a time.
+
+    Parameters
+    ----------
+    config : Config
+    fps : float
+    geomap : GeoMap, optional
+        The map; world coordinates are then its pixels.
+    H_init : ndarray (3, 3), optional
+        Frame 1 pixels -> map pixels (required with a map).
+    seed : int
+        Seed of every random choice (MCMC).
+    detections : dict of int -> ndarray (N, 10), optional
+        External detections (MOT rows) per frame; they replace the built-in detector.
+    metres_per_unit : float, optional
+        Scale of world units without a map (``--gsd``).
+    """
+
+    def __init__(self, config: Config, fps: float, *, geomap: GeoMap | None = None,
+                 H_init: np.ndarray | None = None, seed: int = 0,
+                 detections: dict[int, np.ndarray] | None = None,
+                 metres_per_unit: float | None = None) -> None:
+        from .association import LocalAssociator
+
+        self.config = config
+        self.fps = float(fps)
+        self.geomap = geomap
+        self.metres_per_unit = geomap.metres_per_pixel if geomap is not None else metres_per_unit
+        self.external = detections
+        self.registrar = None
+        self.detector = None
+        self._H_init = H_init
+        self.associator = LocalAssociator(config.association, self.fps,
+                                          metres_per_unit=self.metres_per_unit, seed=seed)
+        self.registrations: dict[int, Registration] = {}
+        self.detections: list[Detections] = []
+        self.tracklets: list[Track] = []
+        self.timings = {"registration": 0.0, "detection": 0.0, "association": 0.0, "linking": 0.0}
+        self.frame_size: tuple[int, int] | None = None
+        self.n_frames = 0
+        self.first_frame: int | None = None
+        self.last_frame = 0
+        self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
+
+    # -- stages -----------------------------------------------------------------------------------
+    def _ensure_stages(self, frame: Frame) -> None:
+        if self.registrar is not None:
+            return
+        from .registration import FrameRegistrar
+
+        self.frame_size = (frame.image.shape[1], frame.image.shape[0])
+        self.registrar = FrameRegistrar(self.config.registration, self.fps, geomap=self.geomap,
+                                        H_init=self._H_init)
+        if self.external is None:
+            from .detection import MovingObjectDetector
+
+            self.detector = MovingObjectDetector(self.config.detection, self.fps, geomap=self.geomap,
+                                                 metres_per_unit=self.metres_per_unit)
+
+    def _exclude_boxes(self) -> np.ndarray | None:
+        """Boxes of the latest final detections, in the previous frame's pixels (moving vehicles must
+        not pull the frame-to-frame estimate)."""
+        prev = self.registrations.get(self.last_frame)
+        if prev is None or self._last_boxes_world is None or not len(self._last_boxes_world):
+            return None
+        c = self._last_boxes_world
+        inv = np.linalg.inv(prev.H)
+        centre = apply_homography(inv, c[:, :2])
+        half = np.abs(apply_homography(inv, c[:, :2] + c[:, 2:] / 2) - centre)
+        half = np.maximum(half, 4.0) * 1.5
+        return np.hstack([centre - half, 2 * half])
+
+    def step(self, frame: Frame) -> None:
+        """Process one frame (frames must come in increasing order)."""
+        self._ensure_stages(frame)
+        if self.first_frame is None:
+            self.first_frame = frame.index
+        t0 = time.perf_counter()
+        reg = self.registrar.step(frame, exclude_boxes=self._exclude_boxes())
+        t1 = time.perf_counter()
+        self.timings["registration"] += t1 - t0
+        if reg is not None:
+            self.registrations[frame.index] = reg
+        if self.external is not None:
+            final = [self._external_detections(frame, reg)]
+        elif reg is None:
+            final = []
+        else:
+            final = self.detector.step(frame, reg)
+        t2 = time.perf_counter()
+        self.timings["detection"] += t2 - t1
+        self.n_frames += 1
+        self.last_frame = frame.index
+        self._associate(final)
+
+    def _external_detections(self, frame: Frame | None, reg: Registration | None) -> Detections:
+        idx = frame.index
+        rows = self.external.get(idx)
+        if rows is None or not len(rows):
+            return Detections.empty(idx)
+        boxes = rows[:, 2:6].copy()
+        conf = np.clip(rows[:, 6], 0.0, 1.0)
+        centres = boxes[:, :2] + boxes[:, 2:] / 2
+        if reg is None:
+            world = centres
+            size_world = boxes[:, 2:].copy()
+        else:
+            world = reg.to_world(centres)
+            corner = reg.to_world(centres + boxes[:, 2:] / 2)
+            size_world = 2 * np.abs(corner - world)
+        hist = desc = None
+        extra = {}
+        if frame is not None and frame.image is not None:
+            from .detection import describe
+
+            hist, desc = describe(frame.image, boxes)
+            extra["desc"] = desc
+        mapxy = lonlat = None
+        if self.geomap is not None and reg is not None:
+            mapxy = self.geomap.pixel_to_crs(world)
+            lonlat = self.geomap.crs_to_lonlat(mapxy)
+        return Detections(frame=idx, boxes=boxes, conf=conf, world=world, mapxy=mapxy,
+                          lonlat=lonlat, hist=hist, size_world=size_world, extra=extra)
+
+    def _associate(self, final: Iterable[Detections]) -> None:
+        t0 = time.perf_counter()
+        for dets in final:
+            self.detections.append(dets)
+            if len(dets):
+                size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
+                self._last_boxes_world = np.hstack([dets.world, size])
+            else:
+                self._last_boxes_world = None
+            self.tracklets.extend(self.associator.step(dets))
+        self.timings["association"] += time.perf_counter() - t0
+
+    def step_detections_only(self, index: int) -> None:
+        """Association alone: feed frame ``index`` of the external detections (no image)."""
+        if self.first_frame is None:
+            self.first_frame = index
+        self.n_frames += 1
+        self.last_frame = index
+        self._associate([self._external_detections(Frame(index, None, (index - 1) / self.fps), None)])
+
+    def finish(self) -> Result:
+        """Flush every stage and link tracklets into final tracks."""
+        if self.detector is not None:
+            t0 = time.perf_counter()
+            rest = self.detector.flush()
+            self.timings["detection"] += time.perf_counter() - t0
+            self._associate(rest)
+        t0 = time.perf_counter()
+        self.tracklets.extend(self.associator.flush())
+        self.timings["association"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        tracks = self._link(self.tracklets)
+        self.timings["linking"] += time.perf_counter() - t0
+        return Result(tracks=tracks, registrations=self.registrations, detections=self.detections,
+                      fps=self.fps, frame_size=self.frame_size,
+                      metres_per_unit=self.metres_per_unit, timings=dict(self.timings),
+                      frames=self.n_frames, first_frame=self.first_frame or 1,
+                      last_frame=self.last_frame)
+
+    def _link(self, tracklets: list[Track]) -> list[Track]:
+        try:
+            from .association.linking import GlobalLinker
+        except ImportError:  # linking not available: tracklets are the tracks
+            log.warning("global linking unavailable; tracklets are reported as tracks")
+            return _renumber(tracklets)
+        linker = GlobalLinker(self.config.linking, self.config.context, self.fps,
+                              metres_per_unit=self.metres_per_unit)
+        tracks = linker.link(tracklets, frame_size=self.frame_size,
+                             registrations=self.registrations or None)
+        return _renumber(tracks)
+
+
+def _renumber(tracks: list[Track]) -> list[Track]:
+    """Ids 1..N in order of first appearance (stable output for the same input)."""
+    tracks = [t for t in tracks if t.points]
+    tracks.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
+    for i, t in enumerate(tracks, start=1):
+        t.id = i
+    return tracks
+
+
+def run(source=None, *, config: Config | None = None, fps: float | None = None,
+        geomap: GeoMap | None = None, H_init: np.ndarray | None = None, seed: int = 0,
+        detections: np.ndarray | None = None, metres_per_unit: float | None = None,
+        progress: Callable[[int], None] | None = None, start: int = 1, stop: int | None = None,
+        stride: int = 1) -> Result:
+    """Track a whole video (pull API).
+
+    Parameters
+    ----------
+    source : FrameSource, optional
+        Frames; may be None when ``detections`` is given (association alone, image coordinates).
+    detections : ndarray (N, 10), optional
+        External MOT detection rows (1-based frames); replace the built-in detector.
+    progress : callable, optional
+        Called with the number of frames done after each frame.
+
+    Examples
+    --------
+    >>> from aerotrack import io, pipeline
+    >>> src = io.open_source("flight.mp4")                      # doctest: +SKIP
+    >>> result = pipeline.run(src)                               # doctest: +SKIP
+    >>> for track in result.tracks: print(track.id, track.world()[:3])  # doctest: +SKIP
+    """
+    config = config or Config()
+    if source is None and detections is None:
+        raise InputError("give an INPUT video/folder or --detections")
+    if fps is None:
+        fps = source.fps if source is not None else 30.0
+    per_frame = _group_rows(detections) if detections is not None else None
+    pipe = Pipeline(config, fps, geomap=geomap, H_init=H_init, seed=seed, detections=per_frame,
+                    metres_per_unit=metres_per_unit)
+    done = 0
+    if source is None:
+        last = int(detections[:, 0].max()) if len(detections) else 0
+        stop = last if stop is None else min(stop, last)
+        for index in range(start, stop + 1, stride):
+            pipe.step_detections_only(index)
+            done += 1
+            if progress:
+                progress(done)
+    else:
+        for frame in source.frames(start=start, stop=stop, stride=stride):
+            pipe.step(frame)
+            done += 1
+            if progress:
+                progress(done)
+    return pipe.finish()
+
+
+def _group_rows(rows: np.ndarray) -> dict[int, np.ndarray]:
+    out: dict[int, np.ndarray] = {}
+    if not len(rows):
+        return out
+    frames = rows[:, 0].astype(np.int64)
+    order = np.argsort(frames, kind="stable")
+    rows, frames = rows[order], frames[order]
+    cuts = np.flatnonzero(np.diff(frames)) + 1
+    for chunk in np.split(rows, cuts):
+        out[int(chunk[0, 0])] = chunk
+    return out

@@ -1,0 +1,34 @@
+import pytest
+
+from aerotrack.config import Config, config_to_dict, dumps_config, load_config
+from aerotrack.errors import ConfigError
+
+
+def test_defaults_round_trip(tmp_path):
+    cfg = Config()
+    p = tmp_path / "c.toml"
+    p.write_text(dumps_config(cfg))
+    assert load_config(p) == cfg
+
+
+def test_override_changes_value_and_round_trips(tmp_path):
+    cfg = load_config(None, ["detection.window_s=2.5", "association.max_speed_mps=30"])
+    assert cfg.detection.window_s == 2.5
+    assert cfg.association.max_speed_mps == 30.0
+    p = tmp_path / "c.toml"
+    p.write_text(dumps_config(cfg))
+    assert config_to_dict(load_config(p)) == config_to_dict(cfg)
+
+
+@pytest.mark.parametrize("bad", ["nosection.x=1", "detection.nokey=1", "detection.window_s=abc",
+                                 "detection.window_s", "window_s=3"])
+def test_bad_overrides_are_config_errors(bad):
+    with pytest.raises(ConfigError):
+        load_config(None, [bad])
+
+
+def test_bad_toml_names_file(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[detection\nwindow_s = 1")
+    with pytest.raises(ConfigError, match="bad.toml"):
+        load_config(p)

@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+import rasterio
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from rasterio.transform import from_origin
+
+from aerotrack.errors import FormatError, GeoreferenceError
+from aerotrack.geo import GeoMap, read_map_init
+from pathlib import Path
+
+TILE = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
+
+
+@pytest.fixture(scope="module")
+def vegas():
+    return GeoMap(TILE)
+
+
+@pytest.fixture(scope="module")
+def utm_map(tmp_path_factory):
+    p = tmp_path_factory.mktemp("utm") / "utm.tif"
+    with rasterio.open(p, "w", driver="GTiff", width=200, height=100, count=3, dtype="uint8",
+                       crs="EPSG:32611", transform=from_origin(660000, 4000000, 0.5, 0.5)) as ds:
+        ds.write(np.random.default_rng(0).integers(0, 255, (3, 100, 200), dtype=np.uint8))
+    return GeoMap(p)
+
+
+def test_vegas_scale(vegas):
+    # 2.7e-6 degrees at 36.14 N: about 0.30 m N-S and 0.24 m E-W
+    assert 0.24 < vegas.metres_per_pixel < 0.31
+
+
+def test_utm_scale(utm_map):
+    assert utm_map.metres_per_pixel == pytest.approx(0.5, rel=2e-3)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0, 1300), st.floats(0, 1300))
+def test_pixel_lonlat_round_trip_geographic(x, y):
+    m = GeoMap(TILE)
+    ll = m.pixel_to_lonlat(np.array([[x, y]]))
+    assert -115.24 < ll[0, 0] < -115.22 and 36.13 < ll[0, 1] < 36.15
+    np.testing.assert_allclose(m.lonlat_to_pixel(ll), [[x, y]], atol=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-50, 250), st.floats(-50, 150))
+def test_pixel_crs_lonlat_round_trip_projected(utm_map, x, y):
+    px = np.array([[x, y]])
+    crs = utm_map.pixel_to_crs(px)
+    np.testing.assert_allclose(crs, [[660000 + 0.5 * x, 4000000 - 0.5 * y]], atol=1e-6)
+    ll = utm_map.crs_to_lonlat(crs)
+    np.testing.assert_allclose(utm_map.lonlat_to_pixel(ll), px, atol=1e-5)
+
+
+def test_pixel_centre_convention(utm_map):
+    # pixel [r=0, c=0] covers [0,1)x[0,1): its centre (0.5, 0.5) is 0.25 m from the corner
+    np.testing.assert_allclose(utm_map.pixel_to_crs([[0.5, 0.5]]), [[660000.25, 3999999.75]])
+
+
+def test_no_georeference_is_clear_error(tmp_path):
+    p = tmp_path / "plain.tif"
+    with pytest.warns(rasterio.errors.NotGeoreferencedWarning):
+        with rasterio.open(p, "w", driver="GTiff", width=10, height=10, count=1,
+                           dtype="uint8") as ds:
+            ds.write(np.zeros((1, 10, 10), np.uint8))
+    with pytest.raises(GeoreferenceError, match="no georeference"):
+        GeoMap(p)
+
+
+def test_map_init_matrix_and_gcps(tmp_path, vegas):
+    H = np.array([[0.9, 0.1, 100], [-0.1, 0.9, 200], [1e-5, 0, 1]])
+    (tmp_path / "h.txt").write_text("\n".join(" ".join(str(v) for v in r) for r in H))
+    np.testing.assert_allclose(read_map_init(tmp_path / "h.txt"), H)
+    src = np.array([[0, 0], [640, 0], [640, 480], [0, 480], [320, 240]], float)
+    h = np.hstack([src, np.ones((5, 1))]) @ H.T
+    dst = h[:, :2] / h[:, 2:]
+    rows = "\n".join(f"{a},{b},{c},{d}" for (a, b), (c, d) in zip(src, dst))
+    (tmp_path / "g.csv").write_text("frame_x,frame_y,map_x,map_y\n" + rows)
+    np.testing.assert_allclose(read_map_init(tmp_path / "g.csv"), H, atol=1e-6)
+    ll = vegas.pixel_to_lonlat(dst)
+    rows = "\n".join(f"{a},{b},{c:.9f},{d:.9f}" for (a, b), (c, d) in zip(src, ll))
+    (tmp_path / "l.csv").write_text("frame_x,frame_y,lon,lat\n" + rows)
+    np.testing.assert_allclose(read_map_init(tmp_path / "l.csv", vegas), H, atol=1e-3)
+
+
+@pytest.mark.parametrize("text,msg", [
+    ("frame_x,frame_y,map_x,map_y\n0,0,1,1\n1,0,2,1\n0,1,1,2\n", "at least 4"),
+    ("frame_x,frame_y,map_x,map_y\n0,0,0,0\n1,1,1,1\n2,2,2,2\n3,3,3,3\n", "collinear"),
+    ("1 0 0\n0 1 0\n", "3 lines"),
+    ("1 0 0\n0 1 0\n0 0 0\n", "singular"),
+])
+def test_bad_map_init(tmp_path, text, msg):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    with pytest.raises(FormatError, match=msg):
+        read_map_init(p)

@@ -1,0 +1,104 @@
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aerotrack.errors import FormatError, InputError, OutputError
+from aerotrack.io import OutputDir, open_source, read_mot, write_mot
+from aerotrack.io.mot import parse_mot_text
+
+
+def test_mot_round_trip(tmp_path):
+    rows = np.array([[1, 3, 10.5, 20.25, 30, 40, 0.9, -1, -1, -1],
+                     [2, 3, 11.5, 21.25, 30, 40, 0.8, 1.2345678, 2.5, -1]])
+    write_mot(tmp_path / "t.txt", rows)
+    back = read_mot(tmp_path / "t.txt")
+    np.testing.assert_allclose(back, rows, atol=1e-3)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 5000), st.integers(1, 999),
+                          st.floats(-1e4, 1e4), st.floats(-1e4, 1e4),
+                          st.floats(0.01, 1e3), st.floats(0.01, 1e3), st.floats(0, 1)),
+                min_size=1, max_size=30, unique_by=lambda r: (r[0], r[1])))
+def test_mot_round_trip_property(tmp_path_factory, rows):
+    p = tmp_path_factory.mktemp("m") / "x.txt"
+    arr = np.array([list(r) + [-1, -1, -1] for r in rows], dtype=float)
+    write_mot(p, arr)
+    back = read_mot(p)
+    order = np.lexsort((arr[:, 1], arr[:, 0]))
+    np.testing.assert_allclose(back, arr[order], atol=1e-3)
+
+
+@pytest.mark.parametrize("text,msg", [
+    ("1,2,3\n", "line 1: expected 6 to 10 columns"),
+    ("1,1,1,1,1,1,1\n1,1,a,1,1,1,1\n", "line 2: non-numeric"),
+    ("1,1,nan,1,1,1,1\n", "line 1: NaN"),
+    ("0,1,1,1,1,1,1\n", "line 1: frame must be a positive integer"),
+    ("1.5,1,1,1,1,1,1\n", "line 1: frame must be a positive integer"),
+])
+def test_malformed_rows_name_the_line(text, msg):
+    with pytest.raises(FormatError, match=msg):
+        parse_mot_text(text, "f.txt")
+
+
+def test_strict_refuses_negative_and_duplicates(tmp_path):
+    p = tmp_path / "neg.txt"
+    p.write_text("1,1,1,1,-5,3,1\n")
+    with pytest.raises(FormatError, match="negative"):
+        read_mot(p, option="--pred")
+    assert len(read_mot(p, strict=False)) == 1
+    d = tmp_path / "dup.txt"
+    d.write_text("1,1,1,1,5,3,1\n1,1,1,1,5,3,1\n")
+    with pytest.raises(FormatError, match="repeated"):
+        read_mot(d, option="--pred")
+
+
+def test_image_folder_source_streams_sorted(tmp_path):
+    for i in (3, 1, 2):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((8, 10, 3), i * 10, np.uint8))
+    (tmp_path / "notes.txt").write_text("not an image")
+    src = open_source(tmp_path, fps=10)
+    frames = list(src)
+    assert [f.index for f in frames] == [1, 2, 3]
+    assert [int(f.image[0, 0, 0]) for f in frames] == [10, 20, 30]
+    assert frames[2].time == pytest.approx(0.2)
+    assert src.size == (10, 8)
+
+
+def test_image_folder_mixed_sizes_named(tmp_path):
+    cv2.imwrite(str(tmp_path / "a.png"), np.zeros((8, 10, 3), np.uint8))
+    cv2.imwrite(str(tmp_path / "b.png"), np.zeros((9, 10, 3), np.uint8))
+    with pytest.raises(InputError, match="b.png"):
+        list(open_source(tmp_path))
+
+
+def test_video_source(tmp_path):
+    p = tmp_path / "v.avi"
+    vw = cv2.VideoWriter(str(p), cv2.VideoWriter_fourcc(*"MJPG"), 12, (32, 24))
+    for i in range(5):
+        vw.write(np.full((24, 32, 3), i * 40, np.uint8))
+    vw.release()
+    src = open_source(p)
+    assert src.fps == pytest.approx(12)
+    frames = list(src.frames(start=2, stride=2))
+    assert [f.index for f in frames] == [2, 4]
+
+
+@pytest.mark.parametrize("content", [b"", b"this is not a video at all" * 10])
+def test_bad_video_is_input_error(tmp_path, content):
+    p = tmp_path / "bad.mp4"
+    p.write_bytes(content)
+    with pytest.raises(InputError, match="bad.mp4"):
+        open_source(p)
+
+
+def test_output_dir_rules(tmp_path):
+    d = tmp_path / "out"
+    od = OutputDir(d)
+    od.write_text("tracks.csv", "x")
+    with pytest.raises(OutputError, match="already holds results"):
+        OutputDir(d)
+    OutputDir(d, overwrite=True)
+    assert not (d / "tracks.csv").exists()
