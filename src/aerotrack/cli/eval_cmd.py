@@ -1,0 +1,195 @@
+"""``aerotrack eval``: score tracks against a ground truth with TrackEval (class-agnostic boxes)."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..errors import InputError
+from ..evaluation import METRIC_KEYS, evaluate_sequences, fix_ground_truth, read_zero_based_mot
+from ..io.mot import read_mot
+
+log = logging.getLogger(__name__)
+
+_GT_SKIP_SUFFIXES = ("_gt_whole", "_gt_ignore", "_ignore")
+_MOT_EXTS = (".txt", ".csv")
+
+
+def _seq_name(path: Path) -> str:
+    stem = path.stem
+    if path.name in ("gt.txt", "tracks.csv"):  # MOTChallenge seq/gt/gt.txt or a run folder
+        return path.parent.parent.name if path.parent.name == "gt" else path.parent.name
+    return stem.removesuffix("_gt")
+
+
+def _gt_files(folder: Path) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix in _MOT_EXTS
+                   and not p.stem.endswith(_GT_SKIP_SUFFIXES))
+    if not files:
+        raise InputError(f"--gt {folder}: folder holds no .txt or .csv ground-truth files")
+    return files
+
+
+def _find_in(folder: Path, seq: str, option: str, candidates: list[str]) -> Path:
+    for c in candidates:
+        p = folder / c
+        if p.is_file():
+            return p
+    raise InputError(f"{option} {folder}: no file for sequence {seq!r} "
+                     f"(looked for {', '.join(candidates)})")
+
+
+def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
+          ) -> list[tuple[str, Path, Path, Path | None]]:
+    """(name, gt file, pred file, ignore file or None) per sequence."""
+    gpaths, ppaths = [Path(g) for g in gts], [Path(p) for p in preds]
+    for opt, paths in (("--gt", gpaths), ("--pred", ppaths)):
+        for p in paths:
+            if not p.exists():
+                raise InputError(f"{opt} {p}: file not found")
+    if len(gpaths) == 1 and gpaths[0].is_dir():
+        if len(ppaths) != 1 or not ppaths[0].is_dir():
+            raise InputError("--pred: must be a folder when --gt is a folder")
+        pairs = []
+        for g in _gt_files(gpaths[0]):
+            seq = _seq_name(g)
+            pairs.append((seq, g, _find_in(ppaths[0], seq, "--pred",
+                                           [f"{seq}.txt", f"{seq}.csv", f"{seq}/tracks.csv"])))
+    else:
+        for opt, paths in (("--gt", gpaths), ("--pred", ppaths)):
+            for p in paths:
+                if p.is_dir():
+                    raise InputError(f"{opt} {p}: is a folder; give folders as one --gt and one "
+                                     "--pred, or files as repeated options")
+        if len(gpaths) != len(ppaths):
+            raise InputError(f"--pred: {len(ppaths)} files for {len(gpaths)} --gt files; "
+                             "give one --pred per --gt, in the same order")
+        pairs = [(_seq_name(g), g, p) for g, p in zip(gpaths, ppaths)]
+    names = [n for n, _, _ in pairs]
+    if len(set(names)) != len(names):
+        pairs = [(f"{i + 1}:{n}", g, p) for i, (n, g, p) in enumerate(pairs)]
+
+    out = []
+    if not ignores:
+        return [(n, g, p, None) for n, g, p in pairs]
+    if len(ignores) == 1 and (ignores[0] == "auto" or Path(ignores[0]).is_dir()):
+        for n, g, p in pairs:
+            seq = _seq_name(g)
+            folder = g.parent if ignores[0] == "auto" else Path(ignores[0])
+            out.append((n, g, p, _find_in(folder, seq, "--ignore",
+                                          [f"{seq}_gt_ignore.txt", f"{seq}_ignore.txt"])))
+        return out
+    if len(ignores) != len(pairs):
+        raise InputError(f"--ignore: {len(ignores)} files for {len(pairs)} sequences; give one per "
+                         "--gt, a folder, or 'auto'")
+    return [(n, g, p, Path(i)) for (n, g, p), i in zip(pairs, ignores)]
+
+
+def _parse_frames(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise InputError(f"--frames: expected FIRST:LAST (1-based, inclusive), got {text!r}") from None
+    if a < 1 or b < a:
+        raise InputError(f"--frames: expected 1 <= FIRST <= LAST, got {text!r}")
+    return a, b
+
+
+def _fmt(v: float | int, key: str) -> str:
+    return f"{v:d}" if isinstance(v, int) else f"{v:.3f}"
+
+
+def _table(rows: list[tuple[str, dict]]) -> str:
+    keys = list(METRIC_KEYS)
+    width = max(8, *(len(n) for n, _ in rows))
+    head = f"{'sequence':<{width}} " + " ".join(f"{k:>9}" for k in keys)
+    lines = [head]
+    for name, r in rows:
+        lines.append(f"{name:<{width}} " + " ".join(f"{_fmt(r[k], k):>9}" for k in keys))
+    return "\n".join(lines)
+
+
+@click.command("eval")
+@click.option("--gt", "gts", multiple=True, required=True, metavar="FILE|DIR",
+              help="Ground truth (MOTChallenge rows, 1-based frames). Repeat for several sequences, "
+                   "or give a folder (e.g. UAVDT's *_gt.txt; *_gt_whole and *_gt_ignore are skipped).")
+@click.option("--pred", "preds", multiple=True, required=True, metavar="FILE|DIR",
+              help="Predicted tracks, one per --gt in the same order, or a folder holding SEQ.txt, "
+                   "SEQ.csv or SEQ/tracks.csv for each ground-truth sequence SEQ.")
+@click.option("--ignore", "ignores", multiple=True, metavar="FILE|DIR|auto",
+              help="Ignore regions (MOT rows, e.g. UAVDT *_gt_ignore.txt): predicted boxes whose "
+                   "centre or most of whose area lies in one are dropped. One per --gt, a folder, or "
+                   "'auto' (SEQ_gt_ignore.txt beside each ground truth).")
+@click.option("--iou", "iou_threshold", type=float, default=0.5, show_default=True,
+              help="IoU a match needs for MOTA/IDSW/Frag and IDF1 (HOTA integrates over 0.05..0.95).")
+@click.option("--frames", "frames", default=None, metavar="FIRST:LAST",
+              help="Score only these 1-based frames (default: 1 to the ground truth's last frame; "
+                   "predictions beyond it are always dropped).")
+@click.option("--zero-based", is_flag=True,
+              help="The files number frames from 0 (as Santiago's published files do): add 1.")
+@click.option("--fix-gt", is_flag=True,
+              help="Correct the ground truth first (reflect boxes with negative sizes, drop exact "
+                   "duplicates), say what changed, and report the corrected score.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
+                   "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets; combined over sequences, with a "
+                   "'sequences' entry when there are several).")
+def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, fix_gt, as_json):
+    """Score tracks against a ground truth: HOTA, MOTA, IDF1 and counts (TrackEval).
+
+    Boxes are class-agnostic; every ground-truth row counts whatever its confidence. The ground
+    truth may hold boxes with negative sizes and exact duplicate rows (published ground truths do):
+    they are accepted with a warning (duplicates dropped, negative boxes kept, matching nothing)
+    unless --fix-gt corrects them. Predictions with them are refused.
+
+    \b
+    Examples:
+      aerotrack eval --gt gt.txt --pred run/tracks.csv
+      aerotrack eval --gt gt.txt --pred run/tracks.csv --json --iou 0.3
+      aerotrack eval --gt uavdt/ --pred runs/ --ignore auto        # every *_gt.txt in uavdt/
+      aerotrack eval --gt dfs_ground_truth.csv --pred yolo_bytetrack_detections_filtered.csv \\
+          --zero-based --frames 2:98 --fix-gt                      # Santiago, corrected GT
+    """
+    window = _parse_frames(frames)
+    seqs = {}
+    for name, g, p, ign in _pair(gts, preds, ignores):
+        if zero_based:
+            gt = read_zero_based_mot(g, option="--gt")
+            pred = read_zero_based_mot(p, option="--pred", strict=True)
+        else:
+            gt = read_mot(g, option="--gt", strict=False, allow_empty=False)
+            pred = read_mot(p, option="--pred", strict=True)
+        if not len(gt):
+            raise InputError(f"--gt {g}: no rows")
+        if fix_gt:
+            gt, fix = fix_ground_truth(gt)
+            click.echo(f"aerotrack: --fix-gt {g}: {fix.describe()}", err=True)
+        ignore = read_mot(ign, option="--ignore", strict=False) if ign is not None else None
+        seqs[name] = (gt, pred, ignore)
+    res = evaluate_sequences(seqs, iou_threshold=iou_threshold,
+                             frames={n: window for n in seqs} if window else None)
+    single = len(seqs) == 1
+    if as_json:
+        out = {k: res["combined"][k] for k in METRIC_KEYS}
+        if not single:
+            out["sequences"] = {n: {k: r[k] for k in METRIC_KEYS}
+                                for n, r in res["sequences"].items()}
+        click.echo(json.dumps(out))
+        return
+    rows = list(res["sequences"].items())
+    if not single:
+        rows.append(("COMBINED", res["combined"]))
+    click.echo(_table(rows))
+    c = res["combined"]
+    click.echo(f"TP {c['TP']}  FP {c['FP']}  FN {c['FN']}  MT {c['MT']}  PT {c['PT']}  ML {c['ML']}"
+               f"  IDP {c['IDP']:.3f}  IDR {c['IDR']:.3f}  (IoU {iou_threshold:g}"
+               + (f", {c['ignored_pred']} predictions in ignore regions dropped" if ignores else "")
+               + (", corrected ground truth" if fix_gt else "") + ")")
+    if any(np.isnan(float(c[k])) for k in ("HOTA", "MOTA", "IDF1")):
+        log.warning("some scores are undefined (empty ground truth or predictions)")
