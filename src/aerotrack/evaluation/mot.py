@@ -137,7 +137,8 @@ def fix_ground_truth(rows: np.ndarray) -> tuple[np.ndarray, GroundTruthFix]:
     fix : GroundTruthFix
         What changed; ``fix.describe()`` says it in one line.
     """
-    rows = np.array(_as_rows(rows, "ground truth"), copy=True)
+    rows, dups = drop_exact_duplicates(rows)
+    rows = np.array(rows, copy=True)
     neg_w = rows[:, 4] < 0
     neg_h = rows[:, 5] < 0
     rows[neg_w, 2] += rows[neg_w, 4]
@@ -146,7 +147,6 @@ def fix_ground_truth(rows: np.ndarray) -> tuple[np.ndarray, GroundTruthFix]:
     rows[neg_h, 5] *= -1
     neg = neg_w | neg_h
     ids = tuple(int(i) for i in np.unique(rows[neg, 1]))
-    rows, dups = drop_exact_duplicates(rows)
     return rows, GroundTruthFix(int(neg.sum()), ids, dups)
 
 

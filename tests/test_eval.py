@@ -1,0 +1,255 @@
+"""Evaluation: known answers, Santiago parity with published numbers, CLI errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from aerotrack.cli.main import main
+from aerotrack.errors import InputError
+from aerotrack.evaluation import (
+    METRIC_KEYS,
+    drop_exact_duplicates,
+    drop_ignored,
+    evaluate,
+    evaluate_santiago,
+    evaluate_sequences,
+    fix_ground_truth,
+    load_santiago,
+)
+from aerotrack.io.mot import write_mot
+
+
+def _two_targets(n_frames: int = 20) -> np.ndarray:
+    """Two well-separated targets moving right, every frame: ids 1 and 2."""
+    rows = []
+    for f in range(1, n_frames + 1):
+        rows.append([f, 1, 10 + 2 * f, 10, 20, 10, 1, -1, -1, -1])
+        rows.append([f, 2, 10 + 2 * f, 200, 20, 10, 1, -1, -1, -1])
+    return np.asarray(rows, float)
+
+
+# --------------------------------------------------------------------------- known answers
+
+def test_perfect_prediction_scores_one():
+    gt = _two_targets()
+    pred = gt.copy()
+    pred[:, 1] += 100  # ids need not agree, only be consistent
+    r = evaluate(gt, pred)
+    assert set(METRIC_KEYS) <= set(r)
+    assert r["MOTA"] == pytest.approx(1.0)
+    assert r["IDF1"] == pytest.approx(1.0)
+    assert r["HOTA"] == pytest.approx(1.0, abs=1e-6)
+    assert r["MOTP"] == pytest.approx(1.0)
+    assert r["IDSW"] == 0
+    assert (r["GT_IDs"], r["Pred_IDs"], r["GT_Dets"], r["Pred_Dets"]) == (2, 2, 40, 40)
+
+
+def test_one_id_switch_is_counted():
+    gt = _two_targets(20)
+    pred = gt.copy()
+    pred[(pred[:, 1] == 1) & (pred[:, 0] > 10), 1] = 7  # target 1 gets a new id halfway
+    r = evaluate(gt, pred)
+    assert r["IDSW"] == 1
+    assert r["MOTA"] == pytest.approx(1 - 1 / 40)
+    # IDF1: target 1 keeps its best id for 10 of 20 frames: IDTP = 20 + 10 of 40 + 40.
+    assert r["IDF1"] == pytest.approx(2 * 30 / 80)
+    assert r["HOTA"] < 0.95
+
+
+def test_misses_and_false_positives():
+    gt = _two_targets(10)
+    pred = gt[gt[:, 1] == 1].copy()  # target 2 missed
+    fp = pred.copy()
+    fp[:, 1], fp[:, 3] = 9, 400  # a false track far away
+    r = evaluate(gt, np.vstack([pred, fp]))
+    assert (r["TP"], r["FN"], r["FP"]) == (10, 10, 10)
+    assert r["MOTA"] == pytest.approx(0.0)
+
+
+def test_iou_threshold_option():
+    gt = _two_targets(10)
+    pred = gt.copy()
+    pred[:, 2] += 8  # IoU = 12 / 28 = 0.43
+    assert evaluate(gt, pred)["TP"] == 0
+    assert evaluate(gt, pred, iou_threshold=0.4)["TP"] == 20
+    with pytest.raises(InputError, match="--iou"):
+        evaluate(gt, pred, iou_threshold=1.5)
+
+
+def test_predictions_past_the_ground_truth_are_not_scored():
+    gt = _two_targets(10)
+    extra = _two_targets(15)
+    r = evaluate(gt, extra)
+    assert r["FP"] == 0 and r["Pred_Dets"] == 20
+
+
+def test_confidence_does_not_filter_ground_truth():
+    gt = _two_targets(10)
+    gt[:, 6] = 0.0  # MOTChallenge's loader would drop every row with conf 0
+    assert evaluate(gt, gt)["GT_Dets"] == 20
+
+
+def test_fix_ground_truth_reflects_and_drops_duplicates():
+    gt = _two_targets(5)
+    bad = gt.copy()
+    bad[bad[:, 1] == 2, 2] += 20
+    bad[bad[:, 1] == 2, 4] *= -1  # stored from the right edge
+    bad = np.vstack([bad, bad[3:4]])
+    fixed, fix = fix_ground_truth(bad)
+    assert fix.reflected_rows == 5 and fix.reflected_ids == (2,)
+    assert fix.duplicates == ((int(bad[3, 0]), int(bad[3, 1])),)
+    np.testing.assert_allclose(fixed[np.lexsort((fixed[:, 1], fixed[:, 0]))], gt)
+    assert "reflected 5" in fix.describe() and "duplicate" in fix.describe()
+    # Kept as published, negative boxes match nothing: half the targets are missed.
+    assert evaluate(bad, gt)["FN"] == 5
+    assert evaluate(fixed, gt)["MOTA"] == pytest.approx(1.0)
+
+
+def test_duplicate_with_different_box_is_refused():
+    gt = _two_targets(3)
+    other = gt[:1].copy()
+    other[0, 2] += 5
+    with pytest.raises(InputError, match="twice"):
+        drop_exact_duplicates(np.vstack([gt, other]))
+
+
+def test_ignore_regions_drop_predictions_inside():
+    gt = _two_targets(10)
+    fp = gt[gt[:, 1] == 1].copy()
+    fp[:, 1], fp[:, 3] = 9, 400
+    ignore = fp.copy()
+    ignore[:, 2] -= 5
+    ignore[:, 4] += 10
+    kept, n = drop_ignored(np.vstack([gt, fp]), ignore)
+    assert n == 10 and len(kept) == 20
+    r = evaluate(gt, np.vstack([gt, fp]), ignore=ignore)
+    assert r["FP"] == 0 and r["ignored_pred"] == 10
+
+
+def test_sequences_combine_as_sums():
+    a = _two_targets(10)
+    b = _two_targets(30)
+    pb = b[b[:, 1] == 1]
+    res = evaluate_sequences({"a": (a, a), "b": (b, pb)})
+    assert res["sequences"]["a"]["MOTA"] == pytest.approx(1.0)
+    assert res["sequences"]["b"]["MOTA"] == pytest.approx(0.5)
+    c = res["combined"]
+    assert c["GT_Dets"] == 80 and c["FN"] == 30
+    assert c["MOTA"] == pytest.approx(50 / 80)  # weighted by detections, not averaged
+
+
+# --------------------------------------------------------------------------- Santiago parity
+
+@pytest.mark.data
+@pytest.mark.parametrize("tracks,mota,idf1", [("sort", 0.673, 0.837), ("bytetrack", 0.682, 0.842)])
+def test_santiago_published_parity(shared_data, tracks, mota, idf1):
+    r = evaluate_santiago(shared_data / "santiago_intersection_dfs", tracks)
+    assert r["MOTA"] == pytest.approx(mota, abs=0.005)
+    assert r["IDF1"] == pytest.approx(idf1, abs=0.005)
+    assert r["IDSW"] == 0 and r["GT_IDs"] == 30
+
+
+@pytest.mark.data
+def test_santiago_corrected_ground_truth(shared_data):
+    r = evaluate_santiago(shared_data / "santiago_intersection_dfs", "bytetrack", fix_gt=True)
+    assert r["IDF1"] == pytest.approx(0.879, abs=0.005)
+    assert r["MOTA"] == pytest.approx(0.757, abs=0.005)
+    assert r["HOTA"] == pytest.approx(0.767, abs=0.005)
+
+
+@pytest.mark.data
+def test_santiago_loader_is_one_based(shared_data):
+    gt, pred = load_santiago(shared_data / "santiago_intersection_dfs", "sort")
+    assert gt[:, 0].min() == 1 and gt[:, 0].max() == 98 and len(gt) == 2600
+    assert pred[:, 0].min() == 1
+
+
+@pytest.mark.data
+def test_cli_santiago_json(shared_data, capsys):
+    s = shared_data / "santiago_intersection_dfs"
+    code, out, err = _run(["eval", "--gt", str(s / "dfs_ground_truth.csv"), "--pred",
+                           str(s / "baseline_tracks/yolo_bytetrack_detections_filtered.csv"),
+                           "--zero-based", "--frames", "2:98", "--fix-gt", "--json"], capsys)
+    assert code == 0
+    res = json.loads(out)
+    assert list(res) == list(METRIC_KEYS)
+    assert res["IDF1"] == pytest.approx(0.879, abs=0.005)
+    assert "reflected 375" in err and "duplicate" in err
+
+
+# --------------------------------------------------------------------------- CLI
+
+def _run(argv, capsys):
+    """Run the console entry point; returns (exit code, stdout, stderr)."""
+    try:
+        main(argv)
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_cli_text_and_json(tmp_path, capsys):
+    gt = _two_targets(10)
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "pred.txt", gt)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "pred.txt"), "--json"], capsys)
+    assert code == 0
+    assert json.loads(out)["MOTA"] == pytest.approx(1.0)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "pred.txt")], capsys)
+    assert "HOTA" in out and "IDF1" in out and "1.000" in out
+
+
+def test_cli_missing_file(tmp_path, capsys):
+    write_mot(tmp_path / "gt.txt", _two_targets(3))
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "nope.txt")], capsys)
+    assert code == 2
+    assert err.strip().count("\n") == 0 and "nope.txt" in err and "not found" in err
+    assert "Traceback" not in err
+
+
+def test_cli_malformed_row_names_the_line(tmp_path, capsys):
+    write_mot(tmp_path / "gt.txt", _two_targets(3))
+    (tmp_path / "pred.txt").write_text("1,1,10,10,5,5,1\n2,1,10,abc,5,5,1\n")
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "pred.txt")], capsys)
+    assert code == 2 and "line 2" in err and err.strip().count("\n") == 0
+    assert "Traceback" not in err
+
+
+def test_cli_negative_size_in_pred_refused_but_accepted_in_gt(tmp_path, capsys):
+    gt = _two_targets(3)
+    neg = gt.copy()
+    neg[0, 4] = -20
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "neg.txt", neg)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "neg.txt")], capsys)
+    assert code == 2 and "negative" in err and err.strip().count("\n") == 0
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "neg.txt"), "--pred",
+                           str(tmp_path / "gt.txt"), "--json"], capsys)
+    assert code == 0 and "negative" in err
+    assert json.loads(out)["MOTA"] == pytest.approx(4 / 6)  # one miss, one false positive
+
+
+def test_cli_folders_pair_by_sequence(tmp_path, capsys):
+    (tmp_path / "gt").mkdir()
+    (tmp_path / "pred").mkdir()
+    a, b = _two_targets(10), _two_targets(20)
+    write_mot(tmp_path / "gt" / "S1_gt.txt", a)
+    write_mot(tmp_path / "gt" / "S2_gt.txt", b)
+    write_mot(tmp_path / "gt" / "S2_gt_whole.txt", b)  # skipped
+    write_mot(tmp_path / "pred" / "S1.txt", a)
+    write_mot(tmp_path / "pred" / "S2.txt", b[b[:, 1] == 1])
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt"), "--pred", str(tmp_path / "pred"),
+                           "--json"], capsys)
+    res = json.loads(out)
+    assert set(res["sequences"]) == {"S1", "S2"}
+    assert res["GT_Dets"] == 60 and res["MOTA"] == pytest.approx(40 / 60)
