@@ -16,6 +16,7 @@ import logging
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -84,7 +85,8 @@ class Pipeline:
     def __init__(self, config: Config, fps: float, *, geomap: GeoMap | None = None,
                  H_init: np.ndarray | None = None, seed: int = 0,
                  detections: dict[int, np.ndarray] | None = None,
-                 metres_per_unit: float | None = None) -> None:
+                 metres_per_unit: float | None = None,
+                 checkpoint_dir: Path | None = None, checkpoint_every: int = 300) -> None:
         from .association import LocalAssociator
 
         self.config = config
@@ -106,6 +108,14 @@ class Pipeline:
         self.first_frame: int | None = None
         self.last_frame = 0
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
+        # checkpoints (DIR/.partial) for --resume
+        self.checkpoint_dir = checkpoint_dir
+        self.checkpoint_every = max(1, int(checkpoint_every))
+        self._pending_regs: list[Registration] = []
+        self._pending_dets: list[Detections] = []
+        self._chunk_no = 0
+        self._since_checkpoint = 0
+        self._skip_until = 0  # detections of frames <= this were restored from checkpoints
 
     # -- stages -----------------------------------------------------------------------------------
     def _ensure_stages(self, frame: Frame) -> None:
@@ -144,8 +154,9 @@ class Pipeline:
         reg = self.registrar.step(frame, exclude_boxes=self._exclude_boxes())
         t1 = time.perf_counter()
         self.timings["registration"] += t1 - t0
-        if reg is not None:
+        if reg is not None and frame.index not in self.registrations:
             self.registrations[frame.index] = reg
+            self._pending_regs.append(reg)
         if self.external is not None:
             final = [self._external_detections(frame, reg)]
         elif reg is None:
@@ -154,9 +165,13 @@ class Pipeline:
             final = self.detector.step(frame, reg)
         t2 = time.perf_counter()
         self.timings["detection"] += t2 - t1
-        self.n_frames += 1
-        self.last_frame = frame.index
+        if frame.index > self.last_frame:
+            self.n_frames += 1
+            self.last_frame = frame.index
         self._associate(final)
+        self._since_checkpoint += 1
+        if self.checkpoint_dir is not None and self._since_checkpoint >= self.checkpoint_every:
+            self.checkpoint()
 
     def _external_detections(self, frame: Frame | None, reg: Registration | None) -> Detections:
         idx = frame.index
@@ -190,7 +205,10 @@ class Pipeline:
     def _associate(self, final: Iterable[Detections]) -> None:
         t0 = time.perf_counter()
         for dets in final:
+            if dets.frame <= self._skip_until:
+                continue  # already restored from a checkpoint
             self.detections.append(dets)
+            self._pending_dets.append(dets)
             if len(dets):
                 size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
                 self._last_boxes_world = np.hstack([dets.world, size])
@@ -206,6 +224,52 @@ class Pipeline:
         self.n_frames += 1
         self.last_frame = index
         self._associate([self._external_detections(Frame(index, None, (index - 1) / self.fps), None)])
+        self._since_checkpoint += 1
+        if self.checkpoint_dir is not None and self._since_checkpoint >= self.checkpoint_every:
+            self.checkpoint()
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def checkpoint(self) -> None:
+        """Save registrations and final detections produced since the last checkpoint."""
+        if self.checkpoint_dir is None or not (self._pending_regs or self._pending_dets):
+            return
+        from .io.checkpoint import save_chunk
+
+        save_chunk(self.checkpoint_dir, self._chunk_no, self._pending_regs, self._pending_dets)
+        self._chunk_no += 1
+        self._pending_regs, self._pending_dets = [], []
+        self._since_checkpoint = 0
+
+    def restore(self) -> int:
+        """Load checkpoints from ``checkpoint_dir`` and replay association on them.
+
+        Returns the frame from which frames must be fed again (registration and detection restart
+        a background half-window before the first frame whose detections were not final).
+        """
+        from .io.checkpoint import load_chunks
+
+        regs, dets, n = load_chunks(self.checkpoint_dir)
+        self._chunk_no = n
+        if not regs and not dets:
+            return 1
+        self.registrations.update(regs)
+        self._associate(dets)
+        self._pending_dets = []
+        last_det = max((d.frame for d in dets), default=0)
+        self._skip_until = last_det
+        self.last_frame = max(regs) if regs else last_det
+        self.first_frame = min(regs) if regs else 1
+        self.n_frames = len({*regs, *(d.frame for d in dets)})
+        if self.external is not None and not regs:
+            return last_det + 1
+        half = int(np.ceil(self.config.detection.window_s * self.fps / 2)) + 1
+        restart = max(self.first_frame, last_det + 1 - half)
+        while restart > self.first_frame and restart not in regs:
+            restart -= 1
+        if restart in regs:
+            self._H_init = regs[restart].H
+        self._restart = restart
+        return restart
 
     def finish(self) -> Result:
         """Flush every stage and link tracklets into final tracks."""
@@ -252,7 +316,8 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         geomap: GeoMap | None = None, H_init: np.ndarray | None = None, seed: int = 0,
         detections: np.ndarray | None = None, metres_per_unit: float | None = None,
         progress: Callable[[int], None] | None = None, start: int = 1, stop: int | None = None,
-        stride: int = 1) -> Result:
+        stride: int = 1, checkpoint_dir: Path | None = None, resume: bool = False,
+        checkpoint_every: int = 300) -> Result:
     """Track a whole video (pull API).
 
     Parameters
@@ -263,6 +328,11 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         External MOT detection rows (1-based frames); replace the built-in detector.
     progress : callable, optional
         Called with the number of frames done after each frame.
+    checkpoint_dir : path, optional
+        Folder for checkpoints (``DIR/.partial``): finished work is saved every
+        ``checkpoint_every`` frames and on Ctrl-C.
+    resume : bool
+        Continue from the checkpoints in ``checkpoint_dir``.
 
     Examples
     --------
@@ -278,22 +348,34 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         fps = source.fps if source is not None else 30.0
     per_frame = _group_rows(detections) if detections is not None else None
     pipe = Pipeline(config, fps, geomap=geomap, H_init=H_init, seed=seed, detections=per_frame,
-                    metres_per_unit=metres_per_unit)
+                    metres_per_unit=metres_per_unit, checkpoint_dir=checkpoint_dir,
+                    checkpoint_every=checkpoint_every)
+    if resume and checkpoint_dir is not None:
+        restart = pipe.restore()
+        if restart > start:
+            # keep the stride grid of the original run
+            start = start + ((restart - start) // stride) * stride
+            log.info("resuming from frame %d", start)
     done = 0
-    if source is None:
-        last = int(detections[:, 0].max()) if len(detections) else 0
-        stop = last if stop is None else min(stop, last)
-        for index in range(start, stop + 1, stride):
-            pipe.step_detections_only(index)
-            done += 1
-            if progress:
-                progress(done)
-    else:
-        for frame in source.frames(start=start, stop=stop, stride=stride):
-            pipe.step(frame)
-            done += 1
-            if progress:
-                progress(done)
+    try:
+        if source is None:
+            last = int(detections[:, 0].max()) if len(detections) else 0
+            stop = last if stop is None else min(stop, last)
+            for index in range(start, stop + 1, stride):
+                if index > pipe.last_frame:
+                    pipe.step_detections_only(index)
+                done += 1
+                if progress:
+                    progress(done)
+        else:
+            for frame in source.frames(start=start, stop=stop, stride=stride):
+                pipe.step(frame)
+                done += 1
+                if progress:
+                    progress(done)
+    except KeyboardInterrupt:
+        pipe.checkpoint()
+        raise
     return pipe.finish()
 
 

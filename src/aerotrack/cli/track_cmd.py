@@ -143,7 +143,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     t0 = time.perf_counter()
     try:
         result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
-                     detections=dets, metres_per_unit=None if geomap else gsd, progress=progress)
+                     detections=dets, metres_per_unit=None if geomap else gsd, progress=progress,
+                     checkpoint_dir=out.partial, resume=resume)
     finally:
         close()
     info = {
