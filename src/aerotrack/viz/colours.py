@@ -1,0 +1,48 @@
+"""Stable, distinct per-ID colours.
+
+A track keeps its colour in every picture (overlay video, map, space-time plot, report table) and
+across runs: the colour is a pure function of the ID. Hues follow the golden-ratio sequence of a
+hashed ID, so IDs that are close in number (1, 2, 3...) get far-apart hues; saturation and value
+alternate in three levels so that two IDs with near hues still differ in brightness.
+"""
+
+from __future__ import annotations
+
+import colorsys
+
+_GOLDEN = 0.6180339887498949
+_LEVELS = ((0.95, 1.0), (0.75, 0.85), (1.0, 0.7))  # (saturation, value)
+
+
+def _mix(track_id: int) -> int:
+    """A 32-bit integer hash (Knuth multiplicative + xorshift), stable across Python runs."""
+    x = (int(track_id) * 2654435761) & 0xFFFFFFFF
+    x ^= x >> 16
+    return x
+
+
+def id_rgb(track_id: int) -> tuple[float, float, float]:
+    """RGB in [0, 1] of a track ID (matplotlib order)."""
+    tid = int(track_id)
+    hue = ((_mix(tid) & 0xFFFF) / 65536.0 + tid * _GOLDEN) % 1.0
+    s, v = _LEVELS[tid % len(_LEVELS)]
+    return colorsys.hsv_to_rgb(hue, s, v)
+
+
+def id_bgr(track_id: int) -> tuple[int, int, int]:
+    """BGR 0-255 integers of a track ID (OpenCV order)."""
+    r, g, b = id_rgb(track_id)
+    return (int(round(b * 255)), int(round(g * 255)), int(round(r * 255)))
+
+
+def id_hex(track_id: int) -> str:
+    """``#rrggbb`` of a track ID (HTML)."""
+    r, g, b = id_rgb(track_id)
+    return "#{:02x}{:02x}{:02x}".format(round(r * 255), round(g * 255), round(b * 255))
+
+
+def text_colour_on(bgr: tuple[int, int, int]) -> tuple[int, int, int]:
+    """Black or white BGR, whichever reads better on a background of colour ``bgr``."""
+    b, g, r = bgr
+    luma = 0.299 * r + 0.587 * g + 0.114 * b
+    return (0, 0, 0) if luma > 140 else (255, 255, 255)

@@ -1,0 +1,321 @@
+"""Overlay video: the input frames with each track's box, ID label, short trail, and the predicted
+position of targets that are out of view.
+
+Drawing rules
+-------------
+* colour: a pure function of the ID (:mod:`aerotrack.viz.colours`), the same in every picture;
+* in view (``tracks.csv``): solid box and a filled label with the ID;
+* out of view (``predicted.csv``): dashed box, label ``ID +t s`` (seconds since last seen) and a
+  dashed circle of the position uncertainty; when the predicted position lies outside the image, an
+  arrow on the image border points to it;
+* trail: the last ``trail_s`` seconds of the target's ground points, carried into the current frame
+  through the homographies of ``registration.csv`` (so trails stay on the ground while the camera
+  moves); predicted parts of the trail are dotted.
+
+Text height is a fraction of the frame height (at least 1.5 %), so labels read the same on 4K and on
+640x480 video.
+
+The uncertainty circle: ``predicted.csv`` carries no covariance, so the radius is modelled as the
+box's half-diagonal plus ``speed_uncertainty`` times the target's last observed speed times the time
+since it was last seen (a constant relative speed error integrated over the gap).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..types import apply_homography
+from .colours import id_bgr, text_colour_on
+from .results import RunResults, TrackView
+from .video import VideoEncoder
+
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+@dataclass(frozen=True)
+class OverlayStyle:
+    """How the overlay is drawn.
+
+    Attributes
+    ----------
+    trail_s : float
+        Seconds of trail behind each target. Longer shows more history but clutters dense scenes.
+    text_height : float
+        Label text height as a fraction of the frame height (>= 0.015 keeps it readable at 640x480
+        and 4K alike).
+    line_width : float
+        Box line width as a fraction of the frame height (at least 1 pixel).
+    speed_uncertainty : float
+        Relative speed error used to grow the uncertainty circle of predicted positions.
+    max_width : int or None
+        Output frames wider than this are downscaled (keeps report videos small).
+    hud : bool
+        Draw the frame number, time and counts in the top-left corner.
+    """
+
+    trail_s: float = 2.0
+    text_height: float = 0.017
+    line_width: float = 0.0022
+    speed_uncertainty: float = 0.3
+    max_width: int | None = None
+    hud: bool = True
+
+    def __post_init__(self) -> None:
+        if self.text_height < 0.015:
+            raise InputError(f"text_height {self.text_height}: must be >= 0.015 (1.5% of the frame height)")
+        if self.trail_s < 0:
+            raise InputError(f"--trail-s {self.trail_s}: must be >= 0")
+
+
+@dataclass
+class _Row:
+    id: int
+    box: np.ndarray
+    observed: bool
+    since_s: float  # seconds since last in view (0 when observed)
+    radius_world: float  # uncertainty radius growth in world units (without the box half-diagonal)
+
+
+class OverlayPainter:
+    """Draws one run's tracks on its frames (the pure per-frame drawing is :meth:`draw`).
+
+    Parameters
+    ----------
+    results : RunResults
+    style : OverlayStyle
+    """
+
+    def __init__(self, results: RunResults, style: OverlayStyle = OverlayStyle()) -> None:
+        self.results = results
+        self.style = style
+        self.fps = results.fps
+        self.reg = results.registration
+        self.tracks: dict[int, TrackView] = {tv.id: tv for tv in results.track_views(None)}
+        self.by_frame: dict[int, list[_Row]] = defaultdict(list)
+        for tv in self.tracks.values():
+            self._index(tv)
+
+    def _index(self, tv: TrackView) -> None:
+        last_seen = None
+        speed = 0.0  # world units per second, over the last observed half-second
+        k = max(2, int(round(0.5 * self.fps)))
+        for i, f in enumerate(tv.frames):
+            if tv.observed[i]:
+                last_seen = i
+                j = max(0, i - k)
+                seg = tv.world[j:i + 1][tv.observed[j:i + 1]]
+                fr = tv.frames[j:i + 1][tv.observed[j:i + 1]]
+                if len(seg) >= 2 and np.all(np.isfinite(seg[[0, -1]])) and fr[-1] > fr[0]:
+                    speed = float(np.hypot(*(seg[-1] - seg[0]))) / ((fr[-1] - fr[0]) / self.fps)
+                self.by_frame[int(f)].append(_Row(tv.id, tv.boxes[i], True, 0.0, 0.0))
+            else:
+                since = (f - tv.frames[last_seen]) / self.fps if last_seen is not None else 0.0
+                self.by_frame[int(f)].append(
+                    _Row(tv.id, tv.boxes[i], False, since, self.style.speed_uncertainty * speed * since))
+
+    # -- geometry helpers ---------------------------------------------------------------------------
+    def _world_to_frame(self, frame: int, pts: np.ndarray) -> np.ndarray | None:
+        if self.reg is None or not len(self.reg):
+            return pts
+        H = self.reg.get(frame)
+        if H is None:
+            return None
+        return apply_homography(np.linalg.inv(H), pts)
+
+    def _world_scale(self, frame: int, at: np.ndarray) -> float:
+        """Frame pixels per world unit near ``at`` (frame pixels)."""
+        if self.reg is None or not len(self.reg):
+            return 1.0
+        H = self.reg.get(frame)
+        if H is None:
+            return 1.0
+        p = np.array([at, at + [1.0, 0.0], at + [0.0, 1.0]])
+        w = apply_homography(H, p)
+        a = np.abs(np.cross(w[1] - w[0], w[2] - w[0]))
+        return 1.0 / math.sqrt(a) if a > 0 and math.isfinite(a) else 1.0
+
+    # -- drawing ------------------------------------------------------------------------------------
+    def draw(self, image: np.ndarray, frame: int) -> np.ndarray:
+        """Return a copy of ``image`` (frame ``frame``'s BGR pixels) with the overlay drawn."""
+        img = image.copy()
+        h, w = img.shape[:2]
+        lw = max(1, int(round(self.style.line_width * h)))
+        text_px = max(8.0, self.style.text_height * h)
+        scale = text_px / cv2.getTextSize("0", FONT, 1.0, 1)[0][1]
+        thick = max(1, int(round(scale * 1.6)))
+        rows = self.by_frame.get(frame, [])
+        trail_n = int(round(self.style.trail_s * self.fps))
+        if trail_n > 0:
+            for r in rows:
+                self._draw_trail(img, frame, r.id, trail_n, lw)
+        for r in sorted(rows, key=lambda r: r.observed):  # predicted first, observed on top
+            colour = id_bgr(r.id)
+            x, y, bw, bh = (float(v) for v in r.box)
+            if r.observed:
+                cv2.rectangle(img, _pt(x, y), _pt(x + bw, y + bh), colour, lw, cv2.LINE_AA)
+                _label(img, str(r.id), x, y, y + bh, colour, scale, thick)
+                continue
+            cx, cy = x + bw / 2, y + bh / 2
+            radius = 0.5 * math.hypot(bw, bh) + r.radius_world * self._world_scale(frame, np.array([cx, cy]))
+            radius = min(radius, 2.0 * h)
+            text = f"{r.id} +{r.since_s:.1f}s"
+            if -radius <= cx <= w + radius and -radius <= cy <= h + radius and 0 <= cx < w and 0 <= cy < h:
+                _dashed_rect(img, x, y, bw, bh, colour, lw)
+                _dashed_circle(img, cx, cy, radius, colour, max(1, lw // 2 + 1))
+                _label(img, text, x, y, y + bh, colour, scale, thick, hollow=True)
+            else:
+                self._draw_offscreen(img, cx, cy, text, colour, scale, thick, lw)
+        if self.style.hud:
+            self._draw_hud(img, frame, rows, scale, thick)
+        return img
+
+    def _draw_trail(self, img, frame, tid, n, lw) -> None:
+        tv = self.tracks[tid]
+        sel = (tv.frames > frame - n) & (tv.frames <= frame)
+        if sel.sum() < 2:
+            return
+        world = tv.world[sel]
+        ok = np.all(np.isfinite(world), axis=1)
+        pts = self._world_to_frame(frame, np.where(ok[:, None], world, 0.0))
+        if pts is None:
+            return
+        colour = id_bgr(tid)
+        obs = tv.observed[sel]
+        for i in range(1, len(pts)):
+            if not (ok[i] and ok[i - 1]) or not np.all(np.isfinite(pts[[i - 1, i]])):
+                continue
+            if np.abs(pts[[i - 1, i]]).max() > 1e5:
+                continue
+            if obs[i] and obs[i - 1]:
+                cv2.line(img, _pt(*pts[i - 1]), _pt(*pts[i]), colour, lw, cv2.LINE_AA)
+            elif i % 2 == 0:
+                cv2.circle(img, _pt(*pts[i]), lw, colour, -1, cv2.LINE_AA)
+
+    def _draw_offscreen(self, img, cx, cy, text, colour, scale, thick, lw) -> None:
+        h, w = img.shape[:2]
+        m = int(0.04 * h)
+        ex, ey = min(max(cx, m), w - 1 - m), min(max(cy, m), h - 1 - m)
+        d = np.array([cx - ex, cy - ey])
+        n = np.hypot(*d)
+        if n < 1e-6 or not np.isfinite(n):
+            return
+        d /= n
+        tip = np.array([ex, ey]) + d * m * 0.9
+        tail = np.array([ex, ey]) - d * m * 0.6
+        cv2.arrowedLine(img, _pt(*tail), _pt(*tip), colour, max(2, lw), cv2.LINE_AA, tipLength=0.45)
+        _label(img, text, tail[0] - m * 0.5, tail[1] - m * 0.3, tail[1] + m * 0.3, colour, scale, thick,
+               hollow=True)
+
+    def _draw_hud(self, img, frame, rows, scale, thick) -> None:
+        n_obs = sum(r.observed for r in rows)
+        text = f"frame {frame}  t={(frame - 1) / self.fps:.2f}s  in view {n_obs}  predicted {len(rows) - n_obs}"
+        s = scale * 0.9
+        (tw, th), base = cv2.getTextSize(text, FONT, s, thick)
+        pad = int(th * 0.4)
+        x0, y0 = pad, pad
+        roi = img[y0:y0 + th + base + 2 * pad, x0:x0 + tw + 2 * pad]
+        roi[:] = (roi * 0.35).astype(np.uint8)
+        cv2.putText(img, text, (x0 + pad, y0 + pad + th), FONT, s, (255, 255, 255), thick, cv2.LINE_AA)
+
+
+def _pt(x: float, y: float) -> tuple[int, int]:
+    return (int(round(x)), int(round(y)))
+
+
+def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False) -> None:
+    """A filled (or outlined, for predicted targets) label above the box, or below at the top edge."""
+    h, w = img.shape[:2]
+    (tw, th), base = cv2.getTextSize(text, FONT, scale, thick)
+    pad = max(1, int(th * 0.25))
+    bh = th + base + 2 * pad
+    y0 = top - bh if top - bh >= 0 else bottom
+    y0 = int(min(max(y0, 0), h - bh))
+    x0 = int(min(max(x, 0), max(0, w - tw - 2 * pad)))
+    if hollow:
+        roi = img[y0:y0 + bh, x0:x0 + tw + 2 * pad]
+        roi[:] = (roi * 0.3).astype(np.uint8)
+        cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, max(1, thick // 2))
+        fg = colour
+    else:
+        cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, -1)
+        fg = text_colour_on(colour)
+    cv2.putText(img, text, (x0 + pad, y0 + pad + th), FONT, scale, fg, thick, cv2.LINE_AA)
+
+
+def _dashed_line(img, p, q, colour, lw, dash) -> None:
+    p, q = np.asarray(p, float), np.asarray(q, float)
+    n = np.hypot(*(q - p))
+    if n < 1:
+        return
+    steps = max(1, int(n // dash))
+    for k in range(0, steps, 2):
+        a = p + (q - p) * (k / steps)
+        b = p + (q - p) * (min(k + 1, steps) / steps)
+        cv2.line(img, _pt(*a), _pt(*b), colour, lw, cv2.LINE_AA)
+
+
+def _dashed_rect(img, x, y, bw, bh, colour, lw) -> None:
+    dash = max(3.0, 3.0 * lw)
+    c = [(x, y), (x + bw, y), (x + bw, y + bh), (x, y + bh)]
+    for i in range(4):
+        _dashed_line(img, c[i], c[(i + 1) % 4], colour, lw, dash)
+
+
+def _dashed_circle(img, cx, cy, r, colour, lw) -> None:
+    n = int(min(72, max(12, 2 * math.pi * r / 8)))
+    n -= n % 2
+    step = 360.0 / n
+    for k in range(0, n, 2):
+        cv2.ellipse(img, _pt(cx, cy), (int(round(r)), int(round(r))), 0, k * step, (k + 1) * step,
+                    colour, lw, cv2.LINE_AA)
+
+
+def render_overlay(input_path: str | Path, results: RunResults | str | Path, out_path: str | Path, *,
+                   style: OverlayStyle = OverlayStyle(), fps: float | None = None,
+                   start: int = 1, stop: int | None = None, progress=None) -> Path:
+    """Write the overlay video of a run.
+
+    Parameters
+    ----------
+    input_path : path
+        The run's input (video file or image folder; frame n = n-th frame).
+    results : RunResults or path
+        The run (an output folder).
+    out_path : path
+        ``.webm`` (VP9) or ``.mp4`` (H.264).
+    style : OverlayStyle
+    fps : float, optional
+        Frame rate of the written video (default: the run's).
+    start, stop : int
+        1-based frame range, inclusive.
+    progress : callable, optional
+        Called with the number of frames written so far.
+
+    Returns
+    -------
+    Path of the written video.
+    """
+    from ..io.frames import open_source
+
+    if not isinstance(results, RunResults):
+        results = RunResults.load(results)
+    source = open_source(input_path, results.fps)
+    painter = OverlayPainter(results, style)
+    w, h = source.size
+    if style.max_width and w > style.max_width:
+        out_size = (int(style.max_width), int(round(h * style.max_width / w)))
+    else:
+        out_size = (w, h)
+    with VideoEncoder(out_path, out_size, fps or results.fps) as enc:
+        for frame in source.frames(start=start, stop=stop):
+            enc.write(painter.draw(frame.image, frame.index))
+            if progress is not None:
+                progress(enc.frames_written)
+    return Path(out_path)
