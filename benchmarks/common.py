@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -22,6 +23,8 @@ UAVDT_SEQS = ("M0101", "M0206", "M1005")
 UAVDT_FPS = 30.0
 UAVDT_SIZE = (1024, 540)
 SANTIAGO_DIR = SHARED_DATA / "santiago_intersection_dfs"
+#: Scratch space for intermediate files (detections, tracks) that should not land in the checkout.
+WORK = Path(os.environ.get("AEROTRACK_BENCH_WORK", Path(tempfile.gettempdir()) / "aerotrack-bench"))
 
 if str(Path(__file__).resolve().parent) not in sys.path:  # benchmarks import each other
     sys.path.insert(0, str(Path(__file__).resolve().parent))

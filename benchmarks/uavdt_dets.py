@@ -22,7 +22,7 @@ Usage::
 
     /tmp/venv/bin/python benchmarks/uavdt_dets.py [--seed 0] [--out DIR]
 
-writes ``DIR/SEQ_dets.txt`` and ``DIR/SEQ_oracle.txt`` (default ``benchmarks/results/uavdt_dets``)
+writes ``DIR/SEQ_dets.txt`` and ``DIR/SEQ_oracle.txt`` (default ``$TMPDIR/aerotrack-bench/uavdt_dets``)
 and prints the oracle's scores.
 """
 
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import UAVDT_DIR, UAVDT_SEQS, UAVDT_SIZE, RESULTS, require_data, write_results
+from common import UAVDT_DIR, UAVDT_SEQS, UAVDT_SIZE, WORK, require_data, write_results
 
 #: Generation parameters (fractions of box size, rates per frame); documented in the module text.
 OCCLUSION_DROP_LEVEL = 3
@@ -165,7 +165,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=RESULTS / "uavdt_dets")
+    ap.add_argument("--out", type=Path, default=WORK / "uavdt_dets")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     seqs, stats = {}, {}
