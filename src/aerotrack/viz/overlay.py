@@ -138,7 +138,8 @@ class OverlayPainter:
             return 1.0
         p = np.array([at, at + [1.0, 0.0], at + [0.0, 1.0]])
         w = apply_homography(H, p)
-        a = np.abs(np.cross(w[1] - w[0], w[2] - w[0]))
+        u, v = w[1] - w[0], w[2] - w[0]
+        a = abs(u[0] * v[1] - u[1] * v[0])
         return 1.0 / math.sqrt(a) if a > 0 and math.isfinite(a) else 1.0
 
     # -- drawing ------------------------------------------------------------------------------------

@@ -89,17 +89,23 @@ def metric_positions(track: TrackView, geomap=None, metres_per_unit: float | Non
     return track.world, "px"
 
 
-def _smooth(xy: np.ndarray, k: int) -> np.ndarray:
-    if k <= 1 or len(xy) < 3:
-        return xy
-    k = min(k, len(xy))
+def _stretch_length(xy: np.ndarray, k: int) -> tuple[float, int]:
+    """Path length of one run of consecutive positions (N, 2), after a k-point moving average.
+
+    The average is taken where the window fits ('valid' mode: N - k + 1 points, N - k steps), and
+    the length is scaled to the whole run's N - 1 steps, so smoothing neither adds jitter nor
+    shortens the run. Runs of k points or fewer use the straight distance between their ends.
+    Returns (length, steps).
+    """
+    n = len(xy)
+    if n <= k or k <= 1:
+        if k <= 1:
+            return float(np.sum(np.hypot(*np.diff(xy, axis=0).T))), n - 1
+        return float(np.hypot(*(xy[-1] - xy[0]))), n - 1
     kernel = np.ones(k) / k
-    pad = k // 2
-    out = np.empty_like(xy)
-    for d in range(2):
-        v = np.pad(xy[:, d], (pad, k - 1 - pad), mode="edge")
-        out[:, d] = np.convolve(v, kernel, mode="valid")
-    return out
+    sm = np.column_stack([np.convolve(xy[:, d], kernel, mode="valid") for d in range(2)])
+    d = float(np.sum(np.hypot(*np.diff(sm, axis=0).T)))
+    return d * (n - 1) / (n - k), n - 1
 
 
 def track_stats(results: RunResults, geomap=None, *, metres_per_unit: float | None = None,
@@ -129,17 +135,17 @@ def track_stats(results: RunResults, geomap=None, *, metres_per_unit: float | No
                                   n_pred / fps, 0))
             continue
         xy, unit = metric_positions(tv, geomap, metres_per_unit)
-        dist = 0.0
+        dist, moving_s = 0.0, 0.0
         for s, e in tv.stretches():
             seg = xy[s:e]
             seg = seg[np.all(np.isfinite(seg), axis=1)]
             if len(seg) >= 2:
-                seg = _smooth(seg, k)
-                dist += float(np.sum(np.hypot(*np.diff(seg, axis=0).T)))
+                d, _ = _stretch_length(seg, k)
+                dist += d
+                moving_s += (len(seg) - 1) / fps
         f_obs = tv.frames[obs]
         first, last = int(f_obs[0]), int(f_obs[-1])
-        in_view_s = len(obs) / fps
-        speed = dist / in_view_s * 3.6 if unit == "m" and in_view_s > 0 else float("nan")
+        speed = dist / moving_s * 3.6 if unit == "m" and moving_s > 0 else float("nan")
         out.append(TrackStats(
             id=tv.id, first_frame=first, last_frame=last, frames_in_view=len(obs),
             duration_s=(last - first) / fps, distance=dist, unit=unit, mean_speed_kmh=speed,

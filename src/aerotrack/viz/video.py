@@ -93,7 +93,10 @@ class VideoEncoder:
                 proc.stdin.close()
             except BrokenPipeError:
                 pass
-        err = proc.stderr.read().decode(errors="replace").strip() if proc.stderr else ""
+        err = ""
+        if proc.stderr:
+            err = proc.stderr.read().decode(errors="replace").strip()
+            proc.stderr.close()
         rc = proc.wait()
         if exc_type is not None:
             self._tmp.unlink(missing_ok=True)

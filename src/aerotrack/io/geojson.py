@@ -1,0 +1,186 @@
+"""GIS outputs: ``tracks.geojson`` (RFC 7946) and, with the ``gis`` extra, a GeoPackage.
+
+One Feature per track, a LineString through the track's ground points in time order, in EPSG:4326
+lon/lat (RFC 7946 has no other CRS). The properties carry, per vertex, the frame, the time in
+seconds since frame 1, whether the target was in view (``tracks.csv``) or predicted out of view
+(``predicted.csv``), and the speed; and per track, its extent in frames and time, its counts and
+length. A track seen in a single frame becomes a two-vertex LineString with both vertices equal
+(a valid geometry GIS tools open, unlike a one-vertex LineString).
+
+The GeoPackage holds the same lines (per-vertex lists as JSON text, as GeoPackage fields are
+scalar) in layer ``tracks``, and one Point per vertex in layer ``track_points``.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import GeoreferenceError, InputError
+from .output import atomic_write_text
+
+DECIMALS = 8  # ~1 mm at the equator; the contract asks for at least 7
+
+
+def _merge(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None) -> np.ndarray:
+    """(N, 11) rows of both files with a last column 1 = in view, 0 = predicted; one row per
+    (id, frame), in-view rows winning."""
+    t = np.asarray(tracks_rows, dtype=np.float64).reshape(-1, 10)
+    parts = [np.column_stack([t, np.ones(len(t))])]
+    if predicted_rows is not None and len(predicted_rows):
+        p = np.asarray(predicted_rows, dtype=np.float64).reshape(-1, 10)
+        parts.append(np.column_stack([p, np.zeros(len(p))]))
+    rows = np.vstack(parts)
+    rows = rows[(rows[:, 7] != -1) | (rows[:, 8] != -1)]
+    rows = rows[np.all(np.isfinite(rows[:, 7:9]), axis=1)]
+    rows = rows[np.lexsort((-rows[:, 10], rows[:, 0], rows[:, 1]))]
+    keep = np.r_[True, (np.diff(rows[:, 1]) != 0) | (np.diff(rows[:, 0]) != 0)] if len(rows) else []
+    return rows[keep] if len(rows) else rows
+
+
+def vertex_speeds(lonlat: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Speed at each vertex, metres per second, from geodesic distances (WGS 84 ellipsoid).
+
+    Central differences inside the line, one-sided at its ends: ``(d(i-1, i) + d(i, i+1)) /
+    (t[i+1] - t[i-1])``. (N, 2) lon/lat degrees and (N,) seconds in; (N,) out (0 for one vertex).
+    """
+    from pyproj import Geod
+
+    n = len(lonlat)
+    if n < 2:
+        return np.zeros(n)
+    _, _, d = Geod(ellps="WGS84").inv(lonlat[:-1, 0], lonlat[:-1, 1], lonlat[1:, 0], lonlat[1:, 1])
+    d = np.asarray(d, dtype=np.float64)
+    dt = np.diff(times)
+    out = np.empty(n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out[0] = d[0] / dt[0]
+        out[-1] = d[-1] / dt[-1]
+        if n > 2:
+            out[1:-1] = (d[:-1] + d[1:]) / (times[2:] - times[:-2])
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None, geomap,
+                              fps: float) -> dict[str, Any]:
+    """Build the GeoJSON FeatureCollection (a dict) of a run's tracks.
+
+    Parameters
+    ----------
+    tracks_rows : ndarray, shape (N, 10)
+        ``tracks.csv`` rows: frame (1-based), id, box (frame pixels), conf, x, y (map CRS), z.
+    predicted_rows : ndarray, shape (M, 10) or None
+        ``predicted.csv`` rows, same columns.
+    geomap : aerotrack.geo.GeoMap
+        The run's map (its CRS turns ``x, y`` into lon/lat).
+    fps : float
+        Frame rate: time of frame n is ``(n - 1) / fps`` seconds.
+
+    Rows whose ``x, y`` are both -1 (no map position) are left out.
+    """
+    if geomap is None:
+        raise GeoreferenceError("tracks.geojson needs a map (--map): rows have no map coordinates")
+    if not (fps > 0):
+        raise InputError(f"--fps {fps}: must be positive")
+    rows = _merge(tracks_rows, predicted_rows)
+    features = []
+    if len(rows):
+        lonlat_all = geomap.crs_to_lonlat(rows[:, 7:9])
+        for tid in np.unique(rows[:, 1]).astype(np.int64):
+            sel = rows[:, 1] == tid
+            r, ll = rows[sel], lonlat_all[sel]
+            frames = r[:, 0].astype(np.int64)
+            times = (frames - 1) / float(fps)
+            observed = r[:, 10] > 0
+            speeds = vertex_speeds(ll, times)
+            coords = np.round(ll, DECIMALS).tolist()
+            if len(coords) == 1:
+                coords = coords * 2
+            from pyproj import Geod
+
+            length = float(Geod(ellps="WGS84").line_length(ll[:, 0], ll[:, 1])) if len(ll) > 1 else 0.0
+            features.append({
+                "type": "Feature",
+                "id": int(tid),
+                "geometry": {"type": "LineString", "coordinates": coords},
+                "properties": {
+                    "id": int(tid),
+                    "first_frame": int(frames[0]),
+                    "last_frame": int(frames[-1]),
+                    "start_time_s": round(float(times[0]), 4),
+                    "end_time_s": round(float(times[-1]), 4),
+                    "n_vertices": int(len(frames)),
+                    "n_observed": int(observed.sum()),
+                    "n_predicted": int((~observed).sum()),
+                    "length_m": round(length, 3),
+                    "mean_speed_mps": round(float(np.mean(speeds)), 3) if len(speeds) else 0.0,
+                    "frames": frames.tolist(),
+                    "times_s": np.round(times, 4).tolist(),
+                    "observed": observed.tolist(),
+                    "speeds_mps": np.round(speeds, 3).tolist(),
+                    "conf": np.round(r[:, 6], 4).tolist(),
+                },
+            })
+    return {"type": "FeatureCollection", "features": features}
+
+
+def write_tracks_geojson(path: str | Path, tracks_rows: np.ndarray, predicted_rows: np.ndarray | None,
+                         geomap, fps: float) -> Path:
+    """Write ``tracks.geojson`` atomically (see :func:`tracks_feature_collection`)."""
+    fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps)
+    atomic_write_text(path, json.dumps(fc, separators=(",", ":")) + "\n")
+    return Path(path)
+
+
+def _wkb_linestring(coords: list[list[float]]) -> bytes:
+    return struct.pack(f"<BII{2 * len(coords)}d", 1, 2, len(coords), *np.ravel(coords))
+
+
+def _wkb_point(x: float, y: float) -> bytes:
+    return struct.pack("<BIdd", 1, 1, x, y)
+
+
+def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows: np.ndarray | None,
+                      geomap, fps: float) -> Path:
+    """Write a GeoPackage with layers ``tracks`` (LineString per track) and ``track_points``
+    (Point per vertex: id, frame, time_s, observed, speed_mps), EPSG:4326.
+
+    Needs ``pyogrio`` (``pip install aerotrack[gis]``).
+    """
+    try:
+        import pyogrio.raw
+    except ImportError:
+        raise InputError("GeoPackage output needs pyogrio: pip install 'aerotrack[gis]'") from None
+    fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps)
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    tmp.unlink(missing_ok=True)
+    feats = fc["features"]
+    geoms = np.array([_wkb_linestring(f["geometry"]["coordinates"]) for f in feats], dtype=object)
+    scalar = ["id", "first_frame", "last_frame", "start_time_s", "end_time_s", "n_observed",
+              "n_predicted", "length_m", "mean_speed_mps"]
+    lists = ["frames", "times_s", "observed", "speeds_mps"]
+    data = [np.array([f["properties"][k] for f in feats]) for k in scalar]
+    data += [np.array([json.dumps(f["properties"][k]) for f in feats], dtype=object) for k in lists]
+    pyogrio.raw.write(tmp, geoms, data, scalar + lists, layer="tracks", driver="GPKG",
+                      geometry_type="LineString", crs="EPSG:4326")
+    pts, cols = [], {k: [] for k in ("id", "frame", "time_s", "observed", "speed_mps")}
+    for f in feats:
+        p = f["properties"]
+        for i, fr in enumerate(p["frames"]):
+            x, y = f["geometry"]["coordinates"][i]
+            pts.append(_wkb_point(x, y))
+            cols["id"].append(p["id"])
+            cols["frame"].append(fr)
+            cols["time_s"].append(p["times_s"][i])
+            cols["observed"].append(int(p["observed"][i]))
+            cols["speed_mps"].append(p["speeds_mps"][i])
+    pyogrio.raw.write(tmp, np.array(pts, dtype=object), [np.asarray(v) for v in cols.values()],
+                      list(cols), layer="track_points", driver="GPKG", geometry_type="Point",
+                      crs="EPSG:4326", append=True)
+    tmp.replace(path)
+    return path

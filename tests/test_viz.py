@@ -1,0 +1,205 @@
+"""Pictures, GIS outputs and the report, made from output folders written to the file contract."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from aerotrack.geo import GeoMap
+from aerotrack.io.geojson import tracks_feature_collection, write_tracks_geojson, write_tracks_gpkg
+from aerotrack.io.mot import write_mot
+from aerotrack.viz import OverlayPainter, OverlayStyle, RunResults, id_bgr, id_rgb, track_stats
+from aerotrack.viz.mapplot import figure_png, plot_map, plot_registration, plot_space_time
+
+VEGAS = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
+
+
+def _east_metres_per_px(gm: GeoMap, at=(500.0, 600.0)) -> float:
+    """Ground length of one map pixel eastwards (the tile's pixels are not square in metres)."""
+    from pyproj import Geod
+
+    ll = gm.pixel_to_lonlat(np.array([at, (at[0] + 100.0, at[1])]))
+    return Geod(ellps="WGS84").inv(ll[0, 0], ll[0, 1], ll[1, 0], ll[1, 1])[2] / 100.0
+FPS = 10.0
+W, H = 320, 240
+
+
+def _H(frame: int) -> np.ndarray:
+    """Frame pixels -> map pixels: the camera drifts 2 map px per frame to the east."""
+    return np.array([[1.0, 0, 300.0 + 2.0 * frame], [0, 1.0, 500.0], [0, 0, 1]])
+
+
+def make_run(tmp: Path, with_map: bool = True, n_frames: int = 60) -> Path:
+    """An output folder: 3 targets driving east at 37 map px/s (10 m/s on 0.27 m pixels); target 2
+    is out of view (predicted) in frames 20..34 and re-acquired at 35."""
+    out = tmp / ("run_map" if with_map else "run_nomap")
+    out.mkdir()
+    gm = GeoMap(VEGAS) if with_map else None
+    tracks, pred, reg = [], [], []
+    for f in range(1, n_frames + 1):
+        Hf = _H(f)
+        reg.append([f, *Hf.ravel(), "ok" if f % 17 else "carried", 200 - f, 0.8, 0.5 + 0.01 * f])
+        for tid, (x0, y0) in enumerate([(420.0, 560.0), (440.0, 600.0), (400.0, 640.0)], start=1):
+            world = np.array([x0 + 3.7 * f, y0])
+            fx, fy = world[0] - Hf[0, 2], world[1] - Hf[1, 2]  # Hf is a translation
+            xy = gm.pixel_to_crs(world[None])[0] if gm is not None else (-1, -1)
+            row = [f, tid, fx - 8, fy - 4, 16, 8, 0.9, xy[0], xy[1], -1]
+            (pred if tid == 2 and 20 <= f < 35 else tracks).append(row)
+    write_mot(out / "tracks.csv", tracks)
+    write_mot(out / "predicted.csv", pred)
+    with open(out / "registration.csv", "w") as fh:
+        fh.write("frame,h00,h01,h02,h10,h11,h12,h20,h21,h22,status,inliers,inlier_ratio,error\n")
+        for r in reg:
+            fh.write(",".join(str(v) for v in r) + "\n")
+    summary = {"fps": FPS, "frames": n_frames, "map": str(VEGAS) if with_map else None,
+               "timings": {"registration": 1.5, "detection": 2.0}, "frame_size": [W, H]}
+    (out / "summary.json").write_text(json.dumps(summary))
+    return out
+
+
+def test_colours_stable_and_distinct():
+    assert id_bgr(7) == id_bgr(7)
+    hues = [cv2.cvtColor(np.uint8([[id_bgr(i)]]), cv2.COLOR_BGR2HSV)[0, 0, 0] for i in range(1, 11)]
+    # neighbouring IDs get clearly different hues (OpenCV hue is 0..179)
+    d = [min(abs(int(a) - int(b)), 180 - abs(int(a) - int(b))) for a, b in zip(hues, hues[1:])]
+    assert min(d) > 15
+    assert all(0 <= c <= 1 for c in id_rgb(12345))
+
+
+def test_results_reader_world_and_reacquisition(tmp_path):
+    run = make_run(tmp_path)
+    res = RunResults.load(run)
+    assert res.fps == FPS and res.map_path == VEGAS and res.has_map_xy
+    gm = GeoMap(VEGAS)
+    views = {tv.id: tv for tv in res.track_views(gm)}
+    tv = views[2]
+    assert len(tv.frames) == 60 and (~tv.observed).sum() == 15
+    assert list(tv.frames[tv.reacquisitions()]) == [35]
+    # world from map CRS and world from registration agree (to the 7 decimals of degrees written)
+    no_geo = {t.id: t for t in res.track_views(None)}[2]
+    np.testing.assert_allclose(tv.world, no_geo.world, atol=0.05)
+    np.testing.assert_allclose(no_geo.world[0], [440.0 + 3.7, 600.0], atol=1e-6)
+
+
+def test_track_stats_speed_and_gaps(tmp_path):
+    res = RunResults.load(make_run(tmp_path))
+    stats = {s.id: s for s in track_stats(res, GeoMap(VEGAS))}
+    true_kmh = 3.7 * FPS * _east_metres_per_px(GeoMap(VEGAS)) * 3.6
+    for s in stats.values():
+        assert s.unit == "m"
+        assert s.mean_speed_kmh == pytest.approx(true_kmh, rel=0.01)
+    assert stats[2].reacquisitions == 1 and stats[1].reacquisitions == 0
+    assert stats[2].unobserved_s == pytest.approx(15 / FPS)
+    assert stats[2].predicted_s == pytest.approx(15 / FPS)
+    nomap = {s.id: s for s in track_stats(RunResults.load(make_run(tmp_path, with_map=False)))}
+    assert nomap[1].unit == "px" and math.isnan(nomap[1].mean_speed_kmh)
+
+
+@pytest.mark.parametrize("height", [480, 2160])
+def test_overlay_draws_boxes_labels_and_predictions(tmp_path, height):
+    run = make_run(tmp_path)
+    res = RunResults.load(run)
+    painter = OverlayPainter(res, OverlayStyle(trail_s=1.0))
+    img = np.full((H, W, 3), 90, np.uint8)
+    out = painter.draw(img, 25)  # target 2 predicted in frame 25
+    assert out.shape == img.shape and not np.array_equal(out, img)
+    b = res.tracks[(res.tracks[:, 0] == 25) & (res.tracks[:, 1] == 1)][0, 2:6]
+    x, y = int(b[0]), int(b[1] + b[3] / 2)
+    patch = out[y - 1:y + 2, x - 1:x + 2].astype(int)
+    assert np.abs(patch - np.array(id_bgr(1))).sum(axis=2).min() < 12  # its box edge, in its colour
+    # predicted target: dashed box, so some pixels on its left edge keep the background
+    p = res.predicted[(res.predicted[:, 0] == 25) & (res.predicted[:, 1] == 2)][0, 2:6]
+    col = out[int(p[1]):int(p[1] + p[3]), int(round(p[0]))]
+    assert (col == 90).all(axis=1).any()
+    # text scales with the frame: labels at 1.7 % of the height
+    big = np.full((height, height * 4 // 3, 3), 90, np.uint8)
+    painter.draw(big, 25)  # no error at any size
+    assert OverlayStyle().text_height >= 0.015
+
+
+def test_overlay_video_plays(tmp_path):
+    from aerotrack.viz.overlay import render_overlay
+
+    run = make_run(tmp_path, n_frames=20)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in range(1, 21):
+        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 60 + f, np.uint8))
+    for ext in ("webm", "mp4"):
+        out = render_overlay(frames, run, tmp_path / f"o.{ext}")
+        cap = cv2.VideoCapture(str(out))
+        n = 0
+        while cap.read()[0]:
+            n += 1
+        cap.release()
+        assert n == 20
+    from aerotrack.viz.video import ffmpeg_exe
+
+    probe = subprocess.run([ffmpeg_exe(), "-hide_banner", "-i", str(tmp_path / "o.webm")],
+                           capture_output=True, text=True)
+    assert "vp9" in probe.stderr
+    probe = subprocess.run([ffmpeg_exe(), "-hide_banner", "-i", str(tmp_path / "o.mp4")],
+                           capture_output=True, text=True)
+    assert "h264" in probe.stderr
+
+
+def test_map_space_time_and_registration_figures(tmp_path):
+    run = make_run(tmp_path)
+    res = RunResults.load(run)
+    gm = GeoMap(VEGAS)
+    for fig in (plot_map(res, gm), plot_space_time(res, gm), plot_registration(res)):
+        png = figure_png(fig)
+        im = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        assert im.shape[0] > 300 and im.std() > 10
+    nomap = RunResults.load(make_run(tmp_path, with_map=False))
+    assert figure_png(plot_map(nomap, background=np.zeros((H, W, 3), np.uint8)))
+    # the map figure shows the tracks in their colours
+    im = cv2.imdecode(np.frombuffer(figure_png(plot_map(res, gm)), np.uint8), cv2.IMREAD_COLOR)
+    for tid in (1, 2, 3):
+        c = np.array(id_bgr(tid), int)
+        assert (np.abs(im.astype(int) - c).sum(axis=2) < 30).sum() > 50
+
+
+def test_geojson_known_answer_and_pyogrio(tmp_path):
+    run = make_run(tmp_path)
+    res = RunResults.load(run)
+    gm = GeoMap(VEGAS)
+    path = write_tracks_geojson(tmp_path / "tracks.geojson", res.tracks, res.predicted, gm, FPS)
+    fc = json.loads(path.read_text())
+    assert fc["type"] == "FeatureCollection" and len(fc["features"]) == 3
+    f2 = next(f for f in fc["features"] if f["properties"]["id"] == 2)
+    p = f2["properties"]
+    assert f2["geometry"]["type"] == "LineString" and len(f2["geometry"]["coordinates"]) == 60
+    assert p["frames"] == list(range(1, 61)) and p["times_s"][1] == pytest.approx(0.1)
+    assert p["observed"].count(False) == 15 and p["observed"][19] is False
+    lon, lat = f2["geometry"]["coordinates"][0]
+    assert -115.3 < lon < -115.1 and 36.0 < lat < 36.2  # RFC 7946: lon, lat order
+    speed = 3.7 * FPS * _east_metres_per_px(gm)
+    assert np.median(p["speeds_mps"]) == pytest.approx(speed, rel=0.02)
+    assert p["length_m"] == pytest.approx(speed * 59 / FPS, rel=0.02)
+    pyogrio = pytest.importorskip("pyogrio")
+    info = pyogrio.read_info(path)
+    assert info["features"] == 3 and "4326" in info["crs"]
+    assert info["geometry_type"] == "LineString"
+    gpkg = write_tracks_gpkg(tmp_path / "tracks.gpkg", res.tracks, res.predicted, gm, FPS)
+    assert pyogrio.read_info(gpkg, layer="tracks")["features"] == 3
+    pts = pyogrio.read_info(gpkg, layer="track_points")
+    assert pts["features"] == 180 and "4326" in pts["crs"]
+
+
+def test_geojson_single_vertex_and_no_map(tmp_path):
+    gm = GeoMap(VEGAS)
+    xy = gm.pixel_to_crs(np.array([[100.0, 100.0]]))[0]
+    fc = tracks_feature_collection(np.array([[5, 9, 0, 0, 4, 4, 1, xy[0], xy[1], -1]]), None, gm, 30)
+    coords = fc["features"][0]["geometry"]["coordinates"]
+    assert len(coords) == 2 and coords[0] == coords[1]
+    from aerotrack.errors import GeoreferenceError
+
+    with pytest.raises(GeoreferenceError):
+        tracks_feature_collection(np.zeros((0, 10)), None, None, 30)
