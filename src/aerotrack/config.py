@@ -34,25 +34,79 @@ class RegistrationConfig:
     Attributes
     ----------
     method : str
-        Feature tracker for frame-to-frame motion: ``lk`` (sparse optical flow) or ``orb``.
+        Feature tracker for frame-to-frame motion: ``lk`` (corners tracked by pyramidal sparse
+        optical flow, reused from frame to frame) or ``orb`` (ORB features matched by descriptor).
+        ``lk`` is several times faster; ``orb`` copes with large jumps. Whatever the choice, a
+        failed estimate is retried once with ``orb`` before it counts as a failure.
     max_features : int
         Features tracked per frame. Raising it steadies the estimate on low texture but costs time.
     scale : float
-        Frames are downscaled by this factor for feature tracking (1 = full resolution).
+        Frames are downscaled by this factor for feature tracking (1 = full resolution). Lower is
+        faster; too low loses fine texture and sub-pixel precision.
     ransac_threshold_px : float
         RANSAC inlier threshold, in full-resolution frame pixels.
+    estimator : str
+        Robust homography estimator: ``ransac`` or ``magsac`` (OpenCV USAC_MAGSAC).
     min_inliers : int
         Fewer inliers than this is a registration failure.
+    min_inlier_ratio : float
+        Inliers / tentative correspondences below this is a failure (a moving crowd or noise).
+    max_scale_change : float
+        Largest area ratio between a frame and the frame it is registered against; beyond it the
+        homography is called degenerate. Raising it admits fast zooms but also wrong estimates.
+    max_condition : float
+        Largest condition number of the normalised homography's 2x2 linear part (shear/skew).
     refine_every_s : float
         Seconds between map refinements (0 disables periodic refinement).
+    refine_on_inlier_ratio : float
+        A frame-to-frame inlier ratio under this triggers an immediate map refinement.
+    refine_search_px : float
+        How far (map pixels) the mutual-information patch search looks around the rough alignment.
+        Larger tolerates more drift but costs time quadratically and admits false peaks.
+    refine_patch_px : int
+        Side of the square patches matched against the map by mutual information, map pixels.
+    refine_patches : int
+        Patches tried per refinement (a grid over the frame's footprint; textureless ones skipped).
+    refine_bins : int
+        Grey-level bins of the mutual-information joint histogram. More bins resolve finer
+        structure but need bigger patches to fill the histogram.
+    refine_max_correction_px : float
+        A refinement that moves the frame's corners by more than this (map pixels) is rejected.
+    carry_s : float
+        After a failed frame the last motion is carried forward for at most this long, then the
+        position is held.
+    reset_after_s : float
+        After this long without a successful registration against the last good frame, the current
+        frame becomes the new reference (status ``reset``; with a map, a re-anchoring is tried).
+    min_contrast : float
+        Grey-level standard deviation (0-255) under which a frame is blank.
+    max_saturated : float
+        Fraction of saturated pixels above which a frame is overexposed.
+    min_neighbour_corr : float
+        Correlation between horizontally adjacent pixels under which a frame is noise.
     """
 
     method: str = "lk"
-    max_features: int = 800
+    max_features: int = 400
     scale: float = 0.5
     ransac_threshold_px: float = 2.0
+    estimator: str = "ransac"
     min_inliers: int = 20
+    min_inlier_ratio: float = 0.25
+    max_scale_change: float = 1.5
+    max_condition: float = 4.0
     refine_every_s: float = 1.0
+    refine_on_inlier_ratio: float = 0.5
+    refine_search_px: float = 12.0
+    refine_patch_px: int = 48
+    refine_patches: int = 48
+    refine_bins: int = 16
+    refine_max_correction_px: float = 40.0
+    carry_s: float = 1.0
+    reset_after_s: float = 3.0
+    min_contrast: float = 4.0
+    max_saturated: float = 0.6
+    min_neighbour_corr: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -64,9 +118,95 @@ class DetectionConfig:
     window_s : float
         Length of the sliding background window in seconds (the paper: 91 frames = 3 s at 30 fps).
         Longer absorbs fewer slow vehicles but costs memory and fails more with parallax.
+    causal : bool
+        False: the window is centred on the frame (detections are final half a window later, the
+        paper's method). True: the window ends at the frame (delay 0, for live use); a vehicle
+        that waits is absorbed twice as fast, which ``hold_stopped`` compensates.
+    sample_every_s : float
+        Spacing of the frames kept as background samples (the paper uses every frame). Wider is
+        faster and lighter (the median network grows as n log^2 n) but a slow vehicle covers a
+        larger share of fewer samples.
+    update_every_s : float
+        How often the window median is recomputed; in between, the last background is warped to
+        the frame. Longer is faster; the background then lags the lighting by that much.
+    model_scale : float
+        Resolution of the background model relative to the frame (boxes are refined at full
+        resolution). Lower is faster but loses vehicles under about 4/model_scale pixels.
+    min_valid_samples : int
+        Fewer samples that saw a pixel (inside the view and not under a detection) than this and
+        the pixel's background is held from before, or the pixel is not tested.
+    threshold_sigma : float
+        Residual threshold as a multiple of the frame's robust residual noise (1.4826 MAD).
+        Raising it removes noise blobs but loses low-contrast vehicles.
+    min_threshold : float
+        Lower bound of the residual threshold, grey levels (0-255).
+    seed_ratio : float
+        A blob must contain a pixel above ``seed_ratio`` x threshold (hysteresis).
+    gain_block_px : float
+        Side (full-resolution pixels) of the blocks over which the frame's local gain against
+        the background is estimated and divided out (illumination changes, auto-exposure).
+        0 disables the normalisation.
+    close_m, close_px : float
+        Radius of the morphological closing that joins fragments of one vehicle: metres when a
+        scale is known, full-resolution pixels otherwise.
+    join_gap_m, join_gap_px : float
+        Boxes closer than this are merged when the union still fits ``max_length``.
+    min_area_m2, min_area_px : float
+        Smallest accepted blob area (metres^2 with a scale, full-resolution pixels^2 without).
+    max_length_m, max_length_px : float
+        Longest accepted box side; longer blobs are split, or dropped when they cannot be.
+    split_blobs : bool
+        Split blobs that merge several vehicles (erosion until they fall apart).
+    shadow_suppression : bool
+        Remove moving cast shadows (Prati et al.'s deterministic non-model-based HSV test) from
+        blobs before boxing them.
+    shadow_alpha, shadow_beta : float
+        A shadow darkens the background value V by a ratio in [alpha, beta].
+    shadow_tau_s : float
+        Largest saturation change of a shadow pixel (S in [0, 1]).
+    shadow_tau_h : float
+        Largest hue change of a shadow pixel, degrees.
+    hold_stopped : bool
+        Keep the background from absorbing a vehicle after it was detected: pixels under recent
+        detections are left out of the window median, and where every sample is left out the
+        previous background is kept. A vehicle that stops at a light keeps being reported (with
+        ``extra["stationary"]``); a parked vehicle never seen moving is never held.
+    max_hold_s : float
+        A pixel is held at most this long, so a false detection cannot freeze the background.
+    stationary_lag_s : float
+        A detection whose pixels match the frame this many seconds earlier is flagged stationary.
+    min_conf : float
+        Detections with a lower confidence are dropped.
     """
 
     window_s: float = 3.0
+    causal: bool = False
+    sample_every_s: float = 0.2
+    update_every_s: float = 0.1
+    model_scale: float = 0.5
+    min_valid_samples: int = 3
+    threshold_sigma: float = 5.0
+    min_threshold: float = 14.0
+    seed_ratio: float = 1.5
+    gain_block_px: float = 96.0
+    close_m: float = 0.8
+    close_px: float = 4.0
+    join_gap_m: float = 1.0
+    join_gap_px: float = 5.0
+    min_area_m2: float = 2.0
+    min_area_px: float = 60.0
+    max_length_m: float = 25.0
+    max_length_px: float = 300.0
+    split_blobs: bool = True
+    shadow_suppression: bool = True
+    shadow_alpha: float = 0.4
+    shadow_beta: float = 0.9
+    shadow_tau_s: float = 0.15
+    shadow_tau_h: float = 50.0
+    hold_stopped: bool = True
+    max_hold_s: float = 120.0
+    stationary_lag_s: float = 1.0
+    min_conf: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -76,13 +216,74 @@ class AssociationConfig:
     Attributes
     ----------
     window_s : float
-        Sliding association window in seconds (the paper: 45 frames = 1.5 s at 30 fps).
+        Sliding association window in seconds (the paper: 45 frames = 1.5 s at 30 fps). Decisions
+        about observations older than the window are final. Longer resolves longer ambiguities but
+        delays output and costs time.
     max_speed_mps : float
-        Maximum target speed, metres per second (world units per second without a scale).
+        Maximum target speed in metres per second: the graph's edges (eq. 3) join observations no
+        farther apart than this times their time gap. In image coordinates it must also cover the
+        camera's apparent motion.
+    max_gap_s : float
+        Longest run of missed detections a tracklet may bridge (an edge's largest time gap). Longer
+        keeps identities through occlusions but risks joining two different targets.
+    target_size_m : float
+        When ``metres_per_unit`` is unknown (image coordinates), the scale is estimated from the
+        median detection size assuming this typical target size (square root of width x height;
+        a car is about 2.8 m). 0 treats world units as metres.
+    accel_std_mps2 : float
+        Kalman process noise: white-noise acceleration, m/s^2 (eq. 6). Raising it follows sharp
+        manoeuvres and camera shake, but widens the gate so that neighbours get confused.
+    size_std_m : float
+        Kalman random walk of the target size after one second, metres.
+    pos_std_m, pos_frac : float
+        Kalman observation noise of the position (eq. 7): absolute in metres, plus a fraction of the
+        box size (large blobs have imprecise centres).
+    size_frac : float
+        Observation noise of the box size, as a fraction of the size.
+    gate_chi2 : float
+        Gate on the squared Mahalanobis distance of a link (4 degrees of freedom). A link scores
+        ``0.5 * (gate_chi2 - d^2)``: larger admits sloppier links and rewards good ones more.
+    miss_cost : float
+        Log-penalty per missed frame inside a link; raising it prefers ending a track to bridging.
+    birth_cost : float
+        Log-penalty per track born in the window (prior on the number of tracks): with the link
+        reward it sets how many consistent links a track needs to beat leaving its observations as
+        false alarms. Raising it rejects more false positives but also short true tracks.
+    app_weight : float
+        Weight of the appearance likelihood (eq. 9, symmetric KL of colour histograms); 0 disables.
+    overlap_lambda : float
+        MRF interaction lambda (eq. 10): penalty per unit IoU of two same-frame observations that
+        both belong to tracks. Suppresses tracks made of split blobs.
+    iters_per_detection : float
+        MCMC samples per frame, per new detection (plus ``min_iters``). More samples explore more
+        but cost time linearly.
+    min_iters : int
+        MCMC samples per frame regardless of the number of detections.
+    extend_gamma : float
+        Probability that an extension move appends one more observation (the paper's gamma).
+    min_length_s : float
+        Tracklets shorter than this (first to last observation, seconds) are rejected as false
+        positives when they end.
     """
 
     window_s: float = 1.5
     max_speed_mps: float = 40.0
+    max_gap_s: float = 1.0
+    target_size_m: float = 2.8
+    accel_std_mps2: float = 4.0
+    size_std_m: float = 0.3
+    pos_std_m: float = 0.2
+    pos_frac: float = 0.06
+    size_frac: float = 0.06
+    gate_chi2: float = 16.0
+    miss_cost: float = 0.7
+    birth_cost: float = 8.0
+    app_weight: float = 1.0
+    overlap_lambda: float = 4.0
+    iters_per_detection: float = 1.0
+    min_iters: int = 20
+    extend_gamma: float = 0.5
+    min_length_s: float = 0.4
 
 
 @dataclass(frozen=True)
@@ -93,9 +294,43 @@ class LinkingConfig:
     ----------
     max_gap_s : float
         Longest gap between two tracklets that may still be linked, seconds.
+    v_max_mps : float
+        Spatial gate (Yu & Medioni 5.1): the start of a later tracklet must lie within
+        ``v_max_mps x gap`` (plus ``gate_slack_m``) of the end of the earlier one.
+    a_max_mps2 : float
+        Velocity gate: ``|V_end - V_start| <= a_max_mps2 x gap + speed_slack_mps``.
+    gate_slack_m : float
+        Added to the distance gate (detection jitter, box centre vs ground point).
+    speed_slack_mps : float
+        Added to the velocity gate (velocity estimated from noisy short tracklets).
+    motion_sigma_m : float
+        Standard deviation of the motion-context prediction error at gap 0, metres.
+    motion_sigma_growth_mps : float
+        How fast that deviation grows with the gap, metres per second. Raising both tolerates
+        worse predictions but lets look-alikes swap identities.
+    weight_motion, weight_appearance, weight_descriptor : float
+        Weights of the three cues in the link cost (docs/CONTEXT.md); 0 switches a cue off.
+    max_cost : float
+        A pair whose fused cost exceeds this is never linked (the cost of "a new target").
+    min_tracklet_s : float
+        Tracklets shorter than this still link but do not get their own prediction horizon.
+    predict_gaps : bool
+        Add ``predicted`` points in the frames between linked tracklets and after a track's end.
     """
 
     max_gap_s: float = 12.0
+    v_max_mps: float = 40.0
+    a_max_mps2: float = 6.0
+    gate_slack_m: float = 3.0
+    speed_slack_mps: float = 3.0
+    motion_sigma_m: float = 2.0
+    motion_sigma_growth_mps: float = 1.5
+    weight_motion: float = 1.0
+    weight_appearance: float = 0.5
+    weight_descriptor: float = 0.5
+    max_cost: float = 6.0
+    min_tracklet_s: float = 0.2
+    predict_gaps: bool = True
 
 
 @dataclass(frozen=True)
@@ -108,10 +343,56 @@ class ContextConfig:
         Seconds of a target's last observations matched against other tracks (the paper's F).
     prediction_horizon_s : float
         How long an unobserved target's position is predicted into ``predicted.csv``.
+    method : str
+        Motion predictor: ``context`` (aerotrack's path following, default), ``paper`` (Ali et al.
+        as written), ``kalman`` or ``constant-velocity``.
+    lce_alpha : float
+        ``paper``: LCE threshold (eq. 1) below which a track section becomes a predictor. Raising it
+        admits more (and less similar) predictors.
+    min_predictors : int
+        ``paper``: the regression needs at least this many predictors (3 unknown pairs).
+    flow_radius_m : float
+        ``context``: other tracks' rows within this distance of the predicted position form the
+        local flow. Larger finds more support but mixes neighbouring lanes.
+    flow_heading_deg : float
+        ``context``: rows whose heading differs from the target's by more than this are ignored
+        (opposite lane, crossing traffic). Too small and the target cannot follow a curve.
+    path_match_m : float
+        ``context``: a predictor's path must pass the target's last F positions at a mean distance
+        of about this (weight ``exp(-d^2 / 2 path_match_m^2)``, cut at twice it). Smaller picks
+        only predictors on the very same line; larger averages over neighbouring lanes and exits.
+    flow_support : float
+        ``context``: weight of the target's own heading against the neighbours' summed weights.
+        Raising it trusts the flow less.
+    flow_min_speed_mps : float
+        ``context``: slower rows (standing objects) carry no heading; a slower target is held still.
+    flow_sample_s : float
+        ``context``: other tracks' rows are sampled every this many seconds (speed vs density).
+    velocity_lag_s : float
+        ``context``: a row's velocity is its backward difference over this many seconds.
+    kalman_accel_mps2 : float
+        Process noise of the constant-velocity Kalman filter (white acceleration), m/s^2.
+    kalman_meas_std_m : float
+        Measurement noise of the Kalman filter, metres.
+    kalman_vel_std_mps : float
+        Prior spread of a target's velocity when the filter starts, m/s.
     """
 
     history_s: float = 1.0
     prediction_horizon_s: float = 10.0
+    method: str = "context"
+    lce_alpha: float = 0.05
+    min_predictors: int = 3
+    flow_radius_m: float = 2.0
+    flow_heading_deg: float = 45.0
+    path_match_m: float = 1.0
+    flow_support: float = 3.0
+    flow_min_speed_mps: float = 0.3
+    flow_sample_s: float = 0.3
+    velocity_lag_s: float = 0.5
+    kalman_accel_mps2: float = 3.0
+    kalman_meas_std_m: float = 0.1
+    kalman_vel_std_mps: float = 5.0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,282 @@
+"""The registration stage: every frame's homography to world coordinates, never raising on a bad frame.
+
+World coordinates are map pixels when a map is given and frame 1's pixels otherwise. Each frame is
+registered against the *last good frame* (normally the previous one), so a run of bad frames is
+bridged without leaving frame 1's coordinates; with a map the chained homography is refined against
+the map every ``refine_every_s`` seconds and whenever the frame-to-frame quality drops.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+from collections import Counter
+from collections.abc import Iterable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..config import RegistrationConfig
+from ..errors import ConfigError, InputError
+from ..io.output import atomic_write_text
+from ..types import Failure, Frame, Registration
+from .chain import normalize, scale_homography
+from .frame2frame import (ESTIMATORS, METHODS, boxes_mask, estimate_homography, frame_quality,
+                          to_gray)
+from .mapref import refine_against_map
+
+log = logging.getLogger("aerotrack.registration")
+
+STATUSES = ("ok", "refined", "carried", "reset", "reanchored")
+
+
+def check_config(config: RegistrationConfig) -> None:
+    """Raise :class:`ConfigError` naming the first out-of-range registration parameter."""
+    if config.method not in METHODS:
+        raise ConfigError(f"config registration.method: unknown {config.method!r} "
+                          f"(valid: {', '.join(METHODS)})")
+    if config.estimator not in ESTIMATORS:
+        raise ConfigError(f"config registration.estimator: unknown {config.estimator!r} "
+                          f"(valid: {', '.join(ESTIMATORS)})")
+    if not (0 < config.scale <= 1):
+        raise ConfigError(f"config registration.scale: must be in (0, 1], got {config.scale}")
+    for name in ("max_features", "min_inliers", "refine_patch_px", "refine_patches"):
+        if getattr(config, name) < 4:
+            raise ConfigError(f"config registration.{name}: must be at least 4")
+    if config.refine_bins < 2:
+        raise ConfigError("config registration.refine_bins: must be at least 2")
+    if config.max_scale_change <= 1 or config.max_condition < 1:
+        raise ConfigError("config registration.max_scale_change must be > 1 and max_condition >= 1")
+    for name in ("ransac_threshold_px", "refine_search_px", "refine_max_correction_px"):
+        if not getattr(config, name) > 0:
+            raise ConfigError(f"config registration.{name}: must be positive")
+    for name in ("refine_every_s", "carry_s", "reset_after_s"):
+        if getattr(config, name) < 0:
+            raise ConfigError(f"config registration.{name}: must not be negative")
+
+
+class FrameRegistrar:
+    """Registers frames one at a time, in order (Yu & Medioni section 2).
+
+    Parameters
+    ----------
+    config : RegistrationConfig
+    fps : float
+        Frame rate; turns the config's seconds into frame counts where needed.
+    geomap : GeoMap, optional
+        The map; when given, world = map pixels and ``H_init`` is required.
+    H_init : (3, 3) array, optional
+        Frame 1 pixels -> world (``read_map_init``); identity without a map.
+
+    Notes
+    -----
+    ``step`` returns a :class:`~aerotrack.types.Registration` whose status says how it was
+    obtained: ``ok`` (frame-to-frame, chained), ``refined`` (corrected against the map),
+    ``carried`` (the frame could not be registered; the last motion is carried forward for up to
+    ``carry_s`` seconds, then the position is held; the next good frame is registered against the
+    last good one), ``reset`` (nothing registered for ``reset_after_s``: this frame becomes the new
+    reference at its carried position, so later positions may be offset) or ``reanchored`` (same,
+    but placed by a map refinement with a wider search).
+    """
+
+    def __init__(self, config: RegistrationConfig, fps: float, geomap=None,
+                 H_init: np.ndarray | None = None) -> None:
+        check_config(config)
+        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+            raise InputError(f"--fps {fps}: must be a positive number")
+        self.config = config
+        self.fps = float(fps)
+        self.geomap = geomap
+        if geomap is not None and H_init is None:
+            raise InputError("--map needs --map-init (frame 1 -> map homography or control points)")
+        self.H_init = np.eye(3) if H_init is None else normalize(H_init)
+        self._map_gray = None
+        if geomap is not None:
+            self._map_gray = cv2.cvtColor(geomap.read_image(), cv2.COLOR_BGR2GRAY)
+        self.counts: Counter[str] = Counter()
+        self.failures: list[tuple[int, str, str]] = []  # (frame, status, reason)
+        self._ref_gray: np.ndarray | None = None
+        self._ref_H = self.H_init
+        self._ref_index = 0
+        self._ref_time = 0.0
+        self._points: np.ndarray | None = None
+        self._motion = np.eye(3)  # last frame-to-frame motion, full-res frame pixels
+        self._H_last: np.ndarray | None = None
+        self._last_refine = -math.inf
+
+    # -- public ---------------------------------------------------------------------------------
+    def step(self, frame: Frame, exclude_boxes: np.ndarray | None = None) -> Registration:
+        """Register one frame (called for every frame, in order).
+
+        Parameters
+        ----------
+        frame : Frame
+        exclude_boxes : (N, 4) array, optional
+            ``x, y, w, h`` boxes in the previous frame's pixels (its detections): no features are
+            taken there, so moving vehicles do not pull the estimate.
+        """
+        try:
+            reg = self._step(frame, exclude_boxes)
+        except cv2.error as exc:  # a frame OpenCV chokes on is a failed frame, not a crash
+            reg = self._carry(frame, f"OpenCV error ({str(exc).splitlines()[0][:80]})", bad=True)
+        self._H_last = reg.H
+        self.counts[reg.status] += 1
+        if reg.status not in ("ok", "refined"):
+            self.failures.append((reg.index, reg.status, reg.reason))
+        return reg
+
+    def summary(self) -> dict:
+        """Counts per status and the first failures, for ``summary.json``."""
+        return {"status_counts": dict(self.counts),
+                "failures": [{"frame": f, "status": s, "reason": r} for f, s, r in self.failures[:200]],
+                "n_failures": len(self.failures)}
+
+    # -- internals ------------------------------------------------------------------------------
+    def _step(self, frame: Frame, exclude_boxes: np.ndarray | None) -> Registration:
+        cfg = self.config
+        gray = to_gray(frame.image, cfg.scale)
+        bad = frame_quality(gray, min_contrast=cfg.min_contrast, max_saturated=cfg.max_saturated,
+                            min_neighbour_corr=cfg.min_neighbour_corr)
+        if self._ref_gray is None:
+            if bad:
+                return Registration(frame.index, self.H_init.copy(), "reset", 0, float("nan"),
+                                    float("nan"), f"{bad.reason}; no reference frame yet")
+            return self._anchor(frame, gray, self.H_init, "ok")
+        if bad is not None:
+            return self._carry(frame, bad.reason, bad=True)
+        if gray.shape != self._ref_gray.shape:
+            return self._carry(frame, "frame size changed", bad=True)
+        mask = boxes_mask(self._ref_gray.shape, exclude_boxes, cfg.scale)
+        points = self._points
+        if points is not None and len(points) < cfg.max_features // 2:
+            points = None
+        common = dict(max_features=cfg.max_features,
+                      ransac_threshold=cfg.ransac_threshold_px * cfg.scale,
+                      estimator=cfg.estimator, min_inliers=cfg.min_inliers,
+                      min_inlier_ratio=cfg.min_inlier_ratio,
+                      max_scale_change=cfg.max_scale_change, max_condition=cfg.max_condition)
+        est = estimate_homography(self._ref_gray, gray, mask, method=cfg.method, prev_points=points,
+                                  **common)
+        if not est and points is not None:  # stale tracks: retry with fresh corners
+            est = estimate_homography(self._ref_gray, gray, mask, method=cfg.method, **common)
+        if not est and cfg.method != "orb":  # too large a motion for optical flow
+            est = estimate_homography(self._ref_gray, gray, mask, method="orb", **common)
+        if not est:
+            return self._carry(frame, est.reason, bad=False)
+        M_small, stats = est
+        M = scale_homography(M_small, cfg.scale)  # reference frame -> this frame, full-res pixels
+        H = normalize(self._ref_H @ np.linalg.inv(M))
+        gap = frame.index - self._ref_index
+        if gap == 1:
+            self._motion = M
+        elif gap > 1:
+            log.info("frame %d: registered against frame %d after %d failed frames",
+                     frame.index, self._ref_index, gap - 1)
+        status = "ok"
+        reason = ""
+        if self._map_gray is not None:
+            due = (cfg.refine_every_s > 0 and frame.time - self._last_refine >= cfg.refine_every_s - 1e-9)
+            degraded = stats.inlier_ratio < cfg.refine_on_inlier_ratio or gap > 1
+            if due or degraded:
+                H, status, _ = self._refine(frame, H)
+        self._ref_gray, self._ref_H = gray, H
+        self._ref_index, self._ref_time = frame.index, frame.time
+        self._points = stats.points
+        return Registration(frame.index, H, status, stats.inliers, stats.inlier_ratio,
+                            stats.error / cfg.scale, reason)
+
+    def _anchor(self, frame: Frame, gray: np.ndarray, H: np.ndarray, status: str,
+                reason: str = "", search_scale: float = 1.0) -> Registration:
+        """Make ``frame`` the reference at ``H`` (refined against the map when there is one)."""
+        if self._map_gray is not None:
+            H2, st, why = self._refine(frame, H, search_scale)
+            if st == "refined":
+                H = H2
+                status = "refined" if status == "ok" else "reanchored"
+            elif status != "ok":
+                reason = f"{reason}; {why}" if why else reason
+        self._ref_gray, self._ref_H, self._points = gray, normalize(H), None
+        self._ref_index, self._ref_time = frame.index, frame.time
+        return Registration(frame.index, normalize(H), status, 0, float("nan"), float("nan"), reason)
+
+    def _refine(self, frame: Frame, H: np.ndarray, search_scale: float = 1.0
+                ) -> tuple[np.ndarray, str, str]:
+        cfg = self.config
+        self._last_refine = frame.time
+        r = refine_against_map(frame.image, H, self._map_gray,
+                               search_px=cfg.refine_search_px * search_scale,
+                               patch_px=cfg.refine_patch_px, n_patches=cfg.refine_patches,
+                               bins=cfg.refine_bins,
+                               max_correction_px=cfg.refine_max_correction_px * search_scale)
+        if isinstance(r, Failure):
+            log.debug("frame %d: %s", frame.index, r.reason)
+            return H, "ok", r.reason
+        return r[0], "refined", ""
+
+    def _carry(self, frame: Frame, reason: str, *, bad: bool) -> Registration:
+        cfg = self.config
+        H_last = self._H_last if self._H_last is not None else self._ref_H
+        if frame.time - self._ref_time <= cfg.carry_s + 1e-9:
+            H = normalize(H_last @ np.linalg.inv(self._motion))
+        else:
+            H = H_last.copy()
+        if not bad and frame.time - self._ref_time >= cfg.reset_after_s - 1e-9:
+            gray = to_gray(frame.image, cfg.scale)
+            log.warning("frame %d: no registration for %.1f s (%s); new reference",
+                        frame.index, frame.time - self._ref_time, reason)
+            self._motion = np.eye(3)
+            return self._anchor(frame, gray, H, "reset", f"{reason}; new reference",
+                                search_scale=3.0)
+        log.info("frame %d: %s; carrying the last motion", frame.index, reason)
+        return Registration(frame.index, H, "carried", 0, float("nan"), float("nan"), reason)
+
+
+def register_frames(frames: Iterable[Frame], config: RegistrationConfig, fps: float, geomap=None,
+                    H_init: np.ndarray | None = None) -> list[Registration]:
+    """Register every frame of a sequence (a convenience loop over :class:`FrameRegistrar`)."""
+    reg = FrameRegistrar(config, fps, geomap, H_init)
+    return [reg.step(f) for f in frames]
+
+
+REGISTRATION_HEADER = (["frame"] + [f"h{r}{c}" for r in range(3) for c in range(3)]
+                       + ["status", "inliers", "inlier_ratio", "error", "reason"])
+
+
+def write_registration_csv(path: str | Path, registrations: Iterable[Registration]) -> None:
+    """Write ``registration.csv`` atomically: ``frame,h00..h22,status,inliers,inlier_ratio,error,reason``.
+
+    ``h00..h22`` is the row-major homography frame pixels -> world (``H[2,2] = 1``); unknown
+    ratios and errors are written as ``nan``.
+    """
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(REGISTRATION_HEADER)
+    for r in registrations:
+        H = normalize(r.H)
+        w.writerow([r.index] + [f"{v:.12g}" for v in H.ravel()]
+                   + [r.status, int(r.inliers), f"{r.inlier_ratio:.4f}", f"{r.error:.4f}", r.reason])
+    atomic_write_text(path, buf.getvalue())
+
+
+def read_registration_csv(path: str | Path) -> list[Registration]:
+    """Read back a ``registration.csv`` written by :func:`write_registration_csv`."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: file not found")
+    out = []
+    with p.open(encoding="utf-8", newline="") as fh:
+        rd = csv.reader(fh)
+        header = next(rd, None)
+        if header is None or header[:10] != REGISTRATION_HEADER[:10]:
+            raise InputError(f"{p}: not a registration.csv (header {header!r})")
+        for lineno, row in enumerate(rd, start=2):
+            try:
+                H = np.array([float(v) for v in row[1:10]]).reshape(3, 3)
+                out.append(Registration(int(row[0]), H, row[10], int(row[11]), float(row[12]),
+                                        float(row[13]), row[14] if len(row) > 14 else ""))
+            except (ValueError, IndexError):
+                raise InputError(f"{p} line {lineno}: malformed row") from None
+    return out
