@@ -175,6 +175,10 @@ class DetectionConfig:
         A pixel is held at most this long, so a false detection cannot freeze the background.
     stationary_lag_s : float
         A detection whose pixels match the frame this many seconds earlier is flagged stationary.
+    ghost_ratio : float
+        A blob whose frame pixels carry less than this fraction of the background's gradient
+        energy is a ghost (a vehicle imprinted on the background, not in the frame) and dropped.
+        0 disables the test; raising it removes more ghosts but also smooth, low-contrast vehicles.
     min_conf : float
         Detections with a lower confidence are dropped.
     """
@@ -206,6 +210,7 @@ class DetectionConfig:
     hold_stopped: bool = True
     max_hold_s: float = 120.0
     stationary_lag_s: float = 1.0
+    ghost_ratio: float = 0.8
     min_conf: float = 0.05
 
 
@@ -376,6 +381,9 @@ class ContextConfig:
         Measurement noise of the Kalman filter, metres.
     kalman_vel_std_mps : float
         Prior spread of a target's velocity when the filter starts, m/s.
+    image_object_size_m : float
+        ``aerotrack predict`` on image coordinates with no ``--gsd``: the median box's longer side
+        is taken to be this many metres (a car), which sets the scale of the metre-based settings.
     """
 
     history_s: float = 1.0
@@ -393,6 +401,7 @@ class ContextConfig:
     kalman_accel_mps2: float = 3.0
     kalman_meas_std_m: float = 0.1
     kalman_vel_std_mps: float = 5.0
+    image_object_size_m: float = 4.5
 
 
 @dataclass(frozen=True)

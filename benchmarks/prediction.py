@@ -1,0 +1,155 @@
+"""Motion-context prediction on real trajectories (Stanford Drone Dataset scenes).
+
+Protocol (issue 6, after Ali, Reilly & Shah section 5): 30 fps, F = 30 frames of history, a query
+every 0.5 s (frames divisible by 15) for each Car, Bus, Cart, Biker and Skater that moved >= 0.5 m in
+its last observed second and whose greatest distance from where that second began, over the second
+plus the 3 s horizon, is >= 3 m; `lost` rows dropped (from the truth and from the context alike);
+every frame of history and horizon must be present. Constant velocity is least squares over the last
+F frames. A window is *curved* when the heading of the true motion (over 0.5 s steps, ignoring
+steps shorter than 0.25 m) departs from the heading of the last observed second by more than 30
+degrees anywhere in the horizon. Errors in metres with the scene scales of SOURCE.md.
+
+Each method predicts with :meth:`aerotrack.context.motion.MotionPredictor.predict` on the whole
+scene's table: the target's rows after `last_seen` and other tracks' rows after each predicted frame
+are ignored by construction (tested in tests/test_predict.py).
+
+Run: /tmp/venv/bin/python benchmarks/prediction.py [--scenes deathCircle/video4 ...] [--stride 15]
+Writes benchmarks/results/prediction.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from aerotrack.config import ContextConfig  # noqa: E402
+from aerotrack.context.motion import PREDICTION_METHODS, TrackTable, get_predictor  # noqa: E402
+from aerotrack.evaluation.prediction import prediction_errors  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data" / "sdd_stanford_drone_subset"
+SCALES = {  # metres per pixel, SOURCE.md
+    "nexus/video4": 0.04588, "nexus/video5": 0.04540,
+    "gates/video8": 0.04519, "deathCircle/video4": 0.03898,
+}
+QUERY_CLASSES = {"Car", "Bus", "Cart", "Biker", "Skater"}
+FPS, F, H = 30.0, 30, 90
+NS = {"1s": 30, "2s": 60, "3s": 90}
+
+
+def load_sdd(path: Path):
+    """(ids, frames, xy centres in px, labels dict) of the non-lost rows."""
+    ids, frames, xy, labels = [], [], [], {}
+    for line in path.read_text().splitlines():
+        p = line.split()
+        if len(p) < 10 or p[6] == "1":
+            continue
+        i = int(p[0])
+        x0, y0, x1, y1 = map(float, p[1:5])
+        ids.append(i)
+        frames.append(int(p[5]) + 1)  # 1-based like every aerotrack file
+        xy.append(((x0 + x1) / 2, (y0 + y1) / 2))
+        labels[i] = p[9].strip('"')
+    return TrackTable.from_arrays(ids, frames, xy), labels
+
+
+def make_queries(table: TrackTable, labels: dict, mpp: float, stride: int):
+    """[(id, last_seen, truth (H, 2), curved)] following the protocol."""
+    out = []
+    for i in table.track_ids():
+        if labels.get(int(i)) not in QUERY_CLASSES:
+            continue
+        fr, xy = table.track(int(i))
+        if len(fr) < F + H + 1:
+            continue
+        pos = {int(f): k for k, f in enumerate(fr)}
+        for T in range(int(fr[0]) + F, int(fr[-1]) - H + 1):
+            if T % stride:
+                continue
+            a, b = pos.get(T - F), pos.get(T + H)
+            if a is None or b is None or b - a != F + H:
+                continue  # a missing (lost) frame in the window
+            seg = xy[a:b + 1]
+            if np.hypot(*(seg[F] - seg[0])) * mpp < 0.5:
+                continue
+            if np.hypot(*(seg - seg[0]).T).max() * mpp < 3.0:
+                continue
+            h0 = math.atan2(*(seg[F] - seg[0])[::-1])
+            curved = False
+            for k in range(F + 1, F + H + 1):
+                d = seg[k] - seg[k - 15]
+                if math.hypot(*d) * mpp < 0.25:
+                    continue
+                dh = abs((math.atan2(d[1], d[0]) - h0 + math.pi) % (2 * math.pi) - math.pi)
+                if dh > math.radians(30):
+                    curved = True
+                    break
+            out.append((int(i), T, seg[F + 1:].copy(), curved))
+    return out
+
+
+def run(scenes, stride, methods, config):
+    per = {m: {"curved": [], "straight": []} for m in methods}
+    timing = {m: 0.0 for m in methods}
+    counts = {}
+    for scene in scenes:
+        table, labels = load_sdd(DATA / scene / "annotations.txt")
+        mpp = SCALES[scene]
+        queries = make_queries(table, labels, mpp, stride)
+        counts[scene] = {"curved": sum(q[3] for q in queries),
+                         "straight": sum(not q[3] for q in queries)}
+        for m in methods:
+            pred = get_predictor(m, config, FPS, metres_per_unit=mpp)
+            t0 = time.perf_counter()
+            for i, T, truth, curved in queries:
+                p = pred.predict(table, i, T, H)
+                per[m]["curved" if curved else "straight"].append(prediction_errors(p, truth) * mpp)
+            timing[m] += time.perf_counter() - t0
+    return per, timing, counts
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=list(SCALES))
+    ap.add_argument("--stride", type=int, default=15, help="frames between queries (15 = 0.5 s)")
+    ap.add_argument("--methods", nargs="+", default=list(PREDICTION_METHODS))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "prediction.json"))
+    args = ap.parse_args(argv)
+    config = ContextConfig()
+    methods = list(dict.fromkeys(["constant-velocity", *args.methods]))
+    per, timing, counts = run(args.scenes, args.stride, methods, config)
+    res = {"protocol": {"fps": FPS, "F": F, "horizon": H, "stride": args.stride,
+                        "scenes": args.scenes, "queries": counts},
+           "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
+           "MPE_m": {}, "ratio_to_cv": {}, "seconds": timing}
+    cv = per["constant-velocity"]
+    print(f"queries: {counts}")
+    print(f"{'method':<18} {'window':<9} {'n':>4} " + " ".join(f"{k:>13}" for k in NS))
+    for m in methods:
+        res["MPE_m"][m], res["ratio_to_cv"][m] = {}, {}
+        for w in ("curved", "straight"):
+            e = np.array(per[m][w]).reshape(-1, H)
+            ecv = np.array(cv[w]).reshape(-1, H)
+            row, rrow = {}, {}
+            for k, n in NS.items():
+                mpe = float(e[:, :n].mean()) if len(e) else float("nan")
+                ref = float(ecv[:, :n].mean()) if len(ecv) else float("nan")
+                row[k], rrow[k] = mpe, mpe / ref if ref else float("nan")
+            res["MPE_m"][m][w], res["ratio_to_cv"][m][w] = row, rrow
+            print(f"{m:<18} {w:<9} {len(e):>4} " +
+                  " ".join(f"{row[k]:6.2f}m {rrow[k]:4.2f}x" for k in NS))
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(res, indent=2))
+    return res
+
+
+if __name__ == "__main__":
+    main()

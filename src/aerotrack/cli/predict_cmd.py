@@ -1,0 +1,56 @@
+"""``aerotrack predict``: where were unobserved targets? Motion context on any tracks file."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from ..config import load_config
+from ..context.motion import PREDICTION_METHODS
+from ..context.predict import run_predict
+from .common import config_option, set_option
+
+log = logging.getLogger(__name__)
+
+
+@click.command("predict")
+@click.argument("tracks", type=click.Path(dir_okay=False))
+@click.option("--queries", "queries", required=True, type=click.Path(dir_okay=False),
+              help="CSV with a header id,last_seen,horizon: predict track `id` for the `horizon` "
+                   "frames after `last_seen`.")
+@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
+              help="Output CSV: query,id,frame,x,y (query = 0-based row of the queries file).")
+@click.option("--method", type=click.Choice(list(PREDICTION_METHODS)), default=None,
+              help="Predictor: context (aerotrack's path following, default), paper (Ali et al. "
+                   "2007 as written), kalman, constant-velocity.")
+@click.option("--fps", type=float, default=30.0, show_default=True, help="Frame rate of the tracks.")
+@click.option("--space", type=click.Choice(["image", "map"]), default="image", show_default=True,
+              help="Predict box centres (image) or the x,y map columns (map).")
+@click.option("--gsd", type=float, default=None,
+              help="Metres per coordinate unit. Default: metres (or lon/lat degrees) for --space "
+                   "map; for image, the median box's long side is taken as context.image_object_size_m.")
+@config_option
+@set_option
+def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, overrides):
+    """Predict the positions of targets after they were last seen (motion context).
+
+    The prediction at frame f uses only the target's rows up to last_seen and the other tracks'
+    rows up to f, so it is what an online tracker could have known.
+
+    \b
+    Examples:
+      aerotrack predict run/tracks.csv --queries q.csv --out p.csv
+      aerotrack predict tracks.csv --queries q.csv --out p.csv --method paper --fps 25
+      aerotrack predict run/tracks.csv --queries q.csv --out p.csv --space map
+    """
+    from ..errors import InputError
+
+    if fps <= 0:
+        raise InputError(f"--fps must be positive, got {fps}")
+    if gsd is not None and gsd <= 0:
+        raise InputError(f"--gsd must be positive, got {gsd}")
+    config = load_config(config_path, overrides).context
+    n = run_predict(tracks, queries, out, method=method or config.method, fps=fps, space=space,
+                    config=config, metres_per_unit=gsd)
+    log.info("wrote %d predicted positions to %s", n, out)

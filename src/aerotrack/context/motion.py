@@ -1,0 +1,597 @@
+"""Motion context: where does an unobserved target go? (Ali, Reilly & Shah 2007, sections 4.1-4.2).
+
+Four predictors share one interface, :meth:`MotionPredictor.predict`, chosen by name from
+:data:`PREDICTION_METHODS`:
+
+``paper``
+    Ali et al. as written: predictors chosen by the Lyapunov characteristic exponent (eq. 1) between
+    the target's last F frames and every F-frame section of every other track (current or past,
+    normalised to a common start), and the regression
+    ``r(t) = m(t) + S(t) S(0)^-1 (r(0) - m(0))`` on their positions when there are >= 3 of them, the
+    Kalman filter otherwise.
+``context`` (default)
+    aerotrack's motion context. The paper's idea, that predictors are objects that move or moved along
+    the same stretch of path, used by *position*: at every predicted step the target follows the
+    local flow field of other tracks' (current and past) positions and velocities near its predicted
+    position and heading, keeping its own speed; where there is no support it coasts on the Kalman
+    filter's velocity. It handles curves (roundabouts, turns) that constant velocity cannot.
+``kalman``
+    The project's constant-velocity Kalman filter (:mod:`aerotrack.kalman`), run over the last F
+    frames and then predicted forward.
+``constant-velocity``
+    A least-squares line fitted to the last F frames, extrapolated.
+
+Causality: the prediction at frame ``f`` uses only the target's rows up to ``last_seen`` and other
+tracks' rows up to ``f``; every neighbour set is put in a canonical (id, frame) order before it is
+summed, so deleting any later row leaves the output bit-identical.
+
+Coordinates: everything here is in one "world" frame (map pixels, frame pixels of a static camera,
+or any planar coordinates); ``metres_per_unit`` converts the configuration's metres to it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..config import ContextConfig
+from ..errors import ConfigError, InputError
+
+__all__ = [
+    "TrackTable",
+    "MotionPredictor",
+    "ConstantVelocityPredictor",
+    "KalmanPredictor",
+    "PaperPredictor",
+    "ContextPredictor",
+    "PREDICTION_METHODS",
+    "get_predictor",
+    "lce",
+    "affine_regression",
+    "fit_constant_velocity",
+]
+
+
+# --------------------------------------------------------------------------------------------------
+# data
+
+
+@dataclass(frozen=True)
+class TrackTable:
+    """Every row of a set of tracks, sorted by (id, frame), at most one row per (id, frame).
+
+    Attributes
+    ----------
+    ids : ndarray, shape (N,), int64
+    frames : ndarray, shape (N,), int64
+        1-based frame numbers.
+    xy : ndarray, shape (N, 2), float64
+        Positions in world units.
+    """
+
+    ids: np.ndarray
+    frames: np.ndarray
+    xy: np.ndarray
+
+    @classmethod
+    def from_arrays(cls, ids, frames, xy) -> "TrackTable":
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if not (len(ids) == len(frames) == len(xy)):
+            raise ValueError("TrackTable: ids, frames and xy must have the same length")
+        order = np.lexsort((frames, ids))
+        ids, frames, xy = ids[order], frames[order], xy[order]
+        dup = (np.diff(ids) == 0) & (np.diff(frames) == 0)
+        if dup.any():
+            k = int(np.flatnonzero(dup)[0])
+            raise InputError(f"track {ids[k]} has two rows for frame {frames[k]}")
+        return cls(ids, frames, xy)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def track(self, track_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """(frames (n,), xy (n, 2)) of one track, sorted by frame."""
+        lo, hi = np.searchsorted(self.ids, [track_id, track_id + 1])
+        return self.frames[lo:hi], self.xy[lo:hi]
+
+    def track_ids(self) -> np.ndarray:
+        return np.unique(self.ids)
+
+    def without(self, track_id: int) -> "TrackTable":
+        keep = self.ids != track_id
+        return TrackTable(self.ids[keep], self.frames[keep], self.xy[keep])
+
+
+def _history(table: TrackTable, track_id: int, last_seen: int, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The target's rows in [last_seen - window, last_seen] (only rows up to ``last_seen``)."""
+    fr, xy = table.track(track_id)
+    keep = (fr <= last_seen) & (fr >= last_seen - window)
+    return fr[keep], xy[keep]
+
+
+# --------------------------------------------------------------------------------------------------
+# pure functions
+
+
+def fit_constant_velocity(frames: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares line through a short history.
+
+    Parameters
+    ----------
+    frames : ndarray, shape (n,)
+    xy : ndarray, shape (n, 2), world units
+
+    Returns
+    -------
+    p0 : ndarray, shape (2,)
+        Fitted position at ``frames[-1]``.
+    v : ndarray, shape (2,)
+        Velocity, world units per frame (zero with a single row).
+    """
+    frames = np.asarray(frames, dtype=np.float64)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(frames) < 2 or np.ptp(frames) == 0:
+        return xy[-1].copy(), np.zeros(2)
+    t = frames - frames[-1]
+    tm = t.mean()
+    dt = t - tm
+    v = (dt[:, None] * (xy - xy.mean(axis=0))).sum(axis=0) / (dt * dt).sum()
+    p0 = xy.mean(axis=0) - v * tm
+    return p0, v
+
+
+def lce(Z: np.ndarray, Zcn: np.ndarray) -> float:
+    """Lyapunov characteristic exponent between two track sections (Ali et al. eq. 1).
+
+    ``gamma = 1/F sum_{i=2}^F ln(d_i / d_{i-1})`` with ``d_i = |Z(i) - Zcn(i)|``.
+
+    As printed, eq. 1 is degenerate: after normalisation both sections start at the same point, so
+    ``d_1 = 0`` and the first term is infinite. The sum telescopes to ``ln(d_F / d_1) / F``; we start
+    it at the first non-zero distance, ``gamma = ln(d_F / d_k) / F`` with ``d_k`` the first distance
+    above 1e-9 of the section's extent, which is the paper's growth-rate idea without the division by
+    zero. Two identical sections give 0.
+
+    Parameters
+    ----------
+    Z, Zcn : ndarray, shape (F, 2)
+        Predictand section and normalised candidate section (same start point).
+    """
+    d = np.hypot(*(np.asarray(Z, float) - np.asarray(Zcn, float)).T)
+    F = len(d)
+    scale = max(float(np.ptp(np.asarray(Z, float), axis=0).max()), 1e-12)
+    nz = np.flatnonzero(d > 1e-9 * scale)
+    if len(nz) == 0 or nz[0] == F - 1:
+        return 0.0
+    return float(np.log(d[-1] / d[nz[0]]) / F)
+
+
+def _lce_batch(Z: np.ndarray, sections: np.ndarray) -> np.ndarray:
+    """:func:`lce` for (K, F, 2) normalised sections at once -> (K,)."""
+    d = np.hypot(*(sections - Z[None]).transpose(2, 0, 1))  # (K, F)
+    F = d.shape[1]
+    scale = max(float(np.ptp(Z, axis=0).max()), 1e-12)
+    pos = d > 1e-9 * scale
+    first = np.where(pos.any(axis=1), pos.argmax(axis=1), F - 1)
+    d0 = d[np.arange(len(d)), first]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.log(d[:, -1] / d0) / F
+    g[first >= F - 1] = 0.0
+    return g
+
+
+def affine_regression(pred_start: np.ndarray, pred_now: np.ndarray, target_start: np.ndarray):
+    """The motion-context regression of Ali et al. section 4.1.
+
+    ``r(t) = m(t) + S(t) S(0)^-1 (r(0) - m(0))`` with ``m`` the predictors' centre of mass and
+    ``S(t) = sum_j (r_j(t) - m(t)) (r_j(0) - m(0))^T``: the least-squares affine map taking the
+    predictors' configuration at time 0 to time t, applied to the target.
+
+    Parameters
+    ----------
+    pred_start : ndarray, shape (M, 2)
+        Predictors' positions at time 0, world units (M >= 3).
+    pred_now : ndarray, shape (M, 2)
+        The same predictors at time t.
+    target_start : ndarray, shape (2,)
+        The target at time 0.
+
+    Returns
+    -------
+    ndarray, shape (2,), or None when S(0) is singular (fewer than 3 non-collinear predictors).
+    """
+    a = np.asarray(pred_start, float).reshape(-1, 2)
+    b = np.asarray(pred_now, float).reshape(-1, 2)
+    if len(a) < 3:
+        return None
+    m0, mt = a.mean(axis=0), b.mean(axis=0)
+    A0, At = a - m0, b - mt
+    S0 = A0.T @ A0
+    St = At.T @ A0
+    # A near-singular S(0) (predictors on a line) makes the affine map arbitrary across the line.
+    ev = np.linalg.eigvalsh(S0)
+    if ev[0] <= 1e-6 * max(ev[1], 1e-300):
+        return None
+    return mt + St @ np.linalg.solve(S0, np.asarray(target_start, float) - m0)
+
+
+# --------------------------------------------------------------------------------------------------
+# predictors
+
+
+class MotionPredictor:
+    """Predicts an unobserved target's positions from its history and the other tracks.
+
+    Parameters
+    ----------
+    config : ContextConfig
+    fps : float
+        Frame rate (frames per second).
+    metres_per_unit : float, optional
+        World units -> metres; None means world units are metres.
+    """
+
+    name = "base"
+
+    def __init__(self, config: ContextConfig | None = None, fps: float = 30.0,
+                 metres_per_unit: float | None = None) -> None:
+        self.config = config or ContextConfig()
+        if not fps or fps <= 0:
+            raise ConfigError(f"fps must be positive, got {fps}")
+        self.fps = float(fps)
+        self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
+        self.window = max(2, int(round(self.config.history_s * self.fps)))
+
+    def m(self, metres: float) -> float:
+        """Metres -> world units."""
+        return metres / self.mpu
+
+    def predict(self, table: TrackTable, track_id: int, last_seen: int, horizon: int) -> np.ndarray:
+        """Positions of ``track_id`` at frames ``last_seen+1 .. last_seen+horizon``.
+
+        Parameters
+        ----------
+        table : TrackTable
+            Every track (the target's rows after ``last_seen`` and the others' rows after each
+            predicted frame are ignored).
+        track_id : int
+        last_seen : int
+            Last frame at which the target was observed (must be one of its rows).
+        horizon : int
+            Number of frames to predict (> 0).
+
+        Returns
+        -------
+        ndarray, shape (horizon, 2), world units.
+        """
+        fr, xy = _history(table, track_id, last_seen, self.window)
+        if len(fr) == 0 or fr[-1] != last_seen:
+            raise InputError(f"track {track_id} has no row at last_seen frame {last_seen}")
+        return self._predict(table, track_id, fr, xy, int(last_seen), int(horizon))
+
+    def _predict(self, table, track_id, fr, xy, T, h) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError
+
+
+class ConstantVelocityPredictor(MotionPredictor):
+    """Least squares over the last F frames, extrapolated."""
+
+    name = "constant-velocity"
+
+    def _predict(self, table, track_id, fr, xy, T, h):
+        p0, v = fit_constant_velocity(fr, xy)
+        k = np.arange(1, h + 1, dtype=np.float64)[:, None]
+        return p0[None] + k * v[None]
+
+
+def kalman_start(fr: np.ndarray, xy: np.ndarray, fps: float, mpu: float,
+                 config: ContextConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Filter a history with the project's constant-velocity Kalman filter (:mod:`aerotrack.kalman`).
+
+    Parameters
+    ----------
+    fr : ndarray, shape (n,)
+        Frames of the history.
+    xy : ndarray, shape (n, 2)
+        Positions, world units.
+    fps, mpu : float
+        Frame rate and metres per world unit (the config's noise is in metres).
+
+    Returns
+    -------
+    p : ndarray, shape (2,)
+        Posterior position at the last frame, world units.
+    v : ndarray, shape (2,)
+        Posterior velocity, world units per frame. Its mean prediction ``p + k v`` is the
+        ``kalman`` method.
+    """
+    from ..kalman import ConstantVelocityKF  # the project's one Kalman filter
+
+    kf = ConstantVelocityKF(accel_std=config.kalman_accel_mps2 / mpu,
+                            pos_std=config.kalman_meas_std_m / mpu, pos_frac=0.0,
+                            size_std=1.0, size_std_obs=1.0, size_frac=0.0,
+                            vel_std=config.kalman_vel_std_mps / mpu)
+    zs = np.column_stack([xy, np.ones((len(xy), 2))])
+    xs, _, _ = kf.filter(zs, np.asarray(fr, dtype=np.float64) / fps)
+    return xs[-1, :2].copy(), xs[-1, 4:6] / fps
+
+
+class KalmanPredictor(MotionPredictor):
+    """The project's constant-velocity Kalman filter over the last F frames, then predicted."""
+
+    name = "kalman"
+
+    def _predict(self, table, track_id, fr, xy, T, h):
+        p, v = kalman_start(fr, xy, self.fps, self.mpu, self.config)
+        return p[None] + np.arange(1, h + 1, dtype=np.float64)[:, None] * v[None]
+
+
+class PaperPredictor(MotionPredictor):
+    """Ali et al. 4.1-4.2 as written (LCE-selected predictors + affine regression).
+
+    Choices where the paper is silent or degenerate (see :func:`lce`):
+
+    * one predictor per other track: its section (ending at or before ``last_seen``, all F+1 frames
+      present) with the lowest LCE, kept when ``gamma <= config.lce_alpha``;
+    * the regression runs on the predictors' raw positions: predictor j at step k is at
+      ``r_j(t_e^j + k)``; a predictor whose track has no row there is dropped from then on;
+    * during the prediction there is no observation of the target to test divergence against, so
+      predictors are only dropped when their track ends;
+    * fewer than 3 predictors (or a singular S(0)): the Kalman filter's prediction.
+    """
+
+    name = "paper"
+
+    def _predict(self, table, track_id, fr, xy, T, h):
+        F = self.window
+        fallback = _fallback_predict(fr, xy, h, self)
+        if fr[0] > T - F:
+            return fallback
+        grid = np.arange(T - F, T + 1)
+        Z = np.column_stack([np.interp(grid, fr, xy[:, 0]), np.interp(grid, fr, xy[:, 1])])
+        chosen = []  # (track id, end frame)
+        for j in table.track_ids():
+            if j == track_id:
+                continue
+            jf, jxy = table.track(j)
+            keep = jf <= T
+            jf, jxy = jf[keep], jxy[keep]
+            if len(jf) < F + 1:
+                continue
+            # sections of F+1 consecutive frames
+            ok = (jf[F:] - jf[:-F]) == F
+            ends = np.flatnonzero(ok) + F
+            if len(ends) == 0:
+                continue
+            idx = ends[:, None] - F + np.arange(F + 1)[None]
+            sec = jxy[idx]  # (K, F+1, 2)
+            secn = sec - sec[:, :1] + Z[None, :1]
+            g = _lce_batch(Z, secn)
+            k = int(np.argmin(g))
+            if g[k] <= self.config.lce_alpha:
+                chosen.append((int(j), int(jf[ends[k]])))
+        if len(chosen) < self.config.min_predictors:
+            return fallback
+        tracks = {j: table.track(j) for j, _ in chosen}
+        start = np.array([tracks[j][1][np.searchsorted(tracks[j][0], te)] for j, te in chosen])
+        alive = np.ones(len(chosen), bool)
+        out = np.empty((h, 2))
+        r0 = xy[-1]
+        for k in range(1, h + 1):
+            now = np.zeros((len(chosen), 2))
+            for n, (j, te) in enumerate(chosen):
+                if not alive[n]:
+                    continue
+                jf, jxy = tracks[j]
+                i = np.searchsorted(jf, te + k)
+                # te + k <= T + k: the predictor's row is never later than the predicted frame
+                if i < len(jf) and jf[i] == te + k:
+                    now[n] = jxy[i]
+                else:
+                    alive[n] = False
+            r = None
+            if alive.sum() >= self.config.min_predictors:
+                r = affine_regression(start[alive], now[alive], r0)
+            out[k - 1] = fallback[k - 1] if r is None else r
+        return out
+
+
+def _fallback_predict(fr, xy, h, pred: MotionPredictor) -> np.ndarray:
+    return KalmanPredictor(pred.config, pred.fps, pred.mpu)._predict(None, -1, fr, xy, int(fr[-1]), h)
+
+
+
+class PathIndex:
+    """Other tracks' rows, sampled every ``config.flow_sample_s``, for path-following queries.
+
+    Rows are kept when their frame number is a multiple of the sampling stride, so the sample does
+    not depend on which later rows exist; each carries its backward velocity over
+    ``config.velocity_lag_s`` (only earlier rows of the same track are used).
+
+    Parameters
+    ----------
+    table : TrackTable
+    fps, mpu : float
+    config : ContextConfig
+    """
+
+    def __init__(self, table: TrackTable, fps: float, mpu: float, config: ContextConfig) -> None:
+        self.stride = stride = max(1, int(round(config.flow_sample_s * fps)))
+        lag = max(stride, int(round(config.velocity_lag_s * fps / stride)) * stride)
+        sel = np.flatnonzero(table.frames % stride == 0)
+        self.ids = table.ids[sel]
+        self.frames = table.frames[sel]
+        self.xy = table.xy[sel]
+        n = len(sel)
+        key = self.ids.astype(np.float64) * 1e9 + self.frames
+        want = key - lag
+        j = np.minimum(np.searchsorted(key, want), max(n - 1, 0))
+        have = (key[j] == want) if n else np.zeros(0, bool)
+        self.vel = np.where(have[:, None], (self.xy - self.xy[j]) / lag, np.nan)  # units / frame
+        self.tree = cKDTree(self.xy) if n else None
+        # start/end of each id's run of rows (sorted by id, frame)
+        self._uid, self._lo = np.unique(self.ids, return_index=True)
+        self._hi = np.append(self._lo[1:], n)
+
+    def rows_of(self, track_id: int) -> tuple[int, int]:
+        k = int(np.searchsorted(self._uid, track_id))
+        return int(self._lo[k]), int(self._hi[k])
+
+    def near(self, p: np.ndarray, radius: float, frame: int, exclude_id: int) -> np.ndarray:
+        """Rows within ``radius`` of ``p`` (world units) with frame <= ``frame`` and another id,
+        in canonical (id, frame) order."""
+        if self.tree is None:
+            return np.zeros(0, np.int64)
+        cand = np.sort(np.asarray(self.tree.query_ball_point(p, radius * 1.01), dtype=np.int64))
+        if len(cand) == 0:
+            return cand
+        d2 = ((self.xy[cand] - p) ** 2).sum(axis=1)
+        keep = (d2 <= radius * radius) & (self.frames[cand] <= frame) & (self.ids[cand] != exclude_id)
+        return cand[keep]
+
+
+def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, lengths: np.ndarray,
+                frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Displacements along a polyline at given arc lengths, usable only once reached.
+
+    Parameters
+    ----------
+    path_xy : ndarray, shape (n, 2)
+        A predictor's positions from the matched point on (world units).
+    path_frames : ndarray, shape (n,)
+        Their frame numbers.
+    lengths : ndarray, shape (h,)
+        Arc lengths travelled by the target at each predicted step (world units).
+    frames : ndarray, shape (h,)
+        The predicted frames; a point of the path may be used only if its row is not later.
+
+    Returns
+    -------
+    disp : ndarray, shape (h, 2)
+        ``path(length) - path(0)``.
+    valid : ndarray, shape (h,), bool
+    """
+    seg = np.hypot(*np.diff(path_xy, axis=0).T)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    i = np.searchsorted(cum, lengths, side="left")
+    valid = i < len(cum)
+    i = np.clip(i, 1, len(cum) - 1)
+    valid &= path_frames[i] <= frames
+    a, b = cum[i - 1], cum[i]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(b > a, (lengths - a) / (b - a), 1.0)
+    w = np.clip(w, 0.0, 1.0)[:, None]
+    pos = path_xy[i - 1] * (1 - w) + path_xy[i] * w
+    return pos - path_xy[0], valid
+
+
+class ContextPredictor(MotionPredictor):
+    """aerotrack's motion context: follow the paths other objects took, at the target's own speed.
+
+    The paper's predictors are objects that move or moved along the same stretch of road; here they
+    are found *by position*, which is what eq. 1's displacement-only match misses:
+
+    1. start state (position ``p0``, velocity) from the Kalman filter over the last F frames;
+    2. predictors: other tracks (current or past) with a row within ``flow_radius_m`` of ``p0``,
+       seen no later than ``last_seen``, heading within ``flow_heading_deg`` of the target; each is
+       scored by how closely its path passes the target's last F positions (mean distance from each
+       of them to the predictor's rows before the match, a position-aligned LCE-like similarity) and
+       kept when that is within the radius;
+    3. each predictor's path from its matched row on is walked at the target's own speed (arc
+       length, so a slower biker and a faster cart on the same curve agree), using only rows no
+       later than the predicted frame; the weighted mean displacement is the path estimate;
+    4. fusion with the Kalman prediction: ``alpha = W / (W + flow_support)`` with W the summed
+       predictor weights, so a well-trodden path takes over and a lone predictor bends little.
+
+    Raising ``flow_radius_m`` finds more predictors but mixes in neighbouring lanes; raising
+    ``flow_support`` trusts the paths less (closer to the Kalman filter).
+    """
+
+    name = "context"
+
+    def __init__(self, config=None, fps=30.0, metres_per_unit=None) -> None:
+        super().__init__(config, fps, metres_per_unit)
+        self._index_key: int | None = None
+        self._index: PathIndex | None = None
+
+    def index_for(self, table: TrackTable) -> PathIndex:
+        if self._index_key != id(table):
+            self._index = PathIndex(table, self.fps, self.mpu, self.config)
+            self._index_key = id(table)
+        return self._index
+
+    def _predict(self, table, track_id, fr, xy, T, h):
+        c = self.config
+        p0, v0 = kalman_start(fr, xy, self.fps, self.mpu, c)
+        k = np.arange(1, h + 1)
+        base = p0 + k[:, None] * v0
+        speed = math.hypot(v0[0], v0[1])
+        if table is None or speed * self.fps * self.mpu < c.flow_min_speed_mps:
+            return base
+        index = self.index_for(table)
+        radius = self.m(c.flow_radius_m)
+        cos_gate = math.cos(math.radians(c.flow_heading_deg))
+        own = v0 / speed
+        rows = index.near(p0, radius, T, track_id)
+        if len(rows) == 0:
+            return base
+        vel = index.vel[rows]
+        sp = np.hypot(vel[:, 0], vel[:, 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = (vel @ own) / sp
+        ok = np.isfinite(cos) & (cos >= cos_gate) & (sp * self.fps * self.mpu >= c.flow_min_speed_mps)
+        rows = rows[ok]
+        if len(rows) == 0:
+            return base
+        # one matched row per predictor track: the nearest to p0 (ties: earliest, canonical order)
+        d = np.hypot(*(index.xy[rows] - p0).T)
+        tid = index.ids[rows]
+        best = {}
+        for r, t, dd in zip(rows, tid, d):
+            if t not in best or dd < best[t][1]:
+                best[t] = (r, dd)
+        sigma = self.m(c.path_match_m)
+        lengths = speed * k
+        frames = T + k
+        num = np.zeros((h, 2))
+        W = np.zeros(h)
+        hist = xy[:: max(1, index.stride)]
+        for t in sorted(best):
+            r, _ = best[t]
+            lo, hi = index.rows_of(int(t))
+            back = index.xy[max(lo, r - 4 * self.window // index.stride): r + 1]
+            dpath = np.sqrt(((hist[:, None] - back[None]) ** 2).sum(-1)).min(axis=1).mean()
+            if dpath > 2 * sigma:
+                continue
+            w = math.exp(-0.5 * (dpath / sigma) ** 2)
+            disp, valid = follow_path(index.xy[r:hi], index.frames[r:hi], lengths, frames)
+            num[valid] += w * disp[valid]
+            W[valid] += w
+        alpha = W / (W + c.flow_support)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            path = p0 + num / np.where(W > 0, W, 1.0)[:, None]
+        return np.where((W > 0)[:, None], alpha[:, None] * path + (1 - alpha[:, None]) * base, base)
+
+
+PREDICTION_METHODS: dict[str, type[MotionPredictor]] = {
+    "context": ContextPredictor,
+    "paper": PaperPredictor,
+    "kalman": KalmanPredictor,
+    "constant-velocity": ConstantVelocityPredictor,
+}
+
+
+def get_predictor(name: str, config: ContextConfig | None = None, fps: float = 30.0,
+                  metres_per_unit: float | None = None) -> MotionPredictor:
+    """A predictor by registered name; an unknown name lists the valid ones."""
+    try:
+        cls = PREDICTION_METHODS[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown prediction method {name!r} (valid: {', '.join(PREDICTION_METHODS)})"
+        ) from None
+    return cls(config, fps, metres_per_unit)

@@ -1,0 +1,155 @@
+"""``aerotrack predict``: motion-context prediction for queries on any tracks file.
+
+``Q.csv`` has a header ``id,last_seen,horizon``; the answer has a header ``query,id,frame,x,y``
+with exactly ``horizon`` rows per query (frames ``last_seen+1 .. last_seen+horizon``), x, y the
+predicted box centre in the coordinates of the tracks' box columns (``space="image"``) or of their
+x, y map columns (``space="map"``). The prediction at frame f uses only the target's rows up to
+``last_seen`` and the other tracks' rows up to f (see :mod:`aerotrack.context.motion`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..config import ContextConfig
+from ..errors import FormatError, InputError
+from ..io.mot import read_mot
+from ..io.output import atomic_write_text
+from .motion import TrackTable, get_predictor
+
+__all__ = ["Query", "read_queries", "tracks_table", "scale_of", "predict_queries", "format_predictions",
+           "run_predict"]
+
+QUERY_HEADER = ("id", "last_seen", "horizon")
+OUTPUT_HEADER = "query,id,frame,x,y"
+
+
+@dataclass(frozen=True)
+class Query:
+    id: int
+    last_seen: int
+    horizon: int
+
+
+def read_queries(path: str | Path) -> list[Query]:
+    """Read ``Q.csv`` (header ``id,last_seen,horizon``, one query per row).
+
+    Raises
+    ------
+    InputError, FormatError
+        Missing file, bad header, a non-integer value or a horizon <= 0 (the message names the line).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"--queries {p}: file not found")
+    try:
+        lines = p.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"--queries {p}: cannot read ({exc})") from None
+    rows = [(n, ln) for n, ln in enumerate(lines, start=1) if ln.strip()]
+    if not rows:
+        raise FormatError(f"--queries {p}: empty, expected a header id,last_seen,horizon")
+    header = tuple(c.strip().lower() for c in rows[0][1].split(","))
+    if header != QUERY_HEADER:
+        raise FormatError(f"--queries {p} line {rows[0][0]}: expected the header id,last_seen,horizon, "
+                          f"found {rows[0][1].strip()!r}")
+    out = []
+    for n, ln in rows[1:]:
+        parts = [c.strip() for c in ln.split(",")]
+        if len(parts) != 3:
+            raise FormatError(f"--queries {p} line {n}: expected 3 values, found {len(parts)}")
+        try:
+            vals = [float(v) for v in parts]
+        except ValueError:
+            raise FormatError(f"--queries {p} line {n}: non-numeric value in {ln.strip()!r}") from None
+        if not all(math.isfinite(v) and v.is_integer() for v in vals):
+            raise FormatError(f"--queries {p} line {n}: id, last_seen and horizon must be integers")
+        q = Query(*(int(v) for v in vals))
+        if q.horizon <= 0:
+            raise FormatError(f"--queries {p} line {n}: horizon must be positive, got {q.horizon}")
+        out.append(q)
+    return out
+
+
+def tracks_table(rows: np.ndarray, space: str = "image", name: str = "TRACKS") -> TrackTable:
+    """A :class:`TrackTable` from (N, 10) MOT rows: box centres (``image``) or x, y (``map``)."""
+    if space not in ("image", "map"):
+        raise InputError(f"--space: expected image or map, got {space!r}")
+    if space == "image":
+        xy = rows[:, 2:4] + rows[:, 4:6] / 2.0
+    else:
+        xy = rows[:, 7:9]
+        if len(rows) and np.all(xy == -1):
+            raise InputError(f"{name}: --space map needs the x,y map columns, but they are all -1")
+    return TrackTable.from_arrays(rows[:, 1], rows[:, 0], xy)
+
+
+def scale_of(rows: np.ndarray, space: str, config: ContextConfig) -> float:
+    """Metres per coordinate unit when none is given.
+
+    ``map``: coordinates within +-180 / +-90 spanning under a degree are taken as lon/lat degrees
+    (metres from the local radius of the Earth), anything else as metres (projected CRS).
+    ``image``: the median box's longer side is taken to be ``config.image_object_size_m`` metres,
+    a guess that keeps the metre-based settings in proportion to the objects.
+    """
+    if space == "map":
+        xy = rows[:, 7:9]
+        if (np.all(np.abs(xy[:, 0]) <= 180) and np.all(np.abs(xy[:, 1]) <= 90)
+                and np.ptp(xy, axis=0).max() < 1.0):
+            return 111_320.0 * math.cos(math.radians(float(np.median(xy[:, 1]))))
+        return 1.0
+    side = np.maximum(rows[:, 4], rows[:, 5])
+    side = side[side > 0]
+    if len(side) == 0:
+        return 1.0
+    return config.image_object_size_m / float(np.median(side))
+
+
+def predict_queries(table: TrackTable, queries: list[Query], method: str, config: ContextConfig,
+                    fps: float, metres_per_unit: float | None) -> list[np.ndarray]:
+    """One (horizon, 2) array of predicted positions per query, in the table's units.
+
+    Raises
+    ------
+    InputError
+        A query names an unknown id, or a ``last_seen`` that is not one of the track's frames.
+    """
+    pred = get_predictor(method, config, fps, metres_per_unit)
+    known = set(table.track_ids().tolist())
+    out = []
+    for n, q in enumerate(queries):
+        if q.id not in known:
+            raise InputError(f"--queries row {n} (line {n + 2}): unknown id {q.id}")
+        fr, _ = table.track(q.id)
+        if not np.any(fr == q.last_seen):
+            raise InputError(f"--queries row {n} (line {n + 2}): track {q.id} has no row at "
+                             f"last_seen {q.last_seen}")
+        out.append(pred.predict(table, q.id, q.last_seen, q.horizon))
+    return out
+
+
+def format_predictions(queries: list[Query], preds: list[np.ndarray]) -> str:
+    lines = [OUTPUT_HEADER]
+    for n, (q, p) in enumerate(zip(queries, preds)):
+        for k in range(q.horizon):
+            lines.append(f"{n},{q.id},{q.last_seen + k + 1},{p[k, 0]:.6f},{p[k, 1]:.6f}")
+    return "\n".join(lines) + "\n"
+
+
+def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, method: str = "context",
+                fps: float = 30.0, space: str = "image", config: ContextConfig | None = None,
+                metres_per_unit: float | None = None) -> int:
+    """Read the inputs, predict every query, write ``out`` atomically; returns the row count."""
+    config = config or ContextConfig()
+    get_predictor(method, config, fps)  # fail on a bad method before reading anything
+    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False)
+    table = tracks_table(rows, space, name=str(tracks))
+    qs = read_queries(queries)
+    mpu = metres_per_unit or scale_of(rows, space, config)
+    preds = predict_queries(table, qs, method, config, fps, mpu)
+    atomic_write_text(out, format_predictions(qs, preds))
+    return sum(q.horizon for q in qs)
