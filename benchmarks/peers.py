@@ -226,6 +226,52 @@ def uavdt_table(seed: int = 0, *, workdir: Path | None = None,
     return table
 
 
+def speed_table(sizes: tuple[int, ...] = (20, 50, 150), n_frames: int = 300, repeats: int = 2, *,
+                names: tuple[str, ...] = ("bytetrack", "ocsort"),
+                extra: Mapping[str, Callable[[np.ndarray, float], object]] | None = None) -> dict:
+    """Frames/s of peers (and ``extra`` trackers) at several objects per frame, in one run.
+
+    Parameters
+    ----------
+    sizes : tuple of int
+        Objects per frame (:func:`common.synthetic_dets`, 1920x1080 frames, 30 frames/s).
+    n_frames : int
+        Frames per measurement.
+    repeats : int
+        Each measurement is repeated and the fastest kept (the machine is shared: the slower runs
+        measure other people's load).
+    names : tuple of str
+        Peers to time.
+    extra : mapping label -> callable(dets, fps)
+        Further trackers; each gets MOT rows (id column = -1) and the frame rate, and its wall
+        time is measured around the call.
+
+    Returns
+    -------
+    dict
+        ``{str(size): {label: frames_per_second}}``.
+    """
+    from common import synthetic_dets
+
+    out: dict = {}
+    for n in sizes:
+        dets = synthetic_dets(n, n_frames)
+        dets[:, 1] = -1
+        row = {}
+        for name in names:
+            best = min(track_rows(name, dets, 30.0)[1] for _ in range(repeats))
+            row[PEER_LABELS[name]] = n_frames / best
+        for label, fn in (extra or {}).items():
+            times = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                fn(dets, 30.0)
+                times.append(time.perf_counter() - t0)
+            row[label] = n_frames / min(times)
+        out[str(n)] = row
+    return out
+
+
 def format_table(table: Mapping[str, dict], baseline: str = "ByteTrack") -> str:
     """Rows: label, IDF1, HOTA, MOTA, IDSW, frames/s, speed ratio to ``baseline``."""
     base = table.get(baseline, {}).get("fps")
@@ -252,15 +298,24 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--buffer-s", type=float, default=None)
     t = sub.add_parser("table", help="the UAVDT table (default)")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--no-speed", action="store_true", help="skip the objects-per-frame speed table")
     args = ap.parse_args(argv)
     if args.cmd == "run":
         print(json.dumps(run_peer(args.name, args.dets, args.out, args.fps, args.buffer_s)))
         return
     table = uavdt_table(getattr(args, "seed", 0))
     print("UAVDT M0101+M0206+M1005, detections from ground truth (benchmarks/uavdt_dets.py), "
-          "combined scores")
+          "combined scores; fr/s = tracker frames per second")
     print(format_table(table))
-    write_results("peers", {"seed": getattr(args, "seed", 0), "table": table})
+    speed = None
+    if not getattr(args, "no_speed", False):
+        speed = speed_table(names=tuple(PEERS))
+        print("\nframes/s at N objects per frame (synthetic, 300 frames)")
+        labels = list(next(iter(speed.values())))
+        print(f"{'N':>5} " + " ".join(f"{lab:>10}" for lab in labels))
+        for n, row in speed.items():
+            print(f"{n:>5} " + " ".join(f"{row[lab]:10.0f}" for lab in labels))
+    write_results("peers", {"seed": getattr(args, "seed", 0), "table": table, "speed": speed})
 
 
 if __name__ == "__main__":

@@ -253,3 +253,23 @@ def test_cli_folders_pair_by_sequence(tmp_path, capsys):
     res = json.loads(out)
     assert set(res["sequences"]) == {"S1", "S2"}
     assert res["GT_Dets"] == 60 and res["MOTA"] == pytest.approx(40 / 60)
+
+
+@pytest.mark.data
+def test_cli_uavdt_folder_with_ignore_regions(shared_data, tmp_path, capsys):
+    """Perfect predictions on UAVDT's ground truth score 1 with --ignore auto: ground-truth boxes
+    inside ignore regions are dropped along with the predictions there."""
+    u = shared_data / "uavdt_gt_only"
+    (tmp_path / "pred").mkdir()
+    for seq in ("M0101", "M0206"):
+        (tmp_path / "pred" / f"{seq}.txt").write_text((u / f"{seq}_gt.txt").read_text())
+    gts = [str(u / "M0101_gt.txt"), str(u / "M0206_gt.txt")]
+    preds = [str(tmp_path / "pred" / "M0101.txt"), str(tmp_path / "pred" / "M0206.txt")]
+    code, out, err = _run(["eval", "--gt", gts[0], "--gt", gts[1], "--pred", preds[0],
+                           "--pred", preds[1], "--ignore", "auto", "--json"], capsys)
+    assert code == 0, err
+    res = json.loads(out)
+    assert set(res["sequences"]) == {"M0101", "M0206"}
+    assert res["IDF1"] == pytest.approx(1.0) and res["HOTA"] == pytest.approx(1.0, abs=1e-6)
+    code, out, err = _run(["eval", "--gt", gts[0], "--pred", preds[0], "--pred", preds[1]], capsys)
+    assert code == 2 and "one --pred per --gt" in err
