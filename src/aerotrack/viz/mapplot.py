@@ -186,6 +186,7 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     matplotlib.figure.Figure
     """
     tracks = results.track_views(geomap)
+    metres_per_unit = metres_per_unit or results.metres_per_unit
     fig = _figure(10.0, 8.0)
     fs = _font_pt(fig)
     ax = fig.add_axes((0.09, 0.08, 0.88, 0.86))
@@ -255,6 +256,7 @@ def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float 
     pixels otherwise (y pointing down, as in the image). In-view parts solid, predicted parts dashed.
     """
     tracks = results.track_views(geomap)
+    metres_per_unit = metres_per_unit or results.metres_per_unit
     fig = _figure(10.0, 8.0)
     fs = _font_pt(fig)
     ax = fig.add_subplot(projection="3d")

@@ -191,11 +191,38 @@ class RunResults:
         return bool(len(rows)) and bool(np.any((rows[:, 7] != -1) | (rows[:, 8] != -1)))
 
     @property
+    def metres_per_unit(self) -> float | None:
+        """Metres per world unit from ``summary.json`` (``metres_per_unit``), when known."""
+        v = self.summary.get("metres_per_unit")
+        return float(v) if isinstance(v, (int, float)) and v > 0 else None
+
+    @property
+    def input_path(self) -> Path | None:
+        """The run's input (``summary.json`` ``"input"``) when it still exists."""
+        v = self.summary.get("input")
+        if isinstance(v, dict):
+            v = v.get("path")
+        if not isinstance(v, str) or not v:
+            return None
+        for cand in (Path(v), self.path / v):
+            if cand.exists():
+                return cand
+        return None
+
+    @property
+    def timings(self) -> dict[str, float]:
+        """Per-stage seconds from ``summary.json`` (``timings_s`` or ``timings``)."""
+        t = self.summary.get("timings_s", self.summary.get("timings"))
+        if not isinstance(t, dict):
+            return {}
+        return {str(k): float(v) for k, v in t.items() if isinstance(v, (int, float))}
+
+    @property
     def last_frame(self) -> int:
         parts = [a[:, 0].max() for a in (self.tracks, self.predicted) if len(a)]
         if self.registration is not None and len(self.registration):
             parts.append(self.registration.frames.max())
-        n = self.summary.get("frames")
+        n = self.summary.get("last_frame", self.summary.get("frames"))
         if isinstance(n, (int, float)):
             parts.append(n)
         return int(max(parts)) if parts else 0

@@ -125,6 +125,7 @@ def track_stats(results: RunResults, geomap=None, *, metres_per_unit: float | No
         jitter but cuts corners of sharp turns.
     """
     fps = results.fps
+    metres_per_unit = metres_per_unit or results.metres_per_unit
     k = max(1, int(round(smooth_s * fps)))
     out = []
     for tv in results.track_views(geomap):

@@ -1,0 +1,386 @@
+"""The offline HTML report of a run: one self-contained file, no network needed.
+
+Everything is inline: CSS, a little JavaScript (table sorting, the frame scrubber, a self-check), the
+pictures as PNG data URIs and the overlay video as a WebM (VP9) data URI. Nothing is fetched, so the
+file can be mailed, archived or opened on an air-gapped machine, and it renders the same in ten
+years.
+
+Sections: summary numbers, per-stage timings, registration quality over time, the map and space-time
+pictures, the overlay (video player and a JPEG frame scrubber), the track table, the evaluation
+(when ground truth is given, or stored in ``summary.json`` under ``"eval"``), the failures and the
+resolved configuration.
+
+The page checks itself when it loads: it writes ``data-selfcheck`` on ``<html>`` with the number of
+pictures that decoded, whether the video decoded, and the number of track rows shown (headless
+browser tests read it).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import json
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..errors import AerotrackError
+from ..io.output import atomic_write_text
+from .colours import id_hex
+from .mapplot import figure_png, plot_map, plot_registration, plot_space_time
+from .overlay import OverlayPainter, OverlayStyle, render_overlay
+from .results import RunResults
+from .trackstats import TrackStats, track_stats
+
+log = logging.getLogger(__name__)
+
+METRIC_ORDER = ("HOTA", "DetA", "AssA", "LocA", "MOTA", "MOTP", "IDF1", "IDSW", "Frag", "GT_IDs",
+                "Pred_IDs", "GT_Dets", "Pred_Dets")
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """What the report embeds.
+
+    Attributes
+    ----------
+    video_width : int
+        Width of the embedded overlay video (pixels). Wider is sharper but makes the file bigger.
+    max_video_mb : float
+        An overlay video larger than this is linked (relative path) rather than embedded.
+    scrubber_frames : int
+        Frames in the JPEG scrubber (evenly spaced over the run; 0 disables it).
+    scrubber_width : int
+        Width of the scrubber's frames (pixels).
+    trail_s : float
+        Trail length of the overlay, seconds.
+    render_video : bool
+        Render ``DIR/overlay.webm`` from the input when it does not exist yet.
+    """
+
+    video_width: int = 960
+    max_video_mb: float = 80.0
+    scrubber_frames: int = 40
+    scrubber_width: int = 800
+    trail_s: float = 2.0
+    render_video: bool = True
+
+
+def _data_uri(data: bytes, mime: str) -> str:
+    return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    if isinstance(v, bool) or v is None:
+        return "–" if v is None else str(v)
+    if isinstance(v, (int, np.integer)):
+        return f"{int(v):,}"
+    if isinstance(v, (float, np.floating)):
+        if not math.isfinite(v):
+            return "–"
+        return f"{v:,.{digits}f}"
+    return html.escape(str(v))
+
+
+def _evaluation(results: RunResults, gt_path: str | Path | None) -> tuple[dict | None, str]:
+    """Metrics of ``tracks.csv`` against ``gt_path`` (or stored ones); (metrics, note)."""
+    if gt_path is None:
+        ev = results.summary.get("eval")
+        return (ev, "from summary.json") if isinstance(ev, dict) else (None, "")
+    try:
+        from ..evaluation import evaluate
+    except ImportError as exc:
+        return None, f"evaluation unavailable ({exc})"
+    from ..io.mot import read_mot
+
+    gt = read_mot(gt_path, option="--gt", strict=False)
+    return evaluate(gt, results.tracks), f"tracks.csv against {Path(gt_path).name}"
+
+
+def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions) -> list[tuple[int, str]]:
+    from ..io.frames import open_source
+
+    source = open_source(input_path, results.fps)
+    last = results.last_frame or len(source)
+    n = len(source) or last
+    n = min(n, last) if last else n
+    if n <= 0 or opts.scrubber_frames <= 0:
+        return []
+    wanted = sorted(set(np.linspace(1, n, min(opts.scrubber_frames, n)).round().astype(int).tolist()))
+    painter = OverlayPainter(results, OverlayStyle(trail_s=opts.trail_s))
+    out = []
+    wanted_set = set(wanted)
+    for frame in source.frames(stop=wanted[-1]):
+        if frame.index not in wanted_set:
+            continue
+        img = painter.draw(frame.image, frame.index)
+        h, w = img.shape[:2]
+        if w > opts.scrubber_width:
+            img = cv2.resize(img, (opts.scrubber_width, int(round(h * opts.scrubber_width / w))),
+                             interpolation=cv2.INTER_AREA)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        if ok:
+            out.append((frame.index, _data_uri(buf.tobytes(), "image/jpeg")))
+    return out
+
+
+def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
+                 gt_path: str | Path | None = None, geomap=None, out_path: str | Path | None = None,
+                 options: ReportOptions = ReportOptions()) -> Path:
+    """Write ``DIR/report.html`` (or ``out_path``) for the run in ``run_dir``.
+
+    Parameters
+    ----------
+    run_dir : path
+        An output folder (the file contract).
+    input_path : path, optional
+        The run's input video or image folder, for the overlay video and scrubber (default: the
+        ``"input"`` of ``summary.json`` when it exists). Without it the report has no player,
+        unless ``DIR/overlay.webm`` exists.
+    gt_path : path, optional
+        Ground truth (MOTChallenge, 1-based frames): adds the evaluation section.
+    geomap : GeoMap, optional
+        The run's map (default: the ``"map"`` of ``summary.json`` when it exists).
+    out_path : path, optional
+    options : ReportOptions
+
+    Returns
+    -------
+    Path of the written report.
+    """
+    results = RunResults.load(run_dir)
+    run_dir = results.path
+    if geomap is None and results.map_path is not None:
+        from ..geo import GeoMap
+
+        try:
+            geomap = GeoMap(results.map_path)
+        except AerotrackError as exc:
+            log.warning("map %s not used: %s", results.map_path, exc)
+    input_path = Path(input_path) if input_path is not None else results.input_path
+    first_image = None
+    if input_path is not None and geomap is None:
+        from ..io.frames import open_source
+
+        first_image = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+
+    pictures: dict[str, str] = {}
+    fig = plot_map(results, geomap, background=first_image)
+    pictures["map"] = _data_uri(figure_png(fig), "image/png")
+    pictures["spacetime"] = _data_uri(figure_png(plot_space_time(results, geomap)), "image/png")
+    reg_fig = plot_registration(results)
+    if reg_fig is not None:
+        pictures["registration"] = _data_uri(figure_png(reg_fig), "image/png")
+
+    video_html = ""
+    video_path = run_dir / "overlay.webm"
+    if input_path is not None and options.render_video and not video_path.exists():
+        log.info("rendering %s", video_path)
+        render_overlay(input_path, results, video_path,
+                       style=OverlayStyle(trail_s=options.trail_s, max_width=options.video_width))
+    if video_path.exists():
+        size_mb = video_path.stat().st_size / 1e6
+        src = (_data_uri(video_path.read_bytes(), "video/webm") if size_mb <= options.max_video_mb
+               else html.escape(video_path.name))
+        video_html = (f'<video id="player" controls loop muted playsinline preload="auto" '
+                      f'src="{src}"></video>')
+    scrub = _scrubber_frames(input_path, results, options) if input_path is not None else []
+    stats = track_stats(results, geomap)
+    metrics, eval_note = _evaluation(results, gt_path)
+    page = _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path)
+    out = Path(out_path) if out_path is not None else run_dir / "report.html"
+    atomic_write_text(out, page)
+    out.chmod(0o644)
+    return out
+
+
+# -- HTML ------------------------------------------------------------------------------------------
+# Self-contained by construction: the page may load nothing but its own inline data.
+CSP = ("default-src 'none'; img-src data:; media-src data: 'self'; style-src 'unsafe-inline'; "
+       "script-src 'unsafe-inline'")
+
+CSS = """
+:root{--fg:#1d2430;--mut:#5b6574;--bg:#f6f7f9;--card:#fff;--acc:#1f5fa8}
+*{box-sizing:border-box}body{margin:0;font:15px/1.45 system-ui,-apple-system,'Segoe UI',Roboto,sans-serif;
+color:var(--fg);background:var(--bg)}header{background:#16202e;color:#fff;padding:18px 28px}
+header h1{margin:0;font-size:24px}header p{margin:4px 0 0;color:#b9c3d0;font-size:14px}
+main{max-width:1280px;margin:0 auto;padding:10px 24px 40px}section{background:var(--card);border-radius:8px;
+padding:16px 20px;margin:16px 0;box-shadow:0 1px 3px rgba(0,0,0,.08)}h2{margin:0 0 10px;font-size:19px}
+.cards{display:flex;flex-wrap:wrap;gap:10px}.card{flex:1 1 140px;background:var(--bg);border-radius:6px;padding:10px 12px}
+.card b{display:block;font-size:22px}.card span{color:var(--mut);font-size:13px}
+img.fig{max-width:100%;height:auto;display:block;margin:6px auto}.two{display:grid;grid-template-columns:1fr 1fr;gap:12px}
+@media(max-width:900px){.two{grid-template-columns:1fr}}
+table{border-collapse:collapse;width:100%;font-size:14px}th,td{padding:4px 8px;text-align:right;border-bottom:1px solid #e4e7ec}
+th{cursor:pointer;background:#eef1f5;position:sticky;top:0}th:first-child,td:first-child{text-align:left}
+.sw{display:inline-block;width:12px;height:12px;border-radius:3px;margin-right:6px;vertical-align:-1px;border:1px solid #0003}
+.bar{height:14px;background:var(--acc);border-radius:3px}.tw{max-height:520px;overflow:auto}
+video,#scrubimg{max-width:100%;display:block;margin:0 auto;background:#000}
+.scrub{display:flex;gap:10px;align-items:center;margin-top:8px}.scrub input{flex:1}
+button{font:inherit;padding:3px 12px}pre{background:var(--bg);padding:10px;overflow:auto;font-size:13px}
+.note{color:var(--mut);font-size:13px}
+"""
+
+JS = r"""
+(function(){
+function sortTable(th){var t=th.closest('table'),i=[].indexOf.call(th.parentNode.children,th),
+ b=t.tBodies[0],rows=[].slice.call(b.rows),asc=th.dataset.asc!=='1';th.dataset.asc=asc?'1':'0';
+ rows.sort(function(a,c){var x=a.cells[i].dataset.v,y=c.cells[i].dataset.v,nx=parseFloat(x),ny=parseFloat(y);
+ var r=(!isNaN(nx)&&!isNaN(ny))?nx-ny:String(x).localeCompare(String(y));return asc?r:-r});
+ rows.forEach(function(r){b.appendChild(r)})}
+document.querySelectorAll('th[data-sort]').forEach(function(th){th.addEventListener('click',function(){sortTable(th)})});
+var data=document.getElementById('scrubdata');
+if(data){var frames=JSON.parse(data.textContent),img=document.getElementById('scrubimg'),
+ rng=document.getElementById('scrubrange'),lab=document.getElementById('scrublabel'),
+ btn=document.getElementById('scrubplay'),timer=null;
+ function show(i){img.src=frames[i][1];lab.textContent='frame '+frames[i][0];rng.value=i}
+ rng.max=frames.length-1;rng.addEventListener('input',function(){show(+rng.value)});
+ btn.addEventListener('click',function(){if(timer){clearInterval(timer);timer=null;btn.textContent='play'}
+ else{timer=setInterval(function(){show((+rng.value+1)%frames.length)},250);btn.textContent='pause'}});
+ show(0)}
+function check(){var imgs=[].slice.call(document.images),ok=imgs.filter(function(i){return i.complete&&i.naturalWidth>0}).length;
+ var v=document.getElementById('player'),res={images:imgs.length,images_ok:ok,
+ track_rows:document.querySelectorAll('#tracks tbody tr').length,video:'none'};
+ function done(){document.documentElement.dataset.selfcheck=JSON.stringify(res)}
+ if(!v){done();return}
+ if(v.readyState>=2){res.video='ok';res.video_width=v.videoWidth;done();return}
+ var t=setTimeout(function(){res.video='timeout';done()},8000);
+ v.addEventListener('loadeddata',function(){clearTimeout(t);res.video='ok';res.video_width=v.videoWidth;done()});
+ v.addEventListener('error',function(){clearTimeout(t);res.video='error';done()});}
+if(document.readyState==='complete')check();else window.addEventListener('load',check);
+})();
+"""
+
+
+def _cards(results: RunResults, stats: list[TrackStats]) -> str:
+    s = results.summary
+    counts = s.get("counts", {}) if isinstance(s.get("counts"), dict) else {}
+    n_frames = results.last_frame
+    speeds = [t.mean_speed_kmh for t in stats if math.isfinite(t.mean_speed_kmh) and t.frames_in_view > 1]
+    fails = s.get("registration_failures")
+    n_fail = len(fails) if isinstance(fails, list) else fails if isinstance(fails, int) else None
+    items = [
+        (n_frames, "frames"), (f"{results.fps:g}", "frames / s"),
+        (f"{n_frames / results.fps:.1f} s" if n_frames else "–", "duration"),
+        (len(stats), "tracks"), (len(results.tracks), "rows in view"),
+        (len(results.predicted), "predicted rows"),
+        (sum(t.reacquisitions for t in stats), "re-acquisitions"),
+        (counts.get("detections", len(results.detections) if results.detections is not None else None),
+         "detections"),
+        (n_fail, "registration failures"),
+        (f"{np.median(speeds):.1f} km/h" if speeds else "–", "median track speed"),
+    ]
+    if isinstance(s.get("frames_per_second"), (int, float)):
+        items.append((f"{s['frames_per_second']:g}", "processing frames / s"))
+    return "".join(f'<div class="card"><b>{v if isinstance(v, str) else _fmt(v)}</b><span>{html.escape(k)}</span></div>'
+                   for v, k in items)
+
+
+def _timings(results: RunResults) -> str:
+    t = results.timings
+    if not t:
+        return '<p class="note">summary.json holds no timings.</p>'
+    top = max(t.values()) or 1.0
+    total = sum(t.values())
+    rows = "".join(
+        f'<tr><td>{html.escape(k)}</td><td data-v="{v}">{v:.2f} s</td><td>{100 * v / total if total else 0:.0f} %</td>'
+        f'<td style="width:50%"><div class="bar" style="width:{100 * v / top:.1f}%"></div></td></tr>'
+        for k, v in sorted(t.items(), key=lambda kv: -kv[1]))
+    return (f'<table><thead><tr><th>stage</th><th>time</th><th>share</th><th></th></tr></thead>'
+            f'<tbody>{rows}</tbody><tfoot><tr><td>total</td><td>{total:.2f} s</td><td></td><td></td></tr></tfoot></table>')
+
+
+def _track_table(stats: list[TrackStats]) -> str:
+    unit = stats[0].unit if stats else "m"
+    head = ["ID", "first frame", "last frame", "frames in view", "duration (s)", f"distance ({unit})",
+            "mean speed (km/h)", "unobserved (s)", "predicted (s)", "re-acquisitions"]
+    ths = "".join(f'<th data-sort="1">{html.escape(h)}</th>' for h in head)
+    rows = []
+    for t in stats:
+        cells = [
+            (t.id, f'<span class="sw" style="background:{id_hex(t.id)}"></span>{t.id}'),
+            (t.first_frame, _fmt(t.first_frame)), (t.last_frame, _fmt(t.last_frame)),
+            (t.frames_in_view, _fmt(t.frames_in_view)), (t.duration_s, _fmt(t.duration_s, 2)),
+            (t.distance, _fmt(t.distance, 1)), (t.mean_speed_kmh, _fmt(t.mean_speed_kmh, 1)),
+            (t.unobserved_s, _fmt(t.unobserved_s, 2)), (t.predicted_s, _fmt(t.predicted_s, 2)),
+            (t.reacquisitions, _fmt(t.reacquisitions)),
+        ]
+        rows.append("<tr>" + "".join(
+            f'<td data-v="{v if isinstance(v, (int, np.integer)) or (isinstance(v, float) and math.isfinite(v)) else -1}">{c}</td>'
+            for v, c in cells) + "</tr>")
+    return f'<div class="tw"><table id="tracks"><thead><tr>{ths}</tr></thead><tbody>{"".join(rows)}</tbody></table></div>'
+
+
+def _metrics_table(metrics: dict) -> str:
+    keys = [k for k in METRIC_ORDER if k in metrics] + [k for k in metrics if k not in METRIC_ORDER
+                                                         and isinstance(metrics[k], (int, float))]
+    cells = "".join(f'<div class="card"><b>{_fmt(metrics[k])}</b><span>{html.escape(k)}</span></div>'
+                    for k in keys)
+    return f'<div class="cards">{cells}</div>'
+
+
+def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path) -> str:
+    name = html.escape(results.path.resolve().name)
+    when = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    what = []
+    if input_path is not None:
+        what.append(f"input {html.escape(str(input_path))}")
+    if geomap is not None:
+        what.append(f"map {html.escape(str(geomap.path))} ({html.escape(str(geomap.crs))}, "
+                    f"{geomap.metres_per_pixel:.2f} m/px)")
+    else:
+        what.append("no map: positions in frame 1's pixels")
+    parts = [f'<section><h2>Summary</h2><div class="cards">{_cards(results, stats)}</div></section>',
+             f'<section><h2>Per-stage timings</h2>{_timings(results)}</section>']
+    if metrics:
+        parts.append(f'<section id="evaluation"><h2>Evaluation</h2><p class="note">{html.escape(eval_note)}'
+                     f'</p>{_metrics_table(metrics)}</section>')
+    if video_html or scrub:
+        player = f"<h3>Video</h3>{video_html}" if video_html else ""
+        if scrub:
+            data = json.dumps([[f, uri] for f, uri in scrub])
+            player += ('<h3>Frame scrubber</h3><img id="scrubimg" alt="overlay frame">'
+                       '<div class="scrub"><button id="scrubplay">play</button>'
+                       '<input type="range" id="scrubrange" min="0" value="0" step="1">'
+                       f'<span id="scrublabel"></span></div>'
+                       f'<script type="application/json" id="scrubdata">{data}</script>')
+        parts.append('<section><h2>Overlay</h2><p class="note">Solid boxes: targets in view. Dashed boxes '
+                     'and circles: predicted positions of targets out of view, with their uncertainty '
+                     '(label: seconds since last seen); arrows point to predicted targets outside the '
+                     f'image. Lines: the last seconds of each track.</p>{player}</section>')
+    where = "the map" if geomap is not None else "frame 1"
+    parts.append(f'<section><h2>Tracks on {where}</h2><img class="fig" alt="tracks on {where}" '
+                 f'src="{pictures["map"]}"></section>')
+    parts.append('<section><h2>Space-time view</h2><p class="note">Each track in (x, y, time), coloured by ID '
+                 '(Yu &amp; Medioni 2007, fig. 6); dashed: predicted while out of view; stars: re-acquisitions.'
+                 f'</p><img class="fig" alt="space-time view" src="{pictures["spacetime"]}"></section>')
+    if "registration" in pictures:
+        parts.append('<section><h2>Registration quality</h2><img class="fig" alt="registration quality" '
+                     f'src="{pictures["registration"]}"></section>')
+    parts.append(f'<section><h2>Tracks</h2><p class="note">Click a heading to sort. Distance and speed '
+                 f'use the in-view positions, smoothed over 0.5 s.</p>{_track_table(stats)}</section>')
+    fails = results.summary.get("registration_failures")
+    if isinstance(fails, list) and fails:
+        rows = "".join(f"<tr><td>{_fmt(f.get('frame'))}</td><td>{_fmt(f.get('status'))}</td>"
+                       f"<td style='text-align:left'>{_fmt(f.get('reason'))}</td></tr>"
+                       for f in fails[:500] if isinstance(f, dict))
+        parts.append(f'<section><h2>Registration failures</h2><details><summary>{len(fails)} frames'
+                     f'</summary><table><thead><tr><th>frame</th><th>status</th><th>reason</th></tr></thead>'
+                     f'<tbody>{rows}</tbody></table></details></section>')
+    cfg = results.path / "config.toml"
+    if cfg.is_file():
+        parts.append('<section><h2>Configuration</h2><details><summary>config.toml</summary>'
+                     f'<pre>{html.escape(cfg.read_text(encoding="utf-8", errors="replace"))}</pre></details></section>')
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width,initial-scale=1">'
+        f'<meta http-equiv="Content-Security-Policy" content="{CSP}">'
+        f'<title>aerotrack report: {name}</title><style>{CSS}</style></head><body>'
+        f'<header><h1>aerotrack report: {name}</h1><p>{" · ".join(what)} · generated {when}</p></header>'
+        f'<main>{"".join(parts)}</main><script>{JS}</script></body></html>\n'
+    )
