@@ -1,0 +1,89 @@
+"""``aerotrack mosaic``: register a video and paint its frames onto the map (Yu & Medioni fig. 2)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from .common import config_option, fps_option, set_option
+
+log = logging.getLogger("aerotrack")
+
+
+@click.command("mosaic")
+@click.argument("input_path", metavar="INPUT", type=click.Path())
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+              help="Output picture (.png or .jpg).")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+              help="Georeferenced map raster; the frames are painted onto it.")
+@click.option("--map-init", "map_init_path", type=click.Path(dir_okay=False), default=None,
+              help="Frame 1 -> map: a 3x3 homography or >= 4 control points (needs --map).")
+@fps_option
+@click.option("--stride", type=int, default=10, show_default=True,
+              help="Paint every N-th frame (every frame is registered).")
+@click.option("--max-side", type=int, default=4000, show_default=True,
+              help="Longest side of the picture in pixels.")
+@click.option("--registration", "reg_csv", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-frame homographies as registration.csv here.")
+@config_option
+@set_option
+def mosaic_command(input_path, out_path, map_path, map_init_path, fps, stride, max_side, reg_csv,
+                   config_path, overrides):
+    """Register every frame of INPUT (video or image folder) and paint them into one picture.
+
+    With --map and --map-init the frames are painted onto the map in map pixels (registration
+    refined against the map); without a map, onto frame 1's plane. Outlines: first frame green,
+    last red.
+    """
+    import cv2
+
+    from ..config import load_config
+    from ..errors import InputError, OutputError
+    from ..geo import GeoMap, read_map_init
+    from ..io import open_source
+    from ..io.output import atomic_write_bytes
+    from ..registration import FrameRegistrar, write_registration_csv
+    from ..registration.mosaic import paint_mosaic
+
+    out = Path(out_path)
+    if out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise InputError(f"--out {out}: must end in .png or .jpg")
+    if stride < 1:
+        raise InputError(f"--stride {stride}: must be at least 1")
+    if max_side < 64:
+        raise InputError(f"--max-side {max_side}: must be at least 64")
+    if (map_path is None) != (map_init_path is None):
+        raise InputError("--map and --map-init must be given together")
+    config = load_config(config_path, overrides)
+    source = open_source(input_path, fps)
+    geomap = H_init = None
+    if map_path is not None:
+        geomap = GeoMap(map_path)
+        H_init = read_map_init(map_init_path, geomap)
+    registrar = FrameRegistrar(config.registration, source.fps, geomap, H_init)
+    regs = []
+    for frame in source:
+        regs.append(registrar.step(frame))
+        if len(regs) % 100 == 0:
+            log.info("mosaic: registered %d frames", len(regs))
+    if not regs:
+        raise InputError(f"{input_path}: no frames")
+    log.info("mosaic: registration %s", registrar.summary()["status_counts"])
+    Hs = {r.index: r.H for r in regs}
+    base = geomap.read_image() if geomap is not None else None
+    n_painted = (len(regs) + stride - 1) // stride
+    img = paint_mosaic(source.frames(stride=stride), Hs, source.size, base=base, max_side=max_side,
+                       outline_every=max(1, n_painted // 12))
+    ok, buf = cv2.imencode(out.suffix.lower(), img)
+    if not ok:
+        raise OutputError(f"--out {out}: cannot encode the picture")
+    try:
+        atomic_write_bytes(out, buf.tobytes())
+        if reg_csv is not None:
+            write_registration_csv(reg_csv, regs)
+    except OSError as exc:
+        raise OutputError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    click.echo(f"{out}: {len(regs)} frames registered, every {stride}th painted "
+               f"({img.shape[1]}x{img.shape[0]} px)")
