@@ -6,7 +6,9 @@ Accepted forms:
   map pixels;
 * a CSV with header ``frame_x,frame_y,map_x,map_y`` (map pixels) or ``frame_x,frame_y,lon,lat``,
   with at least 4 non-collinear rows; the homography is fitted to them (least squares over all
-  points, so more points average out clicking errors).
+  points, so more points average out clicking errors);
+* a CSV with header ``frame_x,frame_y,crs_x,crs_y`` and a ``# crs: EPSG:XXXX`` line, or a QGIS
+  georeferencer ``.points`` file: control points in any map CRS (see :mod:`aerotrack.geo.qgis`).
 """
 
 from __future__ import annotations
@@ -27,6 +29,12 @@ def read_map_init(path: str | Path, geomap: GeoMap | None = None, *,
     label = f"{option} {p}"
     if not p.exists():
         raise InputError(f"{label}: file not found")
+    if p.suffix.lower() == ".points":  # QGIS georeferencer control points (geo/qgis.py)
+        from .qgis import read_qgis_points
+
+        if geomap is None:
+            raise InputError(f"{label}: control points in a map CRS need --map")
+        return read_qgis_points(p, option=option).homography(geomap)
     try:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -35,6 +43,12 @@ def read_map_init(path: str | Path, geomap: GeoMap | None = None, *,
     if not lines:
         raise FormatError(f"{label}: file is empty")
     header = [h.strip().lower() for h in lines[0].split(",")]
+    if header == ["frame_x", "frame_y", "crs_x", "crs_y"]:  # CRS-tagged control points
+        from .qgis import read_crs_gcps
+
+        if geomap is None:
+            raise InputError(f"{label}: control points in a map CRS need --map")
+        return read_crs_gcps(p, option=option).homography(geomap)
     if header[:2] == ["frame_x", "frame_y"]:
         return _from_gcps(lines, header, label, geomap)
     return _from_matrix(lines, label)

@@ -1,0 +1,579 @@
+"""Geo-initialisation from flight telemetry: a pinhole camera over a flat ground plane.
+
+A drone's flight log gives, per frame, where the camera is (lon, lat, height above the ground), where
+it looks (heading, gimbal pitch and roll) and how wide it sees (horizontal field of view). Projecting
+the frame through that camera onto a flat ground plane gives a first homography frame pixels -> map
+pixels, good enough for map refinement (registration) to lock on; the residual error comes from the
+log (GPS position, barometric height, compass heading) and from the flat-ground assumption.
+
+Telemetry CSV (``read_telemetry_csv``), comma-separated, one header line, ``#`` lines ignored::
+
+    frame,lon,lat,alt_m,heading_deg,pitch_deg,roll_deg,hfov_deg
+    1,126.6629500,37.3889200,146.0,308.0,-90.0,0.0,73.7
+    2,126.6629501,37.3889200,146.0,308.1,-90.0,0.0,73.7
+
+* ``frame`` (1-based, as everywhere in aerotrack) **or** ``time_s`` (seconds since frame 1);
+* ``lon``, ``lat``: camera position, WGS 84 degrees;
+* ``alt_m``: camera height above the ground plane, metres (not above sea level);
+* ``heading_deg``: compass azimuth, degrees clockwise from true north, of the direction the camera
+  looks (for a nadir camera: the direction the top of the image points to);
+* ``pitch_deg``: gimbal pitch, 0 = horizontal, -90 = straight down (nadir); default -90;
+* ``roll_deg``: camera roll about its optical axis, positive = the image's right side tilts down
+  (clockwise as seen from behind the camera); default 0;
+* ``hfov_deg``: horizontal field of view of the frame, degrees; or ``focal_35mm``, the
+  35-mm-equivalent focal length in mm, converted with the 36 mm frame width.
+
+Column aliases accepted (so that a parsed DJI log loads as is): ``latitude``, ``longitude``,
+``rel_alt`` (height above the take-off point, used as ``alt_m``), ``yaw``/``gb_yaw``/``gimbal_yaw``
+(heading), ``gb_pitch``/``gimbal_pitch``, ``gb_roll``/``gimbal_roll``, ``focal_len`` (35-mm-equivalent
+focal length, as DJI writes it). Columns a log does not have (most consumer DJI logs have no gimbal
+heading) are taken from ``defaults`` or refused with a one-line error naming the column.
+
+DJI SRT subtitles (``read_dji_srt``): the per-frame ``[latitude: ..] [longitude: ..] [rel_alt: ..]
+[focal_len: ..]`` blocks of DJI video subtitles (and the older ``GPS(lon,lat,alt)`` form), with the
+gimbal angles when the drone writes them (``gb_yaw``, ``gb_pitch``, ``gb_roll``).
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import io
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..errors import FormatError, InputError
+from ..types import Failure
+
+#: Width of the 35-mm film frame, mm: ``hfov = 2 atan(36 / (2 f_35mm))``.
+FILM_WIDTH_MM = 36.0
+
+_FIELDS = ("lon", "lat", "alt_m", "heading_deg", "pitch_deg", "roll_deg", "hfov_deg")
+_ALIASES = {
+    "longitude": "lon", "lng": "lon",
+    "latitude": "lat",
+    "rel_alt": "alt_m", "height_m": "alt_m", "alt": "alt_m",
+    "heading": "heading_deg", "yaw": "heading_deg", "yaw_deg": "heading_deg",
+    "gb_yaw": "heading_deg", "gimbal_yaw": "heading_deg",
+    "pitch": "pitch_deg", "gb_pitch": "pitch_deg", "gimbal_pitch": "pitch_deg",
+    "roll": "roll_deg", "gb_roll": "roll_deg", "gimbal_roll": "roll_deg",
+    "hfov": "hfov_deg",
+    "focal_len": "focal_35mm", "focal_35mm_mm": "focal_35mm",
+    "time": "time_s", "t": "time_s",
+}
+_DEFAULTS = {"pitch_deg": -90.0, "roll_deg": 0.0}
+
+
+def hfov_from_focal(focal_35mm: float) -> float:
+    """Horizontal field of view (degrees) of a 35-mm-equivalent focal length (mm).
+
+    Uses the 36 mm width of the 35-mm frame. Checked on the Songdo DJI log (24 mm): 73.7 deg against
+    72.9 deg implied by that flight's frame-to-orthophoto homography (1 % scale error).
+    """
+    return math.degrees(2.0 * math.atan(FILM_WIDTH_MM / (2.0 * float(focal_35mm))))
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where one frame's camera is and where it looks.
+
+    Attributes
+    ----------
+    lon, lat : float
+        Camera position, WGS 84 degrees.
+    alt_m : float
+        Height above the (flat) ground plane, metres.
+    heading_deg, pitch_deg, roll_deg : float
+        Compass azimuth of the viewing direction (clockwise from north), gimbal pitch (-90 = nadir),
+        roll about the optical axis; degrees. See the module docstring for the signs.
+    hfov_deg : float
+        Horizontal field of view, degrees.
+    """
+
+    lon: float
+    lat: float
+    alt_m: float
+    heading_deg: float
+    pitch_deg: float = -90.0
+    roll_deg: float = 0.0
+    hfov_deg: float = 73.7
+
+    def homography(self, frame_size: tuple[int, int], target: Any, *,
+                   max_range_m: float | None = None) -> np.ndarray | Failure:
+        """Frame pixels -> ``target`` homography; see :func:`pose_homography`."""
+        return pose_homography(self, frame_size, target, max_range_m=max_range_m)
+
+
+def camera_rotation(heading_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """(3, 3) rotation from local ENU (east, north, up) to OpenCV camera axes (right, down, forward).
+
+    The forward axis is ``(sin h cos p, cos h cos p, sin p)``; the level right axis is
+    ``(cos h, -sin h, 0)``; down = forward x right; roll turns right towards down.
+    """
+    h, p, r = (math.radians(v) for v in (heading_deg, pitch_deg, roll_deg))
+    fwd = np.array([math.sin(h) * math.cos(p), math.cos(h) * math.cos(p), math.sin(p)])
+    right = np.array([math.cos(h), -math.sin(h), 0.0])
+    down = np.cross(fwd, right)
+    right_r = right * math.cos(r) + down * math.sin(r)
+    down_r = down * math.cos(r) - right * math.sin(r)
+    return np.vstack([right_r, down_r, fwd])
+
+
+def ground_to_frame_homography(alt_m: float, heading_deg: float, pitch_deg: float,
+                               roll_deg: float, hfov_deg: float,
+                               frame_size: tuple[int, int]) -> np.ndarray:
+    """Homography from ground-plane metres to frame pixels for a pinhole camera.
+
+    Parameters
+    ----------
+    alt_m, heading_deg, pitch_deg, roll_deg, hfov_deg : float
+        The camera (see :class:`CameraPose`).
+    frame_size : (int, int)
+        (width, height) of the frame in pixels.
+
+    Returns
+    -------
+    H : ndarray, shape (3, 3)
+        (east, north) metres from the point on the ground below the camera -> frame pixels
+        (continuous, origin at the top-left corner; the principal point is the frame centre,
+        square pixels, no distortion: undistort first with :mod:`aerotrack.geo.lens`).
+        ``H = K [r1 r2 -R C]`` with ``C = (0, 0, alt)``.
+    """
+    w, h = frame_size
+    if not (alt_m > 0 and 0 < hfov_deg < 180 and w > 0 and h > 0):
+        raise InputError(f"camera: need alt_m > 0 and 0 < hfov_deg < 180, got {alt_m}, {hfov_deg}")
+    f = (w / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+    K = np.array([[f, 0, w / 2.0], [0, f, h / 2.0], [0, 0, 1.0]])
+    R = camera_rotation(heading_deg, pitch_deg, roll_deg)
+    t = -R @ np.array([0.0, 0.0, float(alt_m)])
+    H = K @ np.column_stack([R[:, 0], R[:, 1], t])
+    return H / H[2, 2] if abs(H[2, 2]) > 1e-12 else H
+
+
+@functools.lru_cache(maxsize=16)
+def _lonlat_transformer(crs_text: str):
+    from pyproj import CRS, Transformer
+
+    return Transformer.from_crs(CRS.from_epsg(4326), CRS.from_user_input(crs_text),
+                                always_xy=True)
+
+
+def _target_transform(target: Any, lon: float, lat: float):
+    """A function (N, 2) (E, N) metres around (lon, lat) -> target coordinates.
+
+    ENU metres become lon/lat along geodesics from the camera (the azimuthal equidistant
+    projection centred on it, exact in distance and azimuth from the centre), then the target.
+    """
+    from pyproj import Geod
+
+    from .maprast import GeoMap
+
+    geod = Geod(ellps="WGS84")
+
+    def to_lonlat(en):
+        az = np.degrees(np.arctan2(en[:, 0], en[:, 1]))
+        lo, la, _ = geod.fwd(np.full(len(en), lon), np.full(len(en), lat), az,
+                             np.hypot(en[:, 0], en[:, 1]))
+        return np.column_stack([lo, la])
+
+    if isinstance(target, GeoMap):
+        return lambda en: target.lonlat_to_pixel(to_lonlat(en))
+    key = target if isinstance(target, str) else None
+    try:
+        if key is None:
+            from pyproj import CRS
+
+            key = CRS.from_user_input(target).to_wkt()
+        t = _lonlat_transformer(key)
+    except Exception as exc:  # pyproj raises CRSError, a subclass of Exception
+        raise InputError(f"camera target CRS {target!r}: not understood ({exc})") from None
+
+    def fn(en):
+        ll = to_lonlat(en)
+        x, y = t.transform(ll[:, 0], ll[:, 1])
+        return np.column_stack([x, y])
+
+    return fn
+
+
+def pose_homography(pose: CameraPose, frame_size: tuple[int, int], target: Any, *,
+                    max_range_m: float | None = None, grid: int = 7) -> np.ndarray | Failure:
+    """The homography frame pixels -> map pixels (or map CRS) seen by a camera over flat ground.
+
+    A ``grid`` x ``grid`` lattice of frame points is cast onto the ground plane (local ENU metres
+    around the camera), carried to lon/lat with an azimuthal equidistant projection centred on the
+    camera, then into ``target``; a homography is fitted to them by least squares (so the map CRS's
+    own curvature over the footprint is absorbed, not assumed away).
+
+    Parameters
+    ----------
+    pose : CameraPose
+    frame_size : (int, int)
+        (width, height), frame pixels.
+    target : GeoMap or CRS
+        A :class:`~aerotrack.geo.GeoMap` (result in its map pixels) or anything
+        ``pyproj.CRS.from_user_input`` takes (``"EPSG:5186"``: result in that CRS's units).
+    max_range_m : float, optional
+        Frame points whose ground point lies farther than this from the camera are left out
+        (oblique views near the horizon). Default ``20 * alt_m``.
+
+    Returns
+    -------
+    H : ndarray (3, 3), normalised ``H[2, 2] = 1``, or Failure
+        Failure when fewer than 4 lattice points hit the ground in range (camera looks at the sky).
+    """
+    w, h = frame_size
+    G = ground_to_frame_homography(pose.alt_m, pose.heading_deg, pose.pitch_deg, pose.roll_deg,
+                                   pose.hfov_deg, frame_size)
+    rng = 20.0 * pose.alt_m if max_range_m is None else float(max_range_m)
+    u, v = np.meshgrid(np.linspace(0, w, grid), np.linspace(0, h, grid))
+    src = np.column_stack([u.ravel(), v.ravel()])
+    hom = np.hstack([src, np.ones((len(src), 1))]) @ np.linalg.inv(G).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        en = hom[:, :2] / hom[:, 2:3]
+    # A ray hits the ground in front of the camera iff the ground point has positive depth.
+    fwd = camera_rotation(pose.heading_deg, pose.pitch_deg, pose.roll_deg)[2]
+    with np.errstate(invalid="ignore"):
+        depth = en @ fwd[:2] - pose.alt_m * fwd[2]
+    ok = np.isfinite(en).all(axis=1) & (depth > 0)
+    ok &= np.hypot(en[:, 0], en[:, 1]) <= rng
+    if ok.sum() < 4:
+        return Failure(f"camera sees the ground at only {int(ok.sum())} of {grid * grid} "
+                       f"lattice points within {rng:.0f} m (pitch {pose.pitch_deg} deg)")
+    dst = _target_transform(target, pose.lon, pose.lat)(en[ok])
+    if not np.all(np.isfinite(dst)):
+        return Failure("the camera's footprint falls outside the target CRS")
+    # Centre and scale the target side: projected coordinates of 1e5-1e6 m would cost the
+    # DLT millimetres of precision (and make numerical derivatives of the pose useless).
+    mu = dst.mean(axis=0)
+    sc = max(float(np.abs(dst - mu).max()), 1e-12)
+    H, _ = cv2.findHomography(src[ok], (dst - mu) / sc, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return Failure("cannot fit a homography to the projected frame lattice")
+    H = np.array([[sc, 0, mu[0]], [0, sc, mu[1]], [0, 0, 1.0]]) @ H
+    return H / H[2, 2]
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """A flight log: one camera pose per row, rows sorted by time.
+
+    Attributes
+    ----------
+    time_s : ndarray (N,)
+        Seconds since frame 1 (``(frame - 1) / fps`` when the log is indexed by frame).
+    lon, lat, alt_m, heading_deg, pitch_deg, roll_deg, hfov_deg : ndarray (N,)
+        As in :class:`CameraPose`.
+    source : str
+        The file it came from (for messages).
+    """
+
+    time_s: np.ndarray
+    lon: np.ndarray
+    lat: np.ndarray
+    alt_m: np.ndarray
+    heading_deg: np.ndarray
+    pitch_deg: np.ndarray
+    roll_deg: np.ndarray
+    hfov_deg: np.ndarray
+    source: str = "<telemetry>"
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    def pose_at(self, time_s: float) -> CameraPose:
+        """The camera pose at ``time_s`` (linear interpolation; angles along the shorter arc).
+
+        Times before the first or after the last row take that row's pose.
+        """
+        t = self.time_s
+        if len(t) == 1 or time_s <= t[0]:
+            i, a = 0, 0.0
+        elif time_s >= t[-1]:
+            i, a = len(t) - 2, 1.0
+        else:
+            i = int(np.searchsorted(t, time_s, side="right") - 1)
+            a = float((time_s - t[i]) / (t[i + 1] - t[i]))
+        j = min(i + 1, len(t) - 1)
+
+        def lerp(arr):
+            return float(arr[i] + a * (arr[j] - arr[i]))
+
+        def alerp(arr):
+            d = (float(arr[j]) - float(arr[i]) + 180.0) % 360.0 - 180.0
+            return float(arr[i] + a * d)
+
+        return CameraPose(lon=lerp(self.lon), lat=lerp(self.lat), alt_m=lerp(self.alt_m),
+                          heading_deg=alerp(self.heading_deg) % 360.0,
+                          pitch_deg=lerp(self.pitch_deg), roll_deg=alerp(self.roll_deg),
+                          hfov_deg=lerp(self.hfov_deg))
+
+    def pose_at_frame(self, frame: int, fps: float) -> CameraPose:
+        """The camera pose of 1-based ``frame`` at ``fps`` frames per second."""
+        return self.pose_at((frame - 1) / float(fps))
+
+    def homography(self, frame: int, fps: float, frame_size: tuple[int, int], target: Any,
+                   **kwargs) -> np.ndarray | Failure:
+        """Frame pixels -> ``target`` for 1-based ``frame``; see :func:`pose_homography`."""
+        return pose_homography(self.pose_at_frame(frame, fps), frame_size, target, **kwargs)
+
+
+def _build(rows: list[dict[str, float]], label: str, fps: float,
+           defaults: dict[str, float] | None) -> Telemetry:
+    if not rows:
+        raise FormatError(f"{label}: no telemetry rows")
+    dflt = {**_DEFAULTS, **(defaults or {})}
+    if "focal_35mm" in dflt and "hfov_deg" not in dflt:
+        dflt["hfov_deg"] = hfov_from_focal(dflt.pop("focal_35mm"))
+    cols: dict[str, list[float]] = {k: [] for k in ("time_s", *_FIELDS)}
+    for r in rows:
+        line = int(r.pop("_line"))
+        if "time_s" in r:
+            t = r["time_s"]
+        elif "frame" in r:
+            if r["frame"] < 1 or not float(r["frame"]).is_integer():
+                raise FormatError(f"{label} line {line}: frame must be a positive integer "
+                                  f"(1-based), got {r['frame']:g}")
+            t = (r["frame"] - 1) / fps
+        else:
+            raise FormatError(f"{label} line {line}: needs a frame or time_s value")
+        if "hfov_deg" not in r and "focal_35mm" in r:
+            if not r["focal_35mm"] > 0:
+                raise FormatError(f"{label} line {line}: focal length must be positive")
+            r["hfov_deg"] = hfov_from_focal(r["focal_35mm"])
+        cols["time_s"].append(t)
+        for k in _FIELDS:
+            v = r.get(k, dflt.get(k))
+            if v is None:
+                raise FormatError(
+                    f"{label} line {line}: no {k} (give the column, or a default such as "
+                    f"--{k.replace('_deg', '').replace('_m', '')})")
+            cols[k].append(float(v))
+        if not -180 <= cols["lon"][-1] <= 360 or not -90 <= cols["lat"][-1] <= 90:
+            raise FormatError(f"{label} line {line}: lon/lat out of range "
+                              f"({cols['lon'][-1]}, {cols['lat'][-1]})")
+        if not cols["alt_m"][-1] > 0:
+            raise FormatError(f"{label} line {line}: alt_m must be above the ground (> 0), "
+                              f"got {cols['alt_m'][-1]}")
+        if not 0 < cols["hfov_deg"][-1] < 180:
+            raise FormatError(f"{label} line {line}: hfov_deg must be in (0, 180), "
+                              f"got {cols['hfov_deg'][-1]}")
+    arr = {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
+    order = np.argsort(arr["time_s"], kind="stable")
+    arr = {k: v[order] for k, v in arr.items()}
+    if np.any(np.diff(arr["time_s"]) <= 0):
+        i = int(np.flatnonzero(np.diff(arr["time_s"]) <= 0)[0])
+        raise FormatError(f"{label}: two rows at the same time ({arr['time_s'][i]:.3f} s)")
+    return Telemetry(**arr, source=label)
+
+
+def read_telemetry_csv(path: str | Path, *, fps: float = 30.0,
+                       defaults: dict[str, float] | None = None, frame_base: int = 1,
+                       option: str = "--telemetry") -> Telemetry:
+    """Read the telemetry CSV described in the module docstring.
+
+    Parameters
+    ----------
+    path : path
+    fps : float
+        Frame rate, to turn the ``frame`` column into seconds.
+    defaults : dict, optional
+        Values for columns the log lacks (``{"heading_deg": 308.0}``); columns win over defaults.
+        ``pitch_deg`` defaults to -90 (nadir) and ``roll_deg`` to 0.
+    frame_base : int
+        Number of the first frame in the file's ``frame`` column: 1 (aerotrack's convention) or 0
+        (logs that count from 0, like Geo-trax's); the frames are renumbered to 1-based.
+    option : str
+        Command-line option named in messages.
+
+    Raises
+    ------
+    InputError, FormatError
+        Missing file; a row with the wrong number of cells, a non-numeric cell, an out-of-range
+        value, or a needed column absent (the message names the file and line).
+    """
+    p = Path(path)
+    label = f"{option} {p}"
+    text = _read_text(p, label)
+    lines = [(i, ln) for i, ln in enumerate(text.splitlines(), start=1)
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise FormatError(f"{label}: file is empty")
+    hline, header_text = lines[0]
+    header = [_ALIASES.get(h.strip().lower(), h.strip().lower())
+              for h in next(csv.reader([header_text]))]
+    if not {"lon", "lat"} <= set(header) or not ({"frame", "time_s"} & set(header)):
+        raise FormatError(f"{label} line {hline}: header needs frame (or time_s), lon, lat, alt_m "
+                          f"columns; found {header_text.strip()!r}")
+    wanted = {"frame", "time_s", "focal_35mm", *_FIELDS}
+    rows = []
+    for lineno, ln in lines[1:]:
+        cells = next(csv.reader(io.StringIO(ln)))
+        if len(cells) != len(header):
+            raise FormatError(f"{label} line {lineno}: expected {len(header)} cells, "
+                              f"found {len(cells)}")
+        r: dict[str, float] = {"_line": lineno}
+        for name, cell in zip(header, cells):
+            if name not in wanted:
+                continue
+            try:
+                val = float(cell)
+            except ValueError:
+                raise FormatError(f"{label} line {lineno}: {name} is not a number "
+                                  f"({cell.strip()!r})") from None
+            if not math.isfinite(val):
+                raise FormatError(f"{label} line {lineno}: {name} is NaN or infinite")
+            r[name] = val + (1 - frame_base if name == "frame" else 0)
+        rows.append(r)
+    return _build(rows, label, fps, defaults)
+
+
+_SRT_PAIR = re.compile(r"([A-Za-z_]+)\s*:\s*(-?\d+(?:\.\d+)?)")
+_SRT_GPS = re.compile(r"GPS\s*\(\s*(-?[\d.]+)\s*,\s*(-?[\d.]+)\s*,\s*(-?[\d.]+)\s*\)")
+_SRT_TIME = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->")
+
+
+def read_dji_srt(path: str | Path, *, defaults: dict[str, float] | None = None,
+                 option: str = "--telemetry") -> Telemetry:
+    """Read DJI video subtitles (``.SRT``) as telemetry.
+
+    Each cue's start time is the frame time. Recognised fields: ``latitude``, ``longitude``,
+    ``rel_alt`` (height above take-off, used as height above ground), ``focal_len``
+    (35-mm-equivalent focal length, mm), and when present ``gb_yaw``, ``gb_pitch``, ``gb_roll``;
+    the older ``GPS(lon, lat, alt)`` with ``H <height>m`` form is also read. Values the subtitles
+    lack come from ``defaults`` (see :func:`read_telemetry_csv`).
+    """
+    p = Path(path)
+    label = f"{option} {p}"
+    text = _read_text(p, label)
+    rows = []
+    lines = text.splitlines()
+    cue_start = None
+    cur: dict[str, float] = {}
+
+    def flush():
+        if cur:
+            rows.append(dict(cur))
+            cur.clear()
+
+    for lineno, ln in enumerate(lines, start=1):
+        m = _SRT_TIME.search(ln)
+        if m:
+            flush()
+            hh, mm, ss, ms = m.groups()
+            cue_start = lineno
+            cur["time_s"] = int(hh) * 3600 + int(mm) * 60 + int(ss) + int(ms.ljust(3, "0")) / 1000
+            cur["_line"] = lineno
+            continue
+        if cue_start is None:
+            continue
+        g = _SRT_GPS.search(ln)
+        if g:
+            cur["lon"], cur["lat"] = float(g.group(1)), float(g.group(2))
+        hm = re.search(r"\bH\s*(-?[\d.]+)\s*m", ln)
+        if hm:
+            cur["alt_m"] = float(hm.group(1))
+        for key, val in _SRT_PAIR.findall(ln):
+            name = _ALIASES.get(key.lower(), key.lower())
+            if name in ("lon", "lat", "alt_m", "heading_deg", "pitch_deg", "roll_deg",
+                        "focal_35mm"):
+                cur[name] = float(val)
+    flush()
+    rows = [r for r in rows if "lon" in r or "lat" in r]
+    if not rows:
+        raise FormatError(f"{label}: no DJI telemetry cues (latitude/longitude) found")
+    t0 = rows[0]["time_s"]
+    for r in rows:
+        r["time_s"] -= t0
+        for k in ("lon", "lat"):
+            if k not in r:
+                raise FormatError(f"{label} line {int(r['_line'])}: cue has no {k}")
+    return _build(rows, label, 1.0, defaults)
+
+
+def read_telemetry(path: str | Path, *, fps: float = 30.0,
+                   defaults: dict[str, float] | None = None, frame_base: int = 1,
+                   option: str = "--telemetry") -> Telemetry:
+    """Read a telemetry CSV or a DJI ``.srt`` (chosen by the suffix)."""
+    if Path(path).suffix.lower() == ".srt":
+        return read_dji_srt(path, defaults=defaults, option=option)
+    return read_telemetry_csv(path, fps=fps, defaults=defaults, frame_base=frame_base,
+                              option=option)
+
+
+def _read_text(p: Path, label: str) -> str:
+    if not p.is_file():
+        raise InputError(f"{label}: file not found")
+    try:
+        return p.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{label}: cannot read ({exc})") from None
+
+
+# -- metric scale without a map ----------------------------------------------------------------
+def ground_sample_distance(altitude_m: float, image_width_px: int, *, hfov_deg: float | None = None,
+                           focal_mm: float | None = None, sensor_width_mm: float | None = None,
+                           focal_35mm: float | None = None, focal_px: float | None = None) -> float:
+    """Metres per frame pixel at the image centre of a nadir camera ``altitude_m`` above flat ground.
+
+    ``gsd = altitude / f_px`` where the focal length in pixels comes from the first of:
+    ``focal_px``; ``focal_mm`` with ``sensor_width_mm`` (``f_px = W f / sensor_width``);
+    ``hfov_deg`` (``f_px = W / (2 tan(hfov/2))``); ``focal_35mm`` (via :func:`hfov_from_focal`).
+
+    Raises
+    ------
+    InputError
+        Non-positive values, or no way to get the focal length in pixels.
+    """
+    if not (altitude_m and altitude_m > 0 and image_width_px and image_width_px > 0):
+        raise InputError(f"--altitude {altitude_m}: altitude and image width must be positive")
+    if focal_px is not None:
+        f = float(focal_px)
+    elif focal_mm is not None and sensor_width_mm is not None:
+        if not (focal_mm > 0 and sensor_width_mm > 0):
+            raise InputError("--focal-mm/--sensor-width-mm: must be positive")
+        f = image_width_px * focal_mm / sensor_width_mm
+    elif hfov_deg is not None:
+        if not 0 < hfov_deg < 180:
+            raise InputError(f"--hfov {hfov_deg}: must be in (0, 180) degrees")
+        f = image_width_px / (2.0 * math.tan(math.radians(hfov_deg) / 2.0))
+    elif focal_35mm is not None:
+        if not focal_35mm > 0:
+            raise InputError(f"--focal-35mm {focal_35mm}: must be positive")
+        f = image_width_px / (2.0 * math.tan(math.radians(hfov_from_focal(focal_35mm)) / 2.0))
+    else:
+        raise InputError("--altitude needs a focal length: --hfov, --focal-35mm, or --focal-mm "
+                         "with --sensor-width-mm")
+    if not f > 0:
+        raise InputError(f"focal length in pixels must be positive, got {f}")
+    return float(altitude_m) / f
+
+
+def metres_per_unit(*, gsd: float | None = None, geomap: Any = None,
+                    altitude_m: float | None = None, image_width_px: int | None = None,
+                    **camera: float | None) -> float | None:
+    """Metres per world unit: the map's pixel size, else ``--gsd``, else altitude + optics.
+
+    World units are map pixels with a map and frame 1's pixels without one, so ``gsd`` (metres per
+    frame pixel of frame 1) and the altitude form apply only without a map; with both a map and a
+    GSD the map wins (its scale is measured, not assumed). Returns None when nothing gives a scale
+    (speeds then stay in world units per second).
+    """
+    if geomap is not None:
+        return float(geomap.metres_per_pixel)
+    if gsd is not None:
+        if not (math.isfinite(gsd) and gsd > 0):
+            raise InputError(f"--gsd {gsd}: must be a positive number of metres per pixel")
+        return float(gsd)
+    if altitude_m is not None:
+        if image_width_px is None:
+            raise InputError("--altitude: the frame width is needed to compute the scale")
+        return ground_sample_distance(altitude_m, image_width_px,
+                                      **{k: v for k, v in camera.items() if v is not None})
+    return None

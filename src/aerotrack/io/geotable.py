@@ -1,0 +1,353 @@
+"""The per-observation geo table: one row per (frame, track) for a GIS.
+
+Columns (CSV header, GeoPackage fields and Parquet columns alike):
+
+==============  ==============================================================================
+frame           1-based frame number
+time_s          seconds since frame 1, ``(frame - 1) / fps``
+id              track id (as in ``tracks.csv``)
+lon, lat        WGS 84 degrees of the ground point (8 decimals)
+x, y            the ground point in the output CRS (metres; the local UTM zone by default)
+crs             the output CRS, e.g. ``EPSG:32652``
+speed_mps       ground speed, m/s, over a centred window of ``smooth_s`` (geodesic distance)
+heading_deg     direction of travel, degrees clockwise from true north (geodesic azimuth);
+                empty when the target moves less than ``min_heading_speed_mps``
+length_m        ground size of the box's longer side, metres
+width_m         ground size of the box's shorter side, metres
+kind            ``observed`` (rows of ``tracks.csv``) or ``predicted`` (rows of ``predicted.csv``)
+==============  ==============================================================================
+
+Box sizes: the box (frame pixels) is measured on the ground by mapping the midpoints of its sides
+through that frame's homography (frame pixels -> map pixels, from ``registration.csv``), so they
+are correct for axis-aligned vehicles and overestimate the length and width of a vehicle that is
+diagonal in the frame (an axis-aligned box cannot tell its orientation). Without a homography for
+the frame they are empty, or ``frame_gsd`` x the box sides when a frame scale is given.
+
+The GeoPackage (``pyogrio``, extra ``gis``) holds one point layer ``observations`` in the output
+CRS; the Parquet file (written when ``pyarrow`` is installed) holds the same columns with the CRS in
+its schema metadata.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import FormatError, InputError, OutputError
+from .output import atomic_write
+
+COLUMNS = ("frame", "time_s", "id", "lon", "lat", "x", "y", "crs", "speed_mps", "heading_deg",
+           "length_m", "width_m", "kind")
+
+
+def utm_crs_for(lon: float, lat: float) -> str:
+    """The WGS 84 UTM zone holding (lon, lat), as ``EPSG:326zz`` (north) or ``EPSG:327zz`` (south).
+
+    The standard 6-degree zones (the Norway/Svalbard exceptions are not applied: a neighbouring
+    zone is still a valid, slightly less accurate, metric CRS there).
+    """
+    if not (math.isfinite(lon) and math.isfinite(lat) and -90 <= lat <= 90):
+        raise InputError(f"cannot choose a UTM zone for lon/lat ({lon}, {lat})")
+    zone = int(math.floor(((lon + 180.0) % 360.0) / 6.0)) + 1
+    return f"EPSG:{(32600 if lat >= 0 else 32700) + min(zone, 60)}"
+
+
+def read_registration_csv(path: str | Path) -> dict[int, np.ndarray]:
+    """``registration.csv`` -> {frame: (3, 3) homography frame pixels -> world}.
+
+    Reads the header ``frame,h00,...,h22[,...]``; extra columns are ignored.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: file not found")
+    lines = p.read_text(encoding="utf-8").splitlines()
+    if not lines:
+        raise FormatError(f"{p}: file is empty")
+    header = [h.strip() for h in lines[0].split(",")]
+    want = ["frame"] + [f"h{i}{j}" for i in range(3) for j in range(3)]
+    try:
+        idx = [header.index(w) for w in want]
+    except ValueError:
+        raise FormatError(f"{p} line 1: header must start frame,h00,...,h22") from None
+    out = {}
+    for lineno, ln in enumerate(lines[1:], start=2):
+        if not ln.strip():
+            continue
+        cells = ln.split(",")
+        try:
+            vals = [float(cells[i]) for i in idx]
+        except (ValueError, IndexError):
+            raise FormatError(f"{p} line {lineno}: expected frame and 9 numbers") from None
+        out[int(vals[0])] = np.asarray(vals[1:]).reshape(3, 3)
+    return out
+
+
+def _rows(arr: Any, name: str) -> np.ndarray:
+    a = np.asarray(arr if arr is not None else np.zeros((0, 10)), np.float64)
+    if a.size == 0:
+        return np.zeros((0, 10))
+    if a.ndim != 2 or a.shape[1] < 6:
+        raise InputError(f"{name}: expected MOT rows of 6 to 10 columns, got shape {a.shape}")
+    if a.shape[1] < 10:
+        a = np.hstack([a, np.full((len(a), 10 - a.shape[1]), -1.0)])
+    return a[:, :10]
+
+
+def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    h = np.hstack([pts, np.ones((len(pts), 1))]) @ H.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return h[:, :2] / h[:, 2:3]
+
+
+def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *,
+                      predicted: Any = None, homographies: dict[int, np.ndarray] | None = None,
+                      frame_gsd: float | None = None, smooth_s: float = 0.5,
+                      min_heading_speed_mps: float = 0.5) -> tuple[dict[str, np.ndarray], str]:
+    """Compute the table's columns (see the module docstring) without writing anything.
+
+    Parameters
+    ----------
+    rows : ndarray, shape (N, 10)
+        ``tracks.csv`` rows: frame, id, box (frame pixels), conf, x, y (map CRS ground point), z.
+    geomap : GeoMap
+        The map whose CRS x, y are in (and whose pixels the homographies map to).
+    fps : float
+    out_crs : CRS-like, optional
+        Projected output CRS (anything pyproj reads); default the UTM zone of the median position.
+    predicted : ndarray, shape (M, 10), optional
+        ``predicted.csv`` rows (kind ``predicted``).
+    homographies : dict {frame: (3, 3)}, optional
+        Frame pixels -> map pixels per frame (:func:`read_registration_csv`). Used for box sizes,
+        and for the ground point of rows whose x, y are -1.
+    frame_gsd : float, optional
+        Metres per frame pixel for box sizes in frames without a homography.
+    smooth_s : float
+        Width of the centred window for speed and heading, seconds. Wider is smoother but lags
+        through turns and stops.
+    min_heading_speed_mps : float
+        Below this speed the heading is left empty (the direction of jitter is meaningless).
+
+    Returns
+    -------
+    columns : dict of str -> ndarray
+        One array per column in :data:`COLUMNS`, rows sorted by (id, frame, kind).
+    crs : str
+        The output CRS as ``AUTH:CODE`` (or WKT if it has no code).
+    """
+    from pyproj import CRS, Geod, Transformer
+
+    if geomap is None:
+        raise InputError("observation table: needs a map (--map) for lon/lat and the output CRS")
+    if not fps > 0:
+        raise InputError(f"--fps {fps}: must be positive")
+    obs, pred = _rows(rows, "tracks"), _rows(predicted, "predicted")
+    a = np.vstack([obs, pred])
+    kind = np.array(["observed"] * len(obs) + ["predicted"] * len(pred), dtype=object)
+    order = np.lexsort((kind == "predicted", a[:, 0], a[:, 1]))
+    a, kind = a[order], kind[order]
+    n = len(a)
+    frame, ids = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
+    boxes = a[:, 2:6]
+    mapxy = a[:, 7:9].copy()
+    missing = np.all(mapxy == -1, axis=1) | ~np.isfinite(mapxy).all(axis=1)
+    homs = homographies or {}
+    centre = boxes[:, :2] + boxes[:, 2:] / 2
+    for i in np.flatnonzero(missing):
+        H = homs.get(int(frame[i]))
+        mapxy[i] = geomap.pixel_to_crs(_apply(H, centre[i:i + 1]))[0] if H is not None else np.nan
+    lonlat = np.full((n, 2), np.nan)
+    good = np.isfinite(mapxy).all(axis=1)
+    if good.any():
+        lonlat[good] = geomap.crs_to_lonlat(mapxy[good])
+
+    if out_crs is None:
+        if not good.any():
+            raise InputError("observation table: no row has a ground position; cannot choose a UTM zone")
+        med = np.median(lonlat[good], axis=0)
+        out_crs = utm_crs_for(float(med[0]), float(med[1]))
+    try:
+        ocrs = CRS.from_user_input(out_crs)
+    except Exception as exc:  # pyproj's CRSError
+        raise InputError(f"--out-crs {out_crs!r}: not understood ({exc})") from None
+    if not ocrs.is_projected:
+        raise InputError(f"--out-crs {out_crs!r}: must be a projected CRS (metres), not geographic")
+    auth = ocrs.to_authority()
+    crs_name = f"{auth[0]}:{auth[1]}" if auth else ocrs.to_wkt()
+    to_out = Transformer.from_crs(CRS.from_epsg(4326), ocrs, always_xy=True)
+    xy = np.full((n, 2), np.nan)
+    if good.any():
+        x, y = to_out.transform(lonlat[good, 0], lonlat[good, 1])
+        xy[good] = np.column_stack([x, y])
+
+    # Speed and heading: geodesic over a centred window within each track.
+    geod = Geod(ellps="WGS84")
+    t = (frame - 1) / float(fps)
+    speed = np.full(n, np.nan)
+    heading = np.full(n, np.nan)
+    half = smooth_s / 2.0
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    ends = np.r_[starts[1:], n]
+    for s, e in zip(starts, ends):
+        idx = np.arange(s, e)
+        idx = idx[good[idx]]
+        # one position per frame (an observed and a predicted row of one frame: keep observed)
+        _, first = np.unique(frame[idx], return_index=True)
+        idx = idx[first]
+        if len(idx) < 2:
+            continue
+        tt = t[idx]
+        lo = np.searchsorted(tt, tt - half - 1e-9, side="left")
+        hi = np.searchsorted(tt, tt + half + 1e-9, side="right") - 1
+        lo = np.where(hi == lo, np.maximum(lo - 1, 0), lo)
+        hi = np.where(hi == lo, np.minimum(hi + 1, len(tt) - 1), hi)
+        ok = hi > lo
+        az, _, dist = geod.inv(lonlat[idx[lo[ok]], 0], lonlat[idx[lo[ok]], 1],
+                               lonlat[idx[hi[ok]], 0], lonlat[idx[hi[ok]], 1])
+        v = np.asarray(dist) / (tt[hi[ok]] - tt[lo[ok]])
+        hd = np.where(v >= min_heading_speed_mps, np.mod(np.asarray(az), 360.0), np.nan)
+        # spread the per-frame values to every row of that frame in this track
+        per_frame = dict(zip(frame[idx[ok]].tolist(), zip(v.tolist(), hd.tolist())))
+        for i in range(s, e):
+            if int(frame[i]) in per_frame:
+                speed[i], heading[i] = per_frame[int(frame[i])]
+
+    # Box ground sizes via the frame's homography (or a frame GSD).
+    length = np.full(n, np.nan)
+    width = np.full(n, np.nan)
+    for i in range(n):
+        bx, by, bw, bh = boxes[i]
+        H = homs.get(int(frame[i]))
+        if H is not None:
+            mids = np.array([[bx, by + bh / 2], [bx + bw, by + bh / 2],
+                             [bx + bw / 2, by], [bx + bw / 2, by + bh]])
+            m = geomap.pixel_to_lonlat(_apply(np.asarray(H, np.float64), mids))
+            if np.all(np.isfinite(m)):
+                _, _, d = geod.inv(m[[0, 2], 0], m[[0, 2], 1], m[[1, 3], 0], m[[1, 3], 1])
+                sw, sh = float(d[0]), float(d[1])
+            else:
+                continue
+        elif frame_gsd is not None:
+            sw, sh = abs(bw) * frame_gsd, abs(bh) * frame_gsd
+        else:
+            continue
+        length[i], width[i] = max(sw, sh), min(sw, sh)
+
+    cols = {"frame": frame, "time_s": t, "id": ids, "lon": lonlat[:, 0], "lat": lonlat[:, 1],
+            "x": xy[:, 0], "y": xy[:, 1], "crs": np.array([crs_name] * n, dtype=object),
+            "speed_mps": speed, "heading_deg": heading, "length_m": length, "width_m": width,
+            "kind": kind}
+    return cols, crs_name
+
+
+def _fmt(v: Any, digits: int) -> str:
+    if isinstance(v, (str, np.str_)):
+        return str(v)
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return "" if not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+_DIGITS = {"time_s": 4, "lon": 8, "lat": 8, "x": 3, "y": 3, "speed_mps": 3, "heading_deg": 2,
+           "length_m": 3, "width_m": 3}
+
+
+def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
+    n = len(cols["frame"])
+    with atomic_write(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(COLUMNS) + "\n")
+        for i in range(n):
+            fh.write(",".join(_fmt(cols[c][i], _DIGITS.get(c, 0)) for c in COLUMNS) + "\n")
+
+
+def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
+    try:
+        from pyogrio.raw import write
+    except ImportError:
+        raise InputError("GeoPackage output needs pyogrio: pip install 'aerotrack[gis]'") from None
+    geom = np.array([struct.pack("<BIdd", 1, 1, x, y) if np.isfinite(x) and np.isfinite(y)
+                     else None for x, y in zip(cols["x"], cols["y"])], dtype=object)
+    names = [c for c in COLUMNS if c != "crs"]
+    data = []
+    for c in names:
+        v = cols[c]
+        data.append(v.astype(str) if v.dtype == object else v)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()
+    try:
+        write(str(tmp), geom, data, names, layer="observations", driver="GPKG",
+              geometry_type="Point", crs=crs_name)
+        os.replace(tmp, path)
+    except Exception as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise OutputError(f"{path}: cannot write the GeoPackage ({exc})") from None
+
+
+def _write_parquet(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.table({c: (cols[c].astype(str) if cols[c].dtype == object else cols[c])
+                      for c in COLUMNS}).replace_schema_metadata({"crs": crs_name})
+    with atomic_write(path, "wb") as fh:
+        pq.write_table(table, fh)
+
+
+def write_observation_table(path: str | Path, rows: Any, geomap: Any, fps: float,
+                            out_crs: Any = None, *, predicted: Any = None,
+                            homographies: dict[int, np.ndarray] | None = None,
+                            formats: tuple[str, ...] | None = None,
+                            **kwargs: Any) -> dict[str, Path]:
+    """Write the per-observation table as CSV, GeoPackage and Parquet.
+
+    Parameters
+    ----------
+    path : path
+        The CSV path (``observations.csv``); the GeoPackage and Parquet files share its stem.
+    rows, geomap, fps, out_crs, predicted, homographies, **kwargs
+        See :func:`observation_table`.
+    formats : tuple of str, optional
+        Any of ``csv``, ``gpkg``, ``parquet``. Default: ``csv``, plus ``gpkg`` when pyogrio and
+        ``parquet`` when pyarrow is importable. Asking for one whose library is missing raises
+        an InputError naming the extra to install.
+
+    Returns
+    -------
+    dict of str -> Path
+        The files written, by format.
+    """
+    p = Path(path)
+    if formats is None:
+        formats = ("csv",) + tuple(f for f, mod in (("gpkg", "pyogrio"), ("parquet", "pyarrow"))
+                                   if _importable(mod))
+    unknown = set(formats) - {"csv", "gpkg", "parquet"}
+    if unknown:
+        raise InputError(f"table formats {sorted(unknown)}: valid are csv, gpkg, parquet")
+    if "parquet" in formats and not _importable("pyarrow"):
+        raise InputError("Parquet output needs pyarrow: pip install pyarrow")
+    cols, crs_name = observation_table(rows, geomap, fps, out_crs, predicted=predicted,
+                                       homographies=homographies, **kwargs)
+    out: dict[str, Path] = {}
+    if "csv" in formats:
+        out["csv"] = p.with_suffix(".csv")
+        _write_csv(out["csv"], cols)
+    if "gpkg" in formats:
+        out["gpkg"] = p.with_suffix(".gpkg")
+        _write_gpkg(out["gpkg"], cols, crs_name)
+    if "parquet" in formats:
+        out["parquet"] = p.with_suffix(".parquet")
+        _write_parquet(out["parquet"], cols, crs_name)
+    return out
+
+
+def _importable(name: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(name) is not None
