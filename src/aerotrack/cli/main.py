@@ -25,6 +25,8 @@ COMMANDS = [
     ("predict_cmd", "predict_command"),
     ("mosaic_cmd", "mosaic_command"),
     ("demo_cmd", "demo_command"),
+    ("render_cmd", "render_command"),
+    ("report_cmd", "report_command"),
 ]
 
 log = logging.getLogger("aerotrack")

@@ -1,0 +1,103 @@
+"""``aerotrack render``: the overlay video and pictures of a run."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+log = logging.getLogger(__name__)
+
+
+def _progress(total: int | None, label: str, quiet: bool):
+    try:
+        from .track_cmd import make_progress
+    except ImportError:  # pragma: no cover - track command not installed
+        return (lambda n: None), (lambda: None)
+    return make_progress(total, label, quiet)
+
+
+def write_pictures(results, geomap, input_path) -> list[Path]:
+    """Write ``map.png``, ``spacetime.png`` and ``registration.png`` into the run folder."""
+    from ..viz.mapplot import plot_map, plot_registration, plot_space_time, save_figure
+
+    background = None
+    if geomap is None and input_path is not None:
+        from ..io.frames import open_source
+
+        background = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+    out = [save_figure(plot_map(results, geomap, background=background), results.path / "map.png"),
+           save_figure(plot_space_time(results, geomap), results.path / "spacetime.png")]
+    reg = plot_registration(results)
+    if reg is not None:
+        out.append(save_figure(reg, results.path / "registration.png"))
+    return out
+
+
+def load_map(results, map_path):
+    from ..geo import GeoMap
+
+    path = map_path or results.map_path
+    return GeoMap(path) if path else None
+
+
+@click.command("render")
+@click.argument("input_path", metavar="INPUT", type=click.Path(exists=False))
+@click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
+              help="Video to write: .webm (VP9, plays in browsers) or .mp4 (H.264). "
+                   "Default: DIR/overlay.webm.")
+@click.option("--trail-s", type=float, default=2.0, show_default=True,
+              help="Seconds of trail drawn behind each target.")
+@click.option("--max-width", type=int, default=None,
+              help="Downscale wider frames to this width (smaller files).")
+@click.option("--start", type=int, default=1, show_default=True, help="First frame (1-based).")
+@click.option("--stop", type=int, default=None, help="Last frame (inclusive). Default: the end.")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+              help="The run's map raster (default: the map named in DIR/summary.json).")
+@click.option("--pictures/--no-pictures", default=True, show_default=True,
+              help="Also write DIR/map.png, DIR/spacetime.png and DIR/registration.png.")
+@click.pass_context
+def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, max_width, start, stop,
+                   map_path, pictures) -> None:
+    """Draw a run's tracks on its input video.
+
+    INPUT is the video or image folder the run tracked, DIR its output folder. Targets in view get
+    a solid box in a colour fixed by their ID, a label and a short trail; targets out of view get
+    their predicted position as a dashed box with an uncertainty circle (or an arrow at the image
+    border when predicted outside it).
+
+    \b
+    Examples:
+      aerotrack render flight.mp4 run/                   # -> run/overlay.webm
+      aerotrack render frames/ run/ --out run/overlay.mp4 --trail-s 5
+      aerotrack render flight.mp4 run/ --max-width 1280 --start 100 --stop 400
+    """
+    from ..errors import InputError
+    from ..io.frames import open_source
+    from ..viz import OverlayStyle, RunResults, render_overlay
+
+    results = RunResults.load(run_dir)
+    if start < 1 or (stop is not None and stop < start):
+        raise InputError(f"--start {start} --stop {stop}: need 1 <= start <= stop")
+    if max_width is not None and max_width < 16:
+        raise InputError(f"--max-width {max_width}: too small")
+    style = OverlayStyle(trail_s=trail_s, max_width=max_width)
+    out = Path(out_path) if out_path else results.path / "overlay.webm"
+    source = open_source(input_path, results.fps)  # fail fast on a bad input
+    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    n = source.count
+    total = (min(stop, n) if stop and n else stop or n)
+    total = total - start + 1 if total else None
+    progress, close = _progress(total, "render", quiet)
+    try:
+        render_overlay(input_path, results, out, style=style, start=start, stop=stop, progress=progress)
+    finally:
+        close()
+    written = [out]
+    if pictures:
+        written += write_pictures(results, load_map(results, map_path), input_path)
+    if not quiet:
+        for p in written:
+            click.echo(f"wrote {p}")

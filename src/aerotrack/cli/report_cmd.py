@@ -1,0 +1,53 @@
+"""``aerotrack report``: one self-contained HTML file for a run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("report")
+@click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
+@click.option("--gt", "gt_path", type=click.Path(dir_okay=False), default=None,
+              help="Ground truth (MOTChallenge, 1-based frames): adds the evaluation section.")
+@click.option("--input", "input_path", type=click.Path(), default=None,
+              help="The run's input video or image folder, for the overlay player "
+                   "(default: the input named in DIR/summary.json, if it still exists).")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+              help="The run's map raster (default: the map named in DIR/summary.json).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
+              help="Report file to write. Default: DIR/report.html.")
+@click.option("--video-width", type=int, default=960, show_default=True,
+              help="Width of the embedded overlay video.")
+@click.pass_context
+def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, out_path,
+                   video_width) -> None:
+    """Write DIR/report.html: a single offline file (no network needed) with the run's numbers,
+    timings, registration quality, map and space-time pictures, an overlay player, the track
+    table and, with --gt, the evaluation.
+
+    \b
+    Examples:
+      aerotrack report run/
+      aerotrack report run/ --gt gt.txt --input flight.mp4
+    """
+    from ..errors import InputError
+    from ..viz.report import ReportOptions, build_report
+    from ..viz.results import RunResults
+
+    results = RunResults.load(run_dir)
+    if gt_path is not None and not Path(gt_path).is_file():
+        raise InputError(f"--gt {gt_path}: file not found")
+    if input_path is not None and not Path(input_path).exists():
+        raise InputError(f"--input {input_path}: no such file or folder")
+    geomap = None
+    if map_path is not None:
+        from ..geo import GeoMap
+
+        geomap = GeoMap(map_path)
+    out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
+                       out_path=out_path, options=ReportOptions(video_width=video_width))
+    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    if not quiet:
+        click.echo(f"wrote {out}")
