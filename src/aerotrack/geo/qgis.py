@@ -174,6 +174,9 @@ def _num(cells: list[str], idx: int, name: str, label: str, lineno: int) -> floa
     return v
 
 
+_PRETTY = {"sourcex": "sourceX", "sourcey": "sourceY", "pixelx": "pixelX", "pixely": "pixelY"}
+
+
 def read_qgis_points(path: str | Path, *, option: str = "--map-init") -> ControlPoints:
     """Read a QGIS georeferencer ``.points`` file (see the module docstring).
 
@@ -204,8 +207,8 @@ def read_qgis_points(path: str | Path, *, option: str = "--map-init") -> Control
             continue
         mx = _num(cells, ix_map[0], "mapX", label, lineno)
         my = _num(cells, ix_map[1], "mapY", label, lineno)
-        fx = _num(cells, ix_src[0], sx[0], label, lineno)
-        fy = _num(cells, ix_src[1], sx[1], label, lineno)
+        fx = _num(cells, ix_src[0], _PRETTY[sx[0]], label, lineno)
+        fy = _num(cells, ix_src[1], _PRETTY[sx[1]], label, lineno)
         frame.append([fx, -fy])  # QGIS source y is the negated pixel row
         mapxy.append([mx, my])
     if len(frame) < 4:

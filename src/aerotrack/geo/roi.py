@@ -260,14 +260,16 @@ def _csv_polygons(text: str, label: str):
 
 # -- minimum-speed filter --------------------------------------------------------------------
 def track_max_speed(track: Track, fps: float, metres_per_unit: float | None = None, *,
-                    window_s: float = 2.0, kinds: tuple[str, ...] = ("observed",)) -> float:
+                    window_s: float = 2.0, smooth_s: float = 0.5,
+                    kinds: tuple[str, ...] = ("observed",)) -> float:
     """The fastest a track moved over any ``window_s`` seconds, metres per second.
 
-    The speed over a window is the net displacement between the track's positions at both ends of
-    the window, divided by the elapsed time; taking the net displacement over seconds (rather than
-    frame-to-frame steps) keeps the centroid jitter of a parked car's detections from looking like
-    motion: jitter of ``j`` metres reads as at most ``2 j / window_s`` m/s. A track shorter than
-    the window uses its whole span.
+    The positions are first smoothed by a centred running median over ``smooth_s``; the speed over
+    a window is then the net displacement between the smoothed positions at both ends of the
+    window, divided by the elapsed time. Net displacement over seconds (rather than frame-to-frame
+    steps) of median positions keeps the centroid jitter of a parked car's detections from looking
+    like motion: jitter of ``j`` metres reads as roughly ``2 j / window_s`` m/s at worst. A track
+    shorter than the window uses its whole span.
 
     Parameters
     ----------
@@ -278,6 +280,9 @@ def track_max_speed(track: Track, fps: float, metres_per_unit: float | None = No
         Metres per world unit; None = speeds in world units per second.
     window_s : float
         Longer windows suppress jitter better but need the vehicle to move for that long.
+    smooth_s : float
+        Running-median width, seconds (0 disables); wider rejects more jitter but rounds off
+        starts and stops.
     kinds : tuple of str
         Point kinds used (predicted and bridged positions are not evidence of motion).
 
@@ -295,6 +300,10 @@ def track_max_speed(track: Track, fps: float, metres_per_unit: float | None = No
     span = t[-1] - t[0]
     if span <= 0:
         return 0.0
+    if smooth_s > 0:  # centred running median: detection jitter is not motion
+        lo = np.searchsorted(t, t - smooth_s / 2 - 1e-9, side="left")
+        hi = np.searchsorted(t, t + smooth_s / 2 + 1e-9, side="right")
+        xy = np.array([np.median(xy[a:b], axis=0) for a, b in zip(lo, hi)])
     w = min(window_s, span)
     j = np.searchsorted(t, t + w - 1e-9, side="left")
     j = np.minimum(j, len(t) - 1)
@@ -308,7 +317,7 @@ def track_max_speed(track: Track, fps: float, metres_per_unit: float | None = No
 
 def filter_min_speed(tracks: list[Track], min_speed_mps: float, fps: float,
                      metres_per_unit: float | None = None, *,
-                     window_s: float = 2.0) -> list[Track]:
+                     window_s: float = 2.0, smooth_s: float = 0.5) -> list[Track]:
     """Drop tracks that never move faster than ``min_speed_mps`` (parked vehicles).
 
     A track is kept when :func:`track_max_speed` over ``window_s`` reaches ``min_speed_mps`` at
@@ -325,4 +334,5 @@ def filter_min_speed(tracks: list[Track], min_speed_mps: float, fps: float,
     if min_speed_mps <= 0:
         return list(tracks)
     return [tr for tr in tracks
-            if track_max_speed(tr, fps, metres_per_unit, window_s=window_s) >= min_speed_mps]
+            if track_max_speed(tr, fps, metres_per_unit, window_s=window_s,
+                               smooth_s=smooth_s) >= min_speed_mps]
