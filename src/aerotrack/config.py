@@ -43,6 +43,9 @@ class RegistrationConfig:
     scale : float
         Frames are downscaled by this factor for feature tracking (1 = full resolution). Lower is
         faster; too low loses fine texture and sub-pixel precision.
+    min_track_width_px : int
+        The downscaled image is never narrower than this (small frames are tracked at a larger
+        scale, up to full resolution).
     ransac_threshold_px : float
         RANSAC inlier threshold, in full-resolution frame pixels.
     estimator : str
@@ -89,6 +92,7 @@ class RegistrationConfig:
     method: str = "lk"
     max_features: int = 400
     scale: float = 0.5
+    min_track_width_px: int = 480
     ransac_threshold_px: float = 2.0
     estimator: str = "ransac"
     min_inliers: int = 20
@@ -157,6 +161,10 @@ class DetectionConfig:
         Longest accepted box side; longer blobs are split, or dropped when they cannot be.
     split_blobs : bool
         Split blobs that merge several vehicles (erosion until they fall apart).
+    split_area_ratio : float
+        Only blobs larger than this multiple of the frame's median blob area are split (needs 5
+        blobs in the frame), and each part must reach half the median area. Lower splits more
+        merged pairs but also cuts single long vehicles.
     shadow_suppression : bool
         Remove moving cast shadows (Prati et al.'s deterministic non-model-based HSV test) from
         blobs before boxing them.
@@ -202,6 +210,7 @@ class DetectionConfig:
     max_length_m: float = 25.0
     max_length_px: float = 300.0
     split_blobs: bool = True
+    split_area_ratio: float = 1.7
     shadow_suppression: bool = True
     shadow_alpha: float = 0.4
     shadow_beta: float = 0.9
@@ -366,9 +375,17 @@ class ContextConfig:
         ``context``: a predictor's path must pass the target's last F positions at a mean distance
         of about this (weight ``exp(-d^2 / 2 path_match_m^2)``, cut at twice it). Smaller picks
         only predictors on the very same line; larger averages over neighbouring lanes and exits.
-    flow_support : float
-        ``context``: weight of the target's own heading against the neighbours' summed weights.
-        Raising it trusts the flow less.
+    path_noise_m : float
+        ``context``: error of a path-following prediction from one perfectly matched predictor,
+        metres; it is fused with the Kalman prediction by inverse variance (with the predictors'
+        spread and match distance added). Raising it trusts other objects' paths less.
+    path_chord_s : float
+        ``context``: predictors' paths are walked as chords between rows this many seconds apart
+        (arc length over every jittery row is longer than the distance actually covered).
+    path_speed_ratio : float
+        ``context``: predictors must move at between 1/ratio and ratio times the target's speed
+        where they pass it (objects that move alike, the paper's criterion). Larger admits walkers
+        beside cars; smaller finds fewer predictors.
     flow_min_speed_mps : float
         ``context``: slower rows (standing objects) carry no heading; a slower target is held still.
     flow_sample_s : float
@@ -394,7 +411,9 @@ class ContextConfig:
     flow_radius_m: float = 2.0
     flow_heading_deg: float = 45.0
     path_match_m: float = 1.0
-    flow_support: float = 3.0
+    path_noise_m: float = 3.0
+    path_chord_s: float = 0.5
+    path_speed_ratio: float = 1.5
     flow_min_speed_mps: float = 0.3
     flow_sample_s: float = 0.3
     velocity_lag_s: float = 0.5

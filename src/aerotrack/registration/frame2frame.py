@@ -240,5 +240,26 @@ def estimate_homography(
         good = [m[0] for m in matches if len(m) == 2 and m[0].distance < 0.8 * m[1].distance]
         p0 = np.float32([k0[m.queryIdx].pt for m in good]).reshape(-1, 2)
         p1 = np.float32([k1[m.trainIdx].pt for m in good]).reshape(-1, 2)
-        return _fit(p0, p1, gray.shape, **fit)
+        res = _fit(p0, p1, gray.shape, **fit)
+        if not res:
+            return res
+        # ORB keypoints are located to ~1 px: polish by optical flow between the previous frame
+        # warped by the ORB motion (now nearly aligned, so LK's translation model holds even after
+        # a large rotation) and this frame; the residual motion is composed with the ORB one.
+        Horb = res[0]
+        h, w = gray.shape[:2]
+        warped = cv2.warpPerspective(prev_gray, Horb, (w, h), flags=cv2.INTER_LINEAR)
+        inside = cv2.warpPerspective(np.full(prev_gray.shape, 255, np.uint8) if mask is None else mask,
+                                     Horb, (w, h), flags=cv2.INTER_NEAREST)
+        inside = cv2.erode(inside, np.ones((9, 9), np.uint8))
+        c0 = detect_features(warped, max_features, inside)
+        if len(c0) >= max(min_inliers, 4):
+            c1, st, _ = cv2.calcOpticalFlowPyrLK(warped, gray, c0, None, **_LK_PARAMS)
+            if c1 is not None:
+                ok = st.ravel() == 1
+                q0 = cv2.perspectiveTransform(c0[ok], np.linalg.inv(Horb)).reshape(-1, 2)
+                polished = _fit(q0, c1[ok].reshape(-1, 2), gray.shape, **fit)
+                if polished:
+                    return polished
+        return res
     raise ConfigError(f"config registration.method: unknown {method!r} (valid: {', '.join(METHODS)})")

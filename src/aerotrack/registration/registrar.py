@@ -135,9 +135,15 @@ class FrameRegistrar:
                 "n_failures": len(self.failures)}
 
     # -- internals ------------------------------------------------------------------------------
+    def _scale(self, width: int) -> float:
+        """Tracking scale for a frame ``width`` pixels wide (``scale``, raised for small frames)."""
+        cfg = self.config
+        return min(1.0, max(cfg.scale, cfg.min_track_width_px / max(width, 1)))
+
     def _step(self, frame: Frame, exclude_boxes: np.ndarray | None) -> Registration:
         cfg = self.config
-        gray = to_gray(frame.image, cfg.scale)
+        scale = self._scale(frame.image.shape[1])
+        gray = to_gray(frame.image, scale)
         bad = frame_quality(gray, min_contrast=cfg.min_contrast, max_saturated=cfg.max_saturated,
                             min_neighbour_corr=cfg.min_neighbour_corr)
         if self._ref_gray is None:
@@ -149,12 +155,12 @@ class FrameRegistrar:
             return self._carry(frame, bad.reason, bad=True)
         if gray.shape != self._ref_gray.shape:
             return self._carry(frame, "frame size changed", bad=True)
-        mask = boxes_mask(self._ref_gray.shape, exclude_boxes, cfg.scale)
+        mask = boxes_mask(self._ref_gray.shape, exclude_boxes, scale)
         points = self._points
         if points is not None and len(points) < cfg.max_features // 2:
             points = None
         common = dict(max_features=cfg.max_features,
-                      ransac_threshold=cfg.ransac_threshold_px * cfg.scale,
+                      ransac_threshold=cfg.ransac_threshold_px * scale,
                       estimator=cfg.estimator, min_inliers=cfg.min_inliers,
                       min_inlier_ratio=cfg.min_inlier_ratio,
                       max_scale_change=cfg.max_scale_change, max_condition=cfg.max_condition)
@@ -167,7 +173,7 @@ class FrameRegistrar:
         if not est:
             return self._carry(frame, est.reason, bad=False)
         M_small, stats = est
-        M = scale_homography(M_small, cfg.scale)  # reference frame -> this frame, full-res pixels
+        M = scale_homography(M_small, scale)  # reference frame -> this frame, full-res pixels
         H = normalize(self._ref_H @ np.linalg.inv(M))
         gap = frame.index - self._ref_index
         if gap == 1:
@@ -186,7 +192,7 @@ class FrameRegistrar:
         self._ref_index, self._ref_time = frame.index, frame.time
         self._points = stats.points
         return Registration(frame.index, H, status, stats.inliers, stats.inlier_ratio,
-                            stats.error / cfg.scale, reason)
+                            stats.error / scale, reason)
 
     def _anchor(self, frame: Frame, gray: np.ndarray, H: np.ndarray, status: str,
                 reason: str = "", search_scale: float = 1.0) -> Registration:
@@ -224,7 +230,7 @@ class FrameRegistrar:
         else:
             H = H_last.copy()
         if not bad and frame.time - self._ref_time >= cfg.reset_after_s - 1e-9:
-            gray = to_gray(frame.image, cfg.scale)
+            gray = to_gray(frame.image, self._scale(frame.image.shape[1]))
             log.warning("frame %d: no registration for %.1f s (%s); new reference",
                         frame.index, frame.time - self._ref_time, reason)
             self._motion = np.eye(3)

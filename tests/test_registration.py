@@ -1,0 +1,325 @@
+"""Registration: known-answer tests on views rendered from the bundled map tile with known homographies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aerotrack.config import RegistrationConfig
+from aerotrack.errors import ConfigError, InputError
+from aerotrack.geo import GeoMap
+from aerotrack.registration import (FrameRegistrar, chain, check_homography, corner_error,
+                                    estimate_homography, frame_quality, read_registration_csv,
+                                    refine_against_map, to_gray, write_registration_csv)
+from aerotrack.types import Failure, Frame
+
+TILE = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
+W, H = 320, 240
+
+
+@pytest.fixture(scope="module")
+def tile() -> GeoMap:
+    return GeoMap(TILE)
+
+
+@pytest.fixture(scope="module")
+def map_img(tile) -> np.ndarray:
+    return tile.read_image()
+
+
+def camera(t: float, jump: float = 0.0) -> np.ndarray:
+    """Frame pixels -> map pixels of a smoothly moving, rotating, zooming, slightly tilted camera."""
+    cx = 650 + 200 * np.sin(t / 6.0)
+    cy = 650 + 150 * np.sin(t / 5.0 + 1.0)
+    th = 0.3 * np.sin(t / 10.0) + jump
+    s = 0.9 * (1 + 0.1 * np.sin(t / 4.0))
+    C = np.array([[1, 0, -W / 2], [0, 1, -H / 2], [0, 0, 1.0]])
+    P = np.array([[1, 0, 0], [0, 1, 0], [3e-5 * np.sin(t / 3), 3e-5 * np.cos(t / 4), 1.0]])
+    R = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    M = np.array([[s, 0, cx], [0, s, cy], [0, 0, 1.0]])
+    Hm = M @ R @ P @ C
+    return Hm / Hm[2, 2]
+
+
+def render(map_img: np.ndarray, Hm: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+    f = cv2.warpPerspective(map_img, Hm, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    if rng is not None:
+        f = np.clip(f + rng.normal(0, 2.0, f.shape), 0, 255).astype(np.uint8)
+    return f
+
+
+# -- frame to frame -------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["lk", "orb"])
+def test_recovers_known_homography(map_img, method):
+    H0, H1 = camera(0.0), camera(0.4)
+    a, b = to_gray(render(map_img, H0)), to_gray(render(map_img, H1))
+    true = np.linalg.inv(H1) @ H0  # frame 0 pixels -> frame 1 pixels
+    res = estimate_homography(a, b, method=method)
+    assert res, res
+    Hest, stats = res
+    assert stats.inliers >= 20 and stats.inlier_ratio > 0.5
+    assert corner_error(Hest, true, W, H) < 0.3
+
+
+def test_orb_recovers_a_30_degree_jump(map_img):
+    H0 = camera(1.0)
+    H1 = camera(1.0, jump=np.radians(30))
+    a, b = to_gray(render(map_img, H0)), to_gray(render(map_img, H1))
+    assert not estimate_homography(a, b, method="lk") or True  # LK may or may not cope
+    Hest, _ = estimate_homography(a, b, method="orb")
+    assert corner_error(Hest, np.linalg.inv(H1) @ H0, W, H) < 0.5
+
+
+def test_mask_keeps_features_off_excluded_boxes(map_img):
+    a = to_gray(render(map_img, camera(0.0)))
+    b = to_gray(render(map_img, camera(0.2)))
+    mask = np.full(a.shape, 255, np.uint8)
+    mask[50:150, 100:200] = 0
+    Hest, stats = estimate_homography(a, b, mask)
+    Hb = np.linalg.inv(camera(0.2)) @ camera(0.0)
+    from aerotrack.types import apply_homography
+    src = apply_homography(np.linalg.inv(Hb), stats.points)  # inliers back in frame a
+    inside = (src[:, 0] > 101) & (src[:, 0] < 199) & (src[:, 1] > 51) & (src[:, 1] < 149)
+    assert not inside.any()
+
+
+@pytest.mark.parametrize("image,reason", [
+    (np.zeros((H, W), np.uint8), "blank"),
+    (np.full((H, W), 255, np.uint8), "blank"),
+    (np.where(np.arange(W)[None, :] % 7 == 0, 100, 255).astype(np.uint8).repeat(H, 0), "overexposed"),
+    (np.random.default_rng(0).integers(0, 256, (H, W)).astype(np.uint8), "noise"),
+])
+def test_frame_quality_names_the_problem(image, reason):
+    bad = frame_quality(image)
+    assert isinstance(bad, Failure) and not bad
+    assert reason in bad.reason
+
+
+def test_frame_quality_accepts_imagery(map_img):
+    assert frame_quality(to_gray(render(map_img, camera(0.0)))) is None
+
+
+def test_check_homography_rejects_degenerate():
+    assert check_homography(np.eye(3), W, H) is None
+    bad = {
+        "flip": np.diag([-1.0, 1, 1]),  # mirror
+        "area": np.diag([3.0, 3, 1]),  # area ratio 9
+        "condition": np.diag([2.5, 0.5, 1]),  # strong anisotropic scale
+        "finite": np.full((3, 3), np.nan),
+        "horizon": np.array([[1, 0, 0], [0, 1, 0], [-0.01, 0, 1.0]]),
+    }
+    for word, Hb in bad.items():
+        res = check_homography(Hb, W, H)
+        assert isinstance(res, Failure), word
+        assert word in res.reason, (word, res.reason)
+
+
+# -- chaining (eq. 1) -----------------------------------------------------------------------------
+def _near_identity(draw_vals):
+    a, b, c, d, tx, ty, p, q = draw_vals
+    return np.array([[1 + a, b, tx], [c, 1 + d, ty], [p, q, 1.0]])
+
+
+small = st.floats(-0.05, 0.05)
+hom = st.tuples(small, small, small, small, st.floats(-20, 20), st.floats(-20, 20),
+                st.floats(-1e-4, 1e-4), st.floats(-1e-4, 1e-4)).map(_near_identity)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(hom, min_size=1, max_size=6), st.data())
+def test_chain_properties(Hs, data):
+    n = len(Hs)
+    i = data.draw(st.integers(0, n))
+    j = data.draw(st.integers(0, n))
+    k = data.draw(st.integers(0, n))
+    assert np.allclose(chain(Hs, i, i), np.eye(3))
+    Hij, Hji = chain(Hs, i, j), chain(Hs, j, i)
+    prod = Hij @ Hji
+    assert np.allclose(prod / prod[2, 2], np.eye(3), atol=1e-9)  # H . H^-1 = I
+    Hik = chain(Hs, j, k) @ Hij
+    assert np.allclose(Hik / Hik[2, 2], chain(Hs, i, k), atol=1e-8)
+    if n >= 1:
+        assert np.allclose(chain(Hs, 0, 1), Hs[0] / Hs[0][2, 2])
+
+
+def test_chain_rejects_out_of_range():
+    with pytest.raises(IndexError):
+        chain([np.eye(3)], 0, 3)
+
+
+# -- the stage ------------------------------------------------------------------------------------
+def _sequence(map_img, n, fps, rng, events=None):
+    events = events or {}
+    for k in range(n):
+        t = k / fps
+        Hm = camera(t, jump=np.radians(30) if k >= events.get("jump_at", 10**9) else 0.0)
+        img = render(map_img, Hm, rng)
+        kind = events.get(k)
+        if kind == "black":
+            img = np.zeros_like(img)
+        elif kind == "noise":
+            img = rng.integers(0, 256, img.shape).astype(np.uint8)
+        elif kind == "white":
+            img = np.full_like(img, 255)
+        yield Frame(k + 1, img, t), Hm
+
+
+def test_registrar_tracks_a_clean_sequence_without_map(map_img):
+    fps = 10.0
+    rng = np.random.default_rng(1)
+    reg = FrameRegistrar(RegistrationConfig(), fps)
+    H1 = None
+    for frame, Hm in _sequence(map_img, 40, fps, rng):
+        r = reg.step(frame)
+        H1 = Hm if H1 is None else H1
+        assert r.status == "ok"
+        # world = frame 1 pixels: truth is H1^-1 Hm
+        assert corner_error(r.H, np.linalg.inv(H1) @ Hm, W, H) < 2.0  # chained: drifts slowly
+
+
+def test_robustness_sequence(map_img):
+    """Black, white, repeated, noise frames and a sudden 30 degree jump: no crash, reasons given,
+    good frames afterwards stay in frame 1's coordinates."""
+    fps = 10.0
+    rng = np.random.default_rng(2)
+    events = {5: "black", 6: "black", 12: "noise", 13: "noise", 14: "noise", 20: "white",
+              "jump_at": 30}
+    reg = FrameRegistrar(RegistrationConfig(), fps)
+    out, truth = [], []
+    prev = None
+    for frame, Hm in _sequence(map_img, 45, fps, rng, events):
+        if frame.index == 25 and prev is not None:  # a repeated frame
+            frame = Frame(frame.index, prev.image.copy(), frame.time)
+            Hm = truth[-1]
+        out.append(reg.step(frame))
+        truth.append(Hm)
+        prev = frame
+    status = {r.index: (r.status, r.reason) for r in out}
+    assert status[6][0] == "carried" and "blank" in status[6][1]
+    assert status[13][0] == "carried" and "noise" in status[13][1]
+    assert status[21][0] == "carried" and ("blank" in status[21][1] or "overexposed" in status[21][1])
+    assert status[25][0] == "ok"
+    assert status[31][0] == "ok"  # the 30 degree jump is registered (ORB fallback)
+    H1inv = np.linalg.inv(truth[0])
+    for r, Hm in zip(out, truth):
+        if r.status == "ok":
+            assert corner_error(r.H, H1inv @ Hm, W, H) < 1.5, r
+    assert reg.summary()["n_failures"] == 6
+
+
+def test_registrar_exclude_boxes_accepted(map_img):
+    reg = FrameRegistrar(RegistrationConfig(), 10.0)
+    rng = np.random.default_rng(3)
+    for frame, _ in _sequence(map_img, 3, 10.0, rng):
+        r = reg.step(frame, exclude_boxes=np.array([[10, 10, 50, 40], [200, 100, 30, 30]]))
+        assert r.status == "ok"
+
+
+# -- map refinement -------------------------------------------------------------------------------
+def test_refinement_removes_injected_drift(map_img):
+    rng = np.random.default_rng(4)
+    mg = cv2.cvtColor(map_img, cv2.COLOR_BGR2GRAY)
+    for t in (0.0, 7.0, 19.0):
+        Hm = camera(t)
+        f = render(map_img, Hm, rng)
+        a = 0.01
+        drift = np.array([[np.cos(a), -np.sin(a), 6.0], [np.sin(a), np.cos(a), -4.0], [0, 0, 1]])
+        c = np.array([[1, 0, 650], [0, 1, 650], [0, 0, 1.0]])
+        rough = c @ drift @ np.linalg.inv(c) @ Hm
+        assert corner_error(rough, Hm, W, H) > 5
+        res = refine_against_map(f, rough, mg)
+        assert res, res
+        Href, stats = res
+        assert corner_error(Href, Hm, W, H) < 0.5
+        assert stats.correction_px > 5
+
+
+def test_refinement_fails_cleanly_off_map(map_img):
+    Hm = camera(0.0)
+    off = np.array([[1, 0, 5000], [0, 1, 5000], [0, 0, 1.0]]) @ Hm
+    res = refine_against_map(render(map_img, Hm), off, map_img)
+    assert isinstance(res, Failure) and "outside the map" in res.reason
+
+
+def test_registrar_with_map_corrects_a_wrong_init(tile, map_img):
+    fps = 10.0
+    rng = np.random.default_rng(5)
+    H_init = np.array([[1, 0, 5.0], [0, 1, 3.0], [0, 0, 1]]) @ camera(0.0)  # a 6 px clicking error
+    reg = FrameRegistrar(RegistrationConfig(refine_every_s=1.0), fps, tile, H_init)
+    errs = []
+    for frame, Hm in _sequence(map_img, 25, fps, rng):
+        r = reg.step(frame)
+        errs.append(corner_error(r.H, Hm, W, H))
+        if frame.index == 1:
+            assert r.status == "refined"
+    assert max(errs) < 1.0
+    assert reg.counts["refined"] >= 3
+
+
+def test_registrar_validates_inputs(tile):
+    with pytest.raises(ConfigError, match="registration.method"):
+        FrameRegistrar(RegistrationConfig(method="sift"), 10.0)
+    with pytest.raises(ConfigError, match="registration.estimator"):
+        FrameRegistrar(RegistrationConfig(estimator="lmeds"), 10.0)
+    with pytest.raises(InputError, match="map-init"):
+        FrameRegistrar(RegistrationConfig(), 10.0, tile)
+    with pytest.raises(InputError, match="fps"):
+        FrameRegistrar(RegistrationConfig(), 0.0)
+
+
+# -- outputs --------------------------------------------------------------------------------------
+def test_registration_csv_round_trip(tmp_path, map_img):
+    reg = FrameRegistrar(RegistrationConfig(), 10.0)
+    rng = np.random.default_rng(6)
+    events = {2: "black"}
+    regs = [reg.step(f) for f, _ in _sequence(map_img, 5, 10.0, rng, events)]
+    p = tmp_path / "registration.csv"
+    write_registration_csv(p, regs)
+    lines = p.read_text().splitlines()
+    assert lines[0] == ("frame,h00,h01,h02,h10,h11,h12,h20,h21,h22,status,inliers,inlier_ratio,"
+                        "error,reason")
+    back = read_registration_csv(p)
+    assert [r.index for r in back] == [1, 2, 3, 4, 5]
+    assert back[2].status == "carried" and "blank" in back[2].reason
+    for a, b in zip(regs, back):
+        assert np.allclose(a.H, b.H, rtol=1e-9, atol=1e-9)
+
+
+def _write_scene(folder: Path, map_img, n=12):
+    folder.mkdir()
+    truth = []
+    for k in range(n):
+        Hm = camera(k / 10.0)
+        cv2.imwrite(str(folder / f"{k + 1:04d}.png"), render(map_img, Hm))
+        truth.append(Hm)
+    return truth
+
+
+def test_mosaic_command_without_and_with_map(tmp_path, map_img):
+    from aerotrack.cli.main import cli
+
+    frames = tmp_path / "frames"
+    truth = _write_scene(frames, map_img)
+    runner = CliRunner()
+    out = tmp_path / "mosaic.png"
+    res = runner.invoke(cli, ["-q", "mosaic", str(frames), "--out", str(out), "--stride", "3",
+                              "--registration", str(tmp_path / "reg.csv")])
+    assert res.exit_code == 0, res.output
+    img = cv2.imread(str(out))
+    assert img is not None and img.shape[0] >= H and img.shape[1] >= W
+    init = tmp_path / "init.txt"
+    init.write_text("\n".join(" ".join(f"{v:.10g}" for v in row) for row in truth[0]) + "\n")
+    out2 = tmp_path / "mosaic_map.png"
+    res = runner.invoke(cli, ["-q", "mosaic", str(frames), "--out", str(out2), "--map", str(TILE),
+                              "--map-init", str(init), "--registration", str(tmp_path / "reg2.csv")])
+    assert res.exit_code == 0, res.output
+    regs = read_registration_csv(tmp_path / "reg2.csv")
+    assert all(corner_error(r.H, Hm, W, H) < 1.0 for r, Hm in zip(regs, truth))
+    res = runner.invoke(cli, ["mosaic", str(frames), "--out", str(tmp_path / "m.gif")])
+    assert res.exit_code != 0
