@@ -454,16 +454,20 @@ class PathIndex:
         return cand[keep]
 
 
-def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, lengths: np.ndarray,
+def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, start: np.ndarray, lengths: np.ndarray,
                 frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Displacements along a polyline at given arc lengths, usable only once reached.
+    """Displacements along a predictor's polyline from the point nearest ``start``.
 
     Parameters
     ----------
     path_xy : ndarray, shape (n, 2)
-        A predictor's positions from the matched point on (world units).
+        A predictor's positions around and after the matched point (world units), n >= 2.
     path_frames : ndarray, shape (n,)
         Their frame numbers.
+    start : ndarray, shape (2,)
+        The target's position; it is projected onto the first two segments of the path, so a target
+        between two sampled rows starts where it is along the path (on a curve, starting at the
+        nearest row instead would rotate the whole future).
     lengths : ndarray, shape (h,)
         Arc lengths travelled by the target at each predicted step (world units).
     frames : ndarray, shape (h,)
@@ -472,21 +476,44 @@ def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, lengths: np.ndarra
     Returns
     -------
     disp : ndarray, shape (h, 2)
-        ``path(length) - path(0)``.
+        ``path(s0 + length) - path(s0)``, s0 the projection of ``start``.
     valid : ndarray, shape (h,), bool
     """
-    seg = np.hypot(*np.diff(path_xy, axis=0).T)
+    seg_vec = np.diff(path_xy, axis=0)
+    seg = np.hypot(seg_vec[:, 0], seg_vec[:, 1])
     cum = np.concatenate([[0.0], np.cumsum(seg)])
-    i = np.searchsorted(cum, lengths, side="left")
+    best, s0, base = np.inf, 0.0, path_xy[0]
+    for j in range(min(2, len(seg))):
+        if seg[j] <= 0:
+            continue
+        u = float(np.clip((start - path_xy[j]) @ seg_vec[j] / seg[j] ** 2, 0.0, 1.0))
+        q = path_xy[j] + u * seg_vec[j]
+        d = float(np.hypot(*(start - q)))
+        if d < best:
+            best, s0, base = d, cum[j] + u * seg[j], q
+    target = s0 + lengths
+    i = np.searchsorted(cum, target, side="left")
     valid = i < len(cum)
     i = np.clip(i, 1, len(cum) - 1)
     valid &= path_frames[i] <= frames
     a, b = cum[i - 1], cum[i]
     with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(b > a, (lengths - a) / (b - a), 1.0)
+        w = np.where(b > a, (target - a) / (b - a), 1.0)
     w = np.clip(w, 0.0, 1.0)[:, None]
     pos = path_xy[i - 1] * (1 - w) + path_xy[i] * w
-    return pos - path_xy[0], valid
+    return pos - base, valid
+
+
+def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance from each of ``points`` (n, 2) to the polyline through ``line`` (m, 2) -> (n,)."""
+    if len(line) == 1:
+        return np.hypot(*(points - line[0]).T)
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    L2 = (ab * ab).sum(-1)
+    u = ((points[:, None] - a[None]) * ab[None]).sum(-1) / np.where(L2 > 0, L2, 1.0)[None]
+    q = a[None] + np.clip(u, 0.0, 1.0)[..., None] * ab[None]
+    return np.sqrt(((points[:, None] - q) ** 2).sum(-1)).min(axis=1)
 
 
 class ContextPredictor(MotionPredictor):
@@ -536,7 +563,8 @@ class ContextPredictor(MotionPredictor):
         radius = self.m(c.flow_radius_m)
         cos_gate = math.cos(math.radians(c.flow_heading_deg))
         own = v0 / speed
-        rows = index.near(p0, radius, T, track_id)
+        # rows are sampled: widen by the spacing so a path passing between two rows is found
+        rows = index.near(p0, radius + speed * index.stride, T, track_id)
         if len(rows) == 0:
             return base
         vel = index.vel[rows]
@@ -544,6 +572,7 @@ class ContextPredictor(MotionPredictor):
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = (vel @ own) / sp
         ok = np.isfinite(cos) & (cos >= cos_gate) & (sp * self.fps * self.mpu >= c.flow_min_speed_mps)
+        ok &= (sp <= c.path_speed_ratio * speed) & (sp * c.path_speed_ratio >= speed)
         rows = rows[ok]
         if len(rows) == 0:
             return base
@@ -557,24 +586,40 @@ class ContextPredictor(MotionPredictor):
         sigma = self.m(c.path_match_m)
         lengths = speed * k
         frames = T + k
-        num = np.zeros((h, 2))
-        W = np.zeros(h)
+        # coarse chords: arc length over jittery rows would run ahead of the target's chord speed
+        chord = max(1, int(round(c.path_chord_s * self.fps / index.stride)))
+        disps, valids, ws, d2s = [], [], [], []
         hist = xy[:: max(1, index.stride)]
         for t in sorted(best):
             r, _ = best[t]
             lo, hi = index.rows_of(int(t))
             back = index.xy[max(lo, r - 4 * self.window // index.stride): r + 1]
-            dpath = np.sqrt(((hist[:, None] - back[None]) ** 2).sum(-1)).min(axis=1).mean()
+            dpath = float(polyline_distance(hist, back).mean())
             if dpath > 2 * sigma:
                 continue
-            w = math.exp(-0.5 * (dpath / sigma) ** 2)
-            disp, valid = follow_path(index.xy[r:hi], index.frames[r:hi], lengths, frames)
-            num[valid] += w * disp[valid]
-            W[valid] += w
-        alpha = W / (W + c.flow_support)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            path = p0 + num / np.where(W > 0, W, 1.0)[:, None]
-        return np.where((W > 0)[:, None], alpha[:, None] * path + (1 - alpha[:, None]) * base, base)
+            r0 = r - chord if r - chord >= lo else r
+            if hi - r0 < chord + 1:
+                continue
+            disp, valid = follow_path(index.xy[r0:hi:chord], index.frames[r0:hi:chord], p0, lengths,
+                                      frames)
+            disps.append(disp)
+            valids.append(valid)
+            ws.append(math.exp(-0.5 * (dpath / sigma) ** 2))
+            d2s.append(dpath * dpath)
+        if not ws:
+            return base
+        wv = np.array(ws)[:, None] * np.array(valids)  # (M, h)
+        W = wv.sum(axis=0)
+        Wd = np.where(W > 0, W, 1.0)
+        D = np.array(disps)  # (M, h, 2)
+        mean = (wv[..., None] * D).sum(axis=0) / Wd[:, None]
+        spread2 = (wv * ((D - mean[None]) ** 2).sum(-1)).sum(axis=0) / Wd
+        match2 = (wv * np.array(d2s)[:, None]).sum(axis=0) / Wd
+        var_path = spread2 + match2 + self.m(c.path_noise_m) ** 2 / np.maximum(W, 1e-9)
+        t = k / self.fps
+        var_kf = self.m(c.kalman_meas_std_m) ** 2 + (0.5 * self.m(c.kalman_accel_mps2) * t * t) ** 2
+        alpha = np.where(W > 0, var_kf / (var_kf + var_path), 0.0)
+        return alpha[:, None] * (p0 + mean) + (1 - alpha[:, None]) * base
 
 
 PREDICTION_METHODS: dict[str, type[MotionPredictor]] = {
