@@ -29,11 +29,11 @@ DPI = 110
 MIN_TEXT_FRAC = 0.015
 
 
-def _figure(width_in: float, height_in: float):
+def _figure(width_in: float, height_in: float, layout: str | None = None):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width_in, height_in), dpi=DPI)
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout=layout)
     FigureCanvasAgg(fig)
     return fig
 
@@ -79,11 +79,12 @@ def _scale_bar(ax, units_per_metre: float, xlim, ylim, fs: float) -> None:
     y0 = ybot - 0.05 * abs(ybot - ytop)
     import matplotlib.patheffects as pe
 
-    ax.plot([x0, x0 + L], [y0, y0], color="white", lw=6, solid_capstyle="butt", zorder=20)
-    ax.plot([x0, x0 + L], [y0, y0], color="black", lw=3, solid_capstyle="butt", zorder=21)
+    ax.plot([x0, x0 + L], [y0, y0], color="black", lw=5, solid_capstyle="butt", zorder=20,
+            path_effects=[pe.withStroke(linewidth=8, foreground="white")])
     label = f"{length_m:g} m" if length_m < 1000 else f"{length_m / 1000:g} km"
-    ax.text(x0 + L / 2, y0 - 0.015 * abs(ybot - ytop), label, ha="center", va="bottom", fontsize=fs,
-            zorder=22, path_effects=[pe.withStroke(linewidth=3, foreground="white")])
+    ax.annotate(label, (x0 + L / 2, y0), xytext=(0, 6), textcoords="offset points", ha="center",
+                va="bottom", fontsize=fs, zorder=22,
+                path_effects=[pe.withStroke(linewidth=3, foreground="white")])
 
 
 def _segments(tv: TrackView):
@@ -138,6 +139,20 @@ def _draw_tracks(ax, tracks: list[TrackView], xy_of, fs: float, label: bool = Tr
                     va="center", path_effects=[pe.withStroke(linewidth=2.5, foreground="black")])
 
 
+def _ground_px(geomap, at) -> tuple[float, float]:
+    """Metres per map pixel along x and along y near ``at`` (map pixels), geodesic."""
+    from pyproj import Geod
+
+    c = np.asarray(at, dtype=np.float64)
+    ll = geomap.pixel_to_lonlat(np.array([c, c + [10.0, 0.0], c + [0.0, 10.0]]))
+    g = Geod(ellps="WGS84")
+    mx = g.inv(ll[0, 0], ll[0, 1], ll[1, 0], ll[1, 1])[2] / 10.0
+    my = g.inv(ll[0, 0], ll[0, 1], ll[2, 0], ll[2, 1])[2] / 10.0
+    if not (mx > 0 and my > 0):
+        return geomap.metres_per_pixel, geomap.metres_per_pixel
+    return mx, my
+
+
 def _legend(ax, fs: float) -> None:
     from matplotlib.lines import Line2D
 
@@ -148,7 +163,8 @@ def _legend(ax, fs: float) -> None:
         Line2D([], [], color=grey, marker="o", ls="", mec="black", label="start"),
         Line2D([], [], color=grey, marker="*", ms=12, ls="", mec="black", label="re-acquired"),
     ]
-    ax.legend(handles=handles, loc="upper right", fontsize=fs * 0.9, framealpha=0.85)
+    ax.legend(handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, fontsize=fs * 0.9,
+              frameon=False, borderaxespad=0.2, handlelength=2.2)
 
 
 def _extent(points: np.ndarray, bounds: tuple[float, float, float, float] | None, margin: float = 0.08):
@@ -195,7 +211,6 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
         img = geomap.read_image()[..., ::-1]
         ax.imshow(img, extent=(0, geomap.width, geomap.height, 0), interpolation="bilinear", zorder=0)
         bounds = (0.0, 0.0, float(geomap.width), float(geomap.height))
-        unit_per_m = 1.0 / geomap.metres_per_pixel
     else:
         bounds = None
         if background is not None:
@@ -208,7 +223,12 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     ext = _extent(allpts, bounds) or (0, 0, 100, 100)
     ax.set_xlim(ext[0], ext[2])
     ax.set_ylim(ext[3], ext[1])
-    ax.set_aspect("equal")
+    if geomap is not None:  # equal ground distances, even for lon/lat pixels that are not square
+        mx, my = _ground_px(geomap, ((ext[0] + ext[2]) / 2, (ext[1] + ext[3]) / 2))
+        ax.set_aspect(my / mx)
+        unit_per_m = 1.0 / mx
+    else:
+        ax.set_aspect("equal")
     _draw_tracks(ax, tracks, lambda tv: tv.world, fs)
     _legend(ax, fs)
     ax.tick_params(labelsize=fs * 0.85)
@@ -220,7 +240,9 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     if unit_per_m:
         _scale_bar(ax, unit_per_m, ax.get_xlim(), ax.get_ylim(), fs)
     n_re = sum(len(tv.reacquisitions()) for tv in tracks)
-    ax.set_title(title or f"{len(tracks)} tracks, {n_re} re-acquisitions", fontsize=fs * 1.1)
+    default = (f"{len(tracks)} track{'s' * (len(tracks) != 1)}, "
+               f"{n_re} re-acquisition{'s' * (n_re != 1)}")
+    ax.set_title(title or default, fontsize=fs * 1.1, pad=fs * 2.6)
     return fig
 
 
@@ -309,7 +331,7 @@ def plot_registration(results: RunResults):
         return None
     t = (reg.frames - 1) / results.fps
     panels = [(k, lbl) for k, lbl in (("inliers", "inliers"), ("inlier_ratio", "inlier ratio"),
-                                       ("error", "reproj. error (px)")) if k in reg.extra
+                                       ("error", "error (px)")) if k in reg.extra
               and reg.extra[k].dtype != object and np.isfinite(reg.extra[k]).any()]
     w_img = _frame_size(results)
     centre = np.array([[w_img[0] / 2, w_img[1] / 2, 1.0]])
@@ -319,8 +341,8 @@ def plot_registration(results: RunResults):
     gaps = np.r_[False, np.diff(reg.frames) > 1]
     motion[gaps] = np.nan
     n = len(panels) + 1
-    fig = _figure(10.0, 1.9 * n + 1.0)
-    fs = max(_font_pt(fig, 0.03), 10.0)
+    fig = _figure(12.0, 1.3 * n + 1.2, layout="constrained")
+    fs = max(_font_pt(fig, 0.015), 11.0)
     axes = fig.subplots(n, 1, sharex=True)
     axes = np.atleast_1d(axes)
     status = reg.extra.get("status")
@@ -329,18 +351,20 @@ def plot_registration(results: RunResults):
         bad = np.array([str(s) not in ("ok", "refined", "") for s in status])
     for ax, (k, lbl) in zip(axes, panels):
         ax.plot(t, reg.extra[k], lw=1.2, color="#1f5fa8")
-        ax.set_ylabel(lbl, fontsize=fs * 0.85)
+        ax.set_ylabel(lbl, fontsize=fs * 0.9)
     axes[-1].plot(t, motion, lw=1.2, color="#7a3fa0")
-    axes[-1].set_ylabel("frame motion\n(world units)", fontsize=fs * 0.85)
+    axes[-1].set_ylabel("motion / frame", fontsize=fs * 0.9)
     axes[-1].set_xlabel("time (s)", fontsize=fs)
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.tick_params(labelsize=fs * 0.8)
+        ax.tick_params(labelsize=fs * 0.9)
         for i in np.flatnonzero(bad):
             ax.axvspan(t[i] - 0.5 / results.fps, t[i] + 0.5 / results.fps, color="#e8553f", alpha=0.25, lw=0)
     missing = int(results.last_frame - len(reg)) if results.last_frame else 0
     axes[0].set_title(f"registration: {len(reg)} frames, {int(bad.sum())} not ok (shaded), "
-                      f"{max(missing, 0)} without a homography", fontsize=fs)
+                      f"{max(missing, 0)} without a homography; motion = frame centre in world units",
+                      fontsize=fs)
+    fig.align_ylabels(axes)
     return fig
 
 
