@@ -177,16 +177,20 @@ def main() -> None:
         n_fp = len(dets) - len(oracle)
         nf = int(gt[:, 0].max())
         stats[seq] = {"gt_rows": len(gt), "dets": len(dets), "false_pos": n_fp,
-                      "dets_per_frame": len(dets) / nf, "recall_rows": (len(dets) - n_fp) / len(gt)}
+                      "dets_per_frame": len(dets) / nf,
+                      "recall_rows": (len(dets) - n_fp) / len(gt)}
         seqs[seq] = (gt, oracle)
     res = evaluate_sequences(seqs)
-    print(f"{'seq':8} {'dets':>6} {'FP':>5} {'det/fr':>7} {'kept':>6}   oracle IDF1  HOTA   MOTA  IDSW")
+    print(f"{'seq':8} {'dets':>6} {'FP':>5} {'det/fr':>7} {'kept':>6}   "
+          "oracle IDF1  HOTA   MOTA  IDSW")
     for seq in UAVDT_SEQS:
         s, r = stats[seq], res["sequences"][seq]
         print(f"{seq:8} {s['dets']:6d} {s['false_pos']:5d} {s['dets_per_frame']:7.1f} "
-              f"{s['recall_rows']:6.3f}   {r['IDF1']:11.3f} {r['HOTA']:5.3f} {r['MOTA']:6.3f} {r['IDSW']:5d}")
+              f"{s['recall_rows']:6.3f}   {r['IDF1']:11.3f} {r['HOTA']:5.3f} {r['MOTA']:6.3f} "
+              f"{r['IDSW']:5d}")
     c = res["combined"]
-    print(f"{'combined':8} {'':>28}   {c['IDF1']:11.3f} {c['HOTA']:5.3f} {c['MOTA']:6.3f} {c['IDSW']:5d}")
+    print(f"{'combined':8} {'':>28}   {c['IDF1']:11.3f} {c['HOTA']:5.3f} {c['MOTA']:6.3f} "
+          f"{c['IDSW']:5d}")
     write_results("uavdt_dets", {"seed": args.seed, "stats": stats, "oracle": res})
 
 

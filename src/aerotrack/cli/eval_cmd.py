@@ -95,7 +95,8 @@ def _parse_frames(text: str | None) -> tuple[int, int] | None:
     try:
         a, b = (int(v) for v in text.split(":"))
     except ValueError:
-        raise InputError(f"--frames: expected FIRST:LAST (1-based, inclusive), got {text!r}") from None
+        raise InputError(
+            f"--frames: expected FIRST:LAST (1-based, inclusive), got {text!r}") from None
     if a < 1 or b < a:
         raise InputError(f"--frames: expected 1 <= FIRST <= LAST, got {text!r}")
     return a, b
@@ -117,17 +118,19 @@ def _table(rows: list[tuple[str, dict]]) -> str:
 
 @click.command("eval")
 @click.option("--gt", "gts", multiple=True, required=True, metavar="FILE|DIR",
-              help="Ground truth (MOTChallenge rows, 1-based frames). Repeat for several sequences, "
-                   "or give a folder (e.g. UAVDT's *_gt.txt; *_gt_whole and *_gt_ignore are skipped).")
+              help="Ground truth (MOTChallenge rows, 1-based frames). Repeat for several "
+                   "sequences, or give a folder (e.g. UAVDT's *_gt.txt; *_gt_whole and "
+                   "*_gt_ignore are skipped).")
 @click.option("--pred", "preds", multiple=True, required=True, metavar="FILE|DIR",
               help="Predicted tracks, one per --gt in the same order, or a folder holding SEQ.txt, "
                    "SEQ.csv or SEQ/tracks.csv for each ground-truth sequence SEQ.")
 @click.option("--ignore", "ignores", multiple=True, metavar="FILE|DIR|auto",
-              help="Ignore regions (MOT rows, e.g. UAVDT *_gt_ignore.txt): predicted boxes whose "
-                   "centre or most of whose area lies in one are dropped. One per --gt, a folder, or "
-                   "'auto' (SEQ_gt_ignore.txt beside each ground truth).")
+              help="Ignore regions (MOT rows, e.g. UAVDT *_gt_ignore.txt): predicted and true boxes "
+                   "whose centre or most of whose area lies in one are dropped. One per --gt, a "
+                   "folder, or 'auto' (SEQ_gt_ignore.txt beside each ground truth).")
 @click.option("--iou", "iou_threshold", type=float, default=0.5, show_default=True,
-              help="IoU a match needs for MOTA/IDSW/Frag and IDF1 (HOTA integrates over 0.05..0.95).")
+              help="IoU a match needs for MOTA/IDSW/Frag and IDF1 (HOTA integrates over "
+                   "0.05..0.95).")
 @click.option("--frames", "frames", default=None, metavar="FIRST:LAST",
               help="Score only these 1-based frames (default: 1 to the ground truth's last frame; "
                    "predictions beyond it are always dropped).")
