@@ -273,3 +273,19 @@ def test_cli_uavdt_folder_with_ignore_regions(shared_data, tmp_path, capsys):
     assert res["IDF1"] == pytest.approx(1.0) and res["HOTA"] == pytest.approx(1.0, abs=1e-6)
     code, out, err = _run(["eval", "--gt", gts[0], "--pred", preds[0], "--pred", preds[1]], capsys)
     assert code == 2 and "one --pred per --gt" in err
+
+
+@pytest.mark.data
+def test_santiago_one_based_tracks_and_gt_zero_based_flag(shared_data, tmp_path, capsys):
+    """aerotrack's own tracks are 1-based: the library takes them as an array, the CLI with
+    --gt-zero-based; both must give the published baseline's score."""
+    s = shared_data / "santiago_intersection_dfs"
+    _, pred = load_santiago(s, "bytetrack")
+    r = evaluate_santiago(s, pred)
+    assert r["MOTA"] == pytest.approx(0.682, abs=0.005)
+    write_mot(tmp_path / "tracks.csv", pred)
+    code, out, err = _run(["eval", "--gt", str(s / "dfs_ground_truth.csv"), "--pred",
+                           str(tmp_path / "tracks.csv"), "--gt-zero-based", "--frames", "2:98",
+                           "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["IDF1"] == pytest.approx(0.842, abs=0.005)

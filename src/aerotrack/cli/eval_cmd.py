@@ -135,7 +135,10 @@ def _table(rows: list[tuple[str, dict]]) -> str:
               help="Score only these 1-based frames (default: 1 to the ground truth's last frame; "
                    "predictions beyond it are always dropped).")
 @click.option("--zero-based", is_flag=True,
-              help="The files number frames from 0 (as Santiago's published files do): add 1.")
+              help="Both files number frames from 0 (as Santiago's published files do): add 1.")
+@click.option("--gt-zero-based", is_flag=True,
+              help="Only the ground truth numbers frames from 0 (e.g. Santiago's ground truth "
+                   "against aerotrack's own 1-based tracks.csv).")
 @click.option("--fix-gt", is_flag=True,
               help="Correct the ground truth first (reflect boxes with negative sizes, drop exact "
                    "duplicates), say what changed, and report the corrected score.")
@@ -143,7 +146,8 @@ def _table(rows: list[tuple[str, dict]]) -> str:
               help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
                    "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets; combined over sequences, with a "
                    "'sequences' entry when there are several).")
-def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, fix_gt, as_json):
+def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero_based, fix_gt,
+                 as_json):
     """Score tracks against a ground truth: HOTA, MOTA, IDF1 and counts (TrackEval).
 
     Boxes are class-agnostic; every ground-truth row counts whatever its confidence. The ground
@@ -158,15 +162,19 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, fix_gt,
       aerotrack eval --gt uavdt/ --pred runs/ --ignore auto        # every *_gt.txt in uavdt/
       aerotrack eval --gt dfs_ground_truth.csv --pred yolo_bytetrack_detections_filtered.csv \\
           --zero-based --frames 2:98 --fix-gt                      # Santiago, corrected GT
+      aerotrack eval --gt dfs_ground_truth.csv --pred run/tracks.csv --gt-zero-based \\
+          --frames 2:98                                            # Santiago, aerotrack's tracks
     """
     window = _parse_frames(frames)
     seqs = {}
     for name, g, p, ign in _pair(gts, preds, ignores):
-        if zero_based:
+        if zero_based or gt_zero_based:
             gt = read_zero_based_mot(g, option="--gt")
-            pred = read_zero_based_mot(p, option="--pred", strict=True)
         else:
             gt = read_mot(g, option="--gt", strict=False, allow_empty=False)
+        if zero_based:
+            pred = read_zero_based_mot(p, option="--pred", strict=True)
+        else:
             pred = read_mot(p, option="--pred", strict=True)
         if not len(gt):
             raise InputError(f"--gt {g}: no rows")

@@ -63,16 +63,19 @@ def read_zero_based_mot(path: str | Path, *, option: str | None = None, strict: 
     return rows[order]
 
 
-def load_santiago(folder: str | Path, tracks: str | Path | None = None
+def load_santiago(folder: str | Path, tracks: str | Path | np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Load Santiago's ground truth and, optionally, tracks, both 0-based on disk, as 1-based rows.
+    """Load Santiago's ground truth (0-based on disk) and, optionally, tracks, as 1-based rows.
 
     Parameters
     ----------
     folder : path
         ``.../santiago_intersection_dfs``.
-    tracks : str or path, optional
-        ``"sort"`` or ``"bytetrack"`` (the published baselines), or a 0-based MOT file.
+    tracks : str, path or array, optional
+        ``"sort"`` or ``"bytetrack"`` (the published baselines), a 0-based MOT file (as the
+        published ones are), or an (M, >=6) array of 1-based rows, e.g.
+        ``read_mot("run/tracks.csv")`` of aerotrack's own output on the clip (video frame n is
+        1-based frame n, i.e. 0-based frame n - 1 of the ground truth).
 
     Returns
     -------
@@ -84,14 +87,18 @@ def load_santiago(folder: str | Path, tracks: str | Path | None = None
     gt = read_zero_based_mot(folder / "dfs_ground_truth.csv")
     if tracks is None:
         return gt, None
+    if isinstance(tracks, np.ndarray):
+        return gt, tracks
     path = folder / SANTIAGO_BASELINES[tracks] if str(tracks) in SANTIAGO_BASELINES else Path(tracks)
     return gt, read_zero_based_mot(path)
 
 
-def evaluate_santiago(folder: str | Path, tracks: str | Path, *, fix_gt: bool = False) -> dict:
+def evaluate_santiago(folder: str | Path, tracks: str | Path | np.ndarray, *,
+                      fix_gt: bool = False) -> dict:
     """Score tracks on Santiago under the published protocol (window :data:`SANTIAGO_FRAMES`).
 
-    ``fix_gt`` scores against the corrected ground truth (:func:`~.mot.fix_ground_truth`).
+    ``tracks`` as in :func:`load_santiago`. ``fix_gt`` scores against the corrected ground truth
+    (:func:`~.mot.fix_ground_truth`); returns :func:`~.mot.evaluate`'s dict.
     """
     from .mot import fix_ground_truth
 
