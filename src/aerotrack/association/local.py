@@ -1,0 +1,330 @@
+"""Local data association: detections -> tracklets by data-driven MCMC (Yu & Medioni section 4).
+
+:class:`LocalAssociator` consumes one frame of :class:`~aerotrack.types.Detections` at a time. Each
+frame it
+
+1. adds the frame's detections to the window's observation graph (:mod:`.graph`, eq. 3);
+2. finalises observations that left the window (the paper: 45 frames = 1.5 s at 30 fps);
+3. initialises the new frame's part of the partition from the previous one: a Hungarian
+   assignment of the new detections to the live tracks' Kalman predictions (the link
+   log-likelihood ratios of :mod:`.posterior`), then greedy births from chains of unassigned
+   detections;
+4. runs data-driven MCMC (:mod:`.moves`) over the whole window and keeps the best partition;
+5. returns the tracklets that ended (no observation can extend them any more), dropping the short
+   ones as false positives, with ``bridged`` points filling their short runs of missed detections.
+
+:func:`associate` is the same as a pure function over a list of frames.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..config import AssociationConfig
+from ..errors import ConfigError, InputError
+from ..kalman import ConstantVelocityKF
+from ..types import Detections, Track, TrackPoint, Tracklet
+from .moves import Prior, SamplerParams, WindowSampler, WTrack
+from .posterior import iou_xywh_centre, run_track
+
+
+class LocalAssociator:
+    """Online MCMC association over a sliding window.
+
+    Parameters
+    ----------
+    config : AssociationConfig
+        Seconds and metres.
+    fps : float
+        Frame rate, turns seconds into frames.
+    metres_per_unit : float, optional
+        Metres per world unit. When None, estimated from the first detections' median size and
+        ``config.target_size_m`` (or world units are taken as metres if that is 0).
+    seed : int or numpy.random.Generator
+        Seeds the instance's random generator: the same seed gives the same tracklets.
+
+    Notes
+    -----
+    Tracklet ids are positive and unique per instance, given in the order the tracklets are
+    emitted. A tracklet is emitted once, when it has ended (its last observation is older than
+    the bridging gap and outside the window) or at :meth:`flush`.
+    """
+
+    def __init__(self, config: AssociationConfig | None = None, fps: float = 30.0,
+                 metres_per_unit: float | None = None, seed: int | np.random.Generator = 0):
+        self.config = config = config or AssociationConfig()
+        if not fps or fps <= 0 or not math.isfinite(fps):
+            raise ConfigError(f"association: fps must be positive, got {fps}")
+        for name in ("window_s", "max_speed_mps", "max_gap_s", "gate_chi2"):
+            if getattr(config, name) <= 0:
+                raise ConfigError(f"config association.{name}: must be positive")
+        if not 0 < config.extend_gamma < 1:
+            raise ConfigError("config association.extend_gamma: must be in (0, 1)")
+        self.fps = float(fps)
+        self.mpu = metres_per_unit
+        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self.window = max(2, int(round(config.window_s * fps)))
+        self.max_gap = max(1, min(int(round(config.max_gap_s * fps)), self.window - 1))
+        self.kf = ConstantVelocityKF(
+            accel_std=config.accel_std_mps2, size_std=config.size_std_m, pos_std=config.pos_std_m,
+            pos_frac=config.pos_frac, size_std_obs=config.pos_std_m, size_frac=config.size_frac,
+            vel_std=0.5 * config.max_speed_mps)
+        self.sampler: WindowSampler | None = None
+        self.last_frame: int | None = None
+        self.points: dict[int, list[TrackPoint]] = {}  # final points of each internal track
+        self.next_id = 1
+        self.stats = {"frames": 0, "mcmc_iters": 0}
+
+    # ------------------------------------------------------------------ setup
+    def _start(self, det: Detections) -> None:
+        if self.mpu is None:
+            if self.config.target_size_m > 0 and len(det):
+                size = self._sizes(det)
+                med = float(np.median(np.sqrt(np.abs(size[:, 0] * size[:, 1]))))
+                self.mpu = self.config.target_size_m / med if med > 0 else 1.0
+            elif self.config.target_size_m <= 0:
+                self.mpu = 1.0
+            else:
+                return  # wait for a frame with detections to estimate the scale
+        c = self.config
+        params = SamplerParams(
+            fps=self.fps, kf=self.kf.as_array(), reach_mps=c.max_speed_mps, max_gap=self.max_gap,
+            gate2=c.gate_chi2, miss_cost=c.miss_cost, birth_cost=c.birth_cost,
+            app_weight=c.app_weight, overlap_lambda=c.overlap_lambda, gamma=c.extend_gamma)
+        bins = None if det.hist is None else int(np.shape(det.hist)[1])
+        self.sampler = WindowSampler(params, self.rng, bins)
+
+    @staticmethod
+    def _sizes(det: Detections) -> np.ndarray:
+        if det.size_world is not None:
+            return np.abs(np.asarray(det.size_world, float).reshape(-1, 2))
+        return np.abs(np.asarray(det.boxes, float).reshape(-1, 4)[:, 2:])
+
+    # ------------------------------------------------------------------ main verb
+    def step(self, detections: Detections) -> list[Tracklet]:
+        """Add one frame's detections; returns the tracklets whose decisions became final.
+
+        Raises
+        ------
+        InputError
+            Frames out of order, or histograms appearing/disappearing mid-stream.
+        """
+        det = detections
+        if self.last_frame is not None and det.frame <= self.last_frame:
+            raise InputError(f"association: frame {det.frame} after frame {self.last_frame}; "
+                             "frames must increase")
+        if self.sampler is None:
+            self._start(det)
+            if self.sampler is None:
+                self.last_frame = det.frame
+                return []
+        S = self.sampler
+        if (S.store.hist is None) != (det.hist is None) and len(det):
+            raise InputError(f"association: frame {det.frame}: colour histograms present in some "
+                             "frames and missing in others")
+        # frames skipped by the caller are empty frames
+        if self.last_frame is not None:
+            for f in range(self.last_frame + 1, det.frame):
+                self._add(Detections.empty(f))
+        out = self._add(det)
+        self.last_frame = det.frame
+        self.stats["frames"] += 1
+        return out
+
+    def flush(self) -> list[Tracklet]:
+        """Finalise everything: returns the remaining tracklets."""
+        S = self.sampler
+        if S is None:
+            return []
+        out = []
+        for t in list(S.tracks.values()):
+            self._freeze_track(t, len(t))
+        for tid in list(S.tracks):
+            out.extend(self._finish(tid))
+        S.store.drop_before(S.now + 1)
+        return out
+
+    # ------------------------------------------------------------------ per frame
+    def _add(self, det: Detections) -> list[Tracklet]:
+        S = self.sampler
+        t = det.frame
+        n = len(det)
+        world = np.asarray(det.world, float).reshape(-1, 2)
+        z = np.zeros((n, 4))
+        z[:, :2] = world * self.mpu
+        z[:, 2:] = self._sizes(det) * self.mpu
+        ious = iou_xywh_centre(z, z) if n > 1 else np.zeros((n, n))
+        payload = [(det, i) for i in range(n)]
+        S.now = t
+        gids = S.store.add_frame(t, z, None if det.hist is None else np.asarray(det.hist, float),
+                                 payload, ious)
+        finished = self._slide(t - self.window + 1)
+        self._initialise(gids)
+        n_iter = int(self.config.min_iters + math.ceil(self.config.iters_per_detection * n))
+        if len(S.tids) or S.n_free():
+            S.run(n_iter)
+            self.stats["mcmc_iters"] += n_iter
+        # tracks that can no longer be extended
+        for tid in list(S.tracks):
+            tr = S.tracks[tid]
+            if not len(tr) and tr.prior.frame < t - self.max_gap:
+                finished.extend(self._finish(tid))
+        return finished
+
+    def _slide(self, w0: int) -> list[Tracklet]:
+        """Finalise observations of frames before ``w0``."""
+        S = self.sampler
+        if S.store.first_frame >= w0 or not S.store.fstart:
+            return []
+        for tr in list(S.tracks.values()):
+            if not len(tr):
+                continue
+            fr = S.store.frame[tr.nodes - S.store.base]
+            k = int(np.searchsorted(fr, w0))
+            if k:
+                self._freeze_track(tr, k)
+        S.store.drop_before(w0)
+        return []
+
+    def _freeze_track(self, tr: WTrack, k: int) -> None:
+        """Make the first ``k`` window observations of ``tr`` final (points + new prior)."""
+        S = self.sampler
+        if k == 0:
+            return
+        pts = self.points.setdefault(tr.tid, [])
+        s = S.store
+        for g in tr.nodes[:k].tolist():
+            det, i = s.payload[g - s.base]
+            pt = _point(det, i)
+            if pts and pt.frame - pts[-1].frame > 1:
+                pts.extend(_bridge(pts[-1], pt))
+            pts.append(pt)
+        g = int(tr.nodes[k - 1])
+        prior = Prior(tr.xs[k - 1], tr.Ps[k - 1], S.frame_of(g), S.hist_of(g))
+        new = WTrack(tr.tid, tr.nodes[k:], tr.xs[k:], tr.Ps[k:], tr.d2[k:], tr.gaps[k:],
+                     tr.links[k:], prior, float(tr.links[k:].sum()))
+        S.swap([tr], [new])
+
+    def _finish(self, tid: int) -> list[Tracklet]:
+        """Remove an ended track from the sampler; return it if long enough."""
+        S = self.sampler
+        tr = S.tracks[tid]
+        S.swap([tr], [])
+        pts = self.points.pop(tid, [])
+        n_obs = sum(p.kind == "observed" for p in pts)
+        if n_obs < 2 or (pts[-1].frame - pts[0].frame) / self.fps < self.config.min_length_s:
+            return []
+        out = Track(id=self.next_id, points=pts)
+        self.next_id += 1
+        return [out]
+
+    # ------------------------------------------------------------------ initialisation
+    def _initialise(self, gids: np.ndarray) -> None:
+        """Extend live tracks with the new frame by a Hungarian assignment, then greedy births."""
+        S = self.sampler
+        s = S.store
+        t = S.now
+        c = self.config
+        live = [tr for tr in S.tracks.values() if t - self.max_gap <= S.end_frame(tr) < t]
+        n = len(gids)
+        if live and n:
+            score = np.full((len(live), n), -np.inf)
+            for r, tr in enumerate(live):
+                x, P, f, h = S.end_state(tr)
+                cols, w = S._children(x, P, f, h, t, t)
+                if cols is not None:
+                    score[r, cols - gids[0]] = w
+            ok_rows = np.flatnonzero(np.isfinite(score).any(axis=1))
+            if len(ok_rows):
+                sub = score[ok_rows]
+                cost = np.where(np.isfinite(sub), -sub, 1e9)
+                ri, ci = linear_sum_assignment(cost)
+                for r, j in zip(ri.tolist(), ci.tolist()):
+                    if cost[r, j] >= 1e9:
+                        continue
+                    tr = live[ok_rows[r]]
+                    new = S.build(tr.tid, np.append(tr.nodes, gids[j]), tr.prior, tr, len(tr))
+                    if math.isfinite(new.score):
+                        S.swap([tr], [new])
+        # greedy births: chains of free observations ending at the new ones
+        for g in gids.tolist():
+            if s.label[g - s.base] >= 0:
+                continue
+            chain = self._greedy_back_chain(g)
+            if len(chain) < 2:
+                continue
+            new = S.build(S.next_tid, np.array(chain), None)
+            if new.score > 0:
+                S.next_tid += 1
+                S.swap([], [new])
+
+    def _greedy_back_chain(self, g: int) -> list[int]:
+        S = self.sampler
+        single = S.build(0, np.array([g]), None)
+        x, P = single.xs[0], single.Ps[0]
+        f, h = S.frame_of(g), S.hist_of(g)
+        chain = [g]
+        from .posterior import link_step
+        while True:
+            lo, hi = max(f - self.max_gap, S.store.first_frame), f - 1
+            cands, w = S._children(x, P, f, h, lo, hi)
+            if cands is None:
+                break
+            j = int(np.argmax(w))
+            gg = int(cands[j])
+            fg = S.frame_of(gg)
+            x, P, _ = link_step(x, P, (f - fg) / self.fps, S.store.z[gg - S.store.base], S.p.kf)
+            f, h = fg, S.hist_of(gg)
+            chain.append(gg)
+        return chain[::-1]
+
+
+def _point(det: Detections, i: int) -> TrackPoint:
+    """The observed TrackPoint of row ``i`` of ``det`` (its fields copied)."""
+    desc = det.extra.get("desc")
+    return TrackPoint(
+        frame=det.frame,
+        box=np.asarray(det.boxes[i], dtype=np.float64).copy(),
+        world=np.asarray(det.world[i], dtype=np.float64).copy(),
+        conf=float(det.conf[i]),
+        kind="observed",
+        det_index=i,
+        size_world=None if det.size_world is None else np.asarray(det.size_world[i], float).copy(),
+        hist=None if det.hist is None else np.asarray(det.hist[i], float).copy(),
+        desc=None if desc is None else np.asarray(desc[i]).copy(),
+    )
+
+
+def _bridge(a: TrackPoint, b: TrackPoint) -> list[TrackPoint]:
+    """``bridged`` points for the frames strictly between ``a`` and ``b`` (linear interpolation
+    of world position, box and world size: over the short gaps allowed, constant velocity)."""
+    out = []
+    n = b.frame - a.frame
+    for f in range(a.frame + 1, b.frame):
+        u = (f - a.frame) / n
+        sw = None
+        if a.size_world is not None and b.size_world is not None:
+            sw = (1 - u) * a.size_world + u * b.size_world
+        out.append(TrackPoint(frame=f, box=(1 - u) * a.box + u * b.box,
+                              world=(1 - u) * a.world + u * b.world,
+                              conf=min(a.conf, b.conf), kind="bridged", size_world=sw))
+    return out
+
+
+def associate(frames: Iterable[Detections], config: AssociationConfig | None = None,
+              fps: float = 30.0, metres_per_unit: float | None = None, seed: int = 0
+              ) -> list[Tracklet]:
+    """Tracklets of a whole sequence of per-frame detections (frames in increasing order)."""
+    la = LocalAssociator(config, fps, metres_per_unit, seed)
+    out: list[Tracklet] = []
+    for det in frames:
+        out.extend(la.step(det))
+    out.extend(la.flush())
+    return out
+
+
+__all__ = ["LocalAssociator", "associate", "run_track"]

@@ -1,0 +1,702 @@
+"""Data-driven MCMC over partitions of the window's observation graph (Yu & Medioni 4.3).
+
+:class:`WindowSampler` holds the current partition of the window (tracks and false alarms) and
+runs Metropolis-Hastings with the paper's moves:
+
+==================  ==========================================================================
+forward extension   pick a track u.a.r.; append children of its last node, each drawn with
+                    probability proportional to its link likelihood (motion x appearance), and
+                    continue with probability ``gamma``
+forward reduction   pick a track u.a.r. and a cut u.a.r.; drop the observations after it
+backward ext./red.  the same at the start of tracks born in the window, with reverse dynamics
+birth / death       a false alarm u.a.r. starts a track, extended forward or backward u.a.r. /
+                    a track born in the window u.a.r. is dissolved into false alarms
+split / merge       cut a track at a link drawn with probability ``1 - p(link)`` (the least
+                    likely links first) / join a pair u.a.r. from ``C_merge``
+switch              exchange the tails of two tracks at a pair u.a.r. from ``C_switch`` (eq. 11)
+==================  ==========================================================================
+
+Every move is paired with its reverse and the acceptance ratio uses the exact proposal
+probabilities of both directions (including the extension chain's probability of drawing the
+same observations in the same order). Observations that left the window are final: a track that
+continues across the window start keeps a *prior* (the Kalman state of its last final observation)
+and can be extended, reduced down to its prior, split, merged at its end and switched, but not
+dissolved or extended backwards.
+
+Tracks are immutable values; a move builds new ones, swaps them in, and swaps them back if
+rejected. Per-track Kalman states are cached per observation, so extending or cutting a track
+costs one Kalman step, and re-filtering (split tails, merges, switches) runs in compiled code.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .graph import NodeStore
+from .posterior import children_scores, link_step, run_track
+
+MOVES = ("ext_f", "red_f", "ext_b", "red_b", "birth", "death", "split", "merge", "switch")
+#: Proposal probability of each move. Reverse pairs share a weight so that the ratios in the
+#: acceptance test stay moderate; switch and extension do most of the useful work once the
+#: greedy initialisation has placed the tracks.
+MOVE_PROBS = np.array([0.14, 0.14, 0.07, 0.07, 0.1, 0.1, 0.1, 0.1, 0.18])
+MOVE_PROBS = MOVE_PROBS / MOVE_PROBS.sum()
+REVERSE = {"ext_f": "red_f", "red_f": "ext_f", "ext_b": "red_b", "red_b": "ext_b",
+           "birth": "death", "death": "birth", "split": "merge", "merge": "split",
+           "switch": "switch"}
+_P = dict(zip(MOVES, MOVE_PROBS))
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Kalman state (metres) after a track's last final observation, at ``frame``."""
+
+    x: np.ndarray
+    P: np.ndarray
+    frame: int
+    hist: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class WTrack:
+    """A track's part inside the window (immutable).
+
+    nodes (n,) gids in frame order; xs (n, 6), Ps (n, 6, 6) filtered states (metres); d2 (n,) and
+    gaps (n,) of each incoming link; links (n,) their log-likelihood ratios; score the track's term
+    of the log posterior (links minus the birth cost when born in the window).
+    """
+
+    tid: int
+    nodes: np.ndarray
+    xs: np.ndarray
+    Ps: np.ndarray
+    d2: np.ndarray
+    gaps: np.ndarray
+    links: np.ndarray
+    prior: Prior | None
+    score: float
+
+    def __len__(self) -> int:
+        return len(self.nodes)
+
+
+@dataclass(frozen=True)
+class SamplerParams:
+    """Numbers the sampler needs, already converted to metres and frames."""
+
+    fps: float
+    kf: np.ndarray  # ConstantVelocityKF.as_array() in metres
+    reach_mps: float
+    max_gap: int  # frames
+    gate2: float
+    miss_cost: float
+    birth_cost: float
+    app_weight: float
+    overlap_lambda: float
+    gamma: float
+
+
+_EMPTY1 = np.zeros(0)
+_EMPTY2 = np.zeros((0, 0))
+
+
+class IndexedSet:
+    """A set of ints with O(1) add, remove and uniform sampling."""
+
+    def __init__(self):
+        self.items: list[int] = []
+        self.pos: dict[int, int] = {}
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __contains__(self, v: int) -> bool:
+        return v in self.pos
+
+    def add(self, v: int) -> None:
+        if v not in self.pos:
+            self.pos[v] = len(self.items)
+            self.items.append(v)
+
+    def discard(self, v: int) -> None:
+        i = self.pos.pop(v, None)
+        if i is None:
+            return
+        last = self.items.pop()
+        if i < len(self.items):
+            self.items[i] = last
+            self.pos[last] = i
+
+    def choice(self, rng: np.random.Generator) -> int:
+        return self.items[int(rng.integers(len(self.items)))]
+
+
+class WindowSampler:
+    """The partition of the window and its Metropolis-Hastings sampler.
+
+    Parameters
+    ----------
+    params : SamplerParams
+    rng : numpy.random.Generator
+        Owned by the caller's instance; every random choice is drawn from it.
+    hist_bins : int or None
+        Length of the colour histograms, None when detections carry none (appearance term off).
+    """
+
+    def __init__(self, params: SamplerParams, rng: np.random.Generator, hist_bins: int | None):
+        self.p = params
+        self.rng = rng
+        self.store = NodeStore(hist_bins)
+        self.tracks: dict[int, WTrack] = {}
+        self.tids = IndexedSet()
+        self.now = 0
+        self.next_tid = 1
+        self.accepted = dict.fromkeys(MOVES, 0)
+        self.proposed = dict.fromkeys(MOVES, 0)
+
+    # ------------------------------------------------------------------ node access
+    def _i(self, g):
+        return np.asarray(g) - self.store.base
+
+    def frame_of(self, g: int) -> int:
+        return int(self.store.frame[g - self.store.base])
+
+    def hist_of(self, g: int) -> np.ndarray | None:
+        h = self.store.hist
+        return None if h is None else h[g - self.store.base]
+
+    # ------------------------------------------------------------------ track building
+    def _app(self, li_prev: np.ndarray, li: np.ndarray) -> np.ndarray:
+        """Eq. 9 log appearance likelihood between nodes (store indices) ``li_prev`` and ``li``."""
+        s = self.store
+        if s.hist is None or self.p.app_weight == 0:
+            return np.zeros(len(li))
+        kl = np.sum((s.hist[li_prev] - s.hist[li]) * (s.loghist[li_prev] - s.loghist[li]), axis=-1)
+        return -0.5 * self.p.app_weight * kl
+
+    def _app_prior(self, h: np.ndarray, li: int) -> float:
+        s = self.store
+        if s.hist is None or h is None or self.p.app_weight == 0:
+            return 0.0
+        from .graph import HIST_EPS
+        kl = np.sum((h - s.hist[li]) * (np.log(h + HIST_EPS) - s.loghist[li]))
+        return float(-0.5 * self.p.app_weight * kl)
+
+    def n_free(self) -> int:
+        s = self.store
+        return int(np.count_nonzero(s.label[: len(s)] < 0))
+
+    def choice_free(self) -> int:
+        s = self.store
+        free = np.flatnonzero(s.label[: len(s)] < 0)
+        return int(free[int(self.rng.integers(len(free)))]) + s.base
+
+    def build(self, tid: int, nodes: np.ndarray, prior: Prior | None, base: WTrack | None = None,
+              keep: int = 0) -> WTrack:
+        """A track over ``nodes``, reusing the first ``keep`` cached states of ``base``."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        s = self.store
+        li = nodes - s.base
+        n = len(nodes)
+        if keep > 0:
+            x0, P0, f0 = base.xs[keep - 1], base.Ps[keep - 1], int(s.frame[li[keep - 1]])
+            has = True
+        elif prior is not None:
+            x0, P0, f0, has = prior.x, prior.P, prior.frame, True
+        else:
+            x0, P0, f0, has = np.zeros(6), np.zeros((6, 6)), 0, False
+        rest = li[keep:]
+        xs, Ps, d2, gaps = run_track(x0, P0, f0, has, s.z[rest], s.frame[rest], self.p.fps,
+                                     self.p.kf)
+        if keep > 0:
+            xs = np.concatenate([base.xs[:keep], xs])
+            Ps = np.concatenate([base.Ps[:keep], Ps])
+            d2 = np.concatenate([base.d2[:keep], d2])
+            gaps = np.concatenate([base.gaps[:keep], gaps])
+        links = 0.5 * (self.p.gate2 - d2) - self.p.miss_cost * np.maximum(gaps - 1, 0)
+        first = 0 if prior is not None else 1
+        if prior is None and n:
+            links[0] = 0.0
+        if s.hist is not None and n:
+            app = np.zeros(n)
+            if n > 1:
+                app[1:] = self._app(li[:-1], li[1:])
+            if prior is not None and prior.hist is not None:
+                app[0] = self._app_prior(prior.hist, int(li[0]))
+            links = links + app
+        score = float(links.sum()) - (self.p.birth_cost if prior is None else 0.0)
+        if n > first and np.any(d2[first:] > self.p.gate2):
+            score = -math.inf
+        return WTrack(tid, nodes, xs, Ps, d2, gaps, links, prior, score)
+
+    def end_state(self, t: WTrack):
+        """(x, P, frame, hist) at the track's last observation (or its prior)."""
+        if len(t):
+            g = int(t.nodes[-1])
+            return t.xs[-1], t.Ps[-1], self.frame_of(g), self.hist_of(g)
+        return t.prior.x, t.prior.P, t.prior.frame, t.prior.hist
+
+    def end_frame(self, t: WTrack) -> int:
+        return self.frame_of(int(t.nodes[-1])) if len(t) else t.prior.frame
+
+    def start_reverse_state(self, nodes: np.ndarray):
+        """Reverse-time Kalman state at the first of ``nodes`` (filtering them backwards)."""
+        li = np.asarray(nodes[::-1], dtype=np.int64) - self.store.base
+        xs, Ps, _, _ = run_track(np.zeros(6), np.zeros((6, 6)), 0, False, self.store.z[li],
+                                 self.store.frame[li], self.p.fps, self.p.kf)
+        return xs[-1], Ps[-1]
+
+    # ------------------------------------------------------------------ partition edits
+    def _set(self, t: WTrack) -> None:
+        s = self.store
+        li = t.nodes - s.base
+        s.label[li] = t.tid
+        s.idx[li] = np.arange(len(li))
+        if len(li):
+            s.prev[li[0]] = -1
+            s.prev[li[1:]] = t.nodes[:-1]
+        self.tracks[t.tid] = t
+        self.tids.add(t.tid)
+
+    def _unset(self, t: WTrack) -> None:
+        s = self.store
+        li = t.nodes - s.base
+        s.label[li] = -1
+        s.prev[li] = -1
+        del self.tracks[t.tid]
+        self.tids.discard(t.tid)
+
+    def swap(self, out: list[WTrack], new: list[WTrack]) -> None:
+        for t in out:
+            self._unset(t)
+        for t in new:
+            self._set(t)
+
+    def add_track(self, t: WTrack) -> None:
+        self._set(t)
+
+    def overlap_delta(self, out: list[WTrack], new: list[WTrack]) -> float:
+        """Change of the eq. 10 interaction term when ``out`` is replaced by ``new`` (applied)."""
+        if not self.store.overlaps:
+            return 0.0
+        before = set()
+        for t in out:
+            before.update(t.nodes.tolist())
+        after = set()
+        for t in new:
+            after.update(t.nodes.tolist())
+        changed = before ^ after
+        if not changed:
+            return 0.0
+        s = self.store
+        delta = 0.0
+        for g in changed:
+            ov = s.overlaps.get(g)
+            if ov is None:
+                continue
+            for h, iou in zip(ov[0].tolist(), ov[1].tolist()):
+                if h in changed and h < g:
+                    continue
+                a_after = bool(s.label[h - s.base] >= 0)
+                a_before = (h in before) if h in changed else a_after
+                g_after = g in after
+                delta += iou * (float(g_after and a_after) - float((not g_after) and a_before))
+        return -self.p.overlap_lambda * delta
+
+    # ------------------------------------------------------------------ proposals
+    def _children(self, x, P, f_end, h_end, lo_frame, hi_frame):
+        """Free nodes of frames lo..hi linked to a track end (x, P at ``f_end``, histogram
+        ``h_end``) by an edge of the graph inside the gate; returns gids and link log-ratios."""
+        s = self.store
+        lo, hi = s.range(lo_frame, hi_frame)
+        if hi <= lo:
+            return None, None
+        a, b = lo - s.base, hi - s.base
+        if s.hist is not None and h_end is not None:
+            H, LH = s.hist[a:b], s.loghist[a:b]
+            from .graph import HIST_EPS
+            he, lhe = h_end, np.log(h_end + HIST_EPS)
+        else:
+            H = LH = _EMPTY2
+            he = lhe = _EMPTY1
+        idx, w = children_scores(x, P, f_end, he, lhe, s.z[a:b], s.frame[a:b], s.label[a:b], H, LH,
+                                 self.p.fps, self.p.kf, self.p.reach_mps, self.p.gate2,
+                                 self.p.miss_cost, self.p.app_weight)
+        if not len(idx):
+            return None, None
+        return idx + lo, w
+
+    @staticmethod
+    def _softmax_logp(w: np.ndarray) -> np.ndarray:
+        m = w.max()
+        e = w - m
+        return e - math.log(np.exp(e).sum())
+
+    def chain(self, x, P, f_end, h_end, forward: bool, given=None, allow_empty=False):
+        """Sample (``given`` None) or evaluate (``given`` a gid list) an extension chain.
+
+        Starting from a track end with state (x, P) at ``f_end``, each draw picks a free child
+        (forward) or parent (backward, reverse-time state) with probability proportional to its
+        link likelihood; after the first draw, the chain continues with probability ``gamma``
+        while candidates exist. The first draw is forced when there are candidates; when there
+        are none the chain is empty, which only births allow (``allow_empty``).
+        Returns (gids in the order drawn, log probability of drawing exactly them).
+        """
+        rng = self.rng
+        s = self.store
+        out: list[int] = []
+        logq = 0.0
+        k = 0
+        G = self.p.max_gap
+        while True:
+            if forward:
+                lo, hi = f_end + 1, min(f_end + G, self.now)
+            else:
+                lo, hi = max(f_end - G, s.first_frame), f_end - 1
+            cands, w = self._children(x, P, f_end, h_end, lo, hi)
+            if cands is None:
+                if given is not None and k < len(given):
+                    return out, -math.inf
+                if k == 0 and not allow_empty:
+                    return out, -math.inf
+                return out, logq
+            if k > 0:
+                stop = (rng.random() >= self.p.gamma) if given is None else k == len(given)
+                if stop:
+                    return out, logq + math.log(1 - self.p.gamma)
+                logq += math.log(self.p.gamma)
+            elif given is not None and not len(given):
+                return out, -math.inf
+            lp = self._softmax_logp(w)
+            if given is None:
+                j = int(rng.choice(len(cands), p=np.exp(lp)))
+            else:
+                hit = np.flatnonzero(cands == given[k])
+                if not len(hit):
+                    return out, -math.inf
+                j = int(hit[0])
+            g = int(cands[j])
+            logq += float(lp[j])
+            out.append(g)
+            k += 1
+            fg = int(s.frame[g - s.base])
+            x, P, _ = link_step(x, P, abs(fg - f_end) / self.p.fps, s.z[g - s.base], self.p.kf)
+            f_end = fg
+            h_end = None if s.hist is None else s.hist[g - s.base]
+
+    # ------------------------------------------------------------------ moves
+    def _pick_track(self) -> WTrack | None:
+        if not len(self.tids):
+            return None
+        return self.tracks[self.tids.choice(self.rng)]
+
+    def _cut_choices(self, t: WTrack, forward: bool) -> int:
+        n = len(t)
+        if forward:
+            return n - (0 if t.prior is not None else 1)
+        return n - 1 if t.prior is None else 0
+
+    def _chain_eval(self, t_kept: WTrack, seq: list[int], forward: bool) -> float:
+        if forward:
+            x, P, f, h = self.end_state(t_kept)
+        else:
+            x, P = self.start_reverse_state(t_kept.nodes)
+            g0 = int(t_kept.nodes[0])
+            f, h = self.frame_of(g0), self.hist_of(g0)
+        _, lq = self.chain(x, P, f, h, forward, given=seq)
+        return lq
+
+    def move_ext(self, forward: bool):
+        t = self._pick_track()
+        if t is None or (not forward and (t.prior is not None or not len(t))):
+            return None
+        if forward:
+            x, P, f, h = self.end_state(t)
+            if f >= self.now:
+                return None
+        else:
+            x, P = self.start_reverse_state(t.nodes)
+            g0 = int(t.nodes[0])
+            f, h = self.frame_of(g0), self.hist_of(g0)
+        seq, lq = self.chain(x, P, f, h, forward)
+        if not seq:
+            return None
+        if forward:
+            new = self.build(t.tid, np.concatenate([t.nodes, seq]), t.prior, t, len(t))
+        else:
+            new = self.build(t.tid, np.concatenate([seq[::-1], t.nodes]), None)
+        K = len(self.tids)
+        log_fwd = math.log(_P["ext_f" if forward else "ext_b"] / K) + lq
+
+        def log_rev():
+            return math.log(_P["red_f" if forward else "red_b"] / K
+                            / self._cut_choices(new, forward))
+        return [t], [new], log_fwd, log_rev
+
+    def move_red(self, forward: bool):
+        t = self._pick_track()
+        if t is None:
+            return None
+        c = self._cut_choices(t, forward)
+        if c < 1:
+            return None
+        r = int(self.rng.integers(c))
+        n = len(t)
+        if forward:
+            keep = r + (0 if t.prior is not None else 1)
+            seq = t.nodes[keep:].tolist()
+            new = self.build(t.tid, t.nodes[:keep], t.prior, t, keep)
+        else:
+            keep = r + 1  # suffix length kept
+            seq = t.nodes[: n - keep][::-1].tolist()
+            new = self.build(t.tid, t.nodes[n - keep:], None)
+        K = len(self.tids)
+        log_fwd = math.log(_P["red_f" if forward else "red_b"] / K / c)
+
+        def log_rev():
+            return math.log(_P["ext_f" if forward else "ext_b"] / K) + self._chain_eval(
+                new, seq, forward)
+        return [t], [new], log_fwd, log_rev
+
+    def _birth_logq(self, t: WTrack, n_free: int) -> float:
+        """log q of a birth producing track ``t``, seeded at its first node and extended forward
+        or at its last node and extended backward (both routes counted); ``t``'s nodes free."""
+        nodes = t.nodes.tolist()
+        terms = []
+        for forward in (True, False):
+            seed = nodes[0] if forward else nodes[-1]
+            single = self.build(0, np.array([seed]), None)
+            seq = nodes[1:] if forward else nodes[:-1][::-1]
+            _, lq = self.chain(single.xs[0], single.Ps[0], self.frame_of(seed), self.hist_of(seed),
+                               forward, given=seq, allow_empty=True)
+            terms.append(math.log(0.5) + lq)
+        m = max(terms)
+        if m == -math.inf:
+            return -math.inf
+        return math.log(_P["birth"] / n_free) + m + math.log(sum(math.exp(v - m) for v in terms))
+
+    def move_birth(self):
+        n_free = self.n_free()
+        if not n_free:
+            return None
+        seed = self.choice_free()
+        forward = bool(self.rng.random() < 0.5)
+        single = self.build(self.next_tid, np.array([seed]), None)
+        x, P = single.xs[0], single.Ps[0]
+        seq, _ = self.chain(x, P, self.frame_of(seed), self.hist_of(seed), forward,
+                            allow_empty=True)
+        nodes = [seed] + seq if forward else seq[::-1] + [seed]
+        new = self.build(self.next_tid, np.array(nodes), None)
+        log_fwd = self._birth_logq(new, n_free)
+        K = len(self.tids)
+
+        def log_rev():
+            return math.log(_P["death"] / (K + 1))
+        return [], [new], log_fwd, log_rev
+
+    def move_death(self):
+        t = self._pick_track()
+        if t is None or t.prior is not None:
+            return None
+        K = len(self.tids)
+        log_fwd = math.log(_P["death"] / K)
+
+        def log_rev():
+            return self._birth_logq(t, self.n_free())
+        return [t], [], log_fwd, log_rev
+
+    def _split_weights(self, t: WTrack) -> tuple[np.ndarray, int]:
+        """Weights ``1 - p(link)`` of the links that may be cut, and the index of the first."""
+        first = 0 if t.prior is not None else 1
+        w = 1.0 - np.exp(-0.5 * t.d2[first:]) + 1e-3
+        return w, first
+
+    def move_split(self):
+        t = self._pick_track()
+        if t is None:
+            return None
+        w, first = self._split_weights(t)
+        if not len(w):
+            return None
+        j = int(self.rng.choice(len(w), p=w / w.sum()))
+        i = first + j  # the link into node i is cut
+        head = self.build(t.tid, t.nodes[:i], t.prior, t, i)
+        tail = self.build(self.next_tid, t.nodes[i:], None)
+        K = len(self.tids)
+        log_fwd = math.log(_P["split"] / K * w[j] / w.sum())
+
+        def log_rev():
+            n_pairs = len(self.merge_pairs()[0])
+            return math.log(_P["merge"] / n_pairs) if n_pairs else -math.inf
+        return [t], [head, tail], log_fwd, log_rev
+
+    def merge_pairs(self):
+        """Candidate set C_merge: (k1, k2) with k2 born in the window starting among k1's children."""
+        ts = list(self.tracks.values())
+        if len(ts) < 2:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), ts
+        s = self.store
+        ef = np.array([self.end_frame(t) for t in ts])
+        ep = np.array([t.xs[-1, :2] if len(t) else t.prior.x[:2] for t in ts])
+        born = np.array([t.prior is None and len(t) > 0 for t in ts])
+        sg = np.array([t.nodes[0] if len(t) else s.base for t in ts]) - s.base
+        sf = np.where(born, s.frame[sg], -10**9)
+        sp = s.z[sg, :2]
+        ssz = 0.25 * (s.z[sg, 2] + s.z[sg, 3])
+        gap = sf[None, :] - ef[:, None]
+        dist2 = np.sum((sp[None, :, :] - ep[:, None, :]) ** 2, axis=-1)
+        reach = self.p.reach_mps * gap / self.p.fps + ssz[None, :]
+        ok = born[None, :] & (gap >= 1) & (gap <= self.p.max_gap) & (dist2 <= reach**2)
+        np.fill_diagonal(ok, False)
+        a, b = np.nonzero(ok)
+        return a, b, ts
+
+    def move_merge(self):
+        a, b, ts = self.merge_pairs()
+        if not len(a):
+            return None
+        j = int(self.rng.integers(len(a)))
+        t1, t2 = ts[a[j]], ts[b[j]]
+        new = self.build(t1.tid, np.concatenate([t1.nodes, t2.nodes]), t1.prior, t1, len(t1))
+        log_fwd = math.log(_P["merge"] / len(a))
+        K = len(self.tids)
+
+        def log_rev():
+            w, first = self._split_weights(new)
+            jj = len(t1) - first
+            return math.log(_P["split"] / (K - 1) * w[jj] / w.sum())
+        return [t1, t2], [new], log_fwd, log_rev
+
+    def _switch_cands(self, t: WTrack, p: int) -> np.ndarray:
+        """Nodes y = k2(q+1) such that swapping tails after t(p) and k2(q) is allowed (eq. 11)."""
+        s = self.store
+        gp, gn = int(t.nodes[p]), int(t.nodes[p + 1])
+        fp, fn = self.frame_of(gp), self.frame_of(gn)
+        lo, hi = s.range(fp + 1, min(fp + self.p.max_gap, self.now))
+        if hi <= lo:
+            return np.zeros(0, np.int64)
+        li = np.arange(lo - s.base, hi - s.base)
+        pr = s.prev[li]
+        ok = (s.label[li] >= 0) & (s.label[li] != t.tid) & (pr >= 0)
+        li, pr = li[ok], pr[ok] - s.base
+        fq = s.frame[pr]
+        ok = (fq < fn) & (fq >= fn - self.p.max_gap)
+        li, pr = li[ok], pr[ok]
+        if not len(li):
+            return li
+        dt1 = (s.frame[li] - fp) / self.p.fps
+        dt2 = (fn - s.frame[pr]) / self.p.fps
+        zp, zn = s.z[gp - s.base], s.z[gn - s.base]
+        r1 = self.p.reach_mps * dt1 + 0.25 * (s.z[li, 2] + s.z[li, 3])
+        r2 = self.p.reach_mps * dt2 + 0.25 * (zn[2] + zn[3])
+        d1 = np.sum((s.z[li, :2] - zp[:2]) ** 2, axis=1)
+        d2 = np.sum((s.z[pr, :2] - zn[:2]) ** 2, axis=1)
+        return li[(d1 <= r1**2) & (d2 <= r2**2)] + s.base
+
+    def _switch_route(self, t: WTrack, p: int) -> float:
+        c = len(self._switch_cands(t, p))
+        return 0.0 if c == 0 else 1.0 / ((len(t) - 1) * c)
+
+    def move_switch(self):
+        t1 = self._pick_track()
+        if t1 is None or len(t1) < 2:
+            return None
+        p = int(self.rng.integers(len(t1) - 1))
+        cands = self._switch_cands(t1, p)
+        if not len(cands):
+            return None
+        y = int(cands[int(self.rng.integers(len(cands)))])
+        s = self.store
+        t2 = self.tracks[int(s.label[y - s.base])]
+        q = int(s.idx[y - s.base]) - 1
+        fwd = self._switch_route(t1, p) + self._switch_route(t2, q)
+        n1 = self.build(t1.tid, np.concatenate([t1.nodes[:p + 1], t2.nodes[q + 1:]]), t1.prior,
+                        t1, p + 1)
+        n2 = self.build(t2.tid, np.concatenate([t2.nodes[:q + 1], t1.nodes[p + 1:]]), t2.prior,
+                        t2, q + 1)
+        K = len(self.tids)
+        log_fwd = math.log(_P["switch"] / K * fwd)
+
+        def log_rev():
+            rev = self._switch_route(n1, p) + self._switch_route(n2, q)
+            return math.log(_P["switch"] / K * rev) if rev > 0 else -math.inf
+        return [t1, t2], [n1, n2], log_fwd, log_rev
+
+    # ------------------------------------------------------------------ MH loop
+    def step_mcmc(self) -> float:
+        """One Metropolis-Hastings step; returns the change of the log posterior (0 if rejected)."""
+        k = int(self.rng.choice(len(MOVES), p=MOVE_PROBS))
+        name = MOVES[k]
+        self.proposed[name] += 1
+        if name == "ext_f":
+            prop = self.move_ext(True)
+        elif name == "ext_b":
+            prop = self.move_ext(False)
+        elif name == "red_f":
+            prop = self.move_red(True)
+        elif name == "red_b":
+            prop = self.move_red(False)
+        elif name == "birth":
+            prop = self.move_birth()
+        elif name == "death":
+            prop = self.move_death()
+        elif name == "split":
+            prop = self.move_split()
+        elif name == "merge":
+            prop = self.move_merge()
+        else:
+            prop = self.move_switch()
+        if prop is None:
+            return 0.0
+        out, new, log_fwd, log_rev = prop
+        d_score = sum(t.score for t in new) - sum(t.score for t in out)
+        if not math.isfinite(d_score) or not math.isfinite(log_fwd):
+            return 0.0
+        self.swap(out, new)
+        d_score += self.overlap_delta(out, new)
+        lr = log_rev()
+        log_a = d_score + lr - log_fwd
+        if math.isfinite(log_a) and (log_a >= 0 or self.rng.random() < math.exp(log_a)):
+            self.accepted[name] += 1
+            if any(t.tid == self.next_tid for t in new):
+                self.next_tid += 1
+            self._last_swap = (out, new)
+            return d_score
+        self.swap(new, out)
+        return 0.0
+
+    def run(self, n_iter: int) -> None:
+        """``n_iter`` MH steps; the best partition met (highest posterior) is kept at the end."""
+        total = 0.0
+        best = 0.0
+        best_state = None
+        for _ in range(n_iter):
+            d = self.step_mcmc()
+            if not d:
+                continue
+            was_best = best_state is None
+            total += d
+            if total > best + 1e-9:
+                best = total
+                best_state = None  # the current partition is the best: no copy needed
+            elif was_best and total < best - 1e-9:
+                out, new = self._last_swap
+                best_state = dict(self.tracks)
+                for t in new:
+                    del best_state[t.tid]
+                for t in out:
+                    best_state[t.tid] = t
+        if best_state is not None:
+            self.restore(best_state)
+
+    def snapshot(self) -> dict[int, WTrack]:
+        return dict(self.tracks)
+
+    def restore(self, tracks: dict[int, WTrack]) -> None:
+        for t in list(self.tracks.values()):
+            self._unset(t)
+        for t in tracks.values():
+            self._set(t)

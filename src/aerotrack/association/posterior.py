@@ -1,0 +1,192 @@
+"""Terms of the local-association posterior (Yu & Medioni eqs. 4-10), in log space.
+
+For a partition ``omega`` of the window's observations into tracks and false alarms,
+
+    log P(omega | Y) = sum_k [ -c_birth * [k born in the window]
+                               + sum_links (motion + appearance + missed-detection terms) ]
+                       - lambda * sum_{same-frame pairs both in tracks} IoU          (eq. 10)
+
+* **motion** (eqs. 5-8): each link ``y_{t1} -> y_{t2}`` of a track is scored by the Kalman motion
+  likelihood of ``y_{t2}`` given the track's filtered state at ``t1``. Eq. 8's normalising constant
+  depends on the units and makes a link worth less than leaving both observations as false
+  alarms whenever ``det S`` is large, so we use its likelihood ratio against the false-alarm
+  hypothesis of eq. 7 whose (uniform) density equals the motion likelihood at the gate boundary:
+  ``0.5 * (gate^2 - d^2)`` with ``d^2`` the squared Mahalanobis distance of the innovation. A link
+  inside the gate is evidence for the track, one outside it is forbidden (the graph has no edge).
+* **missed detections**: ``-miss_cost`` per frame skipped by a link, so that long gaps are bridged
+  only by consistent motion.
+* **appearance** (eq. 9, with the minus sign that makes it a likelihood):
+  ``-0.5 * app_weight * sum_c (P_i(c) - P_j(c)) log(P_i(c) / P_j(c))`` between linked blobs.
+* **birth** (prior on the number of tracks): ``-c_birth`` for each track born in the window; it
+  stops the sampler from explaining noise with short tracks.
+* **false alarms**: an unassigned observation scores 0; the terms above are relative to it.
+* **interaction** (eq. 10): two observations of the same frame that overlap cannot both be true
+  targets; ``-lambda * IoU`` for each such pair that is assigned to tracks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kalman import measurement_noise_nb, predict_nb, process_noise_nb, transition_nb, update_nb
+
+try:
+    from numba import njit
+except ImportError:  # pragma: no cover
+    def njit(*args, **kwargs):
+        if args and callable(args[0]):
+            return args[0]
+        return lambda f: f
+
+from .graph import HIST_EPS
+
+
+def sym_kl(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Symmetric KL divergence ``sum (p - q) log(p / q)`` over the last axis (broadcasting)."""
+    p = np.asarray(p, dtype=np.float64) + HIST_EPS
+    q = np.asarray(q, dtype=np.float64) + HIST_EPS
+    return np.sum((p - q) * (np.log(p) - np.log(q)), axis=-1)
+
+
+def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairwise IoU (N, M) of boxes given as (centre x, centre y, w, h) rows."""
+    a = np.asarray(a, float).reshape(-1, 4)
+    b = np.asarray(b, float).reshape(-1, 4)
+    ax0, ay0 = a[:, 0] - a[:, 2] / 2, a[:, 1] - a[:, 3] / 2
+    ax1, ay1 = a[:, 0] + a[:, 2] / 2, a[:, 1] + a[:, 3] / 2
+    bx0, by0 = b[:, 0] - b[:, 2] / 2, b[:, 1] - b[:, 3] / 2
+    bx1, by1 = b[:, 0] + b[:, 2] / 2, b[:, 1] + b[:, 3] / 2
+    iw = np.clip(np.minimum(ax1[:, None], bx1[None]) - np.maximum(ax0[:, None], bx0[None]), 0, None)
+    ih = np.clip(np.minimum(ay1[:, None], by1[None]) - np.maximum(ay0[:, None], by0[None]), 0, None)
+    inter = iw * ih
+    union = (a[:, 2] * a[:, 3])[:, None] + (b[:, 2] * b[:, 3])[None] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, inter / union, 0.0)
+
+
+@njit(cache=True)
+def link_step(x, P, dt, z, params):
+    """One Kalman link: predict ``dt`` s ahead from (x, P), update with ``z``; returns x, P, d^2."""
+    xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
+    R = measurement_noise_nb(z[2:4], params[2], params[3], params[4], params[5])
+    xn, Pn, _, d2 = update_nb(xp, Pp, z, R)
+    return xn, Pn, d2
+
+
+@njit(cache=True)
+def run_track(x0, P0, f0, has_prior, zs, frames, fps, params):
+    """Filter a track's window observations ``zs`` (n, 4, metres) at ``frames`` (n,).
+
+    Starts from the prior state (x0, P0) at frame f0 when ``has_prior``, else initiates at zs[0].
+    Returns states (n, 6), covariances (n, 6, 6), squared Mahalanobis distances (n,) and frame gaps
+    (n,) of each incoming link (0 for a first observation without prior).
+    """
+    n = zs.shape[0]
+    xs = np.zeros((n, 6))
+    Ps = np.zeros((n, 6, 6))
+    d2 = np.zeros(n)
+    gaps = np.zeros(n, dtype=np.int64)
+    if n == 0:
+        return xs, Ps, d2, gaps
+    if has_prior:
+        x = x0.copy()
+        P = P0.copy()
+        fprev = f0
+        start = 0
+    else:
+        R = measurement_noise_nb(zs[0, 2:4], params[2], params[3], params[4], params[5])
+        x = np.zeros(6)
+        x[:4] = zs[0]
+        P = np.zeros((6, 6))
+        P[:4, :4] = R
+        P[4, 4] = params[6] * params[6]
+        P[5, 5] = params[6] * params[6]
+        xs[0] = x
+        Ps[0] = P
+        fprev = frames[0]
+        start = 1
+    for i in range(start, n):
+        g = frames[i] - fprev
+        x, P, d2[i] = link_step(x, P, abs(g) / fps, zs[i], params)
+        gaps[i] = abs(g)
+        xs[i] = x
+        Ps[i] = P
+        fprev = frames[i]
+    return xs, Ps, d2, gaps
+
+
+@njit(cache=True)
+def _d2_predicted(xp, Pp, z, params):
+    """Squared Mahalanobis distance of ``z`` from a predicted state, by a 4x4 Cholesky solve."""
+    S = Pp[:4, :4].copy()
+    for i in range(2):
+        s = abs(z[2 + i])
+        S[i, i] += params[2] * params[2] + (params[3] * s) ** 2
+        S[i + 2, i + 2] += params[4] * params[4] + (params[5] * s) ** 2
+    L = np.zeros((4, 4))
+    for i in range(4):
+        for j in range(i + 1):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if acc <= 0.0:
+                    return np.inf
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    y = np.zeros(4)
+    d2 = 0.0
+    for i in range(4):
+        acc = z[i] - xp[i]
+        for k in range(i):
+            acc -= L[i, k] * y[k]
+        y[i] = acc / L[i, i]
+        d2 += y[i] * y[i]
+    return d2
+
+
+@njit(cache=True)
+def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, reach_mps, gate2,
+                    miss_cost, app_weight):
+    """Link log-likelihood ratios from a track end to free candidate nodes.
+
+    (x, P) is the track's state at frame ``f_end`` (reverse-time state for backward moves);
+    Z (m, 4), F (m,), LAB (m,) the candidates' observations (metres), frames and labels; H, LH
+    (m, B) their histograms and log-histograms (B = 0: appearance off). Returns the indices of
+    the free candidates inside eq. 3's reach and the gate, and their link scores.
+    """
+    m = Z.shape[0]
+    idx = np.empty(m, dtype=np.int64)
+    w = np.empty(m)
+    cnt = 0
+    last_gap = -1
+    xp = x
+    Pp = P
+    B = H.shape[1]
+    for j in range(m):
+        if LAB[j] >= 0:
+            continue
+        gap = abs(F[j] - f_end)
+        dt = gap / fps
+        r = reach_mps * dt + 0.25 * (Z[j, 2] + Z[j, 3])
+        dx = Z[j, 0] - x[0]
+        dy = Z[j, 1] - x[1]
+        if dx * dx + dy * dy > r * r:
+            continue
+        if gap != last_gap:
+            xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
+            last_gap = gap
+        d2 = _d2_predicted(xp, Pp, Z[j], params)
+        if d2 > gate2:
+            continue
+        s = 0.5 * (gate2 - d2) - miss_cost * (gap - 1)
+        if B > 0 and app_weight > 0 and h_end.shape[0] == B:
+            kl = 0.0
+            for b in range(B):
+                kl += (h_end[b] - H[j, b]) * (lh_end[b] - LH[j, b])
+            s -= 0.5 * app_weight * kl
+        idx[cnt] = j
+        w[cnt] = s
+        cnt += 1
+    return idx[:cnt], w[:cnt]
