@@ -1,0 +1,266 @@
+"""Global tracklet association and re-acquisition (Yu & Medioni 5; Ali, Reilly & Shah 4-5).
+
+:class:`GlobalLinker` joins the tracklets of local association into tracks that keep one identity
+across occlusions and exits from the view:
+
+1. **Spatio-temporal consistency** (Yu & Medioni 5.1), on the world plane: a later tracklet b may
+   continue an earlier one a when it starts after a ends, within ``max_gap_s``, no farther than
+   ``v_max x gap`` from a's end and with a velocity change of at most ``a_max x gap`` (each with a
+   small slack for the noise of short tracklets).
+2. **Cues** for every consistent pair (:mod:`aerotrack.context.reacquire`): the motion context's
+   prediction of a at b's first frame (:mod:`aerotrack.context.motion`, which follows the paths of
+   the other tracklets), the appearance context of a against b's first observations with the
+   inter-class verification against the other candidates (Ali et al. 4.3), and the Yu & Medioni
+   tracklet descriptor (eqs. 12-14).
+3. **Joint assignment**: every tracklet may have at most one successor and one predecessor; the
+   links minimise the total cost over all consistent pairs at once (Hungarian algorithm on the
+   matrix augmented with "no link" at ``max_cost / 2`` per side), not greedily one pair at a time.
+4. **Output**: one track per chain with the observed, bridged and stationary points of its
+   tracklets, and ``predicted`` points for every unobserved frame: across each linked gap (the
+   forward prediction, corrected linearly to land on the re-acquired position) and after the
+   track's last observation up to ``prediction_horizon_s`` or the end of the video.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..config import ContextConfig, LinkingConfig
+from ..context.appearance import AppearanceContext, TrackletDescriptor, kl_color, kl_edge, track_histograms
+from ..context.motion import TrackTable, get_predictor, kalman_start
+from ..context.reacquire import Cues, appearance_cost, link_cost, motion_cost
+from ..errors import ConfigError
+from ..types import Track, TrackPoint
+
+__all__ = ["GlobalLinker", "link_tracklets"]
+
+log = logging.getLogger(__name__)
+
+_IN_VIEW = ("observed", "bridged", "stationary")
+
+
+def _positions(t: Track) -> tuple[np.ndarray, np.ndarray]:
+    pts = [p for p in t.points if p.kind in _IN_VIEW]
+    fr = np.array([p.frame for p in pts], dtype=np.int64)
+    xy = np.array([p.world for p in pts], dtype=np.float64).reshape(-1, 2)
+    return fr, xy
+
+
+class GlobalLinker:
+    """Links tracklets into persistent tracks.
+
+    Parameters
+    ----------
+    config : LinkingConfig
+    ctx : ContextConfig
+        Motion-context settings (method, history window, prediction horizon).
+    fps : float
+    metres_per_unit : float, optional
+        World units -> metres (None: world units are metres).
+    """
+
+    def __init__(self, config: LinkingConfig | None = None, ctx: ContextConfig | None = None,
+                 fps: float = 30.0, metres_per_unit: float | None = None) -> None:
+        self.config = config or LinkingConfig()
+        self.ctx = ctx or ContextConfig()
+        if not fps or fps <= 0:
+            raise ConfigError(f"fps must be positive, got {fps}")
+        self.fps = float(fps)
+        self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
+        self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
+        self.last_costs: dict[tuple[int, int], tuple[float, Cues]] = {}
+
+    # -- public -----------------------------------------------------------------------------------
+
+    def link(self, tracklets: list[Track], frame_size: tuple[int, int] | None = None,
+             registrations=None) -> list[Track]:
+        """Join tracklets of one target; returns new :class:`Track` objects (ids 1..N).
+
+        Parameters
+        ----------
+        tracklets : list of Track
+            Local association's tracklets; points in world coordinates (``TrackPoint.world``),
+            observed points may carry ``hist`` and ``desc``.
+        frame_size : (W, H), optional
+            Unused by the decision (kept for the stage interface); predicted points are projected
+            to frame pixels by the output writer with ``registrations``.
+        registrations : dict frame -> Registration, optional
+            Unused here, see ``frame_size``.
+
+        Returns
+        -------
+        list of Track
+            Sorted by first frame; points sorted by frame, kinds observed / bridged / stationary /
+            predicted.
+        """
+        tl = [t for t in tracklets if any(p.kind in _IN_VIEW for p in t.points)]
+        if not tl:
+            return []
+        links, _ = self.solve(tl)
+        return self.build_tracks(tl, links)
+
+    def solve(self, tl: list[Track]) -> tuple[dict[int, int], np.ndarray]:
+        """Links as {index of a: index of b} and the (n, n) cost matrix (inf where inconsistent)."""
+        c = self.config
+        n = len(tl)
+        F = max(2, int(round(self.ctx.history_s * self.fps)))
+        pos = [_positions(t) for t in tl]
+        ends, starts = [], []
+        for fr, xy in pos:
+            h = (fr >= fr[-1] - F)
+            ends.append(kalman_start(fr[h], xy[h], self.fps, self.mpu, self.ctx))
+            s = (fr <= fr[0] + F)
+            p, v = kalman_start(-fr[s][::-1], xy[s][::-1], self.fps, self.mpu, self.ctx)
+            starts.append((p, -v))
+        first = np.array([fr[0] for fr, _ in pos])
+        last = np.array([fr[-1] for fr, _ in pos])
+        max_gap = int(round(c.max_gap_s * self.fps))
+        cand: dict[int, list[int]] = {}
+        for a in range(n):
+            gaps = first - last[a]
+            for b in np.flatnonzero((gaps > 0) & (gaps <= max_gap)):
+                gap_s = gaps[b] / self.fps
+                d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
+                dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
+                if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
+                        dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
+                    cand.setdefault(a, []).append(int(b))
+        C = np.full((n, n), np.inf)
+        self.last_costs = {}
+        if not cand:
+            return {}, C
+        table = TrackTable.from_arrays(np.concatenate([np.full(len(fr), i) for i, (fr, _) in enumerate(pos)]),
+                                       np.concatenate([fr for fr, _ in pos]),
+                                       np.concatenate([xy for _, xy in pos]))
+        self._pred = {}
+        preds = {}
+        if c.weight_motion > 0 or c.predict_gaps:
+            for a, bs in cand.items():
+                h = int(max(first[b] - last[a] for b in bs))
+                preds[a] = self.predictor.predict(table, a, int(last[a]), h)
+        hists_end = {i: track_histograms(t) for i, t in enumerate(tl)}
+        app = AppearanceContext({i: h for i, h in hists_end.items() if h.size})
+        desc = [TrackletDescriptor.from_track(t) for t in tl] if c.weight_descriptor > 0 else [None] * n
+        preds_of: dict[int, list[int]] = {}
+        for a, bs in cand.items():
+            for b in bs:
+                preds_of.setdefault(b, []).append(a)
+        for a, bs in cand.items():
+            for b in bs:
+                gap = int(first[b] - last[a])
+                m = float("nan")
+                if a in preds:
+                    d = float(np.hypot(*(preds[a][gap - 1] - pos[b][1][0]))) * self.mpu
+                    # backward: b's start state run back to a's last frame (constant velocity)
+                    back = starts[b][0] - starts[b][1] * gap
+                    d = 0.5 * (d + float(np.hypot(*(back - pos[a][1][-1]))) * self.mpu)
+                    dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
+                    m = motion_cost(d, gap / self.fps, c, dv)
+                ap = float("nan")
+                if c.weight_appearance > 0 and a in app.intra:
+                    s = track_histograms(tl[b], max_obs=5)
+                    if s.size and s.shape[1] == app.X[a].shape[1]:
+                        z2 = app.intra_distance(s, a)
+                        ok = app.verify(s, a, [o for o in preds_of[b] if o in app.X])
+                        ap = appearance_cost(z2, ok)
+                de = float("nan")
+                if desc[a] is not None and desc[b] is not None:
+                    de = kl_color(desc[a], desc[b]) + kl_edge(desc[a], desc[b])
+                cues = Cues(m, ap, de)
+                cost = link_cost(cues, c)
+                self.last_costs[(a, b)] = (cost, cues)
+                if cost <= c.max_cost:
+                    C[a, b] = cost
+        self._pred = preds
+        return _assign(C, c.max_cost), C
+
+    # -- output -----------------------------------------------------------------------------------
+
+    def build_tracks(self, tl: list[Track], links: dict[int, int]) -> list[Track]:
+        """One track per chain of links, with predicted points in gaps and after the end."""
+        has_pred = set(links.values())
+        video_end = max(t.last for t in tl)
+        horizon = int(round(self.ctx.prediction_horizon_s * self.fps))
+        min_len = self.config.min_tracklet_s * self.fps
+        table = None
+        out = []
+        for head in range(len(tl)):
+            if head in has_pred:
+                continue
+            chain = [head]
+            while chain[-1] in links:
+                chain.append(links[chain[-1]])
+            points: list[TrackPoint] = []
+            for k, i in enumerate(chain):
+                pts = [p for p in tl[i].points if p.kind != "predicted"]
+                points.extend(pts)
+                if not self.config.predict_gaps:
+                    continue
+                last_obs = pts[-1]
+                if k + 1 < len(chain):
+                    nxt = [p for p in tl[chain[k + 1]].points if p.kind != "predicted"][0]
+                    gap = nxt.frame - last_obs.frame
+                    if gap > 1:
+                        pr = self._forward(tl, i, gap, table)
+                        # land on the re-acquired position: spread the final miss linearly
+                        miss = np.asarray(nxt.world, float) - pr[gap - 1]
+                        ramp = (np.arange(1, gap) / gap)[:, None]
+                        points.extend(_predicted(last_obs, pr[:gap - 1] + ramp * miss))
+                else:
+                    h = min(horizon, video_end - last_obs.frame)
+                    if h > 0 and (tl[i].last - tl[i].first) >= min_len:
+                        points.extend(_predicted(last_obs, self._forward(tl, i, h, table)))
+            points.sort(key=lambda p: p.frame)
+            out.append(Track(id=0, points=points))
+        out.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
+        for k, t in enumerate(out, start=1):
+            t.id = k
+        return out
+
+    def _forward(self, tl: list[Track], i: int, h: int, table) -> np.ndarray:
+        pr = getattr(self, "_pred", {}).get(i)
+        if pr is not None and len(pr) >= h:
+            return pr[:h]
+        if getattr(self, "_table", None) is None or self._table_key != id(tl):
+            pos = [_positions(t) for t in tl]
+            self._table = TrackTable.from_arrays(
+                np.concatenate([np.full(len(fr), j) for j, (fr, _) in enumerate(pos)]),
+                np.concatenate([fr for fr, _ in pos]), np.concatenate([xy for _, xy in pos]))
+            self._table_key = id(tl)
+        fr, _ = _positions(tl[i])
+        return self.predictor.predict(self._table, i, int(fr[-1]), h)
+
+
+def _predicted(last: TrackPoint, xy: np.ndarray) -> list[TrackPoint]:
+    """Predicted points after ``last`` at world positions ``xy`` (k, 2); the box is left for the
+    output writer to project (NaN), the size carried from the last observation."""
+    return [TrackPoint(frame=last.frame + k + 1, box=np.full(4, np.nan), world=np.asarray(p, float),
+                       conf=0.0, kind="predicted", size_world=last.size_world)
+            for k, p in enumerate(xy)]
+
+
+def _assign(C: np.ndarray, max_cost: float) -> dict[int, int]:
+    """Minimum-cost links from an (n, n) cost matrix (inf = not allowed), each row and column at
+    most once, leaving a tracklet unlinked at ``max_cost / 2`` per side."""
+    n = len(C)
+    if n == 0 or not np.isfinite(C).any():
+        return {}
+    big = 1e6 + 10 * max_cost
+    half = max_cost / 2
+    M = np.full((2 * n, 2 * n), big)
+    M[:n, :n] = np.where(np.isfinite(C), C, big)
+    M[:n, n:][np.diag_indices(n)] = half
+    M[n:, :n][np.diag_indices(n)] = half
+    M[n:, n:] = 0.0
+    rows, cols = linear_sum_assignment(M)
+    return {int(r): int(k) for r, k in zip(rows, cols) if r < n and k < n and np.isfinite(C[r, k])}
+
+
+def link_tracklets(tracklets: list[Track], fps: float, metres_per_unit: float | None = None,
+                   config: LinkingConfig | None = None, ctx: ContextConfig | None = None) -> list[Track]:
+    """Pure-function form of :meth:`GlobalLinker.link`."""
+    return GlobalLinker(config, ctx, fps, metres_per_unit).link(tracklets)
