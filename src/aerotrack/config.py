@@ -322,6 +322,9 @@ class LinkingConfig:
     motion_sigma_growth_mps : float
         How fast that deviation grows with the gap, metres per second. Raising both tolerates
         worse predictions but lets look-alikes swap identities.
+    velocity_sigma_mps, velocity_sigma_growth_mps2 : float
+        Expected change of velocity between the end of one tracklet and the start of its
+        continuation: at gap 0 (m/s) and its growth per second of gap (m/s^2).
     weight_motion, weight_appearance, weight_descriptor : float
         Weights of the three cues in the link cost (docs/CONTEXT.md); 0 switches a cue off.
     max_cost : float
@@ -337,8 +340,10 @@ class LinkingConfig:
     a_max_mps2: float = 6.0
     gate_slack_m: float = 3.0
     speed_slack_mps: float = 3.0
-    motion_sigma_m: float = 2.0
-    motion_sigma_growth_mps: float = 1.5
+    motion_sigma_m: float = 0.7
+    motion_sigma_growth_mps: float = 0.7
+    velocity_sigma_mps: float = 1.0
+    velocity_sigma_growth_mps2: float = 0.5
     weight_motion: float = 1.0
     weight_appearance: float = 0.5
     weight_descriptor: float = 0.5
