@@ -271,8 +271,11 @@ class Pipeline:
         self._restart = restart
         return restart
 
-    def finish(self) -> Result:
-        """Flush every stage and link tracklets into final tracks."""
+    def finish_local(self) -> list[Track]:
+        """Flush registration, detection and local association; return every tracklet (world
+        coordinates) before global linking. ``self.registrations`` and ``self.detections`` are then
+        complete. Used by segment-parallel processing (:mod:`aerotrack.parallel`), which links the
+        tracklets of all segments at once."""
         if self.detector is not None:
             t0 = time.perf_counter()
             rest = self.detector.flush()
@@ -281,6 +284,11 @@ class Pipeline:
         t0 = time.perf_counter()
         self.tracklets.extend(self.associator.flush())
         self.timings["association"] += time.perf_counter() - t0
+        return self.tracklets
+
+    def finish(self) -> Result:
+        """Flush every stage and link tracklets into final tracks."""
+        self.finish_local()
         t0 = time.perf_counter()
         tracks = self._link(self.tracklets)
         self.timings["linking"] += time.perf_counter() - t0
@@ -291,16 +299,26 @@ class Pipeline:
                       last_frame=self.last_frame)
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
-        try:
-            from .association.linking import GlobalLinker
-        except ImportError:  # linking not available: tracklets are the tracks
-            log.warning("global linking unavailable; tracklets are reported as tracks")
-            return _renumber(tracklets)
-        linker = GlobalLinker(self.config.linking, self.config.context, self.fps,
-                              metres_per_unit=self.metres_per_unit)
-        tracks = linker.link(tracklets, frame_size=self.frame_size,
-                             registrations=self.registrations or None)
-        return _renumber(tracks)
+        return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
+                    frame_size=self.frame_size, registrations=self.registrations)
+
+
+def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit: float | None = None,
+         frame_size: tuple[int, int] | None = None,
+         registrations: dict[int, Registration] | None = None) -> list[Track]:
+    """Global linking of tracklets (world coordinates) into tracks numbered 1..N.
+
+    The step after local association, shared by :class:`Pipeline` and segment-parallel runs
+    (:mod:`aerotrack.parallel`); without the linking stage the tracklets are the tracks.
+    """
+    try:
+        from .association.linking import GlobalLinker
+    except ImportError:  # linking not available: tracklets are the tracks
+        log.warning("global linking unavailable; tracklets are reported as tracks")
+        return _renumber(tracklets)
+    linker = GlobalLinker(config.linking, config.context, fps, metres_per_unit=metres_per_unit)
+    tracks = linker.link(tracklets, frame_size=frame_size, registrations=registrations or None)
+    return _renumber(tracks)
 
 
 def _renumber(tracks: list[Track]) -> list[Track]:
