@@ -1,0 +1,220 @@
+"""Sliding-window background on registered frames (Yu & Medioni section 3).
+
+For a reference frame ``c`` the background of each pixel ``p`` is the mode of
+``{I_i(H_{c,i} p)}`` over the frames ``i`` of a window around ``c``. We estimate it with the
+per-pixel **median** of a subsampled window: for a pixel that is background in most samples the
+median and the mode coincide, and the median is computable with a few dozen SIMD ``min``/``max``
+image operations (a pruned Batcher sorting network), which a histogram mode is not. Samples are
+warped into the reference frame with ``cv2.warpPerspective`` at a reduced resolution.
+
+Pixels a sample did not see (outside its view) or that lie under a detection are *invalid* in
+that sample. An invalid value is replaced by 0 in even samples and 255 in odd ones: equal numbers
+of the two extremes leave the median of the valid values unchanged (at most one rank off when the
+counts differ by one), so no per-pixel bookkeeping is needed inside the network. A separate count
+of valid samples says where the estimate can be trusted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+_CORNER_TO_INDEX = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])
+_INDEX_TO_CORNER = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
+
+
+def to_cv_homography(H: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Convert a homography between continuous frame pixels (corner origin) at full resolution
+    into one between OpenCV pixel indices of images downscaled by ``scale``.
+
+    Parameters
+    ----------
+    H : ndarray, shape (3, 3)
+        Source frame pixels -> destination frame pixels, continuous, full resolution.
+    scale : float
+        Image size ratio (model / full resolution).
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        For ``cv2.warpPerspective`` on the downscaled images (pixel ``[r, c]`` at index ``(c, r)``).
+    """
+    S = np.diag([scale, scale, 1.0])
+    Si = np.diag([1.0 / scale, 1.0 / scale, 1.0])
+    M = _CORNER_TO_INDEX @ S @ np.asarray(H, dtype=np.float64) @ Si @ _INDEX_TO_CORNER
+    return M / M[2, 2]
+
+
+@lru_cache(maxsize=64)
+def median_network(n: int) -> tuple[tuple[int, int, bool, bool], ...]:
+    """Comparators of a pruned Batcher odd-even merge network that puts the (lower) median of
+    ``n`` values on wire ``(n - 1) // 2``.
+
+    Returns
+    -------
+    tuple of (a, b, need_min, need_max)
+        Apply in order: ``x[a], x[b] = min, max``; only the outputs flagged are needed later.
+    """
+    if n < 1:
+        raise ValueError("median_network needs n >= 1")
+    p2 = 1
+    while p2 < n:
+        p2 *= 2
+    comps: list[tuple[int, int]] = []
+
+    def merge(lo: int, length: int, r: int) -> None:
+        step = r * 2
+        if step < length:
+            merge(lo, length, step)
+            merge(lo + r, length, step)
+            for i in range(lo + r, lo + length - r, step):
+                comps.append((i, i + r))
+        else:
+            comps.append((lo, lo + r))
+
+    def sort(lo: int, length: int) -> None:
+        if length > 1:
+            m = length // 2
+            sort(lo, m)
+            sort(lo + m, m)
+            merge(lo, length, 1)
+
+    sort(0, p2)
+    # Wires >= n carry +inf: any comparator touching them is a no-op.
+    comps = [(a, b) for a, b in comps if b < n]
+    needed = {(n - 1) // 2}
+    kept: list[tuple[int, int, bool, bool]] = []
+    for a, b in reversed(comps):
+        na, nb = a in needed, b in needed
+        if na or nb:
+            kept.append((a, b, na, nb))
+            needed.update((a, b))
+    return tuple(reversed(kept))
+
+
+def stack_median(images: Sequence[np.ndarray]) -> np.ndarray:
+    """Per-pixel (lower) median of ``n`` images of equal shape and dtype.
+
+    Parameters
+    ----------
+    images : sequence of ndarray, shape (H, W) or (H, W, C)
+
+    Returns
+    -------
+    ndarray
+        Same shape and dtype; for even ``n`` the lower of the two middle values.
+    """
+    x = list(images)
+    if not x:
+        raise ValueError("stack_median needs at least one image")
+    for a, b, need_min, need_max in median_network(len(x)):
+        xa, xb = x[a], x[b]
+        if need_min:
+            x[a] = cv2.min(xa, xb)
+        if need_max:
+            x[b] = cv2.max(xa, xb)
+    return x[(len(x) - 1) // 2]
+
+
+def warp(img: np.ndarray, M: np.ndarray, size: tuple[int, int], *, nearest: bool = False,
+         border=0, replicate: bool = False) -> np.ndarray:
+    """``cv2.warpPerspective`` that skips the work for an identity warp (a static or stabilised
+    camera); returns a new array."""
+    w, h = size
+    if img.shape[1] == w and img.shape[0] == h and np.allclose(M, np.eye(3), atol=1e-9):
+        return img.copy()
+    mode = cv2.BORDER_REPLICATE if replicate else cv2.BORDER_CONSTANT
+    if img.ndim == 3 and np.isscalar(border):
+        border = (border,) * 3
+    return cv2.warpPerspective(img, M, (w, h), flags=cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+                               borderMode=mode, borderValue=border)
+
+
+def box_polygons(boxes: np.ndarray, pad: float = 0.0) -> np.ndarray:
+    """(K, 4, 2) corner polygons of (K, 4) ``x, y, w, h`` index boxes grown by ``pad`` pixels."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    x0, y0 = b[:, 0] - 0.5 - pad, b[:, 1] - 0.5 - pad
+    x1, y1 = b[:, 0] + b[:, 2] - 0.5 + pad, b[:, 1] + b[:, 3] - 0.5 + pad
+    return np.stack([np.stack([x0, y0], 1), np.stack([x1, y0], 1),
+                     np.stack([x1, y1], 1), np.stack([x0, y1], 1)], axis=1)
+
+
+def warp_polygons(polys: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Apply a 3x3 homography to (K, P, 2) polygons."""
+    p = np.asarray(polys, dtype=np.float64)
+    if p.size == 0:
+        return p.reshape(0, 4, 2)
+    return cv2.perspectiveTransform(p.reshape(-1, 1, 2), M).reshape(p.shape)
+
+
+def _fill(img: np.ndarray, polys: np.ndarray | None, value) -> None:
+    if polys is not None and len(polys):
+        pts = [np.round(q * 4).astype(np.int32) for q in polys if np.all(np.isfinite(q))]
+        if pts:
+            cv2.fillPoly(img, pts, value, lineType=cv2.LINE_8, shift=2)
+
+
+def window_background(
+    samples: Sequence[np.ndarray],
+    to_ref: Sequence[np.ndarray],
+    holes: Sequence[np.ndarray | None],
+    size: tuple[int, int],
+    ref_holes: np.ndarray | None = None,
+    ref_holes_for: Sequence[bool] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Median background of warped samples and the number of valid samples per pixel.
+
+    Parameters
+    ----------
+    samples : sequence of ndarray, shape (h, w, 3) uint8
+        Downscaled sample frames, each in its own pixels.
+    to_ref : sequence of ndarray, shape (3, 3)
+        OpenCV homographies (pixel indices at model resolution) sample -> reference frame.
+    holes : sequence of ndarray (K, 4, 2) or None
+        Per sample, polygons (sample pixels) that must not vote: its own detections.
+    size : (int, int)
+        (width, height) of the reference frame at model resolution.
+    ref_holes : ndarray (K, 4, 2), optional
+        Polygons in reference pixels left out of the samples flagged in ``ref_holes_for``
+        (where vehicles were last seen, for samples whose own detections are not known yet).
+    ref_holes_for : sequence of bool, optional
+
+    Returns
+    -------
+    background : ndarray, shape (H, W, 3) uint8
+        Reference-frame pixels; meaningless where ``count`` is 0.
+    count : ndarray, shape (H, W) uint8
+        Number of samples that saw each pixel and were valid there.
+
+    Notes
+    -----
+    Validity is rasterised from polygons (the warped frame outline minus the warped detection
+    boxes) instead of warping masks: one image warp per sample instead of two.
+    """
+    w, h = size
+    warped = []
+    count = np.zeros((h, w), np.uint8)
+    for k, (img, M) in enumerate(zip(samples, to_ref)):
+        pad = 0 if k % 2 == 0 else 255
+        sh, sw = img.shape[:2]
+        wimg = warp(img, M, (w, h), border=pad)
+        valid = np.zeros((h, w), np.uint8)
+        outline = box_polygons(np.array([[0.5, 0.5, sw - 1.0, sh - 1.0]]))
+        _fill(valid, warp_polygons(outline, M), 1)
+        polys = []
+        if holes[k] is not None and len(holes[k]):
+            polys.append(warp_polygons(holes[k], M))
+        if ref_holes is not None and len(ref_holes) and (ref_holes_for is None or ref_holes_for[k]):
+            polys.append(ref_holes)
+        if polys:
+            allp = np.concatenate(polys)
+            _fill(valid, allp, 0)
+            _fill(wimg, allp, (pad, pad, pad))
+        count = cv2.add(count, valid)
+        warped.append(wimg)
+    if not warped:
+        return np.zeros((h, w, 3), np.uint8), count
+    return stack_median(warped), count

@@ -1,0 +1,174 @@
+"""From a thresholded residual to vehicle-sized blobs: hysteresis, morphology, connected
+components, splitting of merged vehicles and joining of fragments.
+
+All functions work on one image in one pixel frame (the caller chooses model or full resolution)
+and return blobs as ``(x, y, w, h)`` integer boxes (pixel indices, inclusive-exclusive) with
+a boolean mask cropped to the box.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass
+class Blob:
+    """One connected foreground region.
+
+    Attributes
+    ----------
+    box : (int, int, int, int)
+        ``x, y, w, h`` in the pixels of the image it was found in.
+    mask : ndarray, shape (h, w) bool
+        The region inside ``box``.
+    """
+
+    box: tuple[int, int, int, int]
+    mask: np.ndarray
+    area: int = -1
+
+    def __post_init__(self) -> None:
+        if self.area < 0:
+            self.area = int(np.count_nonzero(self.mask))
+
+
+def _disk(r: float) -> np.ndarray:
+    k = max(1, int(round(2 * r + 1)))
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+
+
+def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
+                     min_area: float) -> list[Blob]:
+    """Connected components of ``low`` (after a 3x3 opening and a closing) that contain a pixel of
+    ``high``.
+
+    Parameters
+    ----------
+    low, high : ndarray, shape (H, W) bool or uint8
+        Pixels above the threshold, and above the seed threshold.
+    close_radius : float
+        Closing radius in pixels: joins fragments of one vehicle; too large merges neighbours.
+    min_area : float
+        Smallest component area in pixels.
+    """
+    m = (np.asarray(low) > 0).astype(np.uint8)
+    m = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
+    if close_radius >= 0.5:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, _disk(close_radius))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return []
+    seeded = np.zeros(n, bool)
+    seeded[np.unique(labels[(np.asarray(high) > 0) & (m > 0)])] = True
+    out = []
+    for k in range(1, n):
+        x, y, w, h, area = (int(v) for v in stats[k])
+        if not seeded[k] or area < min_area:
+            continue
+        out.append(Blob((x, y, w, h), labels[y:y + h, x:x + w] == k, area))
+    return out
+
+
+def split_blob(blob: Blob, *, min_area: float, max_radius: int) -> list[Blob]:
+    """Split a blob that merges several vehicles.
+
+    The mask is eroded with growing disks (radius 1..``max_radius``) until it falls apart into
+    two or more cores; every pixel then goes to its nearest core. The split is kept only when
+    each part has at least ``min_area`` pixels, so a vehicle whose residual has a thin waist
+    (a roof that matches the road) is not cut in two unless both halves are vehicle-sized.
+
+    Returns
+    -------
+    list of Blob
+        ``[blob]`` when it does not split.
+    """
+    x0, y0, w, h = blob.box
+    m = np.pad(blob.mask.astype(np.uint8), 1)
+    for r in range(1, max_radius + 1):
+        core = cv2.erode(m, _disk(r))
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(core, connectivity=8)
+        if n <= 1:
+            break
+        big = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= 2]
+        if len(big) < 2:
+            continue
+        seeds = np.zeros_like(labels)
+        for i, k in enumerate(big, start=1):
+            seeds[labels == k] = i
+        # Nearest core of every pixel: distance transform labels of the zero (core) pixels.
+        _, nearest = cv2.distanceTransformWithLabels(
+            (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+        zero_labels = nearest[seeds > 0]
+        lut = np.zeros(int(nearest.max()) + 1, np.int32)
+        lut[zero_labels] = seeds[seeds > 0]
+        owner = lut[nearest] * (m > 0)
+        parts = []
+        for i in range(1, len(big) + 1):
+            pm = owner == i
+            if pm.sum() < min_area:
+                parts = []
+                break
+            ys, xs = np.nonzero(pm)
+            bx0, by0, bx1, by1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+            parts.append(Blob((x0 + int(bx0) - 1, y0 + int(by0) - 1, int(bx1 - bx0), int(by1 - by0)),
+                              pm[by0:by1, bx0:bx1]))
+        if parts:
+            return parts
+    return [blob]
+
+
+def box_gap(a: tuple, b: tuple) -> float:
+    """Largest of the horizontal and vertical gaps between two ``x, y, w, h`` boxes (0 if they
+    touch or overlap)."""
+    gx = max(a[0] - (b[0] + b[2]), b[0] - (a[0] + a[2]), 0)
+    gy = max(a[1] - (b[1] + b[3]), b[1] - (a[1] + a[3]), 0)
+    return float(max(gx, gy))
+
+
+def join_fragments(blobs: list[Blob], *, gap: float, max_length: float,
+                   fragment_ratio: float = 0.35) -> list[Blob]:
+    """Join a small fragment to a bigger blob within ``gap`` pixels.
+
+    Only pairs whose smaller area is under ``fragment_ratio`` of the larger are joined, and only
+    when the union's longer side stays within ``max_length``: two vehicles of similar size that
+    queue bumper to bumper stay apart.
+    """
+    blobs = list(blobs)
+    changed = True
+    while changed:
+        changed = False
+        order = sorted(range(len(blobs)), key=lambda i: blobs[i].area)
+        for i in order:
+            a = blobs[i]
+            best, best_gap = -1, gap + 1e-9
+            for j, b in enumerate(blobs):
+                if j == i or a.area >= fragment_ratio * b.area:
+                    continue
+                g = box_gap(a.box, b.box)
+                if g <= best_gap:
+                    ux0, uy0 = min(a.box[0], b.box[0]), min(a.box[1], b.box[1])
+                    ux1 = max(a.box[0] + a.box[2], b.box[0] + b.box[2])
+                    uy1 = max(a.box[1] + a.box[3], b.box[1] + b.box[3])
+                    if max(ux1 - ux0, uy1 - uy0) <= max_length:
+                        best, best_gap = j, g
+            if best >= 0:
+                blobs[best] = merge_blobs(a, blobs[best])
+                del blobs[i]
+                changed = True
+                break
+    return blobs
+
+
+def merge_blobs(a: Blob, b: Blob) -> Blob:
+    """The union of two blobs (mask of both, box around both)."""
+    x0, y0 = min(a.box[0], b.box[0]), min(a.box[1], b.box[1])
+    x1 = max(a.box[0] + a.box[2], b.box[0] + b.box[2])
+    y1 = max(a.box[1] + a.box[3], b.box[1] + b.box[3])
+    m = np.zeros((y1 - y0, x1 - x0), bool)
+    for bl in (a, b):
+        bx, by, bw, bh = bl.box
+        m[by - y0:by - y0 + bh, bx - x0:bx - x0 + bw] |= bl.mask
+    return Blob((x0, y0, x1 - x0, y1 - y0), m)
