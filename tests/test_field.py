@@ -17,7 +17,8 @@ from aerotrack.geo import GeoMap, read_map_init
 from aerotrack.geo.lens import Undistorter, read_intrinsics
 from aerotrack.geo.qgis import read_qgis_points, write_qgis_points
 from aerotrack.geo.roi import filter_min_speed, read_region, track_max_speed
-from aerotrack.geo.telemetry import (CameraPose, ground_sample_distance,
+from aerotrack.geo.telemetry import (CameraPose, coarse_align, ground_sample_distance,
+                                     map_pixel_aspect,
                                      hfov_from_focal, metres_per_unit, pose_homography,
                                      read_dji_srt, read_telemetry, read_telemetry_csv)
 from aerotrack.io.geotable import (read_registration_csv, utm_crs_for,
@@ -457,3 +458,32 @@ def test_read_registration_csv(tmp_path):
     with pytest.raises(FormatError, match="line 1"):
         read_registration_csv(p)
 
+
+
+def test_coarse_align_brings_a_telemetry_start_within_reach(geomap):
+    # Render a frame from the map through a known nadir camera, start 6 m and 4 deg off.
+    map_img = geomap.read_image()
+    c = geomap.pixel_to_lonlat([[650, 650]])[0]
+    true = CameraPose(lon=c[0], lat=c[1], alt_m=100.0, heading_deg=30.0, hfov_deg=73.7)
+    size = (960, 540)
+    H_true = pose_homography(true, size, geomap)
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])  # aerotrack -> OpenCV pixel centres
+    frame = cv2.warpPerspective(map_img, np.linalg.inv(T) @ np.linalg.inv(H_true) @ T, size)
+    dlat = 6.0 / 111_000.0
+    start = CameraPose(lon=c[0], lat=c[1] + dlat, alt_m=100.0, heading_deg=34.0, hfov_deg=73.7)
+    H0 = pose_homography(start, size, geomap)
+    corners = np.array([[0, 0], [960, 0], [960, 540], [0, 540]], float)
+
+    def err_m(H):
+        d = apply_homography(H, corners) - apply_homography(H_true, corners)
+        return float(np.linalg.norm(d, axis=1).mean()) * geomap.metres_per_pixel
+
+    assert err_m(H0) > 6.0
+    aspect = map_pixel_aspect(geomap)
+    assert aspect == pytest.approx(1 / math.cos(math.radians(c[1])), rel=0.01)  # lon/lat tile
+    H1, score = coarse_align(frame, H0, map_img, search_px=3 * 6.0 / geomap.metres_per_pixel,
+                             pixel_aspect=aspect)
+    assert score > 0.8 and err_m(H1) < 0.3  # well within map refinement's 12-pixel (3 m) reach
+    # A frame that is not of this place is refused rather than "aligned".
+    noise = np.random.default_rng(0).integers(0, 255, frame.shape, dtype=np.uint8)
+    assert not coarse_align(noise, H0, map_img, search_px=60, pixel_aspect=aspect)

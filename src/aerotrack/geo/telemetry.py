@@ -29,6 +29,10 @@ Column aliases accepted (so that a parsed DJI log loads as is): ``latitude``, ``
 focal length, as DJI writes it). Columns a log does not have (most consumer DJI logs have no gimbal
 heading) are taken from ``defaults`` or refused with a one-line error naming the column.
 
+The start then goes through :func:`coarse_align` (translation and heading searched against the
+map at a coarse scale) so that map refinement, which only looks a few map pixels around its
+start, can lock on: see ``benchmarks/telemetry_init.py`` for the numbers on a real DJI log.
+
 DJI SRT subtitles (``read_dji_srt``): the per-frame ``[latitude: ..] [longitude: ..] [rel_alt: ..]
 [focal_len: ..]`` blocks of DJI video subtitles (and the older ``GPS(lon,lat,alt)`` form), with the
 gimbal angles when the drone writes them (``gb_yaw``, ``gb_pitch``, ``gb_roll``).
@@ -577,3 +581,167 @@ def metres_per_unit(*, gsd: float | None = None, geomap: Any = None,
         return ground_sample_distance(altitude_m, image_width_px,
                                       **{k: v for k, v in camera.items() if v is not None})
     return None
+
+
+# -- coarse lock-on: from a telemetry start to within map refinement's reach -----------------
+def _inradius(quad: np.ndarray, c: np.ndarray) -> float:
+    """Distance from ``c`` to the nearest edge of the convex quadrilateral ``quad`` (4, 2)."""
+    d = []
+    for k in range(4):
+        a, b = quad[k], quad[(k + 1) % 4]
+        e = b - a
+        n = np.hypot(*e)
+        d.append(abs(e[0] * (c[1] - a[1]) - e[1] * (c[0] - a[0])) / max(n, 1e-12))
+    return float(min(d))
+
+
+def _cv(H: np.ndarray) -> np.ndarray:
+    """An aerotrack-convention homography (pixel centres at +0.5) in OpenCV's (centres at 0)."""
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    return np.linalg.inv(T) @ H @ T
+
+
+def coarse_align(frame_img: np.ndarray, H_start: np.ndarray, map_img: np.ndarray, *,
+                 search_px: float, max_rotation_deg: float = 6.0,
+                 rotation_step_deg: float = 1.0, min_score: float = 0.3,
+                 template_px: int = 48, pixel_aspect: float = 1.0
+                 ) -> tuple[np.ndarray, float] | Failure:
+    """Correct a telemetry start's translation and heading error against the map, coarsely.
+
+    Map refinement (``registration.mapref``) looks only a few map pixels around its start; a
+    telemetry start is off by metres (the Songdo DJI log: 5.4 m of GPS offset, about 2 % of
+    height, plus the compass error), which at a 0.03-0.3 m/px orthophoto is tens to hundreds of map
+    pixels. This searches translation (+-``search_px``) and rotation (+-``max_rotation_deg``
+    about the footprint's centre) by normalised cross-correlation of the frame's central region,
+    warped onto the map at a coarse scale, against the map; the result is within a coarse pixel
+    (or two) of the truth, which refinement then takes to sub-pixel.
+
+    Parameters
+    ----------
+    frame_img : ndarray (h, w[, 3]) uint8
+        The frame (undistorted), BGR or grey.
+    H_start : ndarray (3, 3)
+        Frame pixels -> map pixels from telemetry (:func:`pose_homography` with the GeoMap).
+    map_img : ndarray (Hm, Wm[, 3]) uint8
+        The map (``GeoMap.read_image()``).
+    search_px : float
+        Largest translation error searched, map pixels (position error / map GSD, with margin).
+    max_rotation_deg, rotation_step_deg : float
+        Heading uncertainty searched and its step. A wider range copes with a worse compass but
+        costs one template match per step and admits more false matches.
+    min_score : float
+        Lowest accepted correlation peak (TM_CCOEFF_NORMED); below it the start is left alone.
+    template_px : int
+        Half-size of the coarse template, coarse pixels; sets the coarse scale.
+    pixel_aspect : float
+        Ground height / ground width of one map pixel (:func:`map_pixel_aspect`): 1 for projected
+        maps, about ``1 / cos(lat)`` for maps in lon/lat degrees, where a rotation on the ground is
+        not a rotation of map pixels.
+
+    Returns
+    -------
+    (H, score) or Failure
+        ``H`` (3, 3) frame pixels -> map pixels, corrected; ``score`` the correlation peak.
+    """
+    fg = frame_img if frame_img.ndim == 2 else cv2.cvtColor(frame_img, cv2.COLOR_BGR2GRAY)
+    mg = map_img if map_img.ndim == 2 else cv2.cvtColor(map_img, cv2.COLOR_BGR2GRAY)
+    h, w = fg.shape
+    H0 = np.asarray(H_start, np.float64) / H_start[2, 2]
+    quad = _apply_h(H0, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
+    c = _apply_h(H0, np.array([[w / 2, h / 2]]))[0]
+    if not (np.all(np.isfinite(quad)) and np.all(np.isfinite(c))):
+        return Failure("coarse alignment: the start homography is not finite")
+    r_in = _inradius(quad, c) / math.sqrt(2.0)  # half-side of a square inside at any rotation
+    f = max(1.0, r_in / template_px)
+    half = int(r_in / f)
+    if half < 8:
+        return Failure(f"coarse alignment: frame footprint too small on the map ({2 * r_in:.0f} px)")
+    cw, ch = max(1, int(round(mg.shape[1] / f))), max(1, int(round(mg.shape[0] / f)))
+    fx, fy = mg.shape[1] / cw, mg.shape[0] / ch
+    mcoarse = cv2.resize(mg, (cw, ch), interpolation=cv2.INTER_AREA).astype(np.float32)
+    s = int(math.ceil(search_px / min(fx, fy))) + 1
+    rx0 = int(math.floor(c[0] / fx - half - s))
+    ry0 = int(math.floor(c[1] / fy - half - s))
+    rx1, ry1 = rx0 + 2 * (half + s) + 1, ry0 + 2 * (half + s) + 1
+    if rx0 < 0 or ry0 < 0 or rx1 > cw or ry1 > ch:
+        # clip the search window to the map (the template must stay inside it)
+        rx0, ry0 = max(rx0, 0), max(ry0, 0)
+        rx1, ry1 = min(rx1, cw), min(ry1, ch)
+        if rx1 - rx0 <= 2 * half + 2 or ry1 - ry0 <= 2 * half + 2:
+            return Failure("coarse alignment: the search window falls outside the map")
+    region = mcoarse[ry0:ry1, rx0:rx1]
+    shrink = math.sqrt(abs(np.linalg.det(H0[:2, :2]))) / f
+    src = cv2.GaussianBlur(fg, (0, 0), 0.5 / shrink) if shrink < 0.7 else fg
+    Sa = np.diag([1.0, float(pixel_aspect), 1.0])  # map pixels -> square ground units
+
+    def rot(th: float) -> np.ndarray:
+        R = np.array([[math.cos(th), -math.sin(th), 0], [math.sin(th), math.cos(th), 0], [0, 0, 1]])
+        return np.linalg.inv(Sa) @ R @ Sa
+
+    def match(th: float):
+        R = rot(th)
+        A = (np.array([[1 / fx, 0, half], [0, 1 / fy, half], [0, 0, 1]]) @ R
+             @ np.array([[1, 0, -c[0]], [0, 1, -c[1]], [0, 0, 1]]))
+        tmpl = cv2.warpPerspective(src, _cv(A @ H0), (2 * half, 2 * half),
+                                   flags=cv2.INTER_LINEAR).astype(np.float32)
+        if float(tmpl.std()) < 1.0:
+            return None
+        res = cv2.matchTemplate(region, tmpl, cv2.TM_CCOEFF_NORMED)
+        iy, ix = np.unravel_index(int(np.argmax(res)), res.shape)
+        return float(res[iy, ix]), th, iy, ix, res
+
+    n_rot = int(round(max_rotation_deg / rotation_step_deg)) if rotation_step_deg > 0 else 0
+    step = math.radians(rotation_step_deg)
+    tried = [match(k * step) for k in range(-n_rot, n_rot + 1)]
+    scores = [-np.inf if t is None else t[0] for t in tried]
+    if not np.isfinite(max(scores)):
+        return Failure("coarse alignment: the frame has no texture")
+    kb = int(np.argmax(scores))
+    best = tried[kb]
+    if 0 < kb < len(tried) - 1 and np.isfinite(scores[kb - 1]) and np.isfinite(scores[kb + 1]):
+        # the rotation between two steps: parabola through the three best scores
+        a, b, cc = scores[kb - 1], scores[kb], scores[kb + 1]
+        den = a - 2 * b + cc
+        if den < 0:
+            again = match(best[1] + step * float(np.clip(0.5 * (a - cc) / den, -0.5, 0.5)))
+            if again is not None and again[0] >= best[0]:
+                best = again
+    score, th, iy, ix, res = best
+    if score < min_score:
+        return Failure(f"coarse alignment: best correlation {score:.2f} < {min_score}")
+    if iy in (0, res.shape[0] - 1) or ix in (0, res.shape[1] - 1):
+        return Failure("coarse alignment: best match on the border of the search window")
+
+    def vertex(a, b, cc):
+        den = a - 2 * b + cc
+        return 0.0 if den >= 0 else float(np.clip(0.5 * (a - cc) / den, -0.5, 0.5))
+
+    oy = iy + vertex(res[iy - 1, ix], res[iy, ix], res[iy + 1, ix])
+    ox = ix + vertex(res[iy, ix - 1], res[iy, ix], res[iy, ix + 1])
+    # Template pixel t sits on coarse map pixel (r0 + o + t): true map = R (m - c) + F (r0 + o + half)
+    target = np.array([fx * (rx0 + ox + half), fy * (ry0 + oy + half)])
+    R2 = rot(th)[:2, :2]
+    C = np.eye(3)
+    C[:2, :2] = R2
+    C[:2, 2] = target - R2 @ c
+    H1 = C @ H0
+    return H1 / H1[2, 2], score
+
+
+def map_pixel_aspect(geomap: Any, at_px: np.ndarray | None = None) -> float:
+    """Ground height / ground width of one map pixel of ``geomap`` at ``at_px`` (default centre)."""
+    from pyproj import Geod
+
+    c = np.asarray(at_px if at_px is not None else [geomap.width / 2, geomap.height / 2],
+                   np.float64).reshape(2)
+    ll = geomap.pixel_to_lonlat(np.vstack([c, c + [1, 0], c + [0, 1]]))
+    g = Geod(ellps="WGS84")
+    dx = g.inv(ll[0, 0], ll[0, 1], ll[1, 0], ll[1, 1])[2]
+    dy = g.inv(ll[0, 0], ll[0, 1], ll[2, 0], ll[2, 1])[2]
+    return float(dy / dx)
+
+
+def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    h = np.hstack([pts, np.ones((len(pts), 1))]) @ H.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return h[:, :2] / h[:, 2:3]
