@@ -203,3 +203,27 @@ def test_geojson_single_vertex_and_no_map(tmp_path):
 
     with pytest.raises(GeoreferenceError):
         tracks_feature_collection(np.zeros((0, 10)), None, None, 30)
+
+
+def test_render_and_report_commands(tmp_path, capsys):
+    from aerotrack.cli.main import main
+
+    run = make_run(tmp_path, n_frames=12)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in range(1, 13):
+        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    main(["-q", "render", str(frames), str(run), "--out", str(tmp_path / "o.mp4"), "--trail-s", "0.5"])
+    assert (tmp_path / "o.mp4").stat().st_size > 0
+    for name in ("map.png", "spacetime.png", "registration.png"):
+        assert (run / name).stat().st_size > 1000
+    main(["-q", "report", str(run), "--input", str(frames)])
+    text = (run / "report.html").read_text()
+    assert "data:video/webm;base64," in text and text.count("<tr><td data-v=") >= 3
+    with pytest.raises(SystemExit) as exc:
+        main(["report", str(tmp_path / "missing")])
+    assert exc.value.code == 2
+    assert "no such output folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["render", str(frames), str(run), "--out", str(tmp_path / "o.avi")])
+    assert exc.value.code == 2

@@ -206,7 +206,8 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     fig = _figure(10.0, 8.0)
     fs = _font_pt(fig)
     ax = fig.add_axes((0.09, 0.08, 0.88, 0.86))
-    allpts = np.vstack([tv.world for tv in tracks]) if tracks else np.zeros((0, 2))
+    # the view fits the in-view positions; predictions running far off are clipped by the axes
+    allpts = (np.vstack([tv.world[tv.observed] for tv in tracks]) if tracks else np.zeros((0, 2)))
     if geomap is not None:
         img = geomap.read_image()[..., ::-1]
         ax.imshow(img, extent=(0, geomap.width, geomap.height, 0), interpolation="bilinear", zorder=0)
@@ -289,6 +290,21 @@ def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float 
         if unit == "px":
             xy = xy * np.array([1.0, -1.0])  # so that the image's "up" is up in the plot
         xs[tv.id] = xy
+    # limits from the in-view positions; predicted points beyond them are dropped (3-D axes do
+    # not clip lines)
+    obs = [xs[tv.id][tv.observed] for tv in tracks]
+    obs = np.vstack(obs) if obs else np.zeros((0, 2))
+    obs = obs[np.all(np.isfinite(obs), axis=1)]
+    if len(obs):
+        lo, hi = obs.min(axis=0), obs.max(axis=0)
+        pad = 0.05 * np.maximum(hi - lo, 1.0)
+        lo, hi = lo - pad, hi + pad
+        for tv in tracks:
+            xy = xs[tv.id]
+            out = np.any((xy < lo) | (xy > hi), axis=1) & ~tv.observed
+            xy[out] = np.nan
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
     for tv in tracks:
         xy = xs[tv.id]
         t = (tv.frames - 1) / results.fps

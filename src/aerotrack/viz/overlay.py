@@ -167,12 +167,13 @@ class OverlayPainter:
             radius = 0.5 * math.hypot(bw, bh) + r.radius_world * self._world_scale(frame, np.array([cx, cy]))
             radius = min(radius, 2.0 * h)
             text = f"{r.id} +{r.since_s:.1f}s"
+            pscale = scale * max(0.015, 0.85 * self.style.text_height) / self.style.text_height
             if -radius <= cx <= w + radius and -radius <= cy <= h + radius and 0 <= cx < w and 0 <= cy < h:
                 _dashed_rect(img, x, y, bw, bh, colour, lw)
                 _dashed_circle(img, cx, cy, radius, colour, max(1, lw // 2 + 1))
-                _label(img, text, x, y, y + bh, colour, scale, thick, hollow=True)
+                _label(img, text, x, y, y + bh, colour, pscale, thick, hollow=True)
             else:
-                self._draw_offscreen(img, cx, cy, text, colour, scale, thick, lw)
+                self._draw_offscreen(img, cx, cy, text, colour, pscale, thick, lw)
         if self.style.hud:
             self._draw_hud(img, frame, rows, scale, thick)
         return img

@@ -278,7 +278,7 @@ def _cards(results: RunResults, stats: list[TrackStats]) -> str:
     if isinstance(s.get("frames_per_second"), (int, float)):
         items.append((f"{s['frames_per_second']:g}", "processing frames / s"))
     return "".join(f'<div class="card"><b>{v if isinstance(v, str) else _fmt(v)}</b><span>{html.escape(k)}</span></div>'
-                   for v, k in items)
+                   for v, k in items if v is not None and v != "–")
 
 
 def _timings(results: RunResults) -> str:
@@ -335,8 +335,7 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
                     f"{geomap.metres_per_pixel:.2f} m/px)")
     else:
         what.append("no map: positions in frame 1's pixels")
-    parts = [f'<section><h2>Summary</h2><div class="cards">{_cards(results, stats)}</div></section>',
-             f'<section><h2>Per-stage timings</h2>{_timings(results)}</section>']
+    parts = [f'<section><h2>Summary</h2><div class="cards">{_cards(results, stats)}</div></section>']
     if metrics:
         parts.append(f'<section id="evaluation"><h2>Evaluation</h2><p class="note">{html.escape(eval_note)}'
                      f'</p>{_metrics_table(metrics)}</section>')
@@ -359,11 +358,12 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
     parts.append('<section><h2>Space-time view</h2><p class="note">Each track in (x, y, time), coloured by ID '
                  '(Yu &amp; Medioni 2007, fig. 6); dashed: predicted while out of view; stars: re-acquisitions.'
                  f'</p><img class="fig" alt="space-time view" src="{pictures["spacetime"]}"></section>')
+    parts.append(f'<section><h2>Tracks</h2><p class="note">Click a heading to sort. Distance and speed '
+                 f'use the in-view positions, smoothed over 0.5 s.</p>{_track_table(stats)}</section>')
     if "registration" in pictures:
         parts.append('<section><h2>Registration quality</h2><img class="fig" alt="registration quality" '
                      f'src="{pictures["registration"]}"></section>')
-    parts.append(f'<section><h2>Tracks</h2><p class="note">Click a heading to sort. Distance and speed '
-                 f'use the in-view positions, smoothed over 0.5 s.</p>{_track_table(stats)}</section>')
+    parts.append(f'<section><h2>Per-stage timings</h2>{_timings(results)}</section>')
     fails = results.summary.get("registration_failures")
     if isinstance(fails, list) and fails:
         rows = "".join(f"<tr><td>{_fmt(f.get('frame'))}</td><td>{_fmt(f.get('status'))}</td>"
