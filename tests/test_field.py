@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import math
 from pathlib import Path
@@ -440,6 +441,15 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path):
     assert "speed_mps" in names and "kind" in names
     x0, y0 = np.frombuffer(geom[0][-16:], "<f8")
     assert (x0, y0) == pytest.approx(tuple(_utm(lon[0], lat[0])[0]), abs=0.01)
+    if importlib.util.find_spec("pyarrow") is not None:  # Parquet beside, same columns and CRS
+        import pyarrow.parquet as pq
+
+        pout = write_observation_table(tmp_path / "observations.csv", obs, geomap, fps,
+                                       predicted=pred, homographies=homs, formats=("parquet",))
+        t = pq.read_table(pout["parquet"])
+        assert t.schema.metadata[b"crs"] == UTM11.encode()
+        assert t.column("speed_mps")[10].as_py() == pytest.approx(float(r["speed_mps"]), abs=1e-3)
+        assert t.column("kind").to_pylist().count("predicted") == 10
     # --out-crs: any projected CRS; geographic is refused.
     out2 = write_observation_table(tmp_path / "o2.csv", obs, geomap, fps, "EPSG:3857",
                                    formats=("csv",))
