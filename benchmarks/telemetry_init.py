@@ -273,7 +273,8 @@ def main() -> None:
         print(f"{r['case']:40s} {f1['corner_mean_m']:13.1f} / {f1['corner_max_m']:6.1f}      "
               f"{f1['centre_m']:7.1f} {md['corner_mean_m']:30.1f}")
     print(f"best-fit pinhole vs log: position off by {diag['position_offset_m']:.1f} m, height x"
-          f"{diag['height_ratio_fitted_over_logged']:.3f}, pitch {fitted.pitch_deg:.2f} deg, heading {fitted.heading_deg:.1f} deg (rms {rms:.2f} m)")
+          f"{diag['height_ratio_fitted_over_logged']:.3f}, pitch {fitted.pitch_deg:.2f} deg, "
+          f"heading {fitted.heading_deg:.1f} deg (rms {rms:.2f} m)")
     print(f"Geo-trax orthophoto: {ortho_gsd:.4f} m/px, so the oracle-heading start is off by "
           f"{diag['oracle_heading_corner_mean_in_ortho_px']:.0f} orthophoto pixels at the corners")
     # Lock-on with the errors measured above, heading error 2 deg (a good compass) and 5 deg.
