@@ -20,9 +20,11 @@ import click
               help="Report file to write. Default: DIR/report.html.")
 @click.option("--video-width", type=int, default=960, show_default=True,
               help="Width of the embedded overlay video.")
+@click.option("--video/--no-video", default=True, show_default=True,
+              help="Render DIR/overlay.webm from the input (when missing) and embed it.")
 @click.pass_context
 def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, out_path,
-                   video_width) -> None:
+                   video_width, video) -> None:
     """Write DIR/report.html: a single offline file (no network needed) with the run's numbers,
     timings, registration quality, map and space-time pictures, an overlay player, the track
     table and, with --gt, the evaluation.
@@ -47,7 +49,8 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
 
         geomap = GeoMap(map_path)
     out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
-                       out_path=out_path, options=ReportOptions(video_width=video_width))
+                       out_path=out_path, options=ReportOptions(video_width=video_width, render_video=video,
+                                             max_video_mb=80.0 if video else 0.0))
     quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
     if not quiet:
         click.echo(f"wrote {out}")

@@ -184,7 +184,7 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         log.info("rendering %s", video_path)
         render_overlay(input_path, results, video_path,
                        style=OverlayStyle(trail_s=options.trail_s, max_width=options.video_width))
-    if video_path.exists():
+    if video_path.exists() and options.max_video_mb > 0:
         size_mb = video_path.stat().st_size / 1e6
         src = (_data_uri(video_path.read_bytes(), "video/webm") if size_mb <= options.max_video_mb
                else html.escape(video_path.name))

@@ -27,7 +27,6 @@ import numpy as np
 
 from ..errors import FormatError, InputError
 from ..io.mot import read_mot
-from ..types import apply_homography
 
 H_COLUMNS = ("h00", "h01", "h02", "h10", "h11", "h12", "h20", "h21", "h22")
 
@@ -269,10 +268,16 @@ class RunResults:
             if geomap is None:
                 world[todo] = centres[todo]
             return world
-        for i in np.flatnonzero(todo):
-            H = reg.get(frames[i])
-            if H is not None:
-                world[i] = apply_homography(H, centres[i:i + 1])[0]
+        idx = np.flatnonzero(todo)
+        pos = np.searchsorted(reg.frames, frames[idx])
+        pos = np.minimum(pos, len(reg.frames) - 1)
+        has = reg.frames[pos] == frames[idx]
+        idx, pos = idx[has], pos[has]
+        if len(idx):
+            p = np.column_stack([centres[idx], np.ones(len(idx))])
+            h = np.einsum("nij,nj->ni", reg.H[pos], p)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                world[idx] = h[:, :2] / h[:, 2:3]
         return world
 
     @classmethod
