@@ -227,3 +227,18 @@ def test_render_and_report_commands(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["render", str(frames), str(run), "--out", str(tmp_path / "o.avi")])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("size", [(640, 480), (3840, 2160)])
+def test_label_text_is_at_least_1_5_percent_of_frame_height(size):
+    w, h = size
+    box = [w * 0.4, h * 0.5, w * 0.02, h * 0.02]
+    rows = np.array([[1, 7, *box, 1.0, -1, -1, -1]])
+    res = RunResults(Path("."), rows, np.zeros((0, 10)), None, None, {}, {}, 30.0, None)
+    out = OverlayPainter(res, OverlayStyle(hud=False)).draw(np.zeros((h, w, 3), np.uint8), 1)
+    mask = np.all(out == np.array(id_bgr(7), np.uint8), axis=2)
+    rows_filled = np.flatnonzero(mask.sum(axis=1) > 3 * max(1, round(0.0022 * h)))
+    label_rows = rows_filled[rows_filled < box[1]]  # the filled label sits above the box
+    assert len(label_rows) >= 0.015 * h
+    # white or black text was drawn inside the label
+    assert (out[label_rows.min():label_rows.max() + 1] != out[label_rows.min()][0]).any()
