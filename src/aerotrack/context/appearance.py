@@ -131,9 +131,10 @@ class AppearanceContext:
         return float(self.intra[target].z2(_pair_differences(s, self.X[target])).min())
 
     def inter_distance(self, s: np.ndarray, target, other) -> float:
-        """min over x in X_target of the distance of ``s - x`` under ``Omega_target^other``."""
+        """min over x in X_target of the distance of ``x - s`` under ``Omega_target^other``
+        (which models ``x_target - x_other``: small when ``s`` looks like ``other``)."""
         s = np.asarray(s, dtype=np.float64).reshape(-1, self.X[target].shape[1])
-        return float(self.inter(target, other).z2(_pair_differences(s, self.X[target])).min())
+        return float(self.inter(target, other).z2(_pair_differences(self.X[target], s)).min())
 
     def verify(self, s: np.ndarray, target, unobserved) -> bool:
         """Stage two: ``s`` is closer to ``target``'s intra-class model than to any of its

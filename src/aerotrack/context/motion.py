@@ -346,15 +346,42 @@ class PaperPredictor(MotionPredictor):
 
     name = "paper"
 
-    def _predict(self, table, track_id, fr, xy, T, h):
+    def _section(self, table: TrackTable, track_id: int, T: int) -> np.ndarray | None:
+        """The predictand's section Z = r(T-F .. T), (F+1, 2), interpolated over missing frames."""
         F = self.window
-        fallback = _fallback_predict(fr, xy, h, self)
-        if fr[0] > T - F:
-            return fallback
+        fr, xy = _history(table, track_id, T, F)
+        if len(fr) < 2 or fr[0] > T - F or fr[-1] != T:
+            return None
         grid = np.arange(T - F, T + 1)
-        Z = np.column_stack([np.interp(grid, fr, xy[:, 0]), np.interp(grid, fr, xy[:, 1])])
-        chosen = []  # (track id, end frame)
+        return np.column_stack([np.interp(grid, fr, xy[:, 0]), np.interp(grid, fr, xy[:, 1])])
+
+    def _gamma(self, Z: np.ndarray, jf: np.ndarray, jxy: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """LCE (eq. 1) of the sections of one track ending at row indices ``ends``."""
+        F = self.window
+        idx = ends[:, None] - F + np.arange(F + 1)[None]
+        sec = jxy[idx]  # (K, F+1, 2)
+        return _lce_batch(Z, sec - sec[:, :1] + Z[None, :1])
+
+    def select(self, table: TrackTable, track_id: int, T: int,
+               previous: dict[int, int] | None = None, previous_T: int | None = None) -> dict[int, int]:
+        """PredictorSelection of Ali et al. 4.2.2: ``{predictor id: end frame t_e of its section}``.
+
+        Without ``previous``, every other track's F-frame sections ending no later than ``T`` are
+        searched and the lowest-LCE section of each track is kept when ``gamma <= lce_alpha``.
+        With ``previous`` (the set selected at ``previous_T``), each kept predictor's section is
+        advanced by ``p = T - previous_T`` frames and dropped when its LCE against the predictand's
+        new section exceeds ``lce_alpha`` (the tracks diverged); tracks not in the set are searched
+        as above.
+        """
+        F = self.window
+        Z = self._section(table, track_id, T)
+        if Z is None:
+            return {}
+        previous = previous or {}
+        shift = 0 if previous_T is None else T - previous_T
+        chosen: dict[int, int] = {}
         for j in table.track_ids():
+            j = int(j)
             if j == track_id:
                 continue
             jf, jxy = table.track(j)
@@ -362,18 +389,25 @@ class PaperPredictor(MotionPredictor):
             jf, jxy = jf[keep], jxy[keep]
             if len(jf) < F + 1:
                 continue
-            # sections of F+1 consecutive frames
-            ok = (jf[F:] - jf[:-F]) == F
-            ends = np.flatnonzero(ok) + F
+            if j in previous:
+                te = previous[j] + shift
+                e = int(np.searchsorted(jf, te))
+                if e < len(jf) and jf[e] == te and e >= F and jf[e - F] == te - F:
+                    if self._gamma(Z, jf, jxy, np.array([e]))[0] <= self.config.lce_alpha:
+                        chosen[j] = te
+                continue  # a diverged predictor is dropped, not searched again at once
+            ends = np.flatnonzero((jf[F:] - jf[:-F]) == F) + F  # sections of F+1 consecutive frames
             if len(ends) == 0:
                 continue
-            idx = ends[:, None] - F + np.arange(F + 1)[None]
-            sec = jxy[idx]  # (K, F+1, 2)
-            secn = sec - sec[:, :1] + Z[None, :1]
-            g = _lce_batch(Z, secn)
+            g = self._gamma(Z, jf, jxy, ends)
             k = int(np.argmin(g))
             if g[k] <= self.config.lce_alpha:
-                chosen.append((int(j), int(jf[ends[k]])))
+                chosen[j] = int(jf[ends[k]])
+        return chosen
+
+    def _predict(self, table, track_id, fr, xy, T, h):
+        fallback = _fallback_predict(fr, xy, h, self)
+        chosen = sorted(self.select(table, track_id, T).items())
         if len(chosen) < self.config.min_predictors:
             return fallback
         tracks = {j: table.track(j) for j, _ in chosen}
@@ -551,14 +585,19 @@ class ContextPredictor(MotionPredictor):
             self._index_key = id(table)
         return self._index
 
-    def _predict(self, table, track_id, fr, xy, T, h):
+    def select(self, table: TrackTable, track_id: int, fr: np.ndarray, xy: np.ndarray, T: int,
+               p0: np.ndarray, v0: np.ndarray) -> list[tuple[int, int, float]]:
+        """The predictors of a target: ``[(track id, matched PathIndex row, path distance)]``.
+
+        A predictor is another track with a row seen no later than ``T`` within ``flow_radius_m``
+        of ``p0``, moving within ``flow_heading_deg`` of the target's heading at 1/ratio to ratio
+        times its speed, whose path passes the target's last F positions at a mean distance of at
+        most twice ``path_match_m``. Returned in id order (world units for the distance).
+        """
         c = self.config
-        p0, v0 = kalman_start(fr, xy, self.fps, self.mpu, c)
-        k = np.arange(1, h + 1)
-        base = p0 + k[:, None] * v0
         speed = math.hypot(v0[0], v0[1])
         if table is None or speed * self.fps * self.mpu < c.flow_min_speed_mps:
-            return base
+            return []
         index = self.index_for(table)
         radius = self.m(c.flow_radius_m)
         cos_gate = math.cos(math.radians(c.flow_heading_deg))
@@ -566,7 +605,7 @@ class ContextPredictor(MotionPredictor):
         # rows are sampled: widen by the spacing so a path passing between two rows is found
         rows = index.near(p0, radius + speed * index.stride, T, track_id)
         if len(rows) == 0:
-            return base
+            return []
         vel = index.vel[rows]
         sp = np.hypot(vel[:, 0], vel[:, 1])
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -574,29 +613,42 @@ class ContextPredictor(MotionPredictor):
         ok = np.isfinite(cos) & (cos >= cos_gate) & (sp * self.fps * self.mpu >= c.flow_min_speed_mps)
         ok &= (sp <= c.path_speed_ratio * speed) & (sp * c.path_speed_ratio >= speed)
         rows = rows[ok]
-        if len(rows) == 0:
-            return base
         # one matched row per predictor track: the nearest to p0 (ties: earliest, canonical order)
         d = np.hypot(*(index.xy[rows] - p0).T)
-        tid = index.ids[rows]
-        best = {}
-        for r, t, dd in zip(rows, tid, d):
+        best: dict[int, tuple[int, float]] = {}
+        for r, t, dd in zip(rows, index.ids[rows], d):
             if t not in best or dd < best[t][1]:
-                best[t] = (r, dd)
+                best[int(t)] = (int(r), float(dd))
+        sigma = self.m(c.path_match_m)
+        hist = xy[:: max(1, index.stride)]
+        out = []
+        for t in sorted(best):
+            r, _ = best[t]
+            lo, _hi = index.rows_of(t)
+            back = index.xy[max(lo, r - 4 * self.window // index.stride): r + 1]
+            dpath = float(polyline_distance(hist, back).mean())
+            if dpath <= 2 * sigma:
+                out.append((t, r, dpath))
+        return out
+
+    def _predict(self, table, track_id, fr, xy, T, h):
+        c = self.config
+        p0, v0 = kalman_start(fr, xy, self.fps, self.mpu, c)
+        k = np.arange(1, h + 1)
+        base = p0 + k[:, None] * v0
+        chosen = self.select(table, track_id, fr, xy, T, p0, v0)
+        if not chosen:
+            return base
+        index = self.index_for(table)
+        speed = math.hypot(v0[0], v0[1])
         sigma = self.m(c.path_match_m)
         lengths = speed * k
         frames = T + k
         # coarse chords: arc length over jittery rows would run ahead of the target's chord speed
         chord = max(1, int(round(c.path_chord_s * self.fps / index.stride)))
         disps, valids, ws, d2s = [], [], [], []
-        hist = xy[:: max(1, index.stride)]
-        for t in sorted(best):
-            r, _ = best[t]
-            lo, hi = index.rows_of(int(t))
-            back = index.xy[max(lo, r - 4 * self.window // index.stride): r + 1]
-            dpath = float(polyline_distance(hist, back).mean())
-            if dpath > 2 * sigma:
-                continue
+        for t, r, dpath in chosen:
+            lo, hi = index.rows_of(t)
             r0 = r - chord if r - chord >= lo else r
             if hi - r0 < chord + 1:
                 continue

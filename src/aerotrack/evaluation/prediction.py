@@ -69,7 +69,8 @@ def summarise(errors: np.ndarray, ns: list[int]) -> dict[int, dict[str, float]]:
     -------
     dict n -> {"MPE": float, "Variance": float, "queries": int}
     """
-    e = np.asarray(errors, dtype=np.float64).reshape(len(errors), -1)
+    e = np.asarray(errors, dtype=np.float64)
+    e = e.reshape(len(e), -1) if e.size else np.zeros((0, 1))
     out = {}
     for n in ns:
         if len(e) == 0:

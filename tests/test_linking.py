@@ -1,0 +1,161 @@
+"""Global tracklet linking and re-acquisition: ground-truth tracks cut into tracklets with gaps must be
+rejoined; look-alikes must be told apart by motion, different-looking targets by appearance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aerotrack.association.linking import GlobalLinker, _assign
+from aerotrack.config import ContextConfig, LinkingConfig
+from aerotrack.types import Track, TrackPoint
+
+FPS = 30.0
+
+
+def _hist(rng, colour, noise=0.01):
+    h = np.clip(np.asarray(colour, float) + rng.normal(0, noise, len(colour)), 1e-3, None)
+    return h / h.sum()
+
+
+def _desc(rng, colour):
+    out = np.zeros((6, 8, 8))
+    for r in range(6):
+        px = np.asarray(colour[:3], float) * 255 + rng.normal(0, 5, size=(10, 3))
+        out[r, :, 0] = 10
+        out[r, :, 1:4] = px.sum(axis=0)
+        out[r, :, 4:7] = (px * px).sum(axis=0)
+        out[r, :, 7] = 1 + r % 3
+    return out
+
+
+def _tracklets(paths: dict[int, np.ndarray], start: dict[int, int], gaps: dict[int, list[tuple[int, int]]],
+               colours: dict[int, list[float]], seed=0, with_desc=False):
+    """Cut each true path (n, 2) metres, first frame ``start[i]``, by hidden frame ranges [a, b)."""
+    rng = np.random.default_rng(seed)
+    out, truth = [], []
+    for i, xy in paths.items():
+        cur = []
+        for k, p in enumerate(xy):
+            f = start[i] + k
+            if any(a <= f < b for a, b in gaps.get(i, [])):
+                if cur:
+                    out.append(Track(0, cur))
+                    truth.append(i)
+                    cur = []
+                continue
+            noisy = p + rng.normal(0, 0.05, 2)
+            cur.append(TrackPoint(f, np.array([noisy[0] - 2, noisy[1] - 1, 4, 2]), noisy, 1.0,
+                                  hist=_hist(rng, colours[i]), size_world=np.array([4.0, 2.0]),
+                                  desc=_desc(rng, colours[i]) if with_desc else None))
+        if cur:
+            out.append(Track(0, cur))
+            truth.append(i)
+    return out, truth
+
+
+def _line(p0, v, n):
+    return np.asarray(p0, float)[None] + np.arange(n)[:, None] * np.asarray(v, float)[None] / FPS
+
+
+def _identity_of(track: Track, tracklets, truth) -> set[int]:
+    """True identities of a linked track's observed points."""
+    lookup = {(p.frame, round(float(p.world[0]), 9)): truth[j]
+              for j, t in enumerate(tracklets) for p in t.points}
+    return {lookup[(p.frame, round(float(p.world[0]), 9))] for p in track.points if p.kind == "observed"}
+
+
+def test_cut_tracks_are_rejoined_with_predicted_points_in_the_gaps():
+    paths = {
+        1: _line([0, 0], [10, 0], 300),
+        2: _line([0, 4], [8, 0], 300),
+        3: _line([200, 30], [-9, 0], 300),
+        4: _line([50, -40], [0, 7], 300),
+    }
+    start = {1: 1, 2: 20, 3: 5, 4: 40}
+    gaps = {1: [(60, 120), (200, 230)], 2: [(100, 190)], 3: [(50, 80), (150, 170)], 4: [(100, 160)]}
+    colours = {1: [0.7, 0.1, 0.1, 0.1], 2: [0.1, 0.7, 0.1, 0.1], 3: [0.1, 0.1, 0.7, 0.1],
+               4: [0.25, 0.25, 0.25, 0.25]}
+    tl, truth = _tracklets(paths, start, gaps, colours, with_desc=True)
+    assert len(tl) == 10
+    tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS).link(tl)
+    assert len(tracks) == 4
+    for t in tracks:
+        ids = _identity_of(t, tl, truth)
+        assert len(ids) == 1
+        i = ids.pop()
+        frames = [p.frame for p in t.points]
+        assert frames == sorted(frames) and len(set(frames)) == len(frames)
+        # every hidden frame is a predicted point, close to the truth (constant velocity here)
+        for a, b in gaps[i]:
+            pred = [p for p in t.points if a <= p.frame < b]
+            assert len(pred) == b - a and all(p.kind == "predicted" for p in pred)
+            err = [np.hypot(*(p.world - paths[i][p.frame - start[i]])) for p in pred]
+            assert max(err) < 1.0
+    assert [t.id for t in tracks] == [1, 2, 3, 4]
+
+
+def test_reacquisition_picks_the_right_lookalike_when_the_motion_says_so():
+    """Two identical grey cars, a fast one overtaking a slow one in the next lane, both hidden under
+    an overpass for 2 s: after it, each must keep its identity (appearance cannot help)."""
+    grey = [0.25, 0.25, 0.25, 0.25]
+    paths = {1: _line([0, 0], [14, 0], 240), 2: _line([10, 3.5], [8, 0], 240)}
+    gaps = {1: [(90, 150)], 2: [(90, 150)]}
+    tl, truth = _tracklets(paths, {1: 1, 2: 1}, gaps, {1: grey, 2: grey})
+    for cfg in (LinkingConfig(), LinkingConfig(weight_appearance=0, weight_descriptor=0)):
+        tracks = GlobalLinker(cfg, ContextConfig(), FPS).link(tl)
+        assert len(tracks) == 2
+        assert all(len(_identity_of(t, tl, truth)) == 1 for t in tracks)
+
+
+def test_appearance_decides_when_the_motion_cannot():
+    """Two cars swap lanes behind an occluder; the motion context expects each to stay in its lane,
+    their colours say otherwise, and the colours are right."""
+    n = 200
+    k = np.arange(n)
+    x = 6.0 * k / FPS
+    swap = np.clip((k - 60) / 70, 0, 1) * 3.0  # lane change while hidden (frames 61..130)
+    a = np.column_stack([x, swap])
+    b = np.column_stack([x, 3.0 - swap])
+    paths = {1: a[:n], 2: b[:n]}
+    gaps = {1: [(55, 145)], 2: [(55, 145)]}
+    colours = {1: [0.7, 0.1, 0.1, 0.1], 2: [0.1, 0.1, 0.1, 0.7]}
+    tl, truth = _tracklets(paths, {1: 1, 2: 1}, gaps, colours)
+    tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS).link(tl)
+    assert sorted(len(_identity_of(t, tl, truth)) for t in tracks) == [1, 1]
+    assert len(tracks) == 2
+    blind = GlobalLinker(LinkingConfig(weight_appearance=0), ContextConfig(), FPS).link(tl)
+    assert any(len(_identity_of(t, tl, truth)) == 2 for t in blind)  # motion alone swaps them
+
+
+def test_gates_refuse_impossible_links_and_ends_are_predicted():
+    paths = {1: _line([0, 0], [10, 0], 90), 2: _line([500, 0], [10, 0], 90)}
+    tl, truth = _tracklets(paths, {1: 1, 2: 120}, {}, {1: [1, 0, 0, 0], 2: [1, 0, 0, 0]})
+    linker = GlobalLinker(LinkingConfig(v_max_mps=40.0), ContextConfig(prediction_horizon_s=2.0), FPS)
+    tracks = linker.link(tl)
+    assert len(tracks) == 2  # 410 m in 1 s is impossible
+    first = tracks[0]
+    pred = [p for p in first.points if p.kind == "predicted"]
+    assert [p.frame for p in pred] == list(range(91, 151))  # the horizon (2 s), within the video
+    assert np.hypot(*(pred[-1].world - [10 * 149 / FPS, 0])) < 1.0
+    assert all(np.isnan(p.box).all() and p.size_world is not None for p in pred)
+
+
+def test_joint_assignment_beats_greedy():
+    inf = np.inf
+    # a -> x is cheapest (1.0), but b can only go to x: jointly a -> y, b -> x (1.5 + 1.2)
+    C = np.array([[inf, inf, 1.0, 1.5],
+                  [inf, inf, 1.2, inf],
+                  [inf, inf, inf, inf],
+                  [inf, inf, inf, inf]])
+    assert _assign(C, max_cost=4.0) == {0: 3, 1: 2}
+    # a link dearer than leaving both ends unlinked is not made
+    assert _assign(np.array([[inf, 5.0], [inf, inf]]), max_cost=4.0) == {}
+
+
+@pytest.mark.parametrize("method", ["paper", "kalman", "constant-velocity"])
+def test_linker_runs_with_every_motion_method(method):
+    paths = {1: _line([0, 0], [10, 0], 200)}
+    tl, truth = _tracklets(paths, {1: 1}, {1: [(80, 120)]}, {1: [1, 0, 0, 0]})
+    tracks = GlobalLinker(LinkingConfig(), ContextConfig(method=method), FPS).link(tl)
+    assert len(tracks) == 1
