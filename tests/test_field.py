@@ -497,3 +497,24 @@ def test_coarse_align_brings_a_telemetry_start_within_reach(geomap):
     # A frame that is not of this place is refused rather than "aligned".
     noise = np.random.default_rng(0).integers(0, 255, frame.shape, dtype=np.uint8)
     assert not coarse_align(noise, H0, map_img, search_px=60, pixel_aspect=aspect)
+
+
+def test_telemetry_map_init_end_to_end(geomap, tmp_path):
+    from aerotrack.geo.telemetry import telemetry_map_init
+    from aerotrack.types import Frame
+
+    map_img = geomap.read_image()
+    c = geomap.pixel_to_lonlat([[600, 700]])[0]
+    true = CameraPose(lon=c[0], lat=c[1], alt_m=90.0, heading_deg=250.0, hfov_deg=70.0)
+    size = (800, 450)
+    H_true = pose_homography(true, size, geomap)
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    img = cv2.warpPerspective(map_img, np.linalg.inv(T) @ np.linalg.inv(H_true) @ T, size)
+    log = tmp_path / "log.csv"  # GPS 7 m east, compass 3 deg off
+    log.write_text("frame,lon,lat,alt_m,heading_deg,hfov_deg\n"
+                   f"1,{c[0] + 7 / (111_000 * math.cos(math.radians(c[1]))):.8f},{c[1]:.8f},"
+                   "90,253,70\n")
+    H, note = telemetry_map_init(read_telemetry(log), Frame(1, img, 0.0), geomap, 30.0)
+    corners = np.array([[0, 0], [800, 0], [800, 450], [0, 450]], float)
+    err = np.linalg.norm(apply_homography(H, corners) - apply_homography(H_true, corners), axis=1)
+    assert "coarse-aligned" in note and err.mean() * geomap.metres_per_pixel < 0.5

@@ -745,3 +745,45 @@ def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     h = np.hstack([pts, np.ones((len(pts), 1))]) @ H.T
     with np.errstate(divide="ignore", invalid="ignore"):
         return h[:, :2] / h[:, 2:3]
+
+
+def telemetry_map_init(telemetry: Telemetry, frame: Any, geomap: Any, fps: float, *,
+                       search_m: float = 20.0, max_rotation_deg: float = 6.0
+                       ) -> tuple[np.ndarray, str]:
+    """The ``--map-init`` homography of one frame from telemetry: pinhole start + coarse lock-on.
+
+    Parameters
+    ----------
+    telemetry : Telemetry
+    frame : aerotrack.types.Frame
+        The (undistorted) frame to anchor, usually frame 1.
+    geomap : GeoMap
+    fps : float
+    search_m : float
+        Largest position error searched, metres (consumer GPS: a few metres; 20 m leaves margin).
+    max_rotation_deg : float
+        Largest heading error searched, degrees.
+
+    Returns
+    -------
+    H : ndarray (3, 3)
+        Frame pixels -> map pixels: coarse-aligned, or the plain telemetry start when the
+        alignment failed (map refinement may still lock on if the start is good enough).
+    note : str
+        What happened, for the log and ``summary.json``.
+
+    Raises
+    ------
+    InputError
+        The camera sees no ground (the start itself is unusable).
+    """
+    h, w = frame.image.shape[:2]
+    H0 = telemetry.homography(frame.index, fps, (w, h), geomap)
+    if isinstance(H0, Failure):
+        raise InputError(f"{telemetry.source}: frame {frame.index}: {H0.reason}")
+    r = coarse_align(frame.image, H0, geomap.read_image(),
+                     search_px=search_m / geomap.metres_per_pixel,
+                     max_rotation_deg=max_rotation_deg, pixel_aspect=map_pixel_aspect(geomap))
+    if isinstance(r, Failure):
+        return H0, f"telemetry start (not aligned: {r.reason})"
+    return r[0], f"telemetry start, coarse-aligned to the map (score {r[1]:.2f})"
