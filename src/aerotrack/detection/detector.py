@@ -343,6 +343,10 @@ class MovingObjectDetector:
         self._last_final = 0
         self._first: int | None = None
         self.last_result: FrameResult | None = None
+        #: When True, ``debug_frames`` collects ``(index, image, residual, boxes, stationary)``
+        #: of every finalised frame (the caller drains it).
+        self.keep_debug = False
+        self.debug_frames: list = []
 
     # -- public API -----------------------------------------------------------------------
     def step(self, frame: Frame, registration: Registration) -> list[Detections]:
@@ -448,6 +452,8 @@ class MovingObjectDetector:
         self._last_fg = (c, Hc, fg)
         self._last_final = c
         stationary = self._stationary(p, r, held)
+        if self.keep_debug:
+            self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
         return self._to_detections(p, r, stationary)
 
     def _stationary(self, p: _Pending, r: FrameResult, held: np.ndarray) -> np.ndarray:
