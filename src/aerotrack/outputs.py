@@ -101,7 +101,7 @@ def _f(v: float) -> str:
 
 
 def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: GeoMap | None,
-                  run_info: dict | None = None) -> dict:
+                  run_info: dict | None = None, out_crs: str | None = None) -> dict:
     """Write every contract file into ``out`` (atomically) and return the summary dict."""
     tracks, predicted = track_rows(result, geomap)
     write_mot(out.file("tracks.csv"), tracks)
@@ -116,6 +116,12 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
             log.warning("GeoJSON writer unavailable; tracks.geojson not written")
         else:
             write_tracks_geojson(out.file("tracks.geojson"), tracks, predicted, geomap, result.fps)
+        if len(tracks) or len(predicted):
+            from .io.geotable import write_observation_table
+
+            homs = {i: r.H for i, r in result.registrations.items()}
+            write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
+                                    out_crs, predicted=predicted, homographies=homs)
     out.write_text("config.toml", dumps_config(config))
     failures = [
         {"frame": i, "status": r.status, "reason": r.reason}

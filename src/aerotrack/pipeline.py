@@ -86,7 +86,9 @@ class Pipeline:
                  H_init: np.ndarray | None = None, seed: int = 0,
                  detections: dict[int, np.ndarray] | None = None,
                  metres_per_unit: float | None = None,
-                 checkpoint_dir: Path | None = None, checkpoint_every: int = 300) -> None:
+                 checkpoint_dir: Path | None = None, checkpoint_every: int = 300,
+                 undistort: Callable[[Frame], Frame] | None = None,
+                 regions: list | None = None, min_speed_mps: float | None = None) -> None:
         from .association import LocalAssociator
 
         self.config = config
@@ -116,6 +118,10 @@ class Pipeline:
         self._chunk_no = 0
         self._since_checkpoint = 0
         self._skip_until = 0  # detections of frames <= this were restored from checkpoints
+        # scope: lens undistortion, regions of interest / ignore regions, parked-vehicle filter
+        self.undistort = undistort
+        self.regions = list(regions or [])
+        self.min_speed_mps = min_speed_mps
 
     # -- stages -----------------------------------------------------------------------------------
     def _ensure_stages(self, frame: Frame) -> None:
@@ -147,6 +153,8 @@ class Pipeline:
 
     def step(self, frame: Frame) -> None:
         """Process one frame (frames must come in increasing order)."""
+        if self.undistort is not None:
+            frame = self.undistort(frame)
         self._ensure_stages(frame)
         if self.first_frame is None:
             self.first_frame = frame.index
@@ -207,6 +215,9 @@ class Pipeline:
         for dets in final:
             if dets.frame <= self._skip_until:
                 continue  # already restored from a checkpoint
+            for region in self.regions:
+                if len(dets):
+                    dets = dets.subset(region.keep_detections(dets.centers, dets.world))
             self.detections.append(dets)
             self._pending_dets.append(dets)
             if len(dets):
@@ -291,6 +302,11 @@ class Pipeline:
         self.finish_local()
         t0 = time.perf_counter()
         tracks = self._link(self.tracklets)
+        if self.min_speed_mps:
+            from .geo.roi import filter_min_speed
+
+            tracks = _renumber(filter_min_speed(tracks, self.min_speed_mps, self.fps,
+                                                self.metres_per_unit))
         self.timings["linking"] += time.perf_counter() - t0
         return Result(tracks=tracks, registrations=self.registrations, detections=self.detections,
                       fps=self.fps, frame_size=self.frame_size,
@@ -335,7 +351,8 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         detections: np.ndarray | None = None, metres_per_unit: float | None = None,
         progress: Callable[[int], None] | None = None, start: int = 1, stop: int | None = None,
         stride: int = 1, checkpoint_dir: Path | None = None, resume: bool = False,
-        checkpoint_every: int = 300) -> Result:
+        checkpoint_every: int = 300, undistort: Callable[[Frame], Frame] | None = None,
+        regions: list | None = None, min_speed_mps: float | None = None) -> Result:
     """Track a whole video (pull API).
 
     Parameters
@@ -351,6 +368,12 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         ``checkpoint_every`` frames and on Ctrl-C.
     resume : bool
         Continue from the checkpoints in ``checkpoint_dir``.
+    undistort : callable, optional
+        Applied to every frame first (``geo.lens.Undistorter``).
+    regions : list of geo.roi.Region, optional
+        Detections outside an include region or inside an ignore region are dropped.
+    min_speed_mps : float, optional
+        Tracks that never move faster than this are dropped (parked vehicles).
 
     Examples
     --------
@@ -367,7 +390,8 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     per_frame = _group_rows(detections) if detections is not None else None
     pipe = Pipeline(config, fps, geomap=geomap, H_init=H_init, seed=seed, detections=per_frame,
                     metres_per_unit=metres_per_unit, checkpoint_dir=checkpoint_dir,
-                    checkpoint_every=checkpoint_every)
+                    checkpoint_every=checkpoint_every, undistort=undistort, regions=regions,
+                    min_speed_mps=min_speed_mps)
     if resume and checkpoint_dir is not None:
         restart = pipe.restore()
         if restart > start:

@@ -41,7 +41,8 @@ def make_progress(total: int | None, label: str, quiet: bool):
     return log_line, (lambda: None)
 
 
-def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd):
+def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
+                telemetry_path=None, intrinsics_path=None):
     """Open and validate every input before any work starts (so bad input fails fast)."""
     from ..errors import InputError
     from ..geo import GeoMap, read_map_init
@@ -50,8 +51,14 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd):
 
     if input_path is None and detections_path is None:
         raise InputError("give INPUT (a video or image folder) or --detections FILE")
-    if (map_path is None) != (map_init_path is None):
-        raise InputError("--map and --map-init must be given together")
+    if map_path is not None and map_init_path is None and telemetry_path is None:
+        raise InputError("--map needs --map-init (or --telemetry) to place frame 1 on it")
+    if map_path is None and (map_init_path is not None or telemetry_path is not None):
+        raise InputError("--map-init and --telemetry need --map")
+    if map_init_path is not None and telemetry_path is not None:
+        raise InputError("give either --map-init or --telemetry, not both")
+    if telemetry_path is not None and input_path is None:
+        raise InputError("--telemetry needs INPUT frames to lock on to the map")
     if gsd is not None and not (gsd > 0):
         raise InputError(f"--gsd {gsd}: must be a positive number of metres per pixel")
     if fps is not None and not (fps > 0 and fps < 1e4):
@@ -64,13 +71,30 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd):
         if bad.any():
             raise InputError(f"--detections {detections_path}: row {int(bad.argmax()) + 1} has a "
                              "zero-size box")
+    undistort = None
+    if intrinsics_path is not None:
+        from ..geo.lens import Undistorter, read_intrinsics
+
+        undistort = Undistorter(read_intrinsics(intrinsics_path))
     geomap = H_init = None
+    notes = {}
     if map_path is not None:
         geomap = GeoMap(map_path)
-        H_init = read_map_init(map_init_path, geomap)
+        if telemetry_path is not None:
+            from ..geo.telemetry import read_telemetry, telemetry_map_init
+
+            tel = read_telemetry(telemetry_path, fps=source.fps)
+            first = next(iter(source.frames(stop=1)))
+            if undistort is not None:
+                first = undistort(first)
+            H_init, notes["telemetry"] = telemetry_map_init(tel, first, geomap, source.fps)
+            init_label = telemetry_path
+        else:
+            H_init = read_map_init(map_init_path, geomap)
+            init_label = map_init_path
         if source is not None:
-            _check_overlap(source.size, H_init, geomap, map_init_path)
-    return source, dets, geomap, H_init
+            _check_overlap(source.size, H_init, geomap, init_label)
+    return source, dets, geomap, H_init, undistort, notes
 
 
 def _check_overlap(size, H_init, geomap, map_init_path) -> None:
@@ -93,6 +117,23 @@ def _check_overlap(size, H_init, geomap, map_init_path) -> None:
         )
 
 
+def parse_frame_range(text: str | None) -> tuple[int, int | None]:
+    """``A:B`` -> (A, B) 1-based inclusive; empty ends mean the first / last frame."""
+    from ..errors import InputError
+
+    if text is None:
+        return 1, None
+    a, sep, b = text.partition(":")
+    try:
+        start = int(a) if a.strip() else 1
+        stop = int(b) if b.strip() else None
+    except ValueError:
+        raise InputError(f"--frames {text}: expected A:B with 1-based frame numbers") from None
+    if not sep or start < 1 or (stop is not None and stop < start):
+        raise InputError(f"--frames {text}: expected A:B with 1 <= A <= B")
+    return start, stop
+
+
 @click.command("track")
 @click.argument("input_path", metavar="[INPUT]", required=False, type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
@@ -110,11 +151,28 @@ def _check_overlap(size, H_init, geomap, map_init_path) -> None:
 @seed_option
 @config_option
 @set_option
+@click.option("--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
+              help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
+@click.option("--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
+              help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are undistorted.")
+@click.option("--roi", "roi_paths", multiple=True, type=click.Path(path_type=Path),
+              help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
+@click.option("--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
+              help="Region whose detections are ignored (same formats as --roi).")
+@click.option("--min-speed", "min_speed", type=float, default=None,
+              help="Drop tracks never faster than this many m/s (parked vehicles).")
+@click.option("--out-crs", "out_crs", default=None,
+              help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
+@click.option("--frames", "frame_range", default=None, metavar="A:B",
+              help="Process frames A..B only (1-based, inclusive; either end may be empty).")
+@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Use every N-th frame.")
 @click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in --out.")
 @click.pass_context
 def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_path, gsd, fps,
-                  seed, config_path, overrides, overwrite, resume):
+                  seed, config_path, overrides, telemetry_path, intrinsics_path, roi_paths,
+                  ignore_paths, min_speed, out_crs, frame_range, stride, overwrite, resume):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -133,18 +191,44 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     from ..outputs import write_outputs
     from ..pipeline import run
 
+    from ..errors import InputError
+
     config = load_config(config_path, overrides)
-    source, dets, geomap, H_init = load_inputs(input_path, detections_path, map_path,
-                                               map_init_path, fps, gsd)
+    start, stop = parse_frame_range(frame_range)
+    if min_speed is not None and not min_speed >= 0:
+        raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
+    source, dets, geomap, H_init, undistort, notes = load_inputs(
+        input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
+        intrinsics_path)
+    regions = []
+    if roi_paths or ignore_paths:
+        from ..geo.roi import read_region
+
+        regions += [read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
+        regions += [read_region(p, geomap, mode="ignore", option="--ignore-region")
+                    for p in ignore_paths]
+    if out_crs is not None:
+        from pyproj import CRS
+        from pyproj.exceptions import CRSError
+
+        try:
+            if CRS.from_user_input(out_crs).is_geographic:
+                raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
+        except CRSError:
+            raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
     out = OutputDir(out_dir, overwrite=overwrite, resume=resume)
     quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
     total = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
+    if total:
+        total = len(range(start, min(stop or total, total) + 1, stride))
     progress, close = make_progress(total, "track", quiet)
     t0 = time.perf_counter()
     try:
         result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
                      detections=dets, metres_per_unit=None if geomap else gsd, progress=progress,
-                     checkpoint_dir=out.partial, resume=resume)
+                     checkpoint_dir=out.partial, resume=resume, start=start, stop=stop,
+                     stride=stride, undistort=undistort, regions=regions,
+                     min_speed_mps=min_speed)
     finally:
         close()
     info = {
@@ -153,8 +237,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "map": str(map_path) if map_path else None,
         "seed": seed,
         "wall_time_s": round(time.perf_counter() - t0, 3),
+        **notes,
     }
-    summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info)
+    summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
+                            out_crs=out_crs)
     out.finish()
     c = summary["counts"]
     if not quiet:
