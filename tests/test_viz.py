@@ -153,14 +153,14 @@ def test_map_space_time_and_registration_figures(tmp_path):
     run = make_run(tmp_path)
     res = RunResults.load(run)
     gm = GeoMap(VEGAS)
-    for fig in (plot_map(res, gm), plot_space_time(res, gm), plot_registration(res)):
-        png = figure_png(fig)
+    pngs = [figure_png(fig) for fig in (plot_map(res, gm), plot_space_time(res, gm), plot_registration(res))]
+    for png in pngs:
         im = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
         assert im.shape[0] > 300 and im.std() > 10
     nomap = RunResults.load(make_run(tmp_path, with_map=False))
     assert figure_png(plot_map(nomap, background=np.zeros((H, W, 3), np.uint8)))
     # the map figure shows the tracks in their colours
-    im = cv2.imdecode(np.frombuffer(figure_png(plot_map(res, gm)), np.uint8), cv2.IMREAD_COLOR)
+    im = cv2.imdecode(np.frombuffer(pngs[0], np.uint8), cv2.IMREAD_COLOR)
     for tid in (1, 2, 3):
         c = np.array(id_bgr(tid), int)
         assert (np.abs(im.astype(int) - c).sum(axis=2) < 30).sum() > 50

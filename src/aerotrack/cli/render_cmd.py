@@ -20,19 +20,14 @@ def _progress(total: int | None, label: str, quiet: bool):
 
 def write_pictures(results, geomap, input_path) -> list[Path]:
     """Write ``map.png``, ``spacetime.png`` and ``registration.png`` into the run folder."""
-    from ..viz.mapplot import plot_map, plot_registration, plot_space_time, save_figure
+    from ..viz.mapplot import write_pictures as write
 
     background = None
     if geomap is None and input_path is not None:
         from ..io.frames import open_source
 
         background = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
-    out = [save_figure(plot_map(results, geomap, background=background), results.path / "map.png"),
-           save_figure(plot_space_time(results, geomap), results.path / "spacetime.png")]
-    reg = plot_registration(results)
-    if reg is not None:
-        out.append(save_figure(reg, results.path / "registration.png"))
-    return out
+    return write(results, geomap, background=background)
 
 
 def load_map(results, map_path):

@@ -396,3 +396,27 @@ def _frame_size(results: RunResults) -> tuple[float, float]:
     if len(rows):
         return float(np.percentile(rows[:, 2] + rows[:, 4], 99)), float(np.percentile(rows[:, 3] + rows[:, 5], 99))
     return 640.0, 480.0
+
+
+def write_pictures(results: RunResults, geomap=None, *, background: np.ndarray | None = None,
+                   folder: str | Path | None = None) -> list[Path]:
+    """Write ``map.png``, ``spacetime.png`` and (with ``registration.csv``) ``registration.png``.
+
+    Parameters
+    ----------
+    results : RunResults
+    geomap : GeoMap, optional
+    background : ndarray (H, W, 3) uint8 BGR, optional
+        Frame 1, drawn under the tracks when there is no map.
+    folder : path, optional
+        Where to write (default: the run's folder).
+    """
+    folder = Path(folder) if folder is not None else results.path
+    out = [save_figure(plot_map(results, geomap, background=background), folder / "map.png"),
+           save_figure(plot_space_time(results, geomap), folder / "spacetime.png")]
+    reg = plot_registration(results)
+    if reg is not None:
+        out.append(save_figure(reg, folder / "registration.png"))
+    for p in out:
+        p.chmod(0o644)
+    return out

@@ -164,19 +164,32 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         except AerotrackError as exc:
             log.warning("map %s not used: %s", results.map_path, exc)
     input_path = Path(input_path) if input_path is not None else results.input_path
-    first_image = None
-    if input_path is not None and geomap is None:
+
+    def first_image():
+        if input_path is None or geomap is not None:
+            return None
         from ..io.frames import open_source
 
-        first_image = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+        return next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+
+    # pictures already written beside the results (by `aerotrack render`) are reused when newer
+    # than tracks.csv
+    t_tracks = (run_dir / "tracks.csv").stat().st_mtime
+
+    def picture(name, make):
+        p = run_dir / f"{name}.png"
+        if p.is_file() and p.stat().st_mtime >= t_tracks:
+            return p.read_bytes()
+        fig = make()
+        return None if fig is None else figure_png(fig)
 
     pictures: dict[str, str] = {}
-    fig = plot_map(results, geomap, background=first_image)
-    pictures["map"] = _data_uri(figure_png(fig), "image/png")
-    pictures["spacetime"] = _data_uri(figure_png(plot_space_time(results, geomap)), "image/png")
-    reg_fig = plot_registration(results)
-    if reg_fig is not None:
-        pictures["registration"] = _data_uri(figure_png(reg_fig), "image/png")
+    for name, make in (("map", lambda: plot_map(results, geomap, background=first_image())),
+                       ("spacetime", lambda: plot_space_time(results, geomap)),
+                       ("registration", lambda: plot_registration(results))):
+        png = picture(name, make)
+        if png is not None:
+            pictures[name] = _data_uri(png, "image/png")
 
     video_html = ""
     video_path = run_dir / "overlay.webm"
@@ -198,6 +211,37 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
     atomic_write_text(out, page)
     out.chmod(0o644)
     return out
+
+
+def write_visuals(run_dir: str | Path, *, input_path: str | Path | None = None,
+                  gt_path: str | Path | None = None, geomap=None,
+                  options: ReportOptions = ReportOptions()) -> dict[str, Path]:
+    """Everything users look at, in one call: ``overlay.webm`` (when the input is known),
+    ``map.png``, ``spacetime.png``, ``registration.png`` and ``report.html`` in the run folder.
+
+    Returns a dict name -> path of what was written (keys ``overlay``, ``map``, ``spacetime``,
+    ``registration``, ``report``).
+    """
+    from .mapplot import write_pictures
+
+    results = RunResults.load(run_dir)
+    if geomap is None and results.map_path is not None:
+        from ..geo import GeoMap
+
+        geomap = GeoMap(results.map_path)
+    input_path = Path(input_path) if input_path is not None else results.input_path
+    background = None
+    if input_path is not None and geomap is None:
+        from ..io.frames import open_source
+
+        background = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+    written = {p.stem: p for p in write_pictures(results, geomap, background=background)}
+    report = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
+                          options=options)
+    if (results.path / "overlay.webm").exists():
+        written["overlay"] = results.path / "overlay.webm"
+    written["report"] = report
+    return written
 
 
 # -- HTML ------------------------------------------------------------------------------------------
