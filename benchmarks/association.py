@@ -1,0 +1,165 @@
+"""Local association (MCMC tracklets) on UAVDT-derived detections and synthetic scenes, beside peers.
+
+Usage::
+
+    /tmp/venv/bin/python benchmarks/association.py [--seed 0] [--no-peers] [--no-speed]
+        [--sizes 20 50 150] [--frames 300] [--set association.KEY=VALUE ...]
+
+1. **UAVDT** (issue 5 protocol, ``benchmarks/uavdt_dets.py``): detections synthesised from the
+   ground truth of the three sequences (image coordinates, 30 fps, no frames so no appearance);
+   aerotrack's ``LocalAssociator`` (observed + bridged rows) beside the Roboflow peers (SORT,
+   ByteTrack, OC-SORT, BoT-SORT, default and 2 s buffers) and the oracle, all scored with
+   TrackEval over the three sequences combined.
+2. **Speed**: frames/s of association alone at 20, 50 and 150 objects per frame
+   (``common.synthetic_dets``), beside ByteTrack and OC-SORT in the same run, as ratios.
+
+Prints tables and writes ``benchmarks/results/association.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import UAVDT_SEQS, WORK, write_results  # noqa: E402
+
+from aerotrack.association import LocalAssociator  # noqa: E402
+from aerotrack.config import AssociationConfig, load_config  # noqa: E402
+from aerotrack.types import Detections, Track  # noqa: E402
+
+UAVDT_FPS = 30.0
+
+
+def rows_to_detections(rows: np.ndarray) -> list[Detections]:
+    """MOT rows (N, >=7) -> one Detections per frame from 1 to the last (image coordinates: the
+    world point is the box centre, sizes in pixels; no histograms)."""
+    rows = np.asarray(rows, float)
+    last = int(rows[:, 0].max()) if len(rows) else 0
+    order = np.argsort(rows[:, 0], kind="stable")
+    rows = rows[order]
+    starts = np.searchsorted(rows[:, 0], np.arange(1, last + 2))
+    out = []
+    for f in range(1, last + 1):
+        r = rows[starts[f - 1]:starts[f]]
+        if not len(r):
+            out.append(Detections.empty(f))
+            continue
+        boxes = r[:, 2:6].copy()
+        out.append(Detections(frame=f, boxes=boxes, conf=r[:, 6].copy(),
+                              world=boxes[:, :2] + boxes[:, 2:] / 2,
+                              size_world=boxes[:, 2:].copy()))
+    return out
+
+
+def tracks_to_rows(tracks: list[Track]) -> np.ndarray:
+    """Tracklets -> MOT rows (observed and bridged points)."""
+    rows = [[p.frame, t.id, *p.box, p.conf, -1, -1, -1] for t in tracks for p in t.points
+            if p.kind in ("observed", "bridged")]
+    if not rows:
+        return np.zeros((0, 10))
+    rows = np.asarray(rows, float)
+    return rows[np.lexsort((rows[:, 1], rows[:, 0]))]
+
+
+def run_aerotrack(dets: list[Detections], config: AssociationConfig, fps: float, seed: int = 0
+                  ) -> tuple[list[Track], float]:
+    """Tracklets of a sequence and the seconds spent in ``step``/``flush``."""
+    la = LocalAssociator(config, fps, None, seed)
+    out: list[Track] = []
+    t0 = time.perf_counter()
+    for d in dets:
+        out.extend(la.step(d))
+    out.extend(la.flush())
+    return out, time.perf_counter() - t0
+
+
+def uavdt(config: AssociationConfig, seed: int, peers: bool) -> dict:
+    from aerotrack.evaluation import evaluate_sequences
+    from aerotrack.io.mot import read_mot, write_mot
+    from uavdt_dets import load_uavdt_mot, make_detections
+
+    def runner(seq, dets_file, out_file, fps):
+        rows = read_mot(dets_file, strict=False)
+        tracks, seconds = run_aerotrack(rows_to_detections(rows), config, fps, seed)
+        write_mot(out_file, tracks_to_rows(tracks))
+        return {"seconds": seconds, "frames": int(rows[:, 0].max())}
+
+    if peers:
+        from peers import uavdt_table
+        return uavdt_table(seed, workdir=WORK / "association", extra={"aerotrack": runner})
+    table = {}
+    gts, orc, pred = {}, {}, {}
+    seconds = frames = 0
+    for seq in UAVDT_SEQS:
+        dets, oracle = make_detections(seq, seed)
+        gts[seq], orc[seq] = load_uavdt_mot(seq, "gt"), oracle
+        tracks, s = run_aerotrack(rows_to_detections(dets), config, UAVDT_FPS, seed)
+        pred[seq] = tracks_to_rows(tracks)
+        seconds += s
+        frames += int(dets[:, 0].max())
+    table["oracle"] = {**evaluate_sequences({s: (gts[s], orc[s]) for s in UAVDT_SEQS}),
+                       "fps": None}
+    table["aerotrack"] = {**evaluate_sequences({s: (gts[s], pred[s]) for s in UAVDT_SEQS}),
+                          "fps": frames / seconds, "seconds": seconds}
+    return table
+
+
+def speed(config: AssociationConfig, sizes, n_frames: int, peers: bool) -> dict:
+    from common import synthetic_dets
+
+    def ours(dets, fps):
+        run_aerotrack(rows_to_detections(dets), config, fps)
+
+    if peers:
+        from peers import speed_table
+        return speed_table(tuple(sizes), n_frames, extra={"aerotrack": ours})
+    out = {}
+    for n in sizes:
+        rows = synthetic_dets(n, n_frames)
+        rows[:, 1] = -1
+        dets = rows_to_detections(rows)
+        _, s = run_aerotrack(dets, config, 30.0)
+        out[str(n)] = {"aerotrack": n_frames / s}
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-peers", action="store_true", help="aerotrack and the oracle only")
+    ap.add_argument("--no-speed", action="store_true")
+    ap.add_argument("--no-uavdt", action="store_true")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[20, 50, 150])
+    ap.add_argument("--frames", type=int, default=300, help="frames per speed measurement")
+    ap.add_argument("--set", action="append", default=[], metavar="association.KEY=VALUE")
+    args = ap.parse_args(argv)
+    config = load_config(None, args.set).association
+    result: dict = {"config": config.__dict__}
+    if not args.no_uavdt:
+        table = uavdt(config, args.seed, not args.no_peers)
+        from peers import format_table
+        print("UAVDT association (M0101, M0206, M1005 combined)")
+        print(format_table(table, baseline="ByteTrack" if not args.no_peers else "aerotrack"))
+        result["uavdt"] = {k: {"combined": v["combined"], "fps": v.get("fps"),
+                               "sequences": v.get("sequences")} for k, v in table.items()}
+    if not args.no_speed:
+        sp = speed(config, args.sizes, args.frames, not args.no_peers)
+        print("\nSpeed, frames/s (synthetic, objects per frame)")
+        for n, row in sp.items():
+            base = row.get("ByteTrack")
+            cells = "  ".join(f"{k} {v:8.1f}" + (f" ({v / base:.2f}x BT)" if base else "")
+                              for k, v in row.items())
+            print(f"{n:>5}: {cells}")
+        result["speed"] = sp
+    path = write_results("association", result)
+    print(f"\nwrote {path}")
+
+
+if __name__ == "__main__":
+    main()
