@@ -242,3 +242,14 @@ def test_label_text_is_at_least_1_5_percent_of_frame_height(size):
     assert len(label_rows) >= 0.015 * h
     # white or black text was drawn inside the label
     assert (out[label_rows.min():label_rows.max() + 1] != out[label_rows.min()][0]).any()
+
+
+def test_report_without_input_or_map(tmp_path):
+    """A detections-only run (no input video, no map): pictures and table, no player."""
+    from aerotrack.viz.report import build_report
+
+    run = make_run(tmp_path, with_map=False, n_frames=20)
+    text = build_report(run).read_text()
+    assert "<video" not in text and 'id="scrubdata"' not in text
+    assert "Tracks on frame 1" in text and text.count('src="data:image/png;base64,') == 3
+    assert 'id="tracks"' in text and text.count("<tr><td data-v=") == 3
