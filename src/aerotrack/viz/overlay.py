@@ -173,7 +173,8 @@ class OverlayPainter:
                 _dashed_circle(img, cx, cy, radius, colour, max(1, lw // 2 + 1))
                 _label(img, text, x, y, y + bh, colour, pscale, thick, hollow=True)
             else:
-                self._draw_offscreen(img, cx, cy, text, colour, pscale, thick, lw)
+                self._draw_offscreen(img, cx, cy, text, colour, pscale, thick, lw,
+                                     keep_out=self._hud_box(frame, rows, scale, thick) if self.style.hud else None)
         if self.style.hud:
             self._draw_hud(img, frame, rows, scale, thick)
         return img
@@ -200,10 +201,16 @@ class OverlayPainter:
             elif i % 2 == 0:
                 cv2.circle(img, _pt(*pts[i]), lw, colour, -1, cv2.LINE_AA)
 
-    def _draw_offscreen(self, img, cx, cy, text, colour, scale, thick, lw) -> None:
+    def _draw_offscreen(self, img, cx, cy, text, colour, scale, thick, lw, keep_out=None) -> None:
         h, w = img.shape[:2]
         m = int(0.04 * h)
         ex, ey = min(max(cx, m), w - 1 - m), min(max(cy, m), h - 1 - m)
+        if keep_out is not None and ex < keep_out[0] + m and ey < keep_out[1] + m:
+            # below or beside the HUD, on the same border
+            if cy < 0:
+                ex = keep_out[0] + m
+            else:
+                ey = keep_out[1] + m
         d = np.array([cx - ex, cy - ey])
         n = np.hypot(*d)
         if n < 1e-6 or not np.isfinite(n):
@@ -215,9 +222,18 @@ class OverlayPainter:
         _label(img, text, tail[0] - m * 0.5, tail[1] - m * 0.3, tail[1] + m * 0.3, colour, scale, thick,
                hollow=True)
 
-    def _draw_hud(self, img, frame, rows, scale, thick) -> None:
+    def _hud_text(self, frame, rows) -> str:
         n_obs = sum(r.observed for r in rows)
-        text = f"frame {frame}  t={(frame - 1) / self.fps:.2f}s  in view {n_obs}  predicted {len(rows) - n_obs}"
+        return f"frame {frame}  t={(frame - 1) / self.fps:.2f}s  in view {n_obs}  predicted {len(rows) - n_obs}"
+
+    def _hud_box(self, frame, rows, scale, thick) -> tuple[int, int]:
+        """(right, bottom) pixel of the HUD panel."""
+        (tw, th), base = cv2.getTextSize(self._hud_text(frame, rows), FONT, scale * 0.9, thick)
+        pad = int(th * 0.4)
+        return pad + tw + 2 * pad, pad + th + base + 2 * pad
+
+    def _draw_hud(self, img, frame, rows, scale, thick) -> None:
+        text = self._hud_text(frame, rows)
         s = scale * 0.9
         (tw, th), base = cv2.getTextSize(text, FONT, s, thick)
         pad = int(th * 0.4)
