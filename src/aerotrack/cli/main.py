@@ -27,6 +27,7 @@ COMMANDS = [
     ("demo_cmd", "demo_command"),
     ("render_cmd", "render_command"),
     ("report_cmd", "report_command"),
+    ("batch_cmd", "batch_command"),
 ]
 
 log = logging.getLogger("aerotrack")

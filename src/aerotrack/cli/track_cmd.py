@@ -169,10 +169,16 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Use every N-th frame.")
 @click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in --out.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Split the video into overlapping segments processed by N local worker "
+                   "processes (Dask; pip install aerotrack[dask]). Default: one process.")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Run the segments on an existing Dask cluster (tcp://host:8786).")
 @click.pass_context
 def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_path, gsd, fps,
                   seed, config_path, overrides, telemetry_path, intrinsics_path, roi_paths,
-                  ignore_paths, min_speed, out_crs, frame_range, stride, overwrite, resume):
+                  ignore_paths, min_speed, out_crs, frame_range, stride, overwrite, resume,
+                  workers, scheduler):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -223,6 +229,12 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         total = len(range(start, min(stop or total, total) + 1, stride))
     progress, close = make_progress(total, "track", quiet)
     t0 = time.perf_counter()
+    if workers is not None or scheduler is not None:  # segments on Dask (aerotrack.parallel)
+        from functools import partial
+
+        from ..parallel import run_on_dask
+
+        run = partial(run_on_dask, workers=workers, scheduler=scheduler)
     try:
         result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
                      detections=dets, metres_per_unit=None if geomap else gsd, progress=progress,

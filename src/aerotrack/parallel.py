@@ -1,0 +1,888 @@
+"""Segment-parallel processing: a long video split into overlapping segments, run on Dask workers.
+
+Registration, detection and local association only look a bounded time around each frame (the
+background window ``detection.window_s``, the association window ``association.window_s``), so a
+long video can be cut into segments processed independently, provided neighbouring segments overlap
+by at least those windows. Global linking, which looks across occlusions of many seconds, then runs
+once over the tracklets of every segment, and links across segment joins as it links across
+occlusions.
+
+The steps, each a plain function usable without Dask:
+
+1. :func:`plan_segments`: cut the frame range into ``K`` segments; segment ``k`` *owns* the frames
+   between two cuts and *reads* half an overlap more on each side;
+2. :func:`run_segment` (on a worker): :class:`~aerotrack.pipeline.Pipeline` over the frames the
+   segment reads, up to :meth:`~aerotrack.pipeline.Pipeline.finish_local`. Without a map a segment's
+   world is its own first frame's pixels;
+3. :func:`join_segments`: express every segment's world in segment 0's world, keep each frame's
+   registration and detections from the one segment that owns it, and stitch tracklets that cross
+   a cut;
+4. :func:`aerotrack.pipeline.link` over all tracklets.
+
+:func:`run_parallel` does all of it on a ``distributed.Client``; :func:`dask_client` starts a local
+cluster (processes on loopback, one thread each) or connects to an existing scheduler.
+
+Chaining the worlds (no map): for a frame ``f`` read by segments ``k-1`` and ``k``, with ``H_j(f)``
+its frame -> world_j homography, ``H_{0<-k} = H_{0<-k-1} @ H_{k-1}(f) @ inv(H_k(f))``. The estimate
+of one frame carries that frame's registration noise, so ``H_{0<-k}`` is the least-squares
+homography over a grid of points of every overlap frame registered by both segments.
+
+With a map (``geomap`` and ``H_init``), segment 0 runs against the map as the single process does;
+later segments cannot know where their first frame lies on the map until segment 0 has run, so they
+run in their own first frame's pixels (metres per unit taken from segment 0's initialisation) and
+are chained into map pixels as above. Their drift is therefore not corrected against the map
+(``refined`` registrations only occur in segment 0); for long flights over a map the single
+process is more accurate.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import pickle
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config
+from .errors import ConfigError, InputError
+from .pipeline import Pipeline, Result, _group_rows, link
+from .types import Detections, Registration, Track, TrackPoint, apply_homography
+
+log = logging.getLogger(__name__)
+
+#: Environment of worker processes: one OpenMP/BLAS/numba thread each (the parallelism is the
+#: processes; nested thread pools on a 2-core machine only add contention).
+THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "NUMEXPR_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}
+
+GOOD_STATUS = ("ok", "refined")
+
+
+@dataclass(frozen=True)
+class ParallelConfig:
+    """How a video is cut into segments.
+
+    Attributes
+    ----------
+    segment_s : float
+        Target length of the part of the video each segment owns, in seconds. Shorter segments
+        spread better over many workers but repeat the overlap more often (each segment reads
+        ``overlap_s`` more than it owns).
+    overlap_s : float or None
+        Frames read by both neighbours, in seconds; None uses
+        ``detection.window_s + association.window_s``, so that at the cut (the middle of the overlap)
+        each side has the full centred background window and half an association window of context
+        beyond it. Less than ``detection.window_s`` is refused: frames near the cut would then be
+        detected with a one-sided background and differ from the single process.
+    min_segments : int
+        At least this many segments when the video is long enough (use the number of workers).
+    match_px : float
+        Stitching: two tracklets of neighbouring segments are the same target in an overlap frame
+        when their box centres are within this many frame pixels (or 30% of the box's smaller
+        side, if larger). Detections in the middle of the overlap are the same in both segments,
+        so this only absorbs small differences.
+    min_common : int
+        Stitching: frames of the overlap in which two tracklets must coincide to be joined.
+    """
+
+    segment_s: float = 60.0
+    overlap_s: float | None = None
+    min_segments: int = 1
+    match_px: float = 3.0
+    min_common: int = 2
+
+    def overlap(self, config: Config) -> float:
+        """The overlap in seconds, resolved against the stage windows of ``config``."""
+        need = config.detection.window_s
+        if self.overlap_s is None:
+            return config.detection.window_s + config.association.window_s
+        if self.overlap_s < need:
+            raise ConfigError(f"overlap_s {self.overlap_s}: must be at least detection.window_s "
+                              f"({need} s)")
+        return float(self.overlap_s)
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One segment of a video (1-based frame numbers, inclusive ranges on the stride grid).
+
+    Attributes
+    ----------
+    index : int
+        0-based position in the plan.
+    start, stop : int
+        First and last frame the segment reads.
+    own_start, own_stop : int
+        First and last frame whose results come from this segment (between two cuts).
+    """
+
+    index: int
+    start: int
+    stop: int
+    own_start: int
+    own_stop: int
+
+    def owns(self, frame: int) -> bool:
+        return self.own_start <= frame <= self.own_stop
+
+
+def plan_segments(first: int, last: int, *, fps: float, stride: int = 1, segment_s: float = 60.0,
+                  overlap_s: float = 4.5, min_segments: int = 1) -> list[Segment]:
+    """Cut frames ``first, first+stride, ..., <= last`` into overlapping segments.
+
+    Cuts are evenly spaced; segment ``k`` owns the frames between its two cuts and reads
+    ``ceil(overlap/2)`` more grid frames on each side, so neighbours share at least ``overlap_s``
+    and the cut is the middle of their overlap. A segment owns more than one overlap, so every frame
+    is read by at most two segments; a video too short for two such segments is one segment.
+
+    Returns
+    -------
+    list of Segment
+        Ordered; the owned ranges partition the grid frames.
+    """
+    if stride < 1:
+        raise InputError(f"stride {stride}: must be at least 1")
+    if segment_s <= 0:
+        raise ConfigError(f"segment_s {segment_s}: must be positive")
+    n = (last - first) // stride + 1 if last >= first else 0
+    if n <= 0:
+        return []
+    half = max(1, math.ceil(overlap_s * fps / stride / 2))
+    per = max(1, round(segment_s * fps / stride))
+    k_max = max(1, n // (2 * half + 1))
+    k = min(max(min_segments, math.ceil(n / per)), k_max)
+    cuts = [round(j * n / k) for j in range(k + 1)]
+    out = []
+    for j in range(k):
+        own0, own1 = cuts[j], cuts[j + 1] - 1
+        r0, r1 = max(0, own0 - half), min(n - 1, own1 + half)
+        out.append(Segment(j, first + r0 * stride, first + r1 * stride,
+                           first + own0 * stride, first + own1 * stride))
+    return out
+
+
+# -- the worker -----------------------------------------------------------------------------------
+@dataclass
+class SegmentTask:
+    """Everything a worker needs to run one segment (picklable; the source is reopened there).
+
+    ``input_path`` None means association alone on ``detections``. ``map_path``/``H_init`` only for
+    a segment that starts at the video's first frame (see the module notes on maps).
+    """
+
+    segment: Segment
+    input_path: str | None
+    fps: float
+    config: Config
+    stride: int = 1
+    seed: int = 0
+    metres_per_unit: float | None = None
+    map_path: str | None = None
+    H_init: np.ndarray | None = None
+    detections: np.ndarray | None = None  # (N, 10) MOT rows of the frames the segment reads
+    undistort: Callable | None = None
+    regions: list | None = None
+
+
+@dataclass
+class SegmentResult:
+    """What :func:`run_segment` returns, in the segment's own world coordinates."""
+
+    segment: Segment
+    registrations: dict[int, Registration]
+    detections: list[Detections]
+    tracklets: list[Track]
+    frame_size: tuple[int, int] | None
+    timings: dict[str, float] = field(default_factory=dict)
+    pid: int = 0
+
+
+def limit_threads() -> None:
+    """One OpenCV thread in this process (the environment variables cover OpenMP/BLAS when set
+    before the libraries load; OpenCV's pool can still be changed now)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def run_segment(task: SegmentTask) -> SegmentResult:
+    """Registration, detection and local association over one segment (runs on a worker).
+
+    Without a map the segment's world is the pixels of its first frame (``task.segment.start``).
+    """
+    limit_threads()
+    seg = task.segment
+    geomap = None
+    if task.map_path is not None:
+        from .geo import GeoMap
+
+        geomap = GeoMap(task.map_path)
+    per_frame = _group_rows(task.detections) if task.detections is not None else None
+    pipe = Pipeline(task.config, task.fps, geomap=geomap,
+                    H_init=task.H_init if geomap is not None else None, seed=task.seed,
+                    detections=per_frame,
+                    metres_per_unit=None if geomap is not None else task.metres_per_unit,
+                    undistort=task.undistort, regions=task.regions)
+    if task.input_path is None:
+        for index in range(seg.start, seg.stop + 1, task.stride):
+            pipe.step_detections_only(index)
+    else:
+        from .io import open_source
+
+        source = open_source(task.input_path, task.fps)
+        for frame in source.frames(start=seg.start, stop=seg.stop, stride=task.stride):
+            pipe.step(frame)
+    tracklets = pipe.finish_local()
+    return SegmentResult(segment=seg, registrations=dict(pipe.registrations),
+                         detections=list(pipe.detections), tracklets=list(tracklets),
+                         frame_size=pipe.frame_size, timings=dict(pipe.timings), pid=os.getpid())
+
+
+# -- the join -------------------------------------------------------------------------------------
+@dataclass
+class JoinReport:
+    """How well the segments fitted together (for the summary and the tests).
+
+    Attributes
+    ----------
+    world_rms : list of float
+        Per join, RMS distance (world units) between where the two segments put the overlap
+        frames' grid points after chaining: the registration disagreement at the join.
+    stitched, cut : list of int
+        Per join, tracklets stitched across the cut, and tracklets that crossed it unmatched (cut
+        in two, left to global linking).
+    """
+
+    world_rms: list[float] = field(default_factory=list)
+    stitched: list[int] = field(default_factory=list)
+    cut: list[int] = field(default_factory=list)
+
+
+def _grid(frame_size: tuple[int, int] | None, n: int = 4) -> np.ndarray:
+    w, h = frame_size or (2.0, 2.0)
+    xs, ys = np.meshgrid(np.linspace(0, w, n), np.linspace(0, h, n))
+    return np.column_stack([xs.ravel(), ys.ravel()])
+
+
+def chain_worlds(prev: dict[int, Registration], cur: dict[int, Registration], frames: Sequence[int],
+                 frame_size: tuple[int, int] | None) -> tuple[np.ndarray, float]:
+    """Homography world_cur -> world_prev from frames registered in both segments.
+
+    Parameters
+    ----------
+    prev : dict of frame -> Registration
+        The earlier segment's registrations, already in the target world (world 0).
+    cur : dict of frame -> Registration
+        The later segment's registrations, in its own world.
+    frames : sequence of int
+        Overlap frames.
+
+    Returns
+    -------
+    H : ndarray (3, 3)
+        Least-squares fit of ``H_prev(f) @ inv(H_cur(f))`` over a grid of frame points of every
+        frame ``f`` registered well (``ok``/``refined``) by both; the identity when none is.
+    rms : float
+        RMS residual of the fit in target world units (NaN without frames).
+    """
+    import cv2
+
+    grid = _grid(frame_size)
+    src, dst = [], []
+    for f in frames:
+        a, b = prev.get(f), cur.get(f)
+        if a is None or b is None or a.status not in GOOD_STATUS or b.status not in GOOD_STATUS:
+            continue
+        src.append(apply_homography(b.H, grid))
+        dst.append(apply_homography(a.H, grid))
+    if not src:
+        return np.eye(3), float("nan")
+    src_a, dst_a = np.vstack(src), np.vstack(dst)
+    H, _ = cv2.findHomography(src_a, dst_a, 0)
+    if H is None:
+        return np.eye(3), float("nan")
+    H = H / H[2, 2]
+    rms = float(np.sqrt(np.mean(np.sum((apply_homography(H, src_a) - dst_a) ** 2, axis=1))))
+    return H, rms
+
+
+def _size_to(A: np.ndarray, world: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """(N, 2) world sizes at (N, 2) world points, carried through homography ``A``."""
+    c = apply_homography(A, world)
+    corner = apply_homography(A, world + size / 2)
+    return 2 * np.abs(corner - c)
+
+
+def _move_detections(d: Detections, A: np.ndarray, geomap) -> Detections:
+    if not len(d) or np.allclose(A, np.eye(3)):
+        return d
+    world = np.asarray(d.world, dtype=np.float64)
+    size = None if d.size_world is None else _size_to(A, world, np.asarray(d.size_world, float))
+    new_world = apply_homography(A, world)
+    mapxy = lonlat = None
+    if geomap is not None:
+        mapxy = geomap.pixel_to_crs(new_world)
+        lonlat = geomap.crs_to_lonlat(mapxy)
+    return replace(d, world=new_world, size_world=size, mapxy=mapxy, lonlat=lonlat)
+
+
+def _move_point(p: TrackPoint, A: np.ndarray) -> TrackPoint:
+    w = np.asarray(p.world, dtype=np.float64)[None]
+    size = None
+    if p.size_world is not None:
+        size = _size_to(A, w, np.asarray(p.size_world, dtype=np.float64)[None])[0]
+    return replace(p, world=apply_homography(A, w)[0], size_world=size)
+
+
+def _centres(t: Track, lo: int, hi: int) -> dict[int, np.ndarray]:
+    """Frame -> (x, y, min side) of the track's boxes in frames [lo, hi] (frame pixels)."""
+    out = {}
+    for p in t.points:
+        if lo <= p.frame <= hi and p.box is not None:
+            b = np.asarray(p.box, dtype=np.float64)
+            if np.all(np.isfinite(b)):
+                out[p.frame] = np.array([b[0] + b[2] / 2, b[1] + b[3] / 2, min(b[2], b[3])])
+    return out
+
+
+def stitch_pairs(left: Sequence[Track], right: Sequence[Track], lo: int, hi: int, *,
+                 match_px: float = 3.0, min_common: int = 2) -> list[tuple[int, int]]:
+    """Pairs (i, j) of ``left[i]`` and ``right[j]`` that are one target in the overlap [lo, hi].
+
+    Two tracklets coincide in a frame when their boxes' centres (frame pixels, so independent of
+    either segment's world) are within ``max(match_px, 0.3 * smaller box side)``; the score of a
+    pair is the number of such frames, and pairs are chosen by maximum total score (Hungarian)
+    among those with at least ``min_common`` frames.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    lc = [_centres(t, lo, hi) for t in left]
+    rc = [_centres(t, lo, hi) for t in right]
+    li = [i for i, c in enumerate(lc) if c]
+    ri = [j for j, c in enumerate(rc) if c]
+    if not li or not ri:
+        return []
+    score = np.zeros((len(li), len(ri)))
+    for a, i in enumerate(li):
+        for b, j in enumerate(ri):
+            common = lc[i].keys() & rc[j].keys()
+            n = 0
+            for f in common:
+                p, q = lc[i][f], rc[j][f]
+                if np.hypot(*(p[:2] - q[:2])) <= max(match_px, 0.3 * min(p[2], q[2])):
+                    n += 1
+            score[a, b] = n
+    rows, cols = linear_sum_assignment(-score)
+    return [(li[r], ri[c]) for r, c in zip(rows, cols) if score[r, c] >= min_common]
+
+
+def join_segments(results: Sequence[SegmentResult], *, geomap=None,
+                  match_px: float = 3.0, min_common: int = 2
+                  ) -> tuple[dict[int, Registration], list[Detections], list[Track], JoinReport]:
+    """Join segment results into one world (segment 0's) without duplicates.
+
+    Returns
+    -------
+    registrations : dict of frame -> Registration
+        Frame pixels -> world 0, each frame from the segment that owns it.
+    detections : list of Detections
+        In frame order, world coordinates in world 0 (and map CRS / lon-lat with a map).
+    tracklets : list of Track
+        Points of the owned frames only; tracklets crossing a cut are stitched into one when their
+        points coincide in the overlap (:func:`stitch_pairs`), otherwise cut there.
+    report : JoinReport
+    """
+    results = sorted(results, key=lambda r: r.segment.index)
+    report = JoinReport()
+    frame_size = next((r.frame_size for r in results if r.frame_size), None)
+    # 1. every segment's world in world 0
+    moved_regs: list[dict[int, Registration]] = []
+    moved_tracks: list[list[Track]] = []
+    worlds: list[np.ndarray] = []  # world_k -> world 0
+    for k, r in enumerate(results):
+        if k == 0:
+            A = np.eye(3)
+        else:
+            prev = results[k - 1].segment
+            overlap = [f for f in r.registrations if prev.start <= f <= prev.stop]
+            A, rms = chain_worlds(moved_regs[k - 1], r.registrations, sorted(overlap), frame_size)
+            report.world_rms.append(rms)
+        regs = {f: (reg if k == 0 else replace(reg, H=_normalise(A @ reg.H)))
+                for f, reg in r.registrations.items()}
+        moved_regs.append(regs)
+        moved_tracks.append(
+            r.tracklets if k == 0 else
+            [Track(t.id, [_move_point(p, A) for p in t.points]) for t in r.tracklets])
+        worlds.append(A)
+    registrations: dict[int, Registration] = {}
+    detections: list[Detections] = []
+    for k, r in enumerate(results):
+        seg = r.segment
+        registrations.update({f: reg for f, reg in moved_regs[k].items() if seg.owns(f)})
+        detections.extend(_move_detections(d, worlds[k], geomap if k else None)
+                          for d in r.detections if seg.owns(d.frame))
+    detections.sort(key=lambda d: d.frame)
+    # 2. stitch across each cut
+    succ: dict[tuple[int, int], tuple[int, int]] = {}
+    for k in range(len(results) - 1):
+        lo, hi = results[k + 1].segment.start, results[k].segment.stop
+        pairs = stitch_pairs(moved_tracks[k], moved_tracks[k + 1], lo, hi,
+                             match_px=match_px, min_common=min_common)
+        for i, j in pairs:
+            succ[(k, i)] = (k + 1, j)
+        cut = results[k].segment.own_stop
+        crossing = sum(1 for t in moved_tracks[k] if t.points and t.first <= cut < t.last)
+        report.stitched.append(len(pairs))
+        report.cut.append(max(0, crossing - len(pairs)))
+    has_pred = set(succ.values())
+    tracklets: list[Track] = []
+    for k, tracks in enumerate(moved_tracks):
+        for i in range(len(tracks)):
+            if (k, i) in has_pred:
+                continue
+            points: list[TrackPoint] = []
+            node: tuple[int, int] | None = (k, i)
+            while node is not None:
+                kk, ii = node
+                seg = results[kk].segment
+                points.extend(p for p in moved_tracks[kk][ii].points if seg.owns(p.frame))
+                node = succ.get(node)
+            if points:
+                tracklets.append(Track(len(tracklets) + 1, points))
+    return registrations, detections, tracklets, report
+
+
+def _normalise(H: np.ndarray) -> np.ndarray:
+    return H / H[2, 2]
+
+
+# -- the engine -----------------------------------------------------------------------------------
+def _distributed():
+    try:
+        import distributed
+    except ImportError:
+        raise InputError("--workers/--scheduler need Dask: pip install aerotrack[dask]") from None
+    return distributed
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator:
+    """A ``distributed.Client``: on an existing scheduler, or on a new local cluster.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Start a ``LocalCluster`` of this many worker processes on loopback, one thread each, with
+        OpenMP/BLAS/numba limited to one thread (:data:`THREAD_ENV`); OpenCV is limited to one
+        thread by each task.
+    scheduler : str, optional
+        Address of a running scheduler (``tcp://host:8786``); its workers must see the input files
+        under the same paths.
+    """
+    distributed = _distributed()
+    if scheduler is not None and workers is not None:
+        raise InputError("--workers and --scheduler cannot be used together")
+    if scheduler is not None:
+        try:
+            client = distributed.Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    if workers is None or workers < 1:
+        raise InputError(f"--workers {workers}: must be at least 1")
+    cluster = distributed.LocalCluster(
+        n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
+        dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR)
+    try:
+        client = distributed.Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+def n_workers(client) -> int:
+    """Number of workers the client's scheduler has now (at least 1)."""
+    return max(1, len(client.scheduler_info().get("workers", {})))
+
+
+def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Segment],
+               stride: int = 1, seed: int = 0, metres_per_unit: float | None = None,
+               map_path=None, H_init: np.ndarray | None = None,
+               detections: np.ndarray | None = None, undistort: Callable | None = None,
+               regions: Sequence | None = None) -> list[SegmentTask]:
+    """One :class:`SegmentTask` per segment (external detections cut to each segment's frames).
+
+    Regions in frame pixels go to every segment; regions in world coordinates only to segment 0
+    (the others' worlds are not world 0 yet: :func:`assemble` applies them after the join).
+    """
+    regions = list(regions or [])
+    mpu = metres_per_unit
+    if map_path is not None:
+        from .geo import GeoMap
+
+        # later segments run in their first frame's pixels: scale of frame 1 on the map
+        lin = np.asarray(H_init, dtype=np.float64)
+        mpu = GeoMap(map_path).metres_per_pixel * math.sqrt(abs(np.linalg.det(lin[:2, :2]
+                                                                              / lin[2, 2])))
+    tasks = []
+    for seg in segments:
+        rows = None
+        if detections is not None:
+            f = detections[:, 0]
+            rows = detections[(f >= seg.start) & (f <= seg.stop)]
+        with_map = map_path is not None and seg.index == 0
+        tasks.append(SegmentTask(
+            segment=seg, input_path=None if input_path is None else str(input_path), fps=fps,
+            config=config, stride=stride, seed=seed, metres_per_unit=mpu,
+            map_path=str(map_path) if with_map else None, H_init=H_init if with_map else None,
+            detections=rows, undistort=undistort,
+            regions=[g for g in regions if seg.index == 0 or g.space == "frame"]))
+    return tasks
+
+
+def submit_tasks(client, tasks: Sequence[SegmentTask], *, retries: int = 2, name: str = "segment"):
+    """Submit segment tasks; a task whose worker died is re-run on another worker (the scheduler
+    re-runs tasks of lost workers up to ``distributed.scheduler.allowed-failures`` times) and one that
+    raised is retried ``retries`` times."""
+    import uuid
+
+    tag = uuid.uuid4().hex[:8]
+    return [client.submit(run_segment, t, retries=retries, pure=False,
+                          key=f"aerotrack-{name}-{t.segment.index}-{tag}") for t in tasks]
+
+
+def _segment_file(folder: Path, seg: Segment, stride: int) -> Path:
+    return folder / f"segment-{seg.start}-{seg.stop}-{seg.own_start}-{seg.own_stop}-{stride}.pkl"
+
+
+def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
+                    checkpoint_dir: Path | None = None, resume: bool = False,
+                    progress: Callable[[int], None] | None = None) -> list[SegmentResult]:
+    """Run tasks on the cluster and collect their results in segment order.
+
+    With ``checkpoint_dir`` each finished segment is saved there (atomically) as it arrives, and
+    with ``resume`` segments already saved are not run again.
+    """
+    from .io.output import atomic_write_bytes
+
+    done: dict[int, SegmentResult] = {}
+    folder = Path(checkpoint_dir) / "segments" if checkpoint_dir is not None else None
+    todo = []
+    for t in tasks:
+        path = _segment_file(folder, t.segment, t.stride) if folder is not None else None
+        if resume and path is not None and path.exists():
+            with open(path, "rb") as fh:
+                done[t.segment.index] = pickle.load(fh)
+        else:
+            todo.append(t)
+    owned = {t.segment.index: (t.segment.own_stop - t.segment.own_start) // t.stride + 1
+             for t in tasks}
+    count = sum(owned[k] for k in done)
+    if progress and count:
+        progress(count)
+    if todo:
+        distributed = _distributed()
+        futures = submit_tasks(client, todo, retries=retries)
+        for fut in distributed.as_completed(futures):
+            res: SegmentResult = fut.result()
+            done[res.segment.index] = res
+            if folder is not None:
+                folder.mkdir(parents=True, exist_ok=True)
+                atomic_write_bytes(_segment_file(folder, res.segment, todo[0].stride),
+                                   pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+            count += owned[res.segment.index]
+            if progress:
+                progress(count)
+    return [done[t.segment.index] for t in tasks]
+
+
+def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, geomap=None,
+             metres_per_unit: float | None = None, stride: int = 1,
+             parallel: ParallelConfig | None = None, regions: Sequence | None = None,
+             min_speed_mps: float | None = None) -> tuple[Result, JoinReport]:
+    """Join segment results and link all tracklets once: the :class:`~aerotrack.pipeline.Result`
+    a single process would return (``timings`` sum the segments' stage times, plus ``join``), and
+    the join's :class:`JoinReport`."""
+    import time
+
+    parallel = parallel or ParallelConfig()
+    t0 = time.perf_counter()
+    regs, dets, tracklets, report = join_segments(results, geomap=geomap,
+                                                  match_px=parallel.match_px,
+                                                  min_common=parallel.min_common)
+    world_regions = [g for g in regions or [] if g.space != "frame"]
+    if world_regions and len(results) > 1:
+        dets, tracklets = _apply_world_regions(dets, tracklets, world_regions,
+                                               results[0].segment.own_stop)
+    t1 = time.perf_counter()
+    frame_size = next((r.frame_size for r in results if r.frame_size), None)
+    mpu = geomap.metres_per_pixel if geomap is not None else metres_per_unit
+    tracks = link(tracklets, config, fps, metres_per_unit=mpu, frame_size=frame_size,
+                  registrations=regs)
+    if min_speed_mps:
+        from .geo.roi import filter_min_speed
+        from .pipeline import _renumber
+
+        tracks = _renumber(filter_min_speed(tracks, min_speed_mps, fps, mpu))
+    t2 = time.perf_counter()
+    timings: dict[str, float] = {}
+    for r in results:
+        for k, v in r.timings.items():
+            if k != "linking":
+                timings[k] = timings.get(k, 0.0) + v
+    timings["join"] = t1 - t0
+    timings["linking"] = t2 - t1
+    segs = [r.segment for r in results]
+    frames = sum((s.own_stop - s.own_start) // stride + 1 for s in segs)
+    log.info("joined %d segments: world rms %s, stitched %s, cut %s", len(segs),
+             [round(x, 3) for x in report.world_rms], report.stitched, report.cut)
+    result = Result(tracks=tracks, registrations=regs, detections=dets, fps=fps,
+                    frame_size=frame_size, metres_per_unit=mpu, timings=timings, frames=frames,
+                    first_frame=segs[0].own_start if segs else 1,
+                    last_frame=segs[-1].own_stop if segs else 0)
+    return result, report
+
+
+def _apply_world_regions(dets: list[Detections], tracklets: list[Track], regions: Sequence,
+                         after: int) -> tuple[list[Detections], list[Track]]:
+    """World-coordinate regions on the frames after ``after`` (segments > 0), once in world 0.
+
+    Unlike the single process, which drops the detections before local association, this drops
+    them and the observed tracklet points at them afterwards; a tracklet is otherwise unchanged.
+    """
+    out = []
+    for d in dets:
+        if d.frame > after and len(d):
+            keep = np.ones(len(d), bool)
+            for g in regions:
+                keep &= g.keep_detections(d.centers, np.asarray(d.world, float))
+            d = d.subset(keep)
+        out.append(d)
+    kept = []
+    for t in tracklets:
+        pts = [p for p in t.points
+               if p.frame <= after or p.kind != "observed"
+               or all(g.keep_detections(np.zeros((1, 2)), np.asarray(p.world, float)[None])[0]
+                      for g in regions)]
+        if pts:
+            kept.append(Track(t.id, pts))
+    return out, kept
+
+
+def frame_range(source, detections: np.ndarray | None, start: int, stop: int | None,
+                stride: int) -> tuple[int, int]:
+    """First and last frame of a run (the last frame on the stride grid)."""
+    if source is not None:
+        count = source.count
+        if count is None:
+            raise InputError(f"{source.path}: frame count unknown; segments need it "
+                             "(run without --workers)")
+        last = count if stop is None else min(stop, count)
+    else:
+        last = int(detections[:, 0].max()) if detections is not None and len(detections) else 0
+        last = last if stop is None else min(stop, last)
+    if last < start:
+        return start, start - 1
+    return start, start + ((last - start) // stride) * stride
+
+
+def run_parallel(source=None, *, client, config: Config | None = None, fps: float | None = None,
+                 geomap=None, H_init: np.ndarray | None = None, seed: int = 0,
+                 detections: np.ndarray | None = None, metres_per_unit: float | None = None,
+                 progress: Callable[[int], None] | None = None, start: int = 1,
+                 stop: int | None = None, stride: int = 1, checkpoint_dir: Path | None = None,
+                 resume: bool = False, parallel: ParallelConfig | None = None,
+                 retries: int = 2, with_report: bool = False,
+                 undistort: Callable | None = None, regions: list | None = None,
+                 min_speed_mps: float | None = None, checkpoint_every: int | None = None):
+    """:func:`aerotrack.pipeline.run` with segments on a Dask cluster.
+
+    Same parameters and result as :func:`~aerotrack.pipeline.run`, plus ``client`` (a
+    ``distributed.Client``) and ``parallel``. The input is reopened by path on the workers, so
+    they must see it under the same path. ``parallel.min_segments`` defaults to the number of
+    workers. With ``with_report`` returns ``(Result, JoinReport)``. Checkpoints are whole
+    segments (``checkpoint_every`` is accepted for the same signature and ignored).
+    """
+    config = config or Config()
+    if source is None and detections is None:
+        raise InputError("give an INPUT video/folder or --detections")
+    if fps is None:
+        fps = source.fps if source is not None else 30.0
+    parallel = parallel or ParallelConfig(min_segments=n_workers(client))
+    first, last = frame_range(source, detections, start, stop, stride)
+    segments = plan_segments(first, last, fps=fps, stride=stride, segment_s=parallel.segment_s,
+                             overlap_s=parallel.overlap(config),
+                             min_segments=parallel.min_segments)
+    if not segments:
+        raise InputError(f"no frames between {start} and {stop}")
+    log.info("%d segments of about %d frames on %d workers", len(segments),
+             (segments[0].own_stop - segments[0].own_start) // stride + 1, n_workers(client))
+    tasks = make_tasks(source.path if source is not None else None, config=config, fps=fps,
+                       segments=segments, stride=stride, seed=seed,
+                       metres_per_unit=metres_per_unit,
+                       map_path=geomap.path if geomap is not None else None, H_init=H_init,
+                       detections=detections, undistort=undistort, regions=regions)
+    results = gather_segments(client, tasks, retries=retries, checkpoint_dir=checkpoint_dir,
+                              resume=resume, progress=progress)
+    result, report = assemble(results, config=config, fps=fps, geomap=geomap,
+                              metres_per_unit=metres_per_unit, stride=stride, parallel=parallel,
+                              regions=regions, min_speed_mps=min_speed_mps)
+    return (result, report) if with_report else result
+
+
+def run_on_dask(source=None, *, workers: int | None = None, scheduler: str | None = None,
+                **kwargs) -> Result:
+    """:func:`run_parallel` on a local cluster of ``workers`` processes or on ``scheduler``."""
+    with dask_client(workers=workers, scheduler=scheduler) as client:
+        return run_parallel(source, client=client, **kwargs)
+
+
+# -- many videos ----------------------------------------------------------------------------------
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm", ".ts",
+                  ".mts", ".m2ts", ".flv", ".3gp", ".ogv"}
+
+
+@dataclass(frozen=True)
+class BatchItem:
+    """One input of a batch: a video file or a folder of images, and its output folder.
+
+    ``done`` when the output folder already holds a ``summary.json`` (written last by a run).
+    """
+
+    name: str
+    input: Path
+    out: Path
+    done: bool
+
+
+def plan_batch(input_dir, out_dir) -> list[BatchItem]:
+    """Every video file and every image-folder sub-folder of ``input_dir``, sorted by name.
+
+    Output folders are ``out_dir/<stem>``; when two inputs share a stem (``a.mp4``, ``a/``) both use
+    their full name instead.
+    """
+    from .io.frames import IMAGE_SUFFIXES
+
+    input_dir, out_dir = Path(input_dir), Path(out_dir)
+    if not input_dir.is_dir():
+        raise InputError(f"{input_dir}: not a folder")
+    found = []
+    for p in sorted(input_dir.iterdir(), key=lambda p: p.name):
+        if p.name.startswith("."):
+            continue
+        if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES and p.stat().st_size > 0:
+            found.append(p)
+        elif p.is_dir() and any(q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES
+                                for q in p.iterdir()):
+            found.append(p)
+    stems = [p.stem if p.is_file() else p.name for p in found]
+    items = []
+    for p, stem in zip(found, stems):
+        name = p.name if stems.count(stem) > 1 else stem
+        out = out_dir / name
+        items.append(BatchItem(name, p, out, (out / "summary.json").is_file()))
+    return items
+
+
+def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: float | None = None,
+              seed: int = 0, metres_per_unit: float | None = None, stride: int = 1, client=None,
+              parallel: ParallelConfig | None = None,
+              on_done: Callable[[BatchItem, dict | None, BaseException | None], None] | None = None
+              ) -> dict[str, dict | BaseException]:
+    """Track every unfinished item into its output folder.
+
+    Without ``client`` the videos run one after the other in this process. With a
+    ``distributed.Client`` the segments of every video are submitted at once (so workers stay busy
+    across videos) and each video is joined, linked and written here as its segments arrive.
+
+    Returns
+    -------
+    dict
+        Name -> the run's summary (as written to ``summary.json``), or the exception that stopped
+        that item; finished items are not run. ``on_done(item, summary, error)`` is called after
+        each item.
+    """
+    import time
+
+    from .io import open_source
+    from .io.output import OutputDir
+    from .outputs import write_outputs
+    from .pipeline import run
+
+    config = config or Config()
+    todo = [it for it in items if not it.done]
+    sources: dict[str, object] = {}
+    futures: dict[str, list] = {}
+    out: dict[str, dict | BaseException] = {}
+
+    def fail(it: BatchItem, exc: BaseException) -> None:
+        log.warning("%s: %s", it.input, exc, exc_info=not isinstance(exc, InputError))
+        out[it.name] = exc
+        if on_done:
+            on_done(it, None, exc)
+
+    for it in todo:
+        try:
+            sources[it.name] = open_source(it.input, fps)
+        except Exception as exc:  # one bad input must not stop the batch
+            fail(it, exc)
+    if client is not None:
+        per = parallel or ParallelConfig(min_segments=1)
+        for it in todo:
+            src = sources.get(it.name)
+            if src is None:
+                continue
+            try:
+                first, last = frame_range(src, None, 1, None, stride)
+                segs = plan_segments(first, last, fps=src.fps, stride=stride,
+                                     segment_s=per.segment_s, overlap_s=per.overlap(config),
+                                     min_segments=per.min_segments)
+                tasks = make_tasks(src.path, config=config, fps=src.fps, segments=segs,
+                                   stride=stride, seed=seed, metres_per_unit=metres_per_unit)
+                futures[it.name] = (segs, submit_tasks(client, tasks, name=it.name))
+            except Exception as exc:
+                fail(it, exc)
+    for it in todo:
+        src = sources.get(it.name)
+        if src is None or it.name in out:
+            continue
+        t0 = time.perf_counter()
+        try:
+            folder = OutputDir(it.out, overwrite=True)
+            if client is None:
+                result = run(src, config=config, fps=src.fps, seed=seed,
+                             metres_per_unit=metres_per_unit, stride=stride,
+                             checkpoint_dir=folder.partial)
+            else:
+                results = client.gather(futures[it.name][1])
+                result, _ = assemble(results, config=config, fps=src.fps,
+                                     metres_per_unit=metres_per_unit, stride=stride,
+                                     parallel=parallel)
+            info = {"input": str(it.input), "seed": seed,
+                    "wall_time_s": round(time.perf_counter() - t0, 3)}
+            summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
+            folder.finish()
+        except Exception as exc:
+            fail(it, exc)
+            continue
+        out[it.name] = summary
+        if on_done:
+            on_done(it, summary, None)
+    return out
