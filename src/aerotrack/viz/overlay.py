@@ -143,9 +143,10 @@ class OverlayPainter:
         return 1.0 / math.sqrt(a) if a > 0 and math.isfinite(a) else 1.0
 
     # -- drawing ------------------------------------------------------------------------------------
-    def draw(self, image: np.ndarray, frame: int) -> np.ndarray:
-        """Return a copy of ``image`` (frame ``frame``'s BGR pixels) with the overlay drawn."""
-        img = image.copy()
+    def draw(self, image: np.ndarray, frame: int, *, copy: bool = True) -> np.ndarray:
+        """Return ``image`` (frame ``frame``'s BGR pixels) with the overlay drawn: on a copy, or on
+        ``image`` itself with ``copy=False``."""
+        img = image.copy() if copy else image
         h, w = img.shape[:2]
         lw = max(1, int(round(self.style.line_width * h)))
         text_px = max(8.0, self.style.text_height * h)
@@ -191,15 +192,16 @@ class OverlayPainter:
             return
         colour = id_bgr(tid)
         obs = tv.observed[sel]
-        for i in range(1, len(pts)):
-            if not (ok[i] and ok[i - 1]) or not np.all(np.isfinite(pts[[i - 1, i]])):
-                continue
-            if np.abs(pts[[i - 1, i]]).max() > 1e5:
-                continue
-            if obs[i] and obs[i - 1]:
-                cv2.line(img, _pt(*pts[i - 1]), _pt(*pts[i]), colour, lw, cv2.LINE_AA)
-            elif i % 2 == 0:
-                cv2.circle(img, _pt(*pts[i]), lw, colour, -1, cv2.LINE_AA)
+        good = ok & np.all(np.isfinite(pts), axis=1) & (np.abs(pts).max(axis=1, initial=0) < 1e5)
+        solid = good[1:] & good[:-1] & obs[1:] & obs[:-1]  # segment i-1 -> i drawn solid
+        # runs of consecutive solid segments become one polyline each
+        edges = np.flatnonzero(np.diff(np.r_[0, solid.astype(np.int8), 0]))
+        ipts = np.round(np.nan_to_num(pts)).astype(np.int32)
+        lines = [ipts[a:b + 1] for a, b in zip(edges[::2], edges[1::2])]
+        if lines:
+            cv2.polylines(img, lines, False, colour, lw, cv2.LINE_AA)
+        for i in np.flatnonzero(good & ~obs)[::2]:  # predicted part: dotted
+            cv2.circle(img, (int(ipts[i, 0]), int(ipts[i, 1])), lw, colour, -1, cv2.LINE_AA)
 
     def _draw_offscreen(self, img, cx, cy, text, colour, scale, thick, lw, keep_out=None) -> None:
         h, w = img.shape[:2]
@@ -333,7 +335,7 @@ def render_overlay(input_path: str | Path, results: RunResults | str | Path, out
         out_size = (w, h)
     with VideoEncoder(out_path, out_size, fps or results.fps) as enc:
         for frame in source.frames(start=start, stop=stop):
-            enc.write(painter.draw(frame.image, frame.index))
+            enc.write(painter.draw(frame.image, frame.index, copy=False))
             if progress is not None:
                 progress(enc.frames_written)
     return Path(out_path)
