@@ -46,6 +46,10 @@ class RegistrationConfig:
     min_track_width_px : int
         The downscaled image is never narrower than this (small frames are tracked at a larger
         scale, up to full resolution).
+    polish : bool
+        After the first estimate, warp the previous frame by it and re-track the inliers (sub-pixel
+        residual motion, no zoom or rotation left): removes the bias optical flow has under zoom,
+        which chaining turns into drift, for about a third more time.
     ransac_threshold_px : float
         RANSAC inlier threshold, in full-resolution frame pixels.
     estimator : str
@@ -93,6 +97,7 @@ class RegistrationConfig:
     max_features: int = 400
     scale: float = 0.5
     min_track_width_px: int = 480
+    polish: bool = True
     ransac_threshold_px: float = 2.0
     estimator: str = "ransac"
     min_inliers: int = 20
@@ -219,7 +224,7 @@ class DetectionConfig:
     hold_stopped: bool = True
     max_hold_s: float = 120.0
     stationary_lag_s: float = 1.0
-    ghost_ratio: float = 0.8
+    ghost_ratio: float = 0.6
     min_conf: float = 0.05
 
 
@@ -370,6 +375,10 @@ class ContextConfig:
         admits more (and less similar) predictors.
     min_predictors : int
         ``paper``: the regression needs at least this many predictors (3 unknown pairs).
+    regression_cond : float
+        ``paper``: the regression is refused (Kalman fallback) when the smaller eigenvalue of S(0)
+        is below this fraction of the larger: predictors nearly on a line leave the affine map
+        undetermined across it and amplify their noise.
     flow_radius_m : float
         ``context``: other tracks' rows within this distance of the predicted position form the
         local flow. Larger finds more support but mixes neighbouring lanes.
@@ -391,6 +400,15 @@ class ContextConfig:
         ``context``: predictors must move at between 1/ratio and ratio times the target's speed
         where they pass it (objects that move alike, the paper's criterion). Larger admits walkers
         beside cars; smaller finds fewer predictors.
+    group_radius_m : float
+        ``context``: tracks seen at ``last_seen`` within this distance may be co-movers (a queue,
+        a convoy), whose displacement while the target is hidden is observed.
+    group_match_m : float
+        ``context``: co-movers' last F frames, start-normalised, differ from the target's by at
+        most this RMS distance. Larger admits more co-movers that move less alike.
+    group_noise_m : float
+        ``context``: error of one co-mover's displacement as a prediction, metres (fused by
+        inverse variance with the Kalman and path estimates).
     flow_min_speed_mps : float
         ``context``: slower rows (standing objects) carry no heading; a slower target is held still.
     flow_sample_s : float
@@ -413,12 +431,16 @@ class ContextConfig:
     method: str = "context"
     lce_alpha: float = 0.05
     min_predictors: int = 3
+    regression_cond: float = 1e-2
     flow_radius_m: float = 2.0
     flow_heading_deg: float = 45.0
     path_match_m: float = 1.0
     path_noise_m: float = 3.0
     path_chord_s: float = 0.5
     path_speed_ratio: float = 1.5
+    group_radius_m: float = 20.0
+    group_match_m: float = 0.3
+    group_noise_m: float = 2.0
     flow_min_speed_mps: float = 0.3
     flow_sample_s: float = 0.3
     velocity_lag_s: float = 0.5

@@ -55,16 +55,16 @@ def chain(Hs: Sequence[np.ndarray], i: int, j: int) -> np.ndarray:
 
 
 def scale_homography(H: np.ndarray, s: float) -> np.ndarray:
-    """Express a homography between images downscaled by ``s`` in full-resolution pixels.
+    """Express a homography between downscaled images in continuous full-resolution pixels.
 
-    ``H`` maps downscaled pixels of image A to downscaled pixels of image B; the result maps
-    full-resolution pixels of A to those of B: ``S^-1 H S`` with ``S = diag(s, s, 1)``.
+    ``H`` maps OpenCV pixel *indices* (pixel centre at integer coordinates) of image A downscaled by
+    ``s`` (``cv2.resize``) to those of image B; the result maps continuous full-resolution pixels
+    (origin at the top-left corner, see :mod:`aerotrack.types`) of A to those of B:
+    ``S^-1 H S`` with ``S: x -> s x - 0.5`` (the half-pixel shift is exact for ``cv2.resize``).
     """
-    if s == 1.0:
-        return normalize(H)
-    S = np.diag([s, s, 1.0])
-    Si = np.diag([1.0 / s, 1.0 / s, 1.0])
-    return normalize(Si @ H @ S)
+    S = np.array([[s, 0, -0.5], [0, s, -0.5], [0, 0, 1.0]])
+    Si = np.array([[1.0 / s, 0, 0.5 / s], [0, 1.0 / s, 0.5 / s], [0, 0, 1.0]])
+    return normalize(Si @ np.asarray(H, dtype=np.float64) @ S)
 
 
 def frame_corners(width: int, height: int) -> np.ndarray:

@@ -23,8 +23,13 @@ ESTIMATORS = {"ransac": cv2.RANSAC, "magsac": cv2.USAC_MAGSAC}
 #: Feature trackers by name (``RegistrationConfig.method``).
 METHODS = ("lk", "orb")
 
+# first pass: large motions, moderate precision (the polish pass below refines it)
 _LK_PARAMS = dict(winSize=(15, 15), maxLevel=3,
                   criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
+# after warping by a first estimate the residual motion is sub-pixel: no pyramid, tight convergence
+# (a loose stopping rule stops short of the optimum on the same side every frame: a bias)
+_POLISH_PARAMS = dict(winSize=(13, 13), maxLevel=0,
+                      criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.003))
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,8 @@ class EstimateStats:
         Median reprojection error of the inliers, in the pixels of the images given.
     points : ndarray, shape (N, 2), float32
         Inlier positions in the second image (its pixels), reusable as the next frame's features.
+    source : ndarray, shape (N, 2), float32
+        The same inliers in the first image.
     """
 
     inliers: int
@@ -50,6 +57,7 @@ class EstimateStats:
     inlier_ratio: float
     error: float
     points: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 2), np.float32))
+    source: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 2), np.float32))
 
 
 def to_gray(image: np.ndarray, scale: float = 1.0) -> np.ndarray:
@@ -162,8 +170,32 @@ def _fit(p0: np.ndarray, p1: np.ndarray, shape: tuple[int, int], *, threshold: f
     q = np.hstack([p0[inl], np.ones((k, 1))]) @ H.T
     err = float(np.median(np.linalg.norm(q[:, :2] / q[:, 2:3] - p1[inl], axis=1)))
     stats = EstimateStats(inliers=k, tentative=n, inlier_ratio=ratio, error=err,
-                          points=p1[inl].astype(np.float32))
+                          points=p1[inl].astype(np.float32), source=p0[inl].astype(np.float32))
     return H, stats
+
+
+def _polish(prev_gray: np.ndarray, gray: np.ndarray, H: np.ndarray, p0: np.ndarray,
+            fit: dict) -> tuple[np.ndarray, EstimateStats] | Failure:
+    """Re-track ``p0`` (prev pixels) between ``prev_gray`` warped by ``H`` and ``gray``.
+
+    Once the previous frame is warped by the first estimate, the remaining motion is sub-pixel and
+    free of scale change and rotation, so Lucas-Kanade's translational window model holds: this
+    removes the bias it has under zoom (about 1e-4 in scale per frame, which chaining turns into
+    drift) and the ~1 px localisation error of ORB keypoints.
+    """
+    h, w = gray.shape[:2]
+    warped = cv2.warpPerspective(prev_gray, H, (w, h), flags=cv2.INTER_LINEAR)
+    c0 = cv2.perspectiveTransform(np.asarray(p0, np.float32).reshape(-1, 1, 2), H)
+    keep = ((c0[:, 0, 0] > 8) & (c0[:, 0, 0] < w - 9) & (c0[:, 0, 1] > 8) & (c0[:, 0, 1] < h - 9))
+    c0 = c0[keep].astype(np.float32)
+    q0 = np.asarray(p0, np.float32).reshape(-1, 2)[keep]
+    if len(c0) < 4:
+        return Failure("polish: too few points")
+    c1, st, _ = cv2.calcOpticalFlowPyrLK(warped, gray, c0, None, **_POLISH_PARAMS)
+    if c1 is None:
+        return Failure("polish: optical flow failed")
+    ok = st.ravel() == 1
+    return _fit(q0[ok], c1[ok].reshape(-1, 2), gray.shape, **fit)
 
 
 def estimate_homography(
@@ -180,6 +212,7 @@ def estimate_homography(
     min_inlier_ratio: float = 0.25,
     max_scale_change: float = 1.5,
     max_condition: float = 4.0,
+    polish: bool = True,
 ) -> tuple[np.ndarray, EstimateStats] | Failure:
     """Homography from ``prev_gray``'s pixels to ``gray``'s pixels (``H_{i-1,i}``).
 
@@ -203,6 +236,9 @@ def estimate_homography(
     estimator : {'ransac', 'magsac'}
     min_inliers, min_inlier_ratio, max_scale_change, max_condition
         Failure thresholds; see :class:`~aerotrack.config.RegistrationConfig`.
+    polish : bool
+        Re-track the inliers after warping ``prev_gray`` by the first estimate (see ``_polish``):
+        about 30 % more time, several times less drift when chained over a zooming camera.
 
     Returns
     -------
@@ -229,7 +265,13 @@ def estimate_homography(
         if p1 is None:
             return Failure("optical flow failed")
         ok = st.ravel() == 1
-        return _fit(p0[ok].reshape(-1, 2), p1[ok].reshape(-1, 2), gray.shape, **fit)
+        res = _fit(p0[ok].reshape(-1, 2), p1[ok].reshape(-1, 2), gray.shape, **fit)
+        if res and polish:
+            inl = res[1].source
+            better = _polish(prev_gray, gray, res[0], inl, fit)
+            if better:
+                return better
+        return res
     if method == "orb":
         orb = cv2.ORB_create(nfeatures=max(2 * max_features, 500))
         k0, d0 = orb.detectAndCompute(prev_gray, mask)
@@ -243,23 +285,11 @@ def estimate_homography(
         res = _fit(p0, p1, gray.shape, **fit)
         if not res:
             return res
-        # ORB keypoints are located to ~1 px: polish by optical flow between the previous frame
-        # warped by the ORB motion (now nearly aligned, so LK's translation model holds even after
-        # a large rotation) and this frame; the residual motion is composed with the ORB one.
-        Horb = res[0]
-        h, w = gray.shape[:2]
-        warped = cv2.warpPerspective(prev_gray, Horb, (w, h), flags=cv2.INTER_LINEAR)
-        inside = cv2.warpPerspective(np.full(prev_gray.shape, 255, np.uint8) if mask is None else mask,
-                                     Horb, (w, h), flags=cv2.INTER_NEAREST)
-        inside = cv2.erode(inside, np.ones((9, 9), np.uint8))
-        c0 = detect_features(warped, max_features, inside)
+        # ORB keypoints are located to ~1 px: polish with fresh corners of the previous frame
+        c0 = detect_features(prev_gray, max_features, mask)
         if len(c0) >= max(min_inliers, 4):
-            c1, st, _ = cv2.calcOpticalFlowPyrLK(warped, gray, c0, None, **_LK_PARAMS)
-            if c1 is not None:
-                ok = st.ravel() == 1
-                q0 = cv2.perspectiveTransform(c0[ok], np.linalg.inv(Horb)).reshape(-1, 2)
-                polished = _fit(q0, c1[ok].reshape(-1, 2), gray.shape, **fit)
-                if polished:
-                    return polished
+            polished = _polish(prev_gray, gray, res[0], c0.reshape(-1, 2), fit)
+            if polished:
+                return polished
         return res
     raise ConfigError(f"config registration.method: unknown {method!r} (valid: {', '.join(METHODS)})")

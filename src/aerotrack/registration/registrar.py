@@ -163,7 +163,8 @@ class FrameRegistrar:
                       ransac_threshold=cfg.ransac_threshold_px * scale,
                       estimator=cfg.estimator, min_inliers=cfg.min_inliers,
                       min_inlier_ratio=cfg.min_inlier_ratio,
-                      max_scale_change=cfg.max_scale_change, max_condition=cfg.max_condition)
+                      max_scale_change=cfg.max_scale_change, max_condition=cfg.max_condition,
+                      polish=cfg.polish)
         est = estimate_homography(self._ref_gray, gray, mask, method=cfg.method, prev_points=points,
                                   **common)
         if not est and points is not None:  # stale tracks: retry with fresh corners
