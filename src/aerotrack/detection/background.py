@@ -8,9 +8,9 @@ image operations (a pruned Batcher sorting network), which a histogram mode is n
 warped into the reference frame with ``cv2.warpPerspective`` at a reduced resolution.
 
 Pixels a sample did not see (outside its view) or that lie under a detection are *invalid* in
-that sample. An invalid value is replaced by 0 in even samples and 255 in odd ones: equal numbers
-of the two extremes leave the median of the valid values unchanged (at most one rank off when the
-counts differ by one), so no per-pixel bookkeeping is needed inside the network. A separate count
+that sample. An invalid value is replaced alternately (per pixel) by 0 and 255: equal numbers of
+the two extremes leave the median of the valid values unchanged (at most one rank off when the
+count is odd), so no per-pixel bookkeeping is needed inside the sorting network. A separate count
 of valid samples says where the estimate can be trusted.
 """
 
@@ -142,17 +142,16 @@ def box_polygons(boxes: np.ndarray, pad: float = 0.0) -> np.ndarray:
                      np.stack([x1, y1], 1), np.stack([x0, y1], 1)], axis=1)
 
 
-def warp_polygons(polys: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Apply a 3x3 homography to (K, P, 2) polygons."""
-    p = np.asarray(polys, dtype=np.float64)
-    if p.size == 0:
-        return p.reshape(0, 4, 2)
-    return cv2.perspectiveTransform(p.reshape(-1, 1, 2), M).reshape(p.shape)
+def warp_polygons(polys, M: np.ndarray) -> list[np.ndarray]:
+    """Apply a 3x3 homography to a sequence of (P, 2) polygons."""
+    return [cv2.perspectiveTransform(np.asarray(p, np.float64).reshape(-1, 1, 2), M).reshape(-1, 2)
+            for p in polys]
 
 
-def _fill(img: np.ndarray, polys: np.ndarray | None, value) -> None:
+def _fill(img: np.ndarray, polys, value) -> None:
     if polys is not None and len(polys):
-        pts = [np.round(q * 4).astype(np.int32) for q in polys if np.all(np.isfinite(q))]
+        pts = [np.round(np.asarray(q) * 4).astype(np.int32) for q in polys
+               if np.all(np.isfinite(q))]
         if pts:
             cv2.fillPoly(img, pts, value, lineType=cv2.LINE_8, shift=2)
 
@@ -173,11 +172,11 @@ def window_background(
         Downscaled sample frames, each in its own pixels.
     to_ref : sequence of ndarray, shape (3, 3)
         OpenCV homographies (pixel indices at model resolution) sample -> reference frame.
-    holes : sequence of ndarray (K, 4, 2) or None
+    holes : sequence of (list of (P, 2) ndarray) or None
         Per sample, polygons (sample pixels) that must not vote: its own detections.
     size : (int, int)
         (width, height) of the reference frame at model resolution.
-    ref_holes : ndarray (K, 4, 2), optional
+    ref_holes : list of (P, 2) ndarray, optional
         Polygons in reference pixels left out of the samples flagged in ``ref_holes_for``
         (where vehicles were last seen, for samples whose own detections are not known yet).
     ref_holes_for : sequence of bool, optional
@@ -197,22 +196,24 @@ def window_background(
     w, h = size
     warped = []
     count = np.zeros((h, w), np.uint8)
+    parity = np.zeros((h, w), np.uint8)  # per pixel: next pad is 0 (0) or 255 (255)
     for k, (img, M) in enumerate(zip(samples, to_ref)):
-        pad = 0 if k % 2 == 0 else 255
         sh, sw = img.shape[:2]
-        wimg = warp(img, M, (w, h), border=pad)
+        wimg = warp(img, M, (w, h))
         valid = np.zeros((h, w), np.uint8)
         outline = box_polygons(np.array([[0.5, 0.5, sw - 1.0, sh - 1.0]]))
         _fill(valid, warp_polygons(outline, M), 1)
         polys = []
         if holes[k] is not None and len(holes[k]):
-            polys.append(warp_polygons(holes[k], M))
+            polys.extend(warp_polygons(holes[k], M))
         if ref_holes is not None and len(ref_holes) and (ref_holes_for is None or ref_holes_for[k]):
-            polys.append(ref_holes)
-        if polys:
-            allp = np.concatenate(polys)
-            _fill(valid, allp, 0)
-            _fill(wimg, allp, (pad, pad, pad))
+            polys.extend(ref_holes)
+        _fill(valid, polys, 0)
+        invalid = cv2.compare(valid, 0, cv2.CMP_EQ)
+        if cv2.countNonZero(invalid):
+            # Pads alternate per pixel, so every pixel gets as many 0s as 255s (+-1).
+            cv2.copyTo(cv2.merge([parity, parity, parity]), invalid, wimg)
+            parity = cv2.bitwise_xor(parity, invalid)
         count = cv2.add(count, valid)
         warped.append(wimg)
     if not warped:

@@ -127,10 +127,15 @@ def border_fill_mask(image: np.ndarray, level: int = 12) -> np.ndarray:
 def ghost_score(small: np.ndarray, bg: np.ndarray, mask: np.ndarray) -> float:
     """Ratio of the frame's to the background's gradient energy over a blob (model pixels).
 
-    A real vehicle brings edges the background lacks (ratio > 1); a *ghost*, the imprint of a
-    vehicle that sat in most of the window but has left the frame's position, has its edges in
-    the background only (ratio < 1).
+    The energy is summed over the blob's outline (a 4-pixel band around its border): a real
+    vehicle's outline is an edge of the frame (ratio > 1); a *ghost*, the imprint of a vehicle
+    that sat in most of the window but is not at this place in the frame, has its outline in the
+    background only (ratio < 1). The interior is left out because a flat-coloured vehicle on
+    textured ground has less gradient inside than the ground it covers.
     """
+    m8 = mask.astype(np.uint8)
+    k = np.ones((3, 3), np.uint8)
+    mask = cv2.dilate(m8, k, iterations=2) > cv2.erode(m8, k)
     gi = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY).astype(np.float32)
     gb = cv2.cvtColor(bg, cv2.COLOR_BGR2GRAY).astype(np.float32)
     ei = np.abs(cv2.Sobel(gi, cv2.CV_32F, 1, 0)) + np.abs(cv2.Sobel(gi, cv2.CV_32F, 0, 1))
@@ -138,9 +143,18 @@ def ghost_score(small: np.ndarray, bg: np.ndarray, mask: np.ndarray) -> float:
     return float((ei[mask].sum() + 1.0) / (eb[mask].sum() + 1.0))
 
 
-def residual_image(image: np.ndarray, bg: np.ndarray) -> np.ndarray:
-    """Per-pixel largest absolute channel difference, (H, W) uint8."""
-    d = cv2.absdiff(image, bg)
+def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0) -> np.ndarray:
+    """Per-pixel largest absolute channel difference, (H, W) uint8.
+
+    With ``tolerance_px`` = r > 0 the difference is taken to the nearest value of the background
+    in a (2r+1)^2 neighbourhood (``max(I - dilate(B), erode(B) - I, 0)``): sub-pixel registration
+    error and the blur of warping then leave no residual on sharp edges such as lane markings,
+    while a vehicle larger than the neighbourhood still differs inside.
+    """
+    if tolerance_px <= 0:
+        return _channel_max(cv2.absdiff(image, bg))
+    k = np.ones((2 * tolerance_px + 1,) * 2, np.uint8)
+    d = cv2.add(cv2.subtract(image, cv2.dilate(bg, k)), cv2.subtract(cv2.erode(bg, k), image))
     return _channel_max(d)
 
 
@@ -205,7 +219,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     FrameResult
     """
     bgn = _gain_normalise(small, bg_small, config.gain_block_px * scale)
-    res = residual_image(small, bgn)
+    res = residual_image(small, bgn, 1)
     res[testable == 0] = 0
     res[border_fill_mask(small) | border_fill_mask(bg_small)] = 0
     sigma = robust_sigma(res, testable)
@@ -252,7 +266,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         size = (fx1 - fx0, fy1 - fy0)
         crop = image[fy0:fy1, fx0:fx1]
         bg_crop = cv2.resize(bgn[my0:my1, mx0:mx1], size, interpolation=cv2.INTER_LINEAR)
-        res_full = residual_image(crop, bg_crop)
+        res_full = residual_image(crop, bg_crop, max(1, int(round(1.0 / scale))))
         mm = np.zeros((my1 - my0, mx1 - mx0), np.uint8)
         mm[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw] = b.mask.astype(np.uint8) * 255
         mm = cv2.dilate(mm, np.ones((3, 3), np.uint8))
@@ -299,6 +313,24 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         masks=masks, crops=crops, model_blobs=kept,
         contrast=np.asarray(contrasts, np.float64), threshold=thr, residual=res,
     )
+
+
+def blob_polygons(blobs: list[Blob], grow: int = 1) -> list[np.ndarray]:
+    """Convex hulls of blobs grown by ``grow`` pixels, as (P, 2) float polygons in the pixels
+    the blobs were found in (the areas a frame's detections keep out of the background).
+
+    The hull rather than the blob itself: a vehicle whose roof matches the road leaves a ring-
+    shaped blob, and its roof must be kept out too or the background slowly absorbs it."""
+    polys = []
+    k = np.ones((2 * grow + 1,) * 2, np.uint8)
+    for b in blobs:
+        x, y, _, _ = b.box
+        m = cv2.dilate(np.pad(b.mask.astype(np.uint8), grow + 1), k)
+        contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if contours:
+            hull = cv2.convexHull(np.concatenate(contours))
+            polys.append(hull.reshape(-1, 2).astype(np.float64) + [x - grow - 1, y - grow - 1])
+    return polys
 
 
 class MovingObjectDetector:
@@ -442,10 +474,12 @@ class MovingObjectDetector:
         gates = self._gates(Hc, p.frame.image.shape[:2])
         r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
         self.last_result = r
-        fg = box_polygons(np.array([b.box for b in r.model_blobs], np.float64).reshape(-1, 4),
-                          pad=2.0)
+        # Own detections are kept out of this frame's sample tightly; where vehicles were last
+        # seen is kept out of the not-yet-final samples with a wider margin, since a vehicle
+        # that has just stopped must not leak into them.
         if c in self._samples and self.config.hold_stopped:
-            self._samples[c].holes = fg
+            self._samples[c].holes = blob_polygons(r.model_blobs, grow=1)
+        fg = blob_polygons(r.model_blobs, grow=2)
         for i, s in self._samples.items():
             if i <= c:
                 s.known = True
@@ -475,13 +509,10 @@ class MovingObjectDetector:
         for k, b in enumerate(r.model_blobs):
             x, y, bw, bh = b.box
             m = b.mask
-            if held[y:y + bh, x:x + bw][m].mean() > 0.5:
-                out[k] = True
-                continue
             if warped is None or not (vis[y:y + bh, x:x + bw][m] > 0).all():
                 continue
-            d = residual_image(p.small[y:y + bh, x:x + bw], warped[y:y + bh, x:x + bw])[m]
-            out[k] = float(np.mean(d)) < 0.5 * r.threshold
+            d = residual_image(p.small[y:y + bh, x:x + bw], warped[y:y + bh, x:x + bw], 1)[m]
+            out[k] = float(np.mean(d > r.threshold)) < 0.2
         return out
 
     def _to_detections(self, p: _Pending, r: FrameResult, stationary: np.ndarray) -> Detections:
