@@ -228,3 +228,23 @@ def test_mpe_and_variance_known_answer():
     s = summarise(np.array([e, e * 2]), [1, 3])
     assert s[3]["MPE"] == pytest.approx(3.5) and s[1]["queries"] == 2
     assert math.isnan(summarise(np.zeros((0, 3)), [1])[1]["MPE"])
+
+
+def test_context_moves_a_hidden_car_with_its_queue():
+    """Three cars wait in a queue; the target is hidden while the queue starts moving. Its
+    co-movers' observed displacement carries it along; constant velocity leaves it standing."""
+    cfg = ContextConfig()
+    f = np.arange(1, 201)
+    go = np.clip(f - 100, 0, None)
+    move = 0.5 * np.minimum(go, 60) ** 2 / 60 / 30 * 6 + np.where(go > 60, (go - 60) * 0.2, 0)  # metres
+    tracks = {i: (f, np.column_stack([move - 7.0 * i, np.full(len(f), 0.0)])) for i in (1, 2, 3)}
+    tracks[1] = (f[f <= 95], tracks[1][1][f <= 95])  # the target, hidden from frame 96
+    table = _table(tracks)
+    fps = 30.0
+    truth = np.column_stack([move - 7.0, np.zeros(len(f))])[95:195]
+    ctx = ContextPredictor(cfg, fps).predict(table, 1, 95, 100)
+    assert set(ContextPredictor(cfg, fps).comovers(table, 1, 95)) == {2, 3}
+    cv = get_predictor("constant-velocity", cfg, fps).predict(table, 1, 95, 100)
+    e_ctx = prediction_errors(ctx, truth).mean()
+    e_cv = prediction_errors(cv, truth).mean()
+    assert e_ctx < 0.25 * e_cv, (e_ctx, e_cv)

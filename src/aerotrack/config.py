@@ -440,7 +440,7 @@ class ContextConfig:
     path_speed_ratio: float = 1.5
     group_radius_m: float = 20.0
     group_match_m: float = 0.3
-    group_noise_m: float = 2.0
+    group_noise_m: float = 4.0
     flow_min_speed_mps: float = 0.3
     flow_sample_s: float = 0.3
     velocity_lag_s: float = 0.5

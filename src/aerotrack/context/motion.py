@@ -11,10 +11,10 @@ Four predictors share one interface, :meth:`MotionPredictor.predict`, chosen by 
     Kalman filter otherwise.
 ``context`` (default)
     aerotrack's motion context. The paper's idea, that predictors are objects that move or moved along
-    the same stretch of path, used by *position*: at every predicted step the target follows the
-    local flow field of other tracks' (current and past) positions and velocities near its predicted
-    position and heading, keeping its own speed; where there is no support it coasts on the Kalman
-    filter's velocity. It handles curves (roundabouts, turns) that constant velocity cannot.
+    the same stretch of path, used by *position*: the paths of past and current objects that passed
+    where the target is, walked at the target's own speed, and the observed displacement of objects
+    that were moving with it (a queue, a convoy), fused with the Kalman prediction by inverse
+    variance (:class:`ContextPredictor`).
 ``kalman``
     The project's constant-velocity Kalman filter (:mod:`aerotrack.kalman`), run over the last F
     frames and then predicted forward.
@@ -184,7 +184,8 @@ def _lce_batch(Z: np.ndarray, sections: np.ndarray) -> np.ndarray:
     return g
 
 
-def affine_regression(pred_start: np.ndarray, pred_now: np.ndarray, target_start: np.ndarray):
+def affine_regression(pred_start: np.ndarray, pred_now: np.ndarray, target_start: np.ndarray,
+                      cond: float = 1e-6):
     """The motion-context regression of Ali et al. section 4.1.
 
     ``r(t) = m(t) + S(t) S(0)^-1 (r(0) - m(0))`` with ``m`` the predictors' centre of mass and
@@ -214,13 +215,23 @@ def affine_regression(pred_start: np.ndarray, pred_now: np.ndarray, target_start
     St = At.T @ A0
     # A near-singular S(0) (predictors on a line) makes the affine map arbitrary across the line.
     ev = np.linalg.eigvalsh(S0)
-    if ev[0] <= 1e-6 * max(ev[1], 1e-300):
+    if ev[0] <= cond * max(ev[1], 1e-300):
         return None
     return mt + St @ np.linalg.solve(S0, np.asarray(target_start, float) - m0)
 
 
 # --------------------------------------------------------------------------------------------------
 # predictors
+
+
+def _section(table: TrackTable, track_id: int, T: int, F: int) -> np.ndarray | None:
+    """A track's section r(T-F .. T), (F+1, 2), interpolated over missing frames (rows <= T only);
+    None when the track does not cover [T-F, T]."""
+    fr, xy = _history(table, track_id, T, F)
+    if len(fr) < 2 or fr[0] > T - F or fr[-1] != T:
+        return None
+    grid = np.arange(T - F, T + 1)
+    return np.column_stack([np.interp(grid, fr, xy[:, 0]), np.interp(grid, fr, xy[:, 1])])
 
 
 class MotionPredictor:
@@ -346,15 +357,6 @@ class PaperPredictor(MotionPredictor):
 
     name = "paper"
 
-    def _section(self, table: TrackTable, track_id: int, T: int) -> np.ndarray | None:
-        """The predictand's section Z = r(T-F .. T), (F+1, 2), interpolated over missing frames."""
-        F = self.window
-        fr, xy = _history(table, track_id, T, F)
-        if len(fr) < 2 or fr[0] > T - F or fr[-1] != T:
-            return None
-        grid = np.arange(T - F, T + 1)
-        return np.column_stack([np.interp(grid, fr, xy[:, 0]), np.interp(grid, fr, xy[:, 1])])
-
     def _gamma(self, Z: np.ndarray, jf: np.ndarray, jxy: np.ndarray, ends: np.ndarray) -> np.ndarray:
         """LCE (eq. 1) of the sections of one track ending at row indices ``ends``."""
         F = self.window
@@ -374,7 +376,7 @@ class PaperPredictor(MotionPredictor):
         as above.
         """
         F = self.window
-        Z = self._section(table, track_id, T)
+        Z = _section(table, track_id, T, F)
         if Z is None:
             return {}
         previous = previous or {}
@@ -429,7 +431,7 @@ class PaperPredictor(MotionPredictor):
                     alive[n] = False
             r = None
             if alive.sum() >= self.config.min_predictors:
-                r = affine_regression(start[alive], now[alive], r0)
+                r = affine_regression(start[alive], now[alive], r0, self.config.regression_cond)
             out[k - 1] = fallback[k - 1] if r is None else r
         return out
 
@@ -551,25 +553,31 @@ def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
 
 
 class ContextPredictor(MotionPredictor):
-    """aerotrack's motion context: follow the paths other objects took, at the target's own speed.
+    """aerotrack's motion context: three estimates fused by inverse variance.
 
-    The paper's predictors are objects that move or moved along the same stretch of road; here they
-    are found *by position*, which is what eq. 1's displacement-only match misses:
+    The paper's predictors are objects that move or moved along the same stretch of road. Eq. 1
+    matches them by displacement alone, from anywhere in the scene, and its affine regression on a
+    few scattered agents extrapolates poorly. Here the same idea is used in two position-aware
+    ways, each an estimate with a variance, fused with the Kalman prediction:
 
-    1. start state (position ``p0``, velocity) from the Kalman filter over the last F frames;
-    2. predictors: other tracks (current or past) with a row within ``flow_radius_m`` of ``p0``,
-       seen no later than ``last_seen``, heading within ``flow_heading_deg`` of the target; each is
-       scored by how closely its path passes the target's last F positions (mean distance from each
-       of them to the predictor's rows before the match, a position-aligned LCE-like similarity) and
-       kept when that is within the radius;
-    3. each predictor's path from its matched row on is walked at the target's own speed (arc
-       length, so a slower biker and a faster cart on the same curve agree), using only rows no
-       later than the predicted frame; the weighted mean displacement is the path estimate;
-    4. fusion with the Kalman prediction: ``alpha = W / (W + flow_support)`` with W the summed
-       predictor weights, so a well-trodden path takes over and a lone predictor bends little.
+    1. **Kalman** (always): the project's constant-velocity filter over the last F frames, its
+       variance ``meas^2 + (a t^2 / 2)^2`` growing with the prediction time t.
+    2. **Path following** (past and current objects that drove the same stretch,
+       :meth:`select`): other tracks with a row within ``flow_radius_m`` of the target's position,
+       seen no later than ``last_seen``, heading and speed alike, whose path passes the target's
+       last F positions (mean distance ~``path_match_m``). Each predictor's path from the point
+       nearest the target is walked at the target's own speed (arc length, so a slower biker and a
+       faster cart on the same curve agree), using only rows no later than the predicted frame.
+       Variance: the predictors' spread + their match distance + ``path_noise_m^2 / W``.
+    3. **Co-movers** (:meth:`comovers`): tracks seen at ``last_seen`` within ``group_radius_m``
+       whose last F frames moved like the target's (the start-normalised sections of eq. 1,
+       compared by RMS distance rather than by the degenerate growth ratio). Their displacement
+       after ``last_seen`` is observed while the target is hidden: a queue starting to move, a
+       convoy turning. Variance: their spread + ``group_noise_m^2 / n``.
 
-    Raising ``flow_radius_m`` finds more predictors but mixes in neighbouring lanes; raising
-    ``flow_support`` trusts the paths less (closer to the Kalman filter).
+    Where neither context estimate exists the prediction is the Kalman filter's, so the method is
+    never worse than it by construction of the weights (up to their calibration). Raising
+    ``path_noise_m`` / ``group_noise_m`` trusts the context less.
     """
 
     name = "context"
@@ -636,9 +644,28 @@ class ContextPredictor(MotionPredictor):
         p0, v0 = kalman_start(fr, xy, self.fps, self.mpu, c)
         k = np.arange(1, h + 1)
         base = p0 + k[:, None] * v0
+        t = k / self.fps
+        var_kf = self.m(c.kalman_meas_std_m) ** 2 + (0.5 * self.m(c.kalman_accel_mps2) * t * t) ** 2
+        estimates = [(base, var_kf)]
+        if table is not None:
+            estimates.append(self._path_estimate(table, track_id, fr, xy, T, p0, v0, k))
+            estimates.append(self._group_estimate(table, track_id, T, p0, k))
+        num = np.zeros((h, 2))
+        den = np.zeros(h)
+        for est, var in estimates:
+            w = np.where(np.isfinite(var), 1.0 / np.maximum(var, 1e-300), 0.0)
+            num += w[:, None] * np.where(np.isfinite(var)[:, None], est, 0.0)
+            den += w
+        return num / den[:, None]
+
+    def _path_estimate(self, table, track_id, fr, xy, T, p0, v0, k):
+        """Path following: (positions (h, 2), variance (h,), inf where no predictor reaches)."""
+        c = self.config
+        h = len(k)
+        none = (np.zeros((h, 2)), np.full(h, np.inf))
         chosen = self.select(table, track_id, fr, xy, T, p0, v0)
         if not chosen:
-            return base
+            return none
         index = self.index_for(table)
         speed = math.hypot(v0[0], v0[1])
         sigma = self.m(c.path_match_m)
@@ -659,7 +686,7 @@ class ContextPredictor(MotionPredictor):
             ws.append(math.exp(-0.5 * (dpath / sigma) ** 2))
             d2s.append(dpath * dpath)
         if not ws:
-            return base
+            return none
         wv = np.array(ws)[:, None] * np.array(valids)  # (M, h)
         W = wv.sum(axis=0)
         Wd = np.where(W > 0, W, 1.0)
@@ -667,11 +694,54 @@ class ContextPredictor(MotionPredictor):
         mean = (wv[..., None] * D).sum(axis=0) / Wd[:, None]
         spread2 = (wv * ((D - mean[None]) ** 2).sum(-1)).sum(axis=0) / Wd
         match2 = (wv * np.array(d2s)[:, None]).sum(axis=0) / Wd
-        var_path = spread2 + match2 + self.m(c.path_noise_m) ** 2 / np.maximum(W, 1e-9)
-        t = k / self.fps
-        var_kf = self.m(c.kalman_meas_std_m) ** 2 + (0.5 * self.m(c.kalman_accel_mps2) * t * t) ** 2
-        alpha = np.where(W > 0, var_kf / (var_kf + var_path), 0.0)
-        return alpha[:, None] * (p0 + mean) + (1 - alpha[:, None]) * base
+        var = spread2 + match2 + self.m(c.path_noise_m) ** 2 / np.maximum(W, 1e-9)
+        return p0 + mean, np.where(W > 0, var, np.inf)
+
+    def comovers(self, table: TrackTable, track_id: int, T: int) -> list[int]:
+        """Tracks seen at ``T`` within ``group_radius_m`` whose last F frames moved like the
+        target's: RMS difference of the two start-normalised sections (the sections of eq. 1)
+        at most ``group_match_m``. Their displacement after ``T`` is observed while the target
+        is not (a queue starting to move, a convoy turning)."""
+        c = self.config
+        F = self.window
+        Z = _section(table, track_id, T, F)
+        if Z is None:
+            return []
+        Zn = Z - Z[0]
+        at_T = np.flatnonzero(table.frames == T)
+        near = at_T[np.hypot(*(table.xy[at_T] - Z[-1]).T) <= self.m(c.group_radius_m)]
+        out = []
+        tol2 = self.m(c.group_match_m) ** 2
+        for j in sorted(set(table.ids[near].tolist()) - {track_id}):
+            S = _section(table, j, T, F)
+            if S is None:
+                continue
+            if float(((S - S[0] - Zn) ** 2).sum(axis=1).mean()) <= tol2:
+                out.append(int(j))
+        return out
+
+    def _group_estimate(self, table, track_id, T, p0, k):
+        """Mean displacement of the co-moving tracks after T (translation), with its spread."""
+        c = self.config
+        h = len(k)
+        group = self.comovers(table, track_id, T)
+        if not group:
+            return np.zeros((h, 2)), np.full(h, np.inf)
+        D = np.zeros((len(group), h, 2))
+        V = np.zeros((len(group), h), bool)
+        for n, j in enumerate(group):
+            jf, jxy = table.track(j)
+            x0 = jxy[np.searchsorted(jf, T)]
+            i = np.searchsorted(jf, T + k)  # rows at T + k only: never later than the predicted frame
+            ok = (i < len(jf)) & (jf[np.minimum(i, len(jf) - 1)] == T + k)
+            D[n, ok] = jxy[i[ok]] - x0
+            V[n] = ok
+        cnt = V.sum(axis=0)
+        cd = np.maximum(cnt, 1)
+        mean = (D * V[..., None]).sum(axis=0) / cd[:, None]
+        spread2 = (V * ((D - mean[None]) ** 2).sum(-1)).sum(axis=0) / cd
+        var = spread2 + self.m(c.group_noise_m) ** 2 / cd
+        return p0 + mean, np.where(cnt > 0, var, np.inf)
 
 
 PREDICTION_METHODS: dict[str, type[MotionPredictor]] = {
