@@ -1,0 +1,278 @@
+"""Segment-parallel processing: planning, the join (known answers), and real runs on a local Dask
+cluster (worker processes on loopback) against the single process."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotrack.config import Config
+from aerotrack.errors import InputError
+from aerotrack.parallel import (ParallelConfig, Segment, SegmentResult, chain_worlds,
+                                join_segments, make_tasks, plan_batch, plan_segments,
+                                run_segment, stitch_pairs)
+from aerotrack.types import Registration, Track, TrackPoint, apply_homography
+
+TILE = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
+FPS = 10.0
+
+
+# -- a small scene: the map tile under a drifting camera, coloured cars driving straight ----------
+def render_scene(folder: Path, n: int = 120, size=(240, 180), n_cars: int = 5, seed: int = 0,
+                 ) -> np.ndarray:
+    """Write ``n`` frames to ``folder``; returns the ground truth as (M, 10) MOT rows."""
+    from aerotrack.geo import GeoMap
+
+    m = GeoMap(TILE).read_image()
+    rng = np.random.default_rng(seed)
+    W, H = size
+    folder.mkdir(parents=True, exist_ok=True)
+    cars = [(np.array([520.0, 510.0]) + rng.uniform(-50, 50, 2),
+             rng.uniform(8, 14) * np.array([np.cos(a), np.sin(a)]),
+             tuple(int(c) for c in rng.integers(0, 256, 3)))
+            for a in rng.uniform(0, 2 * np.pi, n_cars)]
+    gt = []
+    for k in range(n):
+        t = k / FPS
+        origin = np.array([400 + 4 * t, 420 + 3 * t])  # map pixel of the frame's top-left corner
+        Hm = np.array([[1, 0, origin[0]], [0, 1, origin[1]], [0, 0, 1.0]])
+        img = cv2.warpPerspective(m, Hm, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+        for i, (p0, v, col) in enumerate(cars):
+            x, y = p0 + v * t - origin
+            if 8 < x < W - 8 and 6 < y < H - 6:
+                cv2.rectangle(img, (int(x - 7), int(y - 4)), (int(x + 7), int(y + 4)), col, -1)
+                gt.append([k + 1, i + 1, int(x - 7), int(y - 4), 15, 9, 1, 1, 1, -1])
+        img = np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(folder / f"{k + 1:05d}.png"), img)
+    return np.asarray(gt, dtype=np.float64)
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    folder = tmp_path_factory.mktemp("scene") / "frames"
+    return folder, render_scene(folder)
+
+
+@pytest.fixture(scope="module")
+def client():
+    pytest.importorskip("distributed")
+    from aerotrack.parallel import dask_client
+
+    with dask_client(workers=2) as c:
+        c.wait_for_workers(2, timeout=60)
+        yield c
+
+
+# -- planning -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("n,stride,min_segments", [(1000, 1, 1), (1000, 3, 2), (97, 1, 4), (30, 1, 2)])
+def test_plan_partitions_frames_and_cuts_mid_overlap(n, stride, min_segments):
+    fps, overlap_s = 10.0, 4.5
+    segs = plan_segments(1, n, fps=fps, stride=stride, segment_s=20.0, overlap_s=overlap_s,
+                         min_segments=min_segments)
+    grid = list(range(1, n + 1, stride))
+    owned = [f for s in segs for f in range(s.own_start, s.own_stop + 1, stride)]
+    assert owned == grid  # every frame owned exactly once, in order
+    assert segs[0].start == 1 and segs[-1].stop == grid[-1]
+    need = overlap_s * fps
+    for a, b in zip(segs, segs[1:]):
+        shared = len(range(b.start, a.stop + 1, stride)) * stride
+        assert shared >= need  # neighbours share at least the overlap
+        # the cut is in the middle of the overlap
+        assert abs((a.own_stop + stride - b.start) - (a.stop + stride - b.own_start)) <= stride
+        assert a.own_stop - a.own_start > a.stop - b.start  # frames read by <= 2 segments
+    if n == 1000 and stride == 1:
+        assert len(segs) == 5  # 100 s in 20 s segments
+    if n == 30:
+        assert len(segs) == 1  # too short to split
+
+
+def test_overlap_defaults_to_the_stage_windows_and_refuses_less():
+    config = Config()
+    assert ParallelConfig().overlap(config) == (config.detection.window_s
+                                                + config.association.window_s)
+    with pytest.raises(InputError, match="overlap_s"):
+        ParallelConfig(overlap_s=config.detection.window_s / 2).overlap(config)
+
+
+# -- the join (known answers) ---------------------------------------------------------------------
+def _H(tx, ty, th=0.0, s=1.0):
+    c, n = np.cos(th) * s, np.sin(th) * s
+    return np.array([[c, -n, tx], [n, c, ty], [0, 0, 1.0]])
+
+
+def test_chain_worlds_recovers_the_world_change():
+    # camera: frame pixels -> world 0 is T(f); segment 1's world is its first frame (f = 40)
+    T = {f: _H(2.0 * f, -1.0 * f, 0.004 * f, 1 + 0.001 * f) for f in range(1, 80)}
+    A_true = T[40]  # world 1 -> world 0
+    prev = {f: Registration(f, T[f]) for f in range(1, 61)}
+    cur = {f: Registration(f, np.linalg.inv(A_true) @ T[f]) for f in range(40, 80)}
+    A, rms = chain_worlds(prev, cur, range(40, 61), (320, 240))
+    pts = np.array([[0, 0], [320, 240], [-100, 50.0]])
+    assert np.allclose(apply_homography(A, pts), apply_homography(A_true, pts), atol=1e-4)
+    assert rms < 1e-4
+    # a failed registration in either segment is not used; none usable -> identity, NaN
+    bad = {f: Registration(f, T[f], status="carried") for f in range(1, 61)}
+    A, rms = chain_worlds(bad, cur, range(40, 61), (320, 240))
+    assert np.allclose(A, np.eye(3)) and np.isnan(rms)
+
+
+def _track(tid, frames, xy0, v, A=np.eye(3)):
+    """Points of a target moving at ``v`` px/frame in frame pixels (frame = world 0 here),
+    expressed in a segment world related to world 0 by ``A`` (world_k -> world 0)."""
+    pts = []
+    inv = np.linalg.inv(A)
+    for f in frames:
+        c = np.asarray(xy0, float) + np.asarray(v, float) * f
+        pts.append(TrackPoint(f, np.array([c[0] - 5, c[1] - 3, 10, 6]),
+                              apply_homography(inv, c[None])[0], 0.9,
+                              size_world=np.array([10.0, 6.0])))
+    return Track(tid, pts)
+
+
+def test_join_stitches_tracklets_across_the_cut_and_keeps_each_frame_once():
+    segs = plan_segments(1, 100, fps=10.0, segment_s=5.0, overlap_s=2.0, min_segments=2)
+    a, b = segs
+    A1 = _H(30.0, -12.0, 0.05)  # segment 1's world in world 0
+    regs0 = {f: Registration(f, np.eye(3)) for f in range(a.start, a.stop + 1)}
+    regs1 = {f: Registration(f, np.linalg.inv(A1)) for f in range(b.start, b.stop + 1)}
+    # target 1 crosses the cut (seen by both segments in the overlap); target 2 only before,
+    # target 3 only after; segment 1 also sees target 1 a few frames late (starts after b.start)
+    left = [_track(1, range(10, a.stop + 1), (20, 20), (1.0, 0.5)),
+            _track(2, range(5, 30), (200, 50), (-1.0, 0.0))]
+    right = [_track(7, range(b.start + 3, 95), (20, 20), (1.0, 0.5), A1),
+             _track(8, range(70, 100), (50, 150), (0.0, -1.0), A1)]
+    res = [SegmentResult(a, regs0, [], left, (320, 240)),
+           SegmentResult(b, regs1, [], right, (320, 240))]
+    regs, dets, tracklets, report = join_segments(res)
+    assert sorted(regs) == list(range(1, 101))
+    assert all(np.allclose(r.H, np.eye(3), atol=1e-5) for r in regs.values())  # world 0 = frame
+    assert report.stitched == [1] and report.cut == [0]
+    assert len(tracklets) == 3
+    t1 = next(t for t in tracklets if t.first == 10)
+    assert [p.frame for p in t1.points] == list(range(10, 95))  # one point per frame, no seam
+    for p in t1.points:  # every point in world 0
+        assert np.allclose(p.world, np.array([20, 20]) + np.array([1.0, 0.5]) * p.frame, atol=1e-3)
+    pairs = stitch_pairs(left, right, b.start, a.stop)
+    assert pairs == [(0, 0)]
+
+
+# -- real runs on a local cluster -----------------------------------------------------------------
+def test_segments_on_a_cluster_match_the_single_process(scene, client):
+    from aerotrack.evaluation import evaluate
+    from aerotrack.io import open_source
+    from aerotrack.outputs import track_rows
+    from aerotrack.parallel import run_parallel
+    from aerotrack.pipeline import run
+
+    folder, gt = scene
+    src = open_source(folder, FPS)
+    single = run(src, metres_per_unit=0.3)
+    par, report = run_parallel(src, client=client, metres_per_unit=0.3, with_report=True,
+                               parallel=ParallelConfig(segment_s=4.0, min_segments=2))
+    assert sorted(par.registrations) == sorted(single.registrations) == list(range(1, 121))
+    assert [d.frame for d in par.detections] == [d.frame for d in single.detections]
+    assert len(report.world_rms) >= 1 and max(report.world_rms) < 1.0  # px of world 0
+    # world coordinates agree after chaining (frame 1 pixels): compare frame corners
+    corners = np.array([[0, 0], [240, 0], [240, 180], [0, 180.0]])
+    err = max(np.abs(apply_homography(single.registrations[f].H, corners)
+                     - apply_homography(par.registrations[f].H, corners)).max()
+              for f in single.registrations)
+    assert err < 3.0
+    # segment 0 reads the same frames from frame 1: its owned frames are identical
+    own0 = plan_segments(1, 120, fps=FPS, segment_s=4.0, overlap_s=4.5, min_segments=2)[0]
+    for ds, dp in zip(single.detections, par.detections):
+        if ds.frame <= own0.own_stop:
+            assert np.allclose(ds.boxes, dp.boxes)
+    rows_s, rows_p = track_rows(single, None)[0], track_rows(par, None)[0]
+    es, ep = evaluate(gt, rows_s), evaluate(gt, rows_p)
+    assert abs(es["HOTA"] - ep["HOTA"]) < 0.03
+    assert abs(es["IDF1"] - ep["IDF1"]) < 0.03
+    # and the tracks themselves: the single process's tracks as ground truth for the segments'
+    agree = evaluate(rows_s, rows_p)
+    assert agree["HOTA"] > 0.85 and agree["IDF1"] > 0.85
+
+
+def test_a_segment_whose_worker_dies_is_run_again(scene, client):
+    folder, _ = scene
+    segs = plan_segments(1, 60, fps=FPS, segment_s=6.0, overlap_s=4.5)
+    task = make_tasks(folder, config=Config(), fps=FPS, segments=segs[:1],
+                      metres_per_unit=0.3)[0]
+    expected = run_segment(task)  # in this process
+    from aerotrack.parallel import submit_tasks
+
+    (fut,) = submit_tasks(client, [task], name="kill-test")
+    killed = None
+    deadline = time.monotonic() + 60
+    while killed is None and time.monotonic() < deadline:
+        processing = client.processing()
+        for addr, keys in processing.items():
+            if fut.key in keys:
+                pid = client.run(os.getpid, workers=[addr])[addr]
+                time.sleep(0.3)  # let the task get under way
+                os.kill(pid, signal.SIGKILL)
+                killed = pid
+                break
+        time.sleep(0.02)
+    assert killed is not None, "the task never started"
+    res = fut.result(timeout=120)
+    assert res.pid != killed  # re-run by another (or the restarted) worker process
+    suspicious = client.run_on_scheduler(
+        lambda dask_scheduler, key=fut.key: dask_scheduler.tasks[key].suspicious
+        if key in dask_scheduler.tasks else -1)
+    assert suspicious >= 1  # the scheduler saw the worker die holding it
+    assert sorted(res.registrations) == sorted(expected.registrations)
+    assert [len(d) for d in res.detections] == [len(d) for d in expected.detections]
+    assert len(res.tracklets) == len(expected.tracklets)
+    client.wait_for_workers(2, timeout=60)  # the nanny restarts the killed worker
+
+
+def test_missing_dask_names_the_extra(monkeypatch):
+    from aerotrack.parallel import dask_client
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import now fails
+    with pytest.raises(InputError, match=r"pip install aerotrack\[dask\]"):
+        with dask_client(workers=1):
+            pass
+
+
+# -- many videos ----------------------------------------------------------------------------------
+def test_batch_tracks_each_input_once_and_skips_finished(tmp_path, scene, client):
+    from aerotrack.cli.main import cli
+
+    src_frames = sorted(scene[0].iterdir())[:45]
+    inp = tmp_path / "in"
+    for name in ("flight_a", "flight_b"):
+        (inp / name).mkdir(parents=True)
+        for p in src_frames:
+            (inp / name / p.name).write_bytes(p.read_bytes())
+    (inp / "notes.txt").write_text("not a video")
+    out = tmp_path / "out"
+    (out / "flight_b").mkdir(parents=True)
+    (out / "flight_b" / "summary.json").write_text("{}")  # finished earlier
+    items = plan_batch(inp, out)
+    assert [(i.name, i.done) for i in items] == [("flight_a", False), ("flight_b", True)]
+    args = ["batch", str(inp), "--out", str(out), "--gsd", "0.3", "--fps", "10"]
+    r = CliRunner().invoke(cli, args, catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    summary = json.loads((out / "flight_a" / "summary.json").read_text())
+    assert summary["frames"] == 45 and (out / "flight_a" / "tracks.csv").is_file()
+    assert (out / "flight_b" / "summary.json").read_text() == "{}"  # skipped, untouched
+    # the same on the cluster engine gives the same files (one segment per 4.5 s video)
+    out2 = tmp_path / "out2"
+    addr = client.scheduler.address
+    r = CliRunner().invoke(cli, args[:3] + [str(out2)] + args[4:] + ["--scheduler", addr],
+                           catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    for name in ("flight_a", "flight_b"):
+        s2 = json.loads((out2 / name / "summary.json").read_text())
+        assert s2["frames"] == 45
+        assert s2["counts"]["detections"] == summary["counts"]["detections"]
