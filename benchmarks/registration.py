@@ -85,7 +85,10 @@ class Renderer:
             p = p0 + v * t
             cv2.rectangle(img, (int(p[0]), int(p[1])), (int(p[0] + wh[0]), int(p[1] + wh[1])),
                           (grey, grey, grey), -1)
-        f = cv2.warpPerspective(img, Hm, self.size, flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP)
+        # Hm maps continuous pixels (origin at the corner); OpenCV warps pixel indices
+        T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+        f = cv2.warpPerspective(img, np.linalg.inv(T) @ Hm @ T, self.size,
+                                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
         if noise:
             gain = 1.0 + 0.1 * np.sin(2 * np.pi * t / 30.0)
             f = np.clip(f * gain + self.rng.normal(0, 2.0, f.shape), 0, 255).astype(np.uint8)
@@ -97,7 +100,9 @@ def perturb_map(map_img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     h, w = map_img.shape[:2]
     s, off = 1.003, np.array([0.4, -0.3])
     A = np.array([[s, 0, (1 - s) * w / 2 + off[0]], [0, s, (1 - s) * h / 2 + off[1]], [0, 0, 1.0]])
-    img = cv2.warpAffine(map_img, A[:2], (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    Ai = np.linalg.inv(T) @ A @ T  # A acts on continuous pixels, warpAffine on indices
+    img = cv2.warpAffine(map_img, Ai[:2], (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
     f = img.astype(np.float32) / 255.0
     f = 0.85 * (f ** 0.8) + 0.05  # contrast and gamma
     f = f * np.array([0.85, 1.0, 1.12], np.float32)  # seasonal colour shift (BGR)
@@ -136,6 +141,26 @@ def run_flight(geomap: GeoMap, map_img: np.ndarray, n: int, refine_every_s: floa
             "max_err_m": float(e.max() * geomap.metres_per_pixel),
             "ms_per_frame": 1000 * t_reg / n, "statuses": statuses,
             "err_every_30_frames_px": [round(float(x), 3) for x in checked]}
+
+
+def map_mosaic(geomap: GeoMap, map_img: np.ndarray, n: int, out_png: Path, fps: float = 30.0) -> dict:
+    """Register a generated flight against the map and paint every 30th frame onto it (fig. 2)."""
+    size = (640, 480)
+    render = Renderer(map_img, size, seed=3)
+    geomap._image = map_img
+    reg = FrameRegistrar(RegistrationConfig(), fps, geomap, camera(0.0, size))
+    Hs, painted = {}, []
+    for k in range(n):
+        t = k / fps
+        frame = Frame(k + 1, render(t, camera(t, size)), t)
+        Hs[frame.index] = reg.step(frame).H
+        if k % 30 == 0:
+            painted.append(frame)
+    geomap._image = None
+    img = paint_mosaic(painted, Hs, size, base=map_img, max_side=1300, outline_every=4)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out_png), img)
+    return {"frames": n, "mosaic": str(out_png.relative_to(REPO))}
 
 
 # -- real video -----------------------------------------------------------------------------------
@@ -301,6 +326,9 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{k:>9} {'perturbed' if r['perturbed_map'] else 'same':>9} {r['mean_err_px']:6.2f} "
                   f"{r['max_checked_err_px']:7.2f} {r['max_err_px']:6.2f} {r['max_err_m']:6.2f} "
                   f"{r['ms_per_frame']:8.2f}")
+    if not args.skip_accuracy:
+        results["map_mosaic"] = map_mosaic(geomap, map_img, min(args.frames, 900),
+                                           REPO / "docs/images/mosaic_vegas_generated.png")
     if not args.skip_real and TRUCK4.exists():
         results["truck4"] = tr = run_real(REPO / "docs/images/mosaic_truck4.png")
         print(f"\ntruck4 (no map): {tr['statuses']}, median inlier ratio {tr['inlier_ratio_median']:.3f}")

@@ -47,8 +47,16 @@ def camera(t: float, jump: float = 0.0) -> np.ndarray:
     return Hm / Hm[2, 2]
 
 
+def to_index(Hm: np.ndarray) -> np.ndarray:
+    """A homography between continuous pixels (origin at the corner) as OpenCV's pixel indices."""
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    return np.linalg.inv(T) @ Hm @ T
+
+
 def render(map_img: np.ndarray, Hm: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
-    f = cv2.warpPerspective(map_img, Hm, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    """The view of a camera whose frame -> map homography (continuous pixels) is ``Hm``."""
+    f = cv2.warpPerspective(map_img, to_index(Hm), (W, H),
+                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
     if rng is not None:
         f = np.clip(f + rng.normal(0, 2.0, f.shape), 0, 255).astype(np.uint8)
     return f

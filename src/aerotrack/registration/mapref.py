@@ -199,8 +199,10 @@ def refine_against_map(
     if x1 - x0 < 2 * patch_px or y1 - y0 < 2 * patch_px:
         return Failure("map refinement: frame footprint lies (mostly) outside the map")
     # frame -> ROI of the map, at map resolution; blur first when that shrinks the frame
-    T = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], dtype=np.float64)
-    Hw = T @ H_rough
+    # OpenCV warps pixel indices (centre at integer coordinates); H_rough maps continuous pixels
+    # (origin at the top-left corner): frame index -> continuous (+0.5) -> map -> ROI index
+    T = np.array([[1, 0, -x0 - 0.5], [0, 1, -y0 - 0.5], [0, 0, 1]], dtype=np.float64)
+    Hw = T @ H_rough @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]], dtype=np.float64)
     shrink = math.sqrt(abs(np.linalg.det(Hw[:2, :2] / Hw[2, 2])))
     if shrink < 0.7:
         fgray = cv2.GaussianBlur(fgray, (0, 0), 0.5 / shrink)
@@ -240,8 +242,8 @@ def refine_against_map(
             prior = (result[0] * f, result[1] * f)
         if result is None:
             continue
-        src.append((cx + x0, cy + y0))
-        dst.append((cx + x0 + prior[1], cy + y0 + prior[0]))
+        src.append((cx + x0 + 0.5, cy + y0 + 0.5))  # ROI index -> continuous map pixels
+        dst.append((cx + x0 + 0.5 + prior[1], cy + y0 + 0.5 + prior[0]))
     n = len(src)
     if n < min_inliers:
         return Failure(f"map refinement: too few patch matches ({n} < {min_inliers})")
