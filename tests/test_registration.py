@@ -331,3 +331,26 @@ def test_mosaic_command_without_and_with_map(tmp_path, map_img):
     assert all(corner_error(r.H, Hm, W, H) < 1.0 for r, Hm in zip(regs, truth))
     res = runner.invoke(cli, ["mosaic", str(frames), "--out", str(tmp_path / "m.gif")])
     assert res.exit_code != 0
+
+
+def test_registrar_resets_after_a_cut_to_another_place(map_img):
+    """A cut to unrelated ground cannot be registered: frames are carried, then the stage starts a
+    new reference (status reset) and registers the following frames against it."""
+    fps = 10.0
+    cfg = RegistrationConfig(reset_after_s=0.5)
+    reg = FrameRegistrar(cfg, fps)
+    rng = np.random.default_rng(7)
+    away = np.array([[1, 0, -450.0], [0, 1, 420.0], [0, 0, 1]])
+    out = []
+    for k in range(20):
+        Hm = camera(k / fps)
+        if k >= 8:
+            Hm = away @ Hm
+        out.append(reg.step(Frame(k + 1, render(map_img, Hm, rng), k / fps)))
+    statuses = [r.status for r in out]
+    assert statuses[:8] == ["ok"] * 8
+    assert "carried" in statuses[8:13]
+    assert "reset" in statuses
+    first_reset = statuses.index("reset")
+    assert all(s == "ok" for s in statuses[first_reset + 1:])
+    assert all(np.all(np.isfinite(r.H)) for r in out)
