@@ -282,8 +282,13 @@ def read_registration_csv(path: str | Path) -> list[Registration]:
         for lineno, row in enumerate(rd, start=2):
             try:
                 H = np.array([float(v) for v in row[1:10]]).reshape(3, 3)
-                out.append(Registration(int(row[0]), H, row[10], int(row[11]), float(row[12]),
-                                        float(row[13]), row[14] if len(row) > 14 else ""))
+                out.append(Registration(int(row[0]), H, row[10], int(row[11]), _num(row[12]),
+                                        _num(row[13]), row[14] if len(row) > 14 else ""))
             except (ValueError, IndexError):
                 raise InputError(f"{p} line {lineno}: malformed row") from None
     return out
+
+
+def _num(text: str) -> float:
+    """A CSV number; empty means unknown (NaN), as aerotrack.outputs writes it."""
+    return float(text) if text.strip() else float("nan")
