@@ -10,9 +10,8 @@ constant-velocity model driven by white-noise acceleration, the size a random wa
   ``S = H (A P A^T + Q) H^T + R``.
 
 The filter is a set of pure functions on plain arrays (``transition``, ``process_noise``,
-``measurement_noise``, ``initiate``, ``predict``, ``update``), written so that numba can compile them
-(:data:`predict_nb`, :data:`update_nb`, ... are the compiled twins used inside the MCMC hot loop,
-same code), and :class:`ConstantVelocityKF`, a small class holding the noise parameters. Every stage
+``measurement_noise``, ``initiate``, ``predict``, ``update``), compiled by numba so that the MCMC
+hot loop can call them without Python overhead (they are called from Python as usual), and :class:`ConstantVelocityKF`, a small class holding the noise parameters. Every stage
 (local association, bridging, prediction) uses this filter with its own parameters; never copy it.
 
 Time steps are in seconds (``dt`` may be any positive number: a gap of several frames is one
@@ -37,6 +36,7 @@ DIM_X = 6
 DIM_Z = 4
 
 
+@_njit(cache=True)
 def transition(dt: float) -> np.ndarray:
     """(6, 6) constant-velocity transition ``A(dt)`` (eq. 6) for a step of ``dt`` seconds."""
     A = np.eye(DIM_X)
@@ -45,6 +45,7 @@ def transition(dt: float) -> np.ndarray:
     return A
 
 
+@_njit(cache=True)
 def process_noise(dt: float, accel_std: float, size_std: float) -> np.ndarray:
     """(6, 6) process noise ``Q(dt)``.
 
@@ -69,6 +70,7 @@ def process_noise(dt: float, accel_std: float, size_std: float) -> np.ndarray:
     return Q
 
 
+@_njit(cache=True)
 def measurement_noise(size: np.ndarray, pos_std: float, pos_frac: float, size_std: float,
                       size_frac: float) -> np.ndarray:
     """(4, 4) diagonal measurement noise ``R`` for an observation of box size ``size`` (2,).
@@ -84,6 +86,7 @@ def measurement_noise(size: np.ndarray, pos_std: float, pos_frac: float, size_st
     return R
 
 
+@_njit(cache=True)
 def initiate(z: np.ndarray, R: np.ndarray, vel_std: float) -> tuple[np.ndarray, np.ndarray]:
     """State (6,) and covariance (6, 6) from one observation ``z`` (4,), velocity unknown.
 
@@ -98,13 +101,74 @@ def initiate(z: np.ndarray, R: np.ndarray, vel_std: float) -> tuple[np.ndarray, 
     return x, P
 
 
+@_njit(cache=True)
 def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Prior state (6,) and covariance (6, 6) after one transition (eq. 6)."""
-    xp = A @ x
-    Pp = A @ P @ A.T + Q
+    """Prior state (6,) and covariance (6, 6) after one transition (eq. 6): ``A x``, ``A P A^T + Q``.
+
+    Written as explicit loops so that the compiled twin allocates nothing but its results.
+    """
+    n = x.shape[0]
+    xp = np.zeros(n)
+    AP = np.zeros((n, n))
+    Pp = np.zeros((n, n))
+    for i in range(n):
+        acc = 0.0
+        for k in range(n):
+            acc += A[i, k] * x[k]
+        xp[i] = acc
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += A[i, k] * P[k, j]
+            AP[i, j] = acc
+    for i in range(n):
+        for j in range(n):
+            acc = Q[i, j]
+            for k in range(n):
+                acc += AP[i, k] * A[j, k]
+            Pp[i, j] = acc
     return xp, Pp
 
 
+@_njit(cache=True)
+def cholesky_solve(S: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, float]:
+    """Solve ``S X = B`` for symmetric positive-definite S (m, m), B (m, k); also ``log det S``.
+
+    Returns (X, logdet); X is all-NaN and logdet +inf when S is not positive definite.
+    """
+    m = S.shape[0]
+    L = np.zeros((m, m))
+    logdet = 0.0
+    for i in range(m):
+        for j in range(i + 1):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if acc <= 0.0:
+                    return np.full(B.shape, np.nan), np.inf
+                L[i, i] = np.sqrt(acc)
+                logdet += 2.0 * np.log(L[i, i])
+            else:
+                L[i, j] = acc / L[j, j]
+    nb = B.shape[1]
+    X = np.zeros((m, nb))
+    for c in range(nb):
+        y = np.zeros(m)
+        for i in range(m):
+            acc = B[i, c]
+            for k in range(i):
+                acc -= L[i, k] * y[k]
+            y[i] = acc / L[i, i]
+        for i in range(m - 1, -1, -1):
+            acc = y[i]
+            for k in range(i + 1, m):
+                acc -= L[k, i] * X[k, c]
+            X[i, c] = acc / L[i, i]
+    return X, logdet
+
+
+@_njit(cache=True)
 def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Posterior after observing ``z`` (4,) with noise ``R`` (4, 4), and the motion likelihood.
@@ -118,25 +182,51 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
     d2 : float
         Squared Mahalanobis distance ``e^T S^-1 e`` (chi-square with 4 degrees of freedom).
     """
-    e = z[:4] - x[:4]
-    S = P[:4, :4] + R
-    Sinv = np.linalg.inv(S)
-    K = P[:, :4] @ Sinv
-    d2 = e @ Sinv @ e
-    det = np.linalg.det(S)
-    loglik = -0.5 * d2 - 0.5 * np.log(det) - 2.0 * np.log(2.0 * np.pi)
-    xn = x + K @ e
-    Pn = P - K @ P[:4, :]
-    Pn = 0.5 * (Pn + Pn.T)
+    n = x.shape[0]
+    m = 4
+    S = np.zeros((m, m))
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = P[i, j] + R[i, j]
+    # [S^-1 e | S^-1 H P] in one solve
+    B = np.zeros((m, n + 1))
+    for i in range(m):
+        B[i, 0] = z[i] - x[i]
+        for j in range(n):
+            B[i, j + 1] = P[i, j]
+    X, logdet = cholesky_solve(S, B)
+    d2 = 0.0
+    for i in range(m):
+        d2 += B[i, 0] * X[i, 0]
+    loglik = -0.5 * d2 - 0.5 * logdet - 0.5 * m * np.log(2.0 * np.pi)
+    xn = np.zeros(n)
+    Pn = np.zeros((n, n))
+    for i in range(n):
+        acc = x[i]
+        for k in range(m):
+            acc += P[i, k] * X[k, 0]  # K e with K = P H^T S^-1
+        xn[i] = acc
+        for j in range(n):
+            acc = P[i, j]
+            for k in range(m):
+                acc -= P[i, k] * X[k, j + 1]  # K H P
+            Pn[i, j] = acc
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (Pn[i, j] + Pn[j, i])
+            Pn[i, j] = v
+            Pn[j, i] = v
     return xn, Pn, loglik, d2
 
 
-transition_nb = _njit(cache=True)(transition)
-process_noise_nb = _njit(cache=True)(process_noise)
-measurement_noise_nb = _njit(cache=True)(measurement_noise)
-initiate_nb = _njit(cache=True)(initiate)
-predict_nb = _njit(cache=True)(predict)
-update_nb = _njit(cache=True)(update)
+# The pure functions above are compiled by numba (callable from Python as usual); these aliases
+# name them where compiled code calls them.
+transition_nb = transition
+process_noise_nb = process_noise
+measurement_noise_nb = measurement_noise
+initiate_nb = initiate
+predict_nb = predict
+update_nb = update
 
 
 @dataclass(frozen=True)

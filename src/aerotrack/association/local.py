@@ -167,6 +167,7 @@ class LocalAssociator:
         n_iter = int(self.config.min_iters + math.ceil(self.config.iters_per_detection * n))
         if len(S.tids) or S.n_free():
             S.run(n_iter)
+            S.greedy_merges()
             self.stats["mcmc_iters"] += n_iter
         # tracks that can no longer be extended
         for tid in list(S.tracks):
@@ -206,7 +207,7 @@ class LocalAssociator:
         g = int(tr.nodes[k - 1])
         prior = Prior(tr.xs[k - 1], tr.Ps[k - 1], S.frame_of(g), S.hist_of(g))
         new = WTrack(tr.tid, tr.nodes[k:], tr.xs[k:], tr.Ps[k:], tr.d2[k:], tr.gaps[k:],
-                     tr.links[k:], prior, float(tr.links[k:].sum()))
+                     tr.links[k:], prior, float(tr.links[k:].sum()), tr.f_end, tr.app[k:])
         S.swap([tr], [new])
 
     def _finish(self, tid: int) -> list[Tracklet]:
@@ -277,7 +278,7 @@ class LocalAssociator:
             j = int(np.argmax(w))
             gg = int(cands[j])
             fg = S.frame_of(gg)
-            x, P, _ = link_step(x, P, (f - fg) / self.fps, S.store.z[gg - S.store.base], S.p.kf)
+            x, P, _, _ = link_step(x, P, (f - fg) / self.fps, S.store.z[gg - S.store.base], S.p.kf)
             f, h = fg, S.hist_of(gg)
             chain.append(gg)
         return chain[::-1]

@@ -78,6 +78,8 @@ class WTrack:
     links: np.ndarray
     prior: Prior | None
     score: float
+    f_end: int  # frame of the last observation (of the prior when the window part is empty)
+    app: np.ndarray  # (n,) appearance part of each link (eq. 9)
 
     def __len__(self) -> int:
         return len(self.nodes)
@@ -209,14 +211,15 @@ class WindowSampler:
         else:
             x0, P0, f0, has = np.zeros(6), np.zeros((6, 6)), 0, False
         rest = li[keep:]
-        xs, Ps, d2, gaps = run_track(x0, P0, f0, has, s.z[rest], s.frame[rest], self.p.fps,
-                                     self.p.kf)
+        xs, Ps, d2, rel, gaps = run_track(x0, P0, f0, has, s.z[rest], s.frame[rest], self.p.fps,
+                                          self.p.kf)
+        links = 0.5 * self.p.gate2 + rel - self.p.miss_cost * np.maximum(gaps - 1, 0)
         if keep > 0:
             xs = np.concatenate([base.xs[:keep], xs])
             Ps = np.concatenate([base.Ps[:keep], Ps])
             d2 = np.concatenate([base.d2[:keep], d2])
             gaps = np.concatenate([base.gaps[:keep], gaps])
-        links = 0.5 * (self.p.gate2 - d2) - self.p.miss_cost * np.maximum(gaps - 1, 0)
+            links = np.concatenate([base.links[:keep] - base.app[:keep], links])
         first = 0 if prior is not None else 1
         if prior is None and n:
             links[0] = 0.0
@@ -227,10 +230,13 @@ class WindowSampler:
             if prior is not None and prior.hist is not None:
                 app[0] = self._app_prior(prior.hist, int(li[0]))
             links = links + app
+        else:
+            app = np.zeros(n)
         score = float(links.sum()) - (self.p.birth_cost if prior is None else 0.0)
         if n > first and np.any(d2[first:] > self.p.gate2):
             score = -math.inf
-        return WTrack(tid, nodes, xs, Ps, d2, gaps, links, prior, score)
+        f_end = int(s.frame[li[-1]]) if n else prior.frame
+        return WTrack(tid, nodes, xs, Ps, d2, gaps, links, prior, score, f_end, app)
 
     def end_state(self, t: WTrack):
         """(x, P, frame, hist) at the track's last observation (or its prior)."""
@@ -239,13 +245,14 @@ class WindowSampler:
             return t.xs[-1], t.Ps[-1], self.frame_of(g), self.hist_of(g)
         return t.prior.x, t.prior.P, t.prior.frame, t.prior.hist
 
-    def end_frame(self, t: WTrack) -> int:
-        return self.frame_of(int(t.nodes[-1])) if len(t) else t.prior.frame
+    @staticmethod
+    def end_frame(t: WTrack) -> int:
+        return t.f_end
 
     def start_reverse_state(self, nodes: np.ndarray):
         """Reverse-time Kalman state at the first of ``nodes`` (filtering them backwards)."""
         li = np.asarray(nodes[::-1], dtype=np.int64) - self.store.base
-        xs, Ps, _, _ = run_track(np.zeros(6), np.zeros((6, 6)), 0, False, self.store.z[li],
+        xs, Ps, _, _, _ = run_track(np.zeros(6), np.zeros((6, 6)), 0, False, self.store.z[li],
                                  self.store.frame[li], self.p.fps, self.p.kf)
         return xs[-1], Ps[-1]
 
@@ -383,7 +390,7 @@ class WindowSampler:
             out.append(g)
             k += 1
             fg = int(s.frame[g - s.base])
-            x, P, _ = link_step(x, P, abs(fg - f_end) / self.p.fps, s.z[g - s.base], self.p.kf)
+            x, P, _, _ = link_step(x, P, abs(fg - f_end) / self.p.fps, s.z[g - s.base], self.p.kf)
             f_end = fg
             h_end = None if s.hist is None else s.hist[g - s.base]
 
@@ -529,40 +536,47 @@ class WindowSampler:
         log_fwd = math.log(_P["split"] / K * w[j] / w.sum())
 
         def log_rev():
-            n_pairs = len(self.merge_pairs()[0])
-            return math.log(_P["merge"] / n_pairs) if n_pairs else -math.inf
+            n = len(self.merge_cands(head))
+            return math.log(_P["merge"] / (K + 1) / n) if n else -math.inf
         return [t], [head, tail], log_fwd, log_rev
 
-    def merge_pairs(self):
-        """Candidate set C_merge: (k1, k2) with k2 born in the window starting among k1's children."""
-        ts = list(self.tracks.values())
-        if len(ts) < 2:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64), ts
+    def merge_cands(self, t: WTrack) -> list[int]:
+        """Tracks born in the window whose first observation is a child of ``t``'s last (the
+        part of C_merge whose first member is ``t``)."""
         s = self.store
-        ef = np.array([self.end_frame(t) for t in ts])
-        ep = np.array([t.xs[-1, :2] if len(t) else t.prior.x[:2] for t in ts])
-        born = np.array([t.prior is None and len(t) > 0 for t in ts])
-        sg = np.array([t.nodes[0] if len(t) else s.base for t in ts]) - s.base
-        sf = np.where(born, s.frame[sg], -10**9)
-        sp = s.z[sg, :2]
-        ssz = 0.25 * (s.z[sg, 2] + s.z[sg, 3])
-        gap = sf[None, :] - ef[:, None]
-        dist2 = np.sum((sp[None, :, :] - ep[:, None, :]) ** 2, axis=-1)
-        reach = self.p.reach_mps * gap / self.p.fps + ssz[None, :]
-        ok = born[None, :] & (gap >= 1) & (gap <= self.p.max_gap) & (dist2 <= reach**2)
-        np.fill_diagonal(ok, False)
-        a, b = np.nonzero(ok)
-        return a, b, ts
+        if len(t):
+            e = t.nodes[-1] - s.base
+            ep, esz = s.z[e, :2], 0.25 * (s.z[e, 2] + s.z[e, 3])
+        else:
+            ep, esz = t.prior.x[:2], 0.25 * (t.prior.x[2] + t.prior.x[3])
+        lo, hi = s.range(t.f_end + 1, min(t.f_end + self.p.max_gap, self.now))
+        if hi <= lo:
+            return []
+        li = np.arange(lo - s.base, hi - s.base)
+        li = li[(s.label[li] >= 0) & (s.prev[li] < 0) & (s.label[li] != t.tid)]
+        if not len(li):
+            return []
+        dt = (s.frame[li] - t.f_end) / self.p.fps
+        r = self.p.reach_mps * dt + esz
+        ok = np.sum((s.z[li, :2] - ep) ** 2, axis=1) <= r * r
+        out = []
+        for lab in s.label[li[ok]].tolist():
+            if self.tracks[lab].prior is None:
+                out.append(lab)
+        return out
 
     def move_merge(self):
-        a, b, ts = self.merge_pairs()
-        if not len(a):
+        """Merge: a track u.a.r., then a partner u.a.r. among its candidates in C_merge."""
+        t1 = self._pick_track()
+        if t1 is None:
             return None
-        j = int(self.rng.integers(len(a)))
-        t1, t2 = ts[a[j]], ts[b[j]]
+        cands = self.merge_cands(t1)
+        if not cands:
+            return None
+        t2 = self.tracks[cands[int(self.rng.integers(len(cands)))]]
         new = self.build(t1.tid, np.concatenate([t1.nodes, t2.nodes]), t1.prior, t1, len(t1))
-        log_fwd = math.log(_P["merge"] / len(a))
         K = len(self.tids)
+        log_fwd = math.log(_P["merge"] / K / len(cands))
 
         def log_rev():
             w, first = self._split_weights(new)
@@ -691,6 +705,29 @@ class WindowSampler:
                     best_state[t.tid] = t
         if best_state is not None:
             self.restore(best_state)
+
+    def greedy_merges(self) -> int:
+        """Deterministic hill climbing after sampling: join every track that stopped before the
+        current frame to its best merge candidate when that raises the posterior. A chain of
+        Metropolis-Hastings samples can leave a fragment behind (a split accepted early, with the
+        gains of other moves later); this repairs it. Returns the number of merges."""
+        done = 0
+        for tid in list(self.tracks):
+            t1 = self.tracks.get(tid)
+            if t1 is None or t1.f_end >= self.now:
+                continue
+            best, best_d = None, 0.0
+            for c in self.merge_cands(t1):
+                t2 = self.tracks[c]
+                new = self.build(t1.tid, np.concatenate([t1.nodes, t2.nodes]), t1.prior, t1,
+                                 len(t1))
+                d = new.score - t1.score - t2.score
+                if d > best_d:
+                    best, best_d = (t2, new), d
+            if best is not None:
+                self.swap([t1, best[0]], [best[1]])
+                done += 1
+        return done
 
     def snapshot(self) -> dict[int, WTrack]:
         return dict(self.tracks)

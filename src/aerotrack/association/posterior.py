@@ -66,11 +66,20 @@ def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def link_step(x, P, dt, z, params):
-    """One Kalman link: predict ``dt`` s ahead from (x, P), update with ``z``; returns x, P, d^2."""
+    """One Kalman link: predict ``dt`` s ahead from (x, P), update with ``z``.
+
+    Returns the posterior x, P, the squared Mahalanobis distance d^2 and
+    ``log N(z; Hx, S) - log N(0; 0, R)``, the motion log-likelihood (eq. 8) relative to that of
+    a perfectly predicted observation (so that it does not depend on units).
+    """
     xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
     R = measurement_noise_nb(z[2:4], params[2], params[3], params[4], params[5])
-    xn, Pn, _, d2 = update_nb(xp, Pp, z, R)
-    return xn, Pn, d2
+    xn, Pn, ll, d2 = update_nb(xp, Pp, z, R)
+    logdet_r = 0.0
+    for i in range(4):
+        logdet_r += np.log(R[i, i])
+    rel = ll + 2.0 * np.log(2.0 * np.pi) + 0.5 * logdet_r
+    return xn, Pn, d2, rel
 
 
 @njit(cache=True)
@@ -78,16 +87,18 @@ def run_track(x0, P0, f0, has_prior, zs, frames, fps, params):
     """Filter a track's window observations ``zs`` (n, 4, metres) at ``frames`` (n,).
 
     Starts from the prior state (x0, P0) at frame f0 when ``has_prior``, else initiates at zs[0].
-    Returns states (n, 6), covariances (n, 6, 6), squared Mahalanobis distances (n,) and frame gaps
-    (n,) of each incoming link (0 for a first observation without prior).
+    Returns states (n, 6), covariances (n, 6, 6), squared Mahalanobis distances (n,), relative
+    motion log-likelihoods (n,, see :func:`link_step`) and frame gaps (n,) of each incoming link
+    (0 for a first observation without prior).
     """
     n = zs.shape[0]
     xs = np.zeros((n, 6))
     Ps = np.zeros((n, 6, 6))
     d2 = np.zeros(n)
+    rel = np.zeros(n)
     gaps = np.zeros(n, dtype=np.int64)
     if n == 0:
-        return xs, Ps, d2, gaps
+        return xs, Ps, d2, rel, gaps
     if has_prior:
         x = x0.copy()
         P = P0.copy()
@@ -107,23 +118,29 @@ def run_track(x0, P0, f0, has_prior, zs, frames, fps, params):
         start = 1
     for i in range(start, n):
         g = frames[i] - fprev
-        x, P, d2[i] = link_step(x, P, abs(g) / fps, zs[i], params)
+        x, P, d2[i], rel[i] = link_step(x, P, abs(g) / fps, zs[i], params)
         gaps[i] = abs(g)
         xs[i] = x
         Ps[i] = P
         fprev = frames[i]
-    return xs, Ps, d2, gaps
+    return xs, Ps, d2, rel, gaps
 
 
 @njit(cache=True)
 def _d2_predicted(xp, Pp, z, params):
-    """Squared Mahalanobis distance of ``z`` from a predicted state, by a 4x4 Cholesky solve."""
+    """Squared Mahalanobis distance of ``z`` from a predicted state (4x4 Cholesky solve), and
+    ``log det S - log det R`` (how much the prediction's uncertainty widens the likelihood)."""
     S = Pp[:4, :4].copy()
+    logdet_r = 0.0
     for i in range(2):
         s = abs(z[2 + i])
-        S[i, i] += params[2] * params[2] + (params[3] * s) ** 2
-        S[i + 2, i + 2] += params[4] * params[4] + (params[5] * s) ** 2
+        r_pos = params[2] * params[2] + (params[3] * s) ** 2
+        r_size = params[4] * params[4] + (params[5] * s) ** 2
+        S[i, i] += r_pos
+        S[i + 2, i + 2] += r_size
+        logdet_r += np.log(r_pos) + np.log(r_size)
     L = np.zeros((4, 4))
+    logdet_s = 0.0
     for i in range(4):
         for j in range(i + 1):
             acc = S[i, j]
@@ -131,8 +148,9 @@ def _d2_predicted(xp, Pp, z, params):
                 acc -= L[i, k] * L[j, k]
             if i == j:
                 if acc <= 0.0:
-                    return np.inf
+                    return np.inf, 0.0
                 L[i, i] = np.sqrt(acc)
+                logdet_s += np.log(acc)
             else:
                 L[i, j] = acc / L[j, j]
     y = np.zeros(4)
@@ -143,7 +161,7 @@ def _d2_predicted(xp, Pp, z, params):
             acc -= L[i, k] * y[k]
         y[i] = acc / L[i, i]
         d2 += y[i] * y[i]
-    return d2
+    return d2, logdet_s - logdet_r
 
 
 @njit(cache=True)
@@ -177,10 +195,10 @@ def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, r
         if gap != last_gap:
             xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
             last_gap = gap
-        d2 = _d2_predicted(xp, Pp, Z[j], params)
+        d2, dlogdet = _d2_predicted(xp, Pp, Z[j], params)
         if d2 > gate2:
             continue
-        s = 0.5 * (gate2 - d2) - miss_cost * (gap - 1)
+        s = 0.5 * (gate2 - d2 - dlogdet) - miss_cost * (gap - 1)
         if B > 0 and app_weight > 0 and h_end.shape[0] == B:
             kl = 0.0
             for b in range(B):
