@@ -287,9 +287,9 @@ class AssociationConfig:
 
     window_s: float = 1.5
     max_speed_mps: float = 40.0
-    max_gap_s: float = 1.0
+    max_gap_s: float = 1.2
     target_size_m: float = 2.8
-    accel_std_mps2: float = 4.0
+    accel_std_mps2: float = 10.0
     size_std_m: float = 0.3
     pos_std_m: float = 0.2
     pos_frac: float = 0.06
@@ -350,7 +350,7 @@ class LinkingConfig:
     velocity_sigma_mps: float = 1.0
     velocity_sigma_growth_mps2: float = 0.5
     weight_motion: float = 1.0
-    weight_appearance: float = 0.5
+    weight_appearance: float = 1.0
     weight_descriptor: float = 0.5
     max_cost: float = 6.0
     min_tracklet_s: float = 0.2

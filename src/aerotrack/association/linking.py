@@ -36,7 +36,7 @@ from ..context.reacquire import Cues, appearance_cost, link_cost, motion_cost
 from ..errors import ConfigError
 from ..types import Track, TrackPoint
 
-__all__ = ["GlobalLinker", "link_tracklets"]
+__all__ = ["GlobalLinker", "link_tracklets", "estimate_scale"]
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,8 @@ class GlobalLinker:
         Motion-context settings (method, history window, prediction horizon).
     fps : float
     metres_per_unit : float, optional
-        World units -> metres (None: world units are metres).
+        World units -> metres. None (no map, no ground sampling distance): estimated from the
+        objects' sizes at :meth:`link` (:func:`estimate_scale`).
     """
 
     def __init__(self, config: LinkingConfig | None = None, ctx: ContextConfig | None = None,
@@ -70,6 +71,7 @@ class GlobalLinker:
         if not fps or fps <= 0:
             raise ConfigError(f"fps must be positive, got {fps}")
         self.fps = float(fps)
+        self.metres_per_unit = metres_per_unit
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
         self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
         self.last_costs: dict[tuple[int, int], tuple[float, Cues]] = {}
@@ -100,6 +102,11 @@ class GlobalLinker:
         tl = [t for t in tracklets if any(p.kind in _IN_VIEW for p in t.points)]
         if not tl:
             return []
+        if not self.metres_per_unit:
+            self.mpu = estimate_scale(tl, self.ctx.image_object_size_m)
+            self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
+            log.info("linking: no scale known; taking the median object (%.1f world units) as %.1f m",
+                     self.ctx.image_object_size_m / self.mpu, self.ctx.image_object_size_m)
         links, _ = self.solve(tl)
         return self.build_tracks(tl, links)
 
@@ -233,6 +240,21 @@ class GlobalLinker:
             self._table_key = id(tl)
         fr, _ = _positions(tl[i])
         return self.predictor.predict(self._table, i, int(fr[-1]), h)
+
+
+def estimate_scale(tracklets: list[Track], object_size_m: float) -> float:
+    """Metres per world unit when none is known (``--detections`` without a map or ``--gsd``): the
+    median observed object's longer side (``size_world``, else the frame-pixel box) is taken to be
+    ``object_size_m`` metres. Crude, but it keeps speeds and gates in proportion to the objects."""
+    sides = []
+    for t in tracklets:
+        for p in t.points:
+            if p.kind != "observed":
+                continue
+            size = p.size_world if p.size_world is not None else (None if p.box is None else p.box[2:4])
+            if size is not None and np.all(np.isfinite(size)) and max(size) > 0:
+                sides.append(float(max(size)))
+    return object_size_m / float(np.median(sides)) if sides else 1.0
 
 
 def _predicted(last: TrackPoint, xy: np.ndarray) -> list[TrackPoint]:
