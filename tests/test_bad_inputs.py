@@ -1,0 +1,384 @@
+"""The corpus of bad inputs (issue 9): every entry point answers bad input with one line and exit
+code 2, or with a documented degraded result; never a traceback, never a half-written output.
+
+Inputs are generated here (small files in tmp_path), not stored.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+from rasterio.transform import from_origin
+
+from aerotrack.cli.main import main
+
+RESULT_FILES = ("tracks.csv", "predicted.csv", "detections.csv", "summary.json")
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    capsys.readouterr()
+    try:
+        main([str(a) for a in argv])
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def expect_error(capsys, fragments, *argv, out_dir: Path | None = None):
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 2, f"exit {code}: {err}"
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip() and "WARNING" not in ln and "INFO" not in ln]
+    assert lines, err
+    message = lines[-1]
+    assert message.startswith(("aerotrack: error:", "Error:")), err
+    for f in fragments:
+        assert f in err, f"{f!r} not in {err!r}"
+    if out_dir is not None:
+        for name in RESULT_FILES:
+            assert not (out_dir / name).exists(), f"half-written {name}"
+    return err
+
+
+# -- inputs made here ---------------------------------------------------------------------------
+def write_frames(folder: Path, frames: list[np.ndarray]) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, img in enumerate(frames, start=1):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), img)
+    return folder
+
+
+def textured(h=120, w=160, seed=0, shift=(0, 0)):
+    rng = np.random.default_rng(seed)
+    base = cv2.GaussianBlur(rng.integers(0, 255, (h + 40, w + 40, 3), dtype=np.uint8), (0, 0), 2)
+    dy, dx = shift
+    return np.ascontiguousarray(base[20 + dy:20 + dy + h, 20 + dx:20 + dx + w])
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps=10) -> Path:
+    h, w = frames[0].shape[:2]
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    for f in frames:
+        vw.write(f)
+    vw.release()
+    return path
+
+
+def write_map(path: Path, georef=True) -> Path:
+    kw = dict(crs="EPSG:32611", transform=from_origin(660000, 4000000, 0.3, 0.3)) if georef else {}
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(path, "w", driver="GTiff", width=400, height=300, count=1,
+                           dtype="uint16", **kw) as ds:
+            ds.write(np.random.default_rng(1).integers(0, 2047, (1, 300, 400), dtype=np.uint16))
+    return path
+
+
+@pytest.fixture
+def dets(tmp_path):
+    p = tmp_path / "dets.txt"
+    p.write_text("1,-1,10,10,8,4,0.9\n2,-1,12,10,8,4,0.9\n")
+    return p
+
+
+@pytest.fixture
+def video(tmp_path):
+    return write_video(tmp_path / "clip.avi", [textured(shift=(0, i)) for i in range(6)])
+
+
+# -- track ----------------------------------------------------------------------------------------
+def test_track_missing_input(tmp_path, capsys):
+    expect_error(capsys, ["missing.mp4"], "track", tmp_path / "missing.mp4", "--out", tmp_path / "o",
+                 out_dir=tmp_path / "o")
+
+
+def test_track_folder_without_images(tmp_path, capsys):
+    d = tmp_path / "frames"
+    d.mkdir()
+    (d / "readme.txt").write_text("no images here")
+    expect_error(capsys, ["no image files"], "track", d, "--out", tmp_path / "o")
+
+
+def test_track_zero_length_video(tmp_path, capsys):
+    p = tmp_path / "empty.mp4"
+    p.write_bytes(b"")
+    expect_error(capsys, ["empty.mp4", "empty"], "track", p, "--out", tmp_path / "o")
+
+
+def test_track_corrupt_video(tmp_path, capsys):
+    p = tmp_path / "corrupt.mp4"
+    p.write_bytes(np.random.default_rng(0).integers(0, 255, 5000, dtype=np.uint8).tobytes())
+    expect_error(capsys, ["corrupt.mp4"], "track", p, "--out", tmp_path / "o")
+
+
+def test_track_truncated_video(tmp_path, capsys, video):
+    data = video.read_bytes()
+    p = tmp_path / "truncated.avi"
+    p.write_bytes(data[:200])
+    expect_error(capsys, ["truncated.avi"], "track", p, "--out", tmp_path / "o")
+
+
+def test_track_single_image_as_input(tmp_path, capsys):
+    p = tmp_path / "one.png"
+    cv2.imwrite(str(p), textured())
+    expect_error(capsys, ["one.png", "single image"], "track", p, "--out", tmp_path / "o")
+
+
+def test_track_mixed_sizes_names_file(tmp_path, capsys):
+    d = write_frames(tmp_path / "f", [textured(), textured(), textured(h=100)])
+    expect_error(capsys, ["0003.png"], "track", d, "--out", tmp_path / "o", out_dir=tmp_path / "o")
+
+
+@pytest.mark.parametrize("name,text,frag", [
+    ("cols", "1,-1,10,10,8\n", "line 1"),
+    ("toomany", "1,-1,10,10,8,4,1,1,1,1,1\n", "line 1"),
+    ("nan", "1,-1,10,nan,8,4,1\n", "NaN"),
+    ("neg", "1,-1,10,10,-8,4,1\n", "negative"),
+    ("text", "1,-1,ten,10,8,4,1\n", "non-numeric"),
+    ("dup", "1,5,10,10,8,4,1\n1,5,10,10,8,4,1\n", "repeated"),
+    ("frame0", "0,-1,10,10,8,4,1\n", "frame"),
+    ("zero", "1,-1,10,10,0,4,1\n", "zero-size"),
+    ("binary", "\x00\x01\x02garbage\n", "line 1"),
+])
+def test_track_bad_detections(tmp_path, capsys, name, text, frag):
+    p = tmp_path / f"{name}.txt"
+    p.write_text(text)
+    expect_error(capsys, ["--detections", frag], "track", "--detections", p, "--out",
+                 tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_track_empty_detections_is_empty_result(tmp_path, capsys):
+    """Documented degraded result: an empty detections file gives empty (but complete) outputs."""
+    p = tmp_path / "empty.txt"
+    p.write_text("")
+    code, _, err = run_cli(capsys, "track", "--detections", p, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert (tmp_path / "o" / "tracks.csv").read_text() == ""
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["counts"]["tracks"] == 0
+
+
+def test_track_map_without_georeference(tmp_path, capsys, dets):
+    m = write_map(tmp_path / "plain.tif", georef=False)
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 0\n0 1 0\n0 0 1\n")
+    expect_error(capsys, ["plain.tif", "georeference"], "track", "--detections", dets, "--map", m,
+                 "--map-init", h, "--out", tmp_path / "o")
+
+
+def test_track_map_not_a_raster(tmp_path, capsys, dets):
+    m = tmp_path / "map.tif"
+    m.write_text("not a raster")
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 0\n0 1 0\n0 0 1\n")
+    expect_error(capsys, ["map.tif"], "track", "--detections", dets, "--map", m, "--map-init", h,
+                 "--out", tmp_path / "o")
+
+
+@pytest.mark.parametrize("text,frag", [
+    ("frame_x,frame_y,map_x,map_y\n0,0,1,1\n1,0,2,1\n0,1,1,2\n", "at least 4"),
+    ("frame_x,frame_y,map_x,map_y\n0,0,0,0\n1,1,1,1\n2,2,2,2\n3,3,3,3\n", "collinear"),
+    ("frame_x,frame_y,map_x,map_y\n0,0,0,0\n1,0,a,1\n0,1,1,2\n1,1,2,2\n", "line 3"),
+    ("frame_x,frame_y,east,north\n0,0,0,0\n", "header"),
+    ("1 0 0\n0 1 0\n0 0 0\n", "singular"),
+])
+def test_track_bad_map_init(tmp_path, capsys, video, text, frag):
+    m = write_map(tmp_path / "m.tif")
+    p = tmp_path / "init.csv"
+    p.write_text(text)
+    expect_error(capsys, ["--map-init", frag], "track", video, "--map", m, "--map-init", p,
+                 "--out", tmp_path / "o")
+
+
+def test_track_map_does_not_overlap_video(tmp_path, capsys, video):
+    m = write_map(tmp_path / "m.tif")
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 50000\n0 1 50000\n0 0 1\n")
+    expect_error(capsys, ["does not land on the map"], "track", video, "--map", m, "--map-init", h,
+                 "--out", tmp_path / "o")
+
+
+def test_track_map_init_without_map(tmp_path, capsys, dets):
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 0\n0 1 0\n0 0 1\n")
+    expect_error(capsys, ["--map"], "track", "--detections", dets, "--map-init", h, "--out",
+                 tmp_path / "o")
+
+
+def test_track_unwritable_output(tmp_path, capsys, dets):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    expect_error(capsys, ["--out"], "track", "--detections", dets, "--out", blocker / "sub")
+
+
+def test_track_output_is_a_file(tmp_path, capsys, dets):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    expect_error(capsys, ["not a folder"], "track", "--detections", dets, "--out", blocker)
+
+
+def test_track_output_holds_results(tmp_path, capsys, dets):
+    o = tmp_path / "o"
+    o.mkdir()
+    (o / "tracks.csv").write_text("1,1,1,1,1,1,1,-1,-1,-1\n")
+    expect_error(capsys, ["--overwrite"], "track", "--detections", dets, "--out", o)
+    assert (o / "tracks.csv").read_text().startswith("1,1")
+
+
+def test_track_overwrite_and_resume_together(tmp_path, capsys, dets):
+    expect_error(capsys, ["--overwrite", "--resume"], "track", "--detections", dets, "--out",
+                 tmp_path / "o", "--overwrite", "--resume")
+
+
+@pytest.mark.parametrize("fps", ["0", "-1", "nan", "inf"])
+def test_track_bad_fps(tmp_path, capsys, dets, fps):
+    expect_error(capsys, ["--fps"], "track", "--detections", dets, "--out", tmp_path / "o",
+                 "--fps", fps)
+
+
+def test_track_bad_config_file(tmp_path, capsys, dets):
+    c = tmp_path / "c.toml"
+    c.write_text("[association\nwindow_s = 1\n")
+    expect_error(capsys, ["c.toml", "TOML"], "track", "--detections", dets, "--out", tmp_path / "o",
+                 "--config", c)
+
+
+def test_track_config_wrong_type(tmp_path, capsys, dets):
+    c = tmp_path / "c.toml"
+    c.write_text('[association]\nwindow_s = "long"\n')
+    expect_error(capsys, ["association.window_s"], "track", "--detections", dets, "--out",
+                 tmp_path / "o", "--config", c)
+
+
+@pytest.mark.parametrize("rng", ["5:2", "a:b", "0:3", "7"])
+def test_track_bad_frame_range(tmp_path, capsys, dets, rng):
+    expect_error(capsys, ["--frames"], "track", "--detections", dets, "--out", tmp_path / "o",
+                 "--frames", rng)
+
+
+def test_track_black_saturated_noise_frames_degrade(tmp_path, capsys):
+    """Documented degraded result: unusable frames are registration failures recorded in
+    summary.json and registration.csv; the run completes."""
+    rng = np.random.default_rng(3)
+    frames = [textured(shift=(0, i)) for i in range(4)]
+    frames += [np.zeros((120, 160, 3), np.uint8), np.full((120, 160, 3), 255, np.uint8),
+               rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)]
+    frames += [textured(shift=(0, 4 + i)) for i in range(4)]
+    d = write_frames(tmp_path / "f", frames)
+    code, _, err = run_cli(capsys, "track", d, "--out", tmp_path / "o")
+    assert code == 0, err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["frames"] == len(frames)
+    assert summary["counts"]["registration_failures"] >= 1
+    bad = {f["frame"] for f in summary["registration_failures"]}
+    assert bad & {5, 6, 7}
+
+
+def test_track_one_frame_video(tmp_path, capsys):
+    v = write_video(tmp_path / "one.avi", [textured()])
+    code, _, err = run_cli(capsys, "track", v, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["frames"] == 1
+
+
+# -- detect ---------------------------------------------------------------------------------------
+def test_detect_missing_input(tmp_path, capsys):
+    expect_error(capsys, ["nope.mp4"], "detect", tmp_path / "nope.mp4", "--out", tmp_path / "o")
+
+
+def test_detect_corrupt_video(tmp_path, capsys):
+    p = tmp_path / "bad.mp4"
+    p.write_bytes(b"\x00" * 3000)
+    expect_error(capsys, ["bad.mp4"], "detect", p, "--out", tmp_path / "o")
+
+
+def test_detect_output_holds_results(tmp_path, capsys, video):
+    o = tmp_path / "o"
+    o.mkdir()
+    (o / "detections.csv").write_text("")
+    expect_error(capsys, ["--overwrite"], "detect", video, "--out", o)
+
+
+# -- eval -----------------------------------------------------------------------------------------
+def test_eval_missing_gt(tmp_path, capsys, dets):
+    expect_error(capsys, ["nope.txt"], "eval", "--gt", tmp_path / "nope.txt", "--pred", dets)
+
+
+@pytest.mark.parametrize("text,frag", [
+    ("1,1,10,10,-8,4,1\n", "negative"),
+    ("1,1,10,10,8,4,1\n1,1,10,10,8,4,1\n", "repeated"),
+    ("1,1,10,10\n", "line 1"),
+])
+def test_eval_bad_pred(tmp_path, capsys, dets, text, frag):
+    gt = tmp_path / "gt.txt"
+    gt.write_text("1,1,10,10,8,4,1\n")
+    p = tmp_path / "pred.txt"
+    p.write_text(text)
+    expect_error(capsys, ["--pred", frag], "eval", "--gt", gt, "--pred", p)
+
+
+def test_eval_gt_flaws_accepted_with_warning(tmp_path, capsys):
+    gt = tmp_path / "gt.txt"
+    gt.write_text("1,1,18,14,-8,-4,0.8\n1,2,40,40,8,4,0.9\n1,2,40,40,8,4,0.9\n")
+    p = tmp_path / "pred.txt"
+    p.write_text("1,7,40,40,8,4,1\n")
+    code, out, err = run_cli(capsys, "eval", "--gt", gt, "--pred", p, "--json")
+    assert code == 0, err
+    assert "warning" in err.lower()
+    assert json.loads(out)["GT_Dets"] == 2
+
+
+# -- predict --------------------------------------------------------------------------------------
+@pytest.fixture
+def tracks_file(tmp_path):
+    rows = [f"{f},1,{10 + 2 * f},20,8,4,1,-1,-1,-1" for f in range(1, 31)]
+    p = tmp_path / "tracks.csv"
+    p.write_text("\n".join(rows) + "\n")
+    return p
+
+
+def test_predict_missing_tracks(tmp_path, capsys):
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,10,5\n")
+    expect_error(capsys, ["nope.csv"], "predict", tmp_path / "nope.csv", "--queries", q, "--out",
+                 tmp_path / "p.csv")
+
+
+@pytest.mark.parametrize("text", [
+    "ident,last,h\n1,10,5\n",     # bad header
+    "id,last_seen,horizon\n99,10,5\n",  # unknown id
+    "id,last_seen,horizon\n1,10,0\n",   # horizon 0
+    "id,last_seen,horizon\n1,x,5\n",    # non-numeric
+])
+def test_predict_bad_queries(tmp_path, capsys, tracks_file, text):
+    q = tmp_path / "q.csv"
+    q.write_text(text)
+    expect_error(capsys, ["--queries"], "predict", tracks_file, "--queries", q, "--out",
+                 tmp_path / "p.csv")
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_predict_unknown_method(tmp_path, capsys, tracks_file):
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,10,5\n")
+    code, _, err = run_cli(capsys, "predict", tracks_file, "--queries", q, "--out",
+                           tmp_path / "p.csv", "--method", "magic")
+    assert code == 2 and "Traceback" not in err and "magic" in err
+
+
+# -- mosaic, batch --------------------------------------------------------------------------------
+def test_mosaic_missing_input(tmp_path, capsys):
+    expect_error(capsys, ["nope"], "mosaic", tmp_path / "nope", "--out", tmp_path / "m.png")
+
+
+def test_batch_missing_folder(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "batch", tmp_path / "nope", "--out", tmp_path / "o")
+    assert code == 2 and "Traceback" not in err and "nope" in err
