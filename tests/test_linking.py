@@ -159,3 +159,19 @@ def test_linker_runs_with_every_motion_method(method):
     tl, truth = _tracklets(paths, {1: 1}, {1: [(80, 120)]}, {1: [1, 0, 0, 0]})
     tracks = GlobalLinker(LinkingConfig(), ContextConfig(method=method), FPS).link(tl)
     assert len(tracks) == 1
+
+
+def test_pixel_tracks_without_a_scale_are_linked():
+    """No map, no GSD: world units are pixels (here 3 px/frame, 90 px/s: 90 'm/s' if taken as
+    metres, beyond v_max). The scale is estimated from the 16 px boxes and the gap is bridged."""
+    rng = np.random.default_rng(2)
+    pts = []
+    for f in range(1, 150):
+        w = np.array([20 + 3.0 * f, 100.0]) + rng.normal(0, 0.3, 2)
+        pts.append(TrackPoint(f, np.array([w[0] - 8, w[1] - 5, 16, 10]), w, 0.9,
+                              size_world=np.array([16.0, 10.0])))
+    tl = [Track(0, pts[:39]), Track(0, pts[79:])]
+    tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=None).link(tl)
+    assert len(tracks) == 1
+    pred = [p for p in tracks[0].points if p.kind == "predicted"]
+    assert [p.frame for p in pred] == list(range(40, 80))
