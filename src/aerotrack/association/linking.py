@@ -24,13 +24,18 @@ across occlusions and exits from the view:
 from __future__ import annotations
 
 import logging
-import math
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..config import ContextConfig, LinkingConfig
-from ..context.appearance import AppearanceContext, TrackletDescriptor, kl_color, kl_edge, track_histograms
+from ..context.appearance import (
+    AppearanceContext,
+    TrackletDescriptor,
+    kl_color,
+    kl_edge,
+    track_histograms,
+)
 from ..context.motion import TrackTable, get_predictor, kalman_start
 from ..context.reacquire import Cues, appearance_cost, link_cost, motion_cost
 from ..errors import ConfigError
@@ -75,6 +80,9 @@ class GlobalLinker:
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
         self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
         self.last_costs: dict[tuple[int, int], tuple[float, Cues]] = {}
+        self._pred: dict[int, np.ndarray] = {}
+        self._table: TrackTable | None = None
+        self._table_key: int | None = None
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -114,6 +122,7 @@ class GlobalLinker:
         """Links as {index of a: index of b} and the (n, n) cost matrix (inf where inconsistent)."""
         c = self.config
         n = len(tl)
+        self._pred = {}
         F = max(2, int(round(self.ctx.history_s * self.fps)))
         pos = [_positions(t) for t in tl]
         ends, starts = [], []
@@ -140,10 +149,7 @@ class GlobalLinker:
         self.last_costs = {}
         if not cand:
             return {}, C
-        table = TrackTable.from_arrays(np.concatenate([np.full(len(fr), i) for i, (fr, _) in enumerate(pos)]),
-                                       np.concatenate([fr for fr, _ in pos]),
-                                       np.concatenate([xy for _, xy in pos]))
-        self._pred = {}
+        table = _table_of(pos)
         preds = {}
         if c.weight_motion > 0 or c.predict_gaps:
             for a, bs in cand.items():
@@ -193,7 +199,6 @@ class GlobalLinker:
         video_end = max(t.last for t in tl)
         horizon = int(round(self.ctx.prediction_horizon_s * self.fps))
         min_len = self.config.min_tracklet_s * self.fps
-        table = None
         out = []
         for head in range(len(tl)):
             if head in has_pred:
@@ -212,7 +217,7 @@ class GlobalLinker:
                     nxt = [p for p in tl[chain[k + 1]].points if p.kind != "predicted"][0]
                     gap = nxt.frame - last_obs.frame
                     if gap > 1:
-                        pr = self._forward(tl, i, gap, table)
+                        pr = self._forward(tl, i, gap)
                         # land on the re-acquired position: spread the final miss linearly
                         miss = np.asarray(nxt.world, float) - pr[gap - 1]
                         ramp = (np.arange(1, gap) / gap)[:, None]
@@ -220,7 +225,7 @@ class GlobalLinker:
                 else:
                     h = min(horizon, video_end - last_obs.frame)
                     if h > 0 and (tl[i].last - tl[i].first) >= min_len:
-                        points.extend(_predicted(last_obs, self._forward(tl, i, h, table)))
+                        points.extend(_predicted(last_obs, self._forward(tl, i, h)))
             points.sort(key=lambda p: p.frame)
             out.append(Track(id=0, points=points))
         out.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
@@ -228,15 +233,13 @@ class GlobalLinker:
             t.id = k
         return out
 
-    def _forward(self, tl: list[Track], i: int, h: int, table) -> np.ndarray:
-        pr = getattr(self, "_pred", {}).get(i)
+    def _forward(self, tl: list[Track], i: int, h: int) -> np.ndarray:
+        """Motion-context prediction of tracklet i for h frames after its last in-view point."""
+        pr = self._pred.get(i)
         if pr is not None and len(pr) >= h:
             return pr[:h]
-        if getattr(self, "_table", None) is None or self._table_key != id(tl):
-            pos = [_positions(t) for t in tl]
-            self._table = TrackTable.from_arrays(
-                np.concatenate([np.full(len(fr), j) for j, (fr, _) in enumerate(pos)]),
-                np.concatenate([fr for fr, _ in pos]), np.concatenate([xy for _, xy in pos]))
+        if self._table is None or self._table_key != id(tl):
+            self._table = _table_of([_positions(t) for t in tl])
             self._table_key = id(tl)
         fr, _ = _positions(tl[i])
         return self.predictor.predict(self._table, i, int(fr[-1]), h)
@@ -255,6 +258,13 @@ def estimate_scale(tracklets: list[Track], object_size_m: float) -> float:
             if size is not None and np.all(np.isfinite(size)) and max(size) > 0:
                 sides.append(float(max(size)))
     return object_size_m / float(np.median(sides)) if sides else 1.0
+
+
+def _table_of(pos: list[tuple[np.ndarray, np.ndarray]]) -> TrackTable:
+    """A TrackTable of tracklets' (frames, world xy), the tracklet's index as its id."""
+    return TrackTable.from_arrays(np.concatenate([np.full(len(fr), j) for j, (fr, _) in enumerate(pos)]),
+                                  np.concatenate([fr for fr, _ in pos]),
+                                  np.concatenate([xy for _, xy in pos]))
 
 
 def _predicted(last: TrackPoint, xy: np.ndarray) -> list[TrackPoint]:

@@ -8,7 +8,14 @@
 * :mod:`.predict`: ``aerotrack predict`` on tracks files.
 """
 
-from .motion import PREDICTION_METHODS, MotionPredictor, TrackTable, affine_regression, get_predictor, lce
+from .motion import (
+    PREDICTION_METHODS,
+    MotionPredictor,
+    TrackTable,
+    affine_regression,
+    get_predictor,
+    lce,
+)
 
 __all__ = ["PREDICTION_METHODS", "MotionPredictor", "TrackTable", "affine_regression",
            "get_predictor", "lce"]

@@ -107,7 +107,8 @@ class TrackTable:
         return TrackTable(self.ids[keep], self.frames[keep], self.xy[keep])
 
 
-def _history(table: TrackTable, track_id: int, last_seen: int, window: int) -> tuple[np.ndarray, np.ndarray]:
+def _history(table: TrackTable, track_id: int, last_seen: int,
+             window: int) -> tuple[np.ndarray, np.ndarray]:
     """The target's rows in [last_seen - window, last_seen] (only rows up to ``last_seen``)."""
     fr, xy = table.track(track_id)
     keep = (fr <= last_seen) & (fr >= last_seen - window)
