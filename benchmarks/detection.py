@@ -1,0 +1,330 @@
+"""Benchmark of moving-object detection (issue 4).
+
+Runs, in one process:
+
+* Santiago nadir clip (stabilised, so identity registrations): per-frame precision and recall at
+  IoU >= 0.5 and with the centre-in-box criterion, for our sliding-window detector, for ablations of
+  its speed shortcuts, and for OpenCV MOG2 with the same post-processing (MOG2's background image fed
+  to the same residual -> blob -> box code).
+* Speed: frames/s of detection alone (identity registrations) and of registration + detection
+  (when ``aerotrack.registration.FrameRegistrar`` exists) at 1280x720 and 1920x1080, as ratios to
+  the time of decoding + a plain 3x3 box blur of each frame measured in the same run.
+* UAV123 truck4 (moving camera): fraction of frames where the annotated truck is detected at
+  IoU >= 0.3; writes docs/images/detections_truck4.png.
+* A generated scene (``aerotrack synth``), when the synth package is available.
+
+Usage: ``/tmp/venv/bin/python benchmarks/detection.py [--quick]``; prints a table and writes
+benchmarks/results/detection.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import resource
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from aerotrack.config import DetectionConfig
+from aerotrack.detection import MovingObjectDetector
+from aerotrack.detection.detector import _Gates, detect_moving
+from aerotrack.io.frames import open_source
+from aerotrack.types import Frame, Registration
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data"
+SANTIAGO = DATA / "santiago_intersection_dfs"
+TRUCK = DATA / "uav123_10fps_truck4"
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, M) IoU of x, y, w, h boxes."""
+    a = a.reshape(-1, 4)[:, None, :]
+    b = b.reshape(-1, 4)[None, :, :]
+    x0 = np.maximum(a[..., 0], b[..., 0])
+    y0 = np.maximum(a[..., 1], b[..., 1])
+    x1 = np.minimum(a[..., 0] + a[..., 2], b[..., 0] + b[..., 2])
+    y1 = np.minimum(a[..., 1] + a[..., 3], b[..., 1] + b[..., 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    union = a[..., 2] * a[..., 3] + b[..., 2] * b[..., 3] - inter
+    return inter / np.maximum(union, 1e-9)
+
+
+def centre_in_box(det: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(N, M) bool: centre of detection n inside GT box m, or centre of m inside n."""
+    dc = det[:, :2] + det[:, 2:] / 2
+    gc = gt[:, :2] + gt[:, 2:] / 2
+
+    def inside(p, b):
+        return ((p[:, None, 0] >= b[None, :, 0]) & (p[:, None, 0] <= b[None, :, 0] + b[None, :, 2])
+                & (p[:, None, 1] >= b[None, :, 1]) & (p[:, None, 1] <= b[None, :, 1] + b[None, :, 3]))
+
+    return inside(dc, gt) | inside(gc, det).T
+
+
+def match_count(det: np.ndarray, gt: np.ndarray, criterion: str) -> int:
+    """One-to-one matches (Hungarian) under ``iou`` (>= 0.5) or ``centre``."""
+    if len(det) == 0 or len(gt) == 0:
+        return 0
+    if criterion == "iou":
+        score = iou_matrix(det, gt)
+        ok = score >= 0.5
+    else:
+        ok = centre_in_box(det, gt)
+        score = iou_matrix(det, gt) + ok
+    cost = np.where(ok, -score, 1e6)
+    r, c = linear_sum_assignment(cost)
+    return int(np.sum(ok[r, c]))
+
+
+def score(dets: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames) -> dict:
+    out = {}
+    for crit in ("iou", "centre"):
+        tp = nd = ng = 0
+        for f in frames:
+            d = dets.get(f, np.zeros((0, 4)))
+            g = gts.get(f, np.zeros((0, 4)))
+            tp += match_count(d, g, crit)
+            nd += len(d)
+            ng += len(g)
+        out[crit] = {"precision": tp / max(nd, 1), "recall": tp / max(ng, 1)}
+    return out
+
+
+def santiago_gt() -> dict[int, np.ndarray]:
+    rows = np.loadtxt(SANTIAGO / "dfs_ground_truth.csv", delimiter=",")
+    rows[:, 0] += 1  # 0-based -> 1-based
+    neg = rows[:, 4] < 0
+    rows[neg, 2] += rows[neg, 4]
+    rows[neg, 4] *= -1
+    neg = rows[:, 5] < 0
+    rows[neg, 3] += rows[neg, 5]
+    rows[neg, 5] *= -1
+    return {int(f): rows[rows[:, 0] == f, 2:6] for f in np.unique(rows[:, 0])}
+
+
+def load_frames(path: Path, stop: int | None = None, size: tuple[int, int] | None = None):
+    src = open_source(path)
+    frames = []
+    for f in src.frames(stop=stop):
+        img = f.image if size is None else cv2.resize(f.image, size, interpolation=cv2.INTER_AREA)
+        frames.append(Frame(f.index, img, f.time))
+    return frames, src.fps
+
+
+def run_detector(frames, fps, config: DetectionConfig, registrations=None):
+    det = MovingObjectDetector(config, fps)
+    out = []
+    t0 = time.perf_counter()
+    for k, f in enumerate(frames):
+        reg = registrations[k] if registrations is not None else Registration(f.index, np.eye(3))
+        out += det.step(f, reg)
+    out += det.flush()
+    dt = time.perf_counter() - t0
+    return {d.frame: d.boxes for d in out}, out, len(frames) / dt
+
+
+def run_mog2(frames, fps, config: DetectionConfig):
+    """OpenCV MOG2 on the model-resolution frames, its background image through our post-processing."""
+    s = config.model_scale
+    mog = cv2.createBackgroundSubtractorMOG2(history=int(round(config.window_s * fps)),
+                                             detectShadows=False)
+    dets = {}
+    gates = _Gates(config.min_area_px, config.max_length_px, config.close_px, config.join_gap_px)
+    t0 = time.perf_counter()
+    for f in frames:
+        small = cv2.resize(f.image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+        mog.apply(small)
+        bg = mog.getBackgroundImage()
+        testable = np.full(small.shape[:2], 255, np.uint8)
+        r = detect_moving(f.image, small, bg, testable, config, s, gates)
+        dets[f.index] = r.boxes
+    return dets, len(frames) / (time.perf_counter() - t0)
+
+
+def santiago(results: dict, quick: bool) -> None:
+    frames, fps = load_frames(SANTIAGO / "video_sift_estabilizado_filtrado.mp4")
+    gts = santiago_gt()
+    eval_frames = sorted(gts)
+    base = DetectionConfig()
+    variants = {
+        "ours (default)": base,
+        "ours, causal": dataclasses.replace(base, causal=True),
+        "ours, no shadow suppression": dataclasses.replace(base, shadow_suppression=False),
+    }
+    if not quick:
+        variants.update({
+            "ours, full window (every frame)": dataclasses.replace(base, sample_every_s=1 / fps,
+                                                                    update_every_s=1 / fps),
+            "ours, model_scale 1.0": dataclasses.replace(base, model_scale=1.0),
+            "ours, model_scale 0.25": dataclasses.replace(base, model_scale=0.25),
+            "ours, no split/join": dataclasses.replace(base, split_blobs=False, join_gap_px=0.0),
+        })
+    table = {}
+    for name, cfg in variants.items():
+        dets, _, fps_run = run_detector(frames, fps, cfg)
+        table[name] = {**score(dets, gts, eval_frames), "fps": fps_run}
+    dets, fps_run = run_mog2(frames, fps, base)
+    table["MOG2 + same post-processing"] = {**score(dets, gts, eval_frames), "fps": fps_run}
+    results["santiago"] = table
+    print("\nSantiago (1920x1080, 100 frames, identity registration), per-frame detection scores")
+    print(f"{'method':38s} {'P@IoU.5':>8s} {'R@IoU.5':>8s} {'P@ctr':>7s} {'R@ctr':>7s} {'fps':>6s}")
+    for name, r in table.items():
+        print(f"{name:38s} {r['iou']['precision']:8.3f} {r['iou']['recall']:8.3f} "
+              f"{r['centre']['precision']:7.3f} {r['centre']['recall']:7.3f} {r['fps']:6.1f}")
+
+
+def run_registered(frames, fps, det_config: DetectionConfig, reg_config=None):
+    """Registration + detection; returns (detections list, registrations, fps)."""
+    from aerotrack.config import RegistrationConfig
+    from aerotrack.registration import FrameRegistrar
+
+    registrar = FrameRegistrar(reg_config or RegistrationConfig(), fps)
+    det = MovingObjectDetector(det_config, fps)
+    out, regs = [], []
+    t0 = time.perf_counter()
+    for f in frames:
+        reg = registrar.step(f)
+        regs.append(reg)
+        out += det.step(f, reg)
+    out += det.flush()
+    return out, regs, len(frames) / (time.perf_counter() - t0)
+
+
+def mog2_speed(frames) -> float:
+    """Frames/s of OpenCV MOG2 ``apply`` on the full frames: the baseline of the speed ratios."""
+    mog = cv2.createBackgroundSubtractorMOG2(detectShadows=False)
+    t0 = time.perf_counter()
+    for f in frames:
+        mog.apply(f.image)
+    return len(frames) / (time.perf_counter() - t0)
+
+
+def speed(results: dict, quick: bool) -> None:
+    n = 40 if quick else 90
+    truck, tfps = load_frames(TRUCK / "frames", stop=n)
+    santiago_frames, sfps = load_frames(SANTIAGO / "video_sift_estabilizado_filtrado.mp4", stop=n)
+    cases = {
+        "1280x720 truck4 (moving camera)": (truck, 30.0),
+        "1920x1080 Santiago": (santiago_frames, 30.0),
+        "1920x1080 truck4 upscaled (moving camera)": (
+            [Frame(f.index, cv2.resize(f.image, (1920, 1080)), f.time) for f in truck], 30.0),
+    }
+    table = {}
+    cfg = DetectionConfig()
+    for name, (frames, fps) in cases.items():
+        base = mog2_speed(frames)
+        _, _, det_only = run_detector(frames, fps, cfg)
+        try:
+            _, _, both = run_registered(frames, fps, cfg)
+        except ImportError:
+            both = float("nan")
+        table[name] = {"mog2_fps": base, "detection_fps": det_only,
+                       "registration_detection_fps": both,
+                       "detection_vs_mog2": det_only / base,
+                       "registration_detection_vs_mog2": both / base}
+    results["speed"] = table
+    print(f"\nSpeed ({n} frames, fps treated as 30; this 2-core machine is shared, so compare ratios)")
+    print(f"{'case':44s} {'MOG2':>6s} {'det':>6s} {'reg+det':>8s} {'det/MOG2':>9s} {'reg+det/MOG2':>13s}")
+    for name, r in table.items():
+        print(f"{name:44s} {r['mog2_fps']:6.1f} {r['detection_fps']:6.1f} "
+              f"{r['registration_detection_fps']:8.1f} {r['detection_vs_mog2']:9.2f} "
+              f"{r['registration_detection_vs_mog2']:13.2f}")
+
+
+def truck4(results: dict, quick: bool) -> None:
+    stop = 200 if quick else None
+    frames, _ = load_frames(TRUCK / "frames", stop=stop)
+    fps = 10.0
+    g1 = np.loadtxt(TRUCK / "truck4_1.txt", delimiter=",")
+    g2 = np.loadtxt(TRUCK / "truck4_2.txt", delimiter=",")
+    gt = {i + 1: g1[i] for i in range(len(g1))}
+    gt.update({193 + i: g2[i] for i in range(len(g2))})
+    out, regs, run_fps = run_registered(frames, fps, DetectionConfig())
+    dets = {d.frame: d for d in out}
+    hit = {}
+    for f in sorted(dets):
+        if f in gt:
+            b = dets[f].boxes
+            hit[f] = bool(len(b) and iou_matrix(b, gt[f][None]).max() >= 0.3)
+    part1 = [hit[f] for f in hit if f < 193]
+    part2 = [hit[f] for f in hit if f >= 193]
+    results["truck4"] = {"frames": len(hit), "detected_frac_iou0.3": float(np.mean(list(hit.values()))),
+                         "part1_frac": float(np.mean(part1)) if part1 else None,
+                         "part2_frac": float(np.mean(part2)) if part2 else None,
+                         "detections_per_frame": float(np.mean([len(d) for d in out])),
+                         "fps": run_fps}
+    r = results["truck4"]
+    print(f"\nUAV123 truck4 (moving camera, 10 fps, {len(hit)} frames): truck detected (IoU >= 0.3) in "
+          f"{r['detected_frac_iou0.3']:.3f} of frames (part 1, tiny truck: {r['part1_frac']:.3f}; "
+          f"part 2: {r['part2_frac']}); {r['detections_per_frame']:.1f} detections/frame")
+    picture(frames, dets, gt, REPO / "docs" / "images" / "detections_truck4.png")
+
+
+def picture(frames, dets, gt, path: Path) -> None:
+    """A 2x2 montage: four frames with our boxes (red; magenta when stationary) and the annotated
+    truck (green), each with a 3x zoom of the truck in the corner."""
+    picks = [f for f in (60, 150, 260, 380) if f <= len(frames)]
+    tiles = []
+    for f in picks:
+        img = frames[f - 1].image.copy()
+        d = dets.get(f)
+        if d is not None:
+            for (x, y, w, h), st in zip(d.boxes, d.extra["stationary"]):
+                cv2.rectangle(img, (int(x), int(y)), (int(x + w), int(y + h)),
+                              (255, 0, 255) if st else (0, 0, 255), 2)
+        x, y, w, h = gt[f]
+        cv2.rectangle(img, (int(x) - 2, int(y) - 2), (int(x + w) + 2, int(y + h) + 2), (0, 255, 0), 1)
+        cx, cy = int(x + w / 2), int(y + h / 2)
+        r = 50
+        x0, y0 = max(0, cx - r), max(0, cy - r)
+        zoom = cv2.resize(img[y0:y0 + 2 * r, x0:x0 + 2 * r], None, fx=3, fy=3,
+                          interpolation=cv2.INTER_NEAREST)
+        img[:zoom.shape[0], -zoom.shape[1]:] = zoom
+        cv2.rectangle(img, (img.shape[1] - zoom.shape[1], 0), (img.shape[1] - 1, zoom.shape[0]),
+                      (255, 255, 255), 2)
+        cv2.putText(img, f"frame {f}", (12, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.2, (0, 255, 255), 3)
+        tiles.append(cv2.resize(img, (640, 360), interpolation=cv2.INTER_AREA))
+    while len(tiles) < 4:
+        tiles.append(np.zeros_like(tiles[0]))
+    montage = np.vstack([np.hstack(tiles[:2]), np.hstack(tiles[2:])])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), montage)
+    print(f"wrote {path}")
+
+
+def synth(results: dict, quick: bool) -> None:
+    try:
+        import aerotrack.synth  # noqa: F401
+    except ImportError:
+        results["synth"] = "aerotrack.synth not available"
+        print("\nsynth: aerotrack.synth not available; skipped")
+        return
+    results["synth"] = "not yet measured"
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer variants and frames")
+    ap.add_argument("--only", choices=("santiago", "speed", "truck4", "synth"), default=None)
+    args = ap.parse_args(argv)
+    out = REPO / "benchmarks" / "results" / "detection.json"
+    results: dict = json.loads(out.read_text()) if (args.only and out.exists()) else {}
+    results["config"] = dataclasses.asdict(DetectionConfig())
+    for name, fn in (("santiago", santiago), ("speed", speed), ("truck4", truck4), ("synth", synth)):
+        if args.only in (None, name):
+            fn(results, args.quick)
+    results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2))
+    print(f"\nwrote {out}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
