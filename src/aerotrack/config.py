@@ -379,10 +379,10 @@ class ContextConfig:
         ``paper``: the regression is refused (Kalman fallback) when the smaller eigenvalue of S(0)
         is below this fraction of the larger: predictors nearly on a line leave the affine map
         undetermined across it and amplify their noise.
-    flow_radius_m : float
+    path_radius_m : float
         ``context``: other tracks' rows within this distance of the predicted position form the
         local flow. Larger finds more support but mixes neighbouring lanes.
-    flow_heading_deg : float
+    path_heading_deg : float
         ``context``: rows whose heading differs from the target's by more than this are ignored
         (opposite lane, crossing traffic). Too small and the target cannot follow a curve.
     path_match_m : float
@@ -409,9 +409,10 @@ class ContextConfig:
     group_noise_m : float
         ``context``: error of one co-mover's displacement as a prediction, metres (fused by
         inverse variance with the Kalman and path estimates).
-    flow_min_speed_mps : float
-        ``context``: slower rows (standing objects) carry no heading; a slower target is held still.
-    flow_sample_s : float
+    min_speed_mps : float
+        ``context``: slower rows (standing objects) carry no heading and are no path predictors; a
+        slower target gets no path estimate (co-movers still apply).
+    path_sample_s : float
         ``context``: other tracks' rows are sampled every this many seconds (speed vs density).
     velocity_lag_s : float
         ``context``: a row's velocity is its backward difference over this many seconds.
@@ -432,8 +433,8 @@ class ContextConfig:
     lce_alpha: float = 0.05
     min_predictors: int = 3
     regression_cond: float = 1e-2
-    flow_radius_m: float = 2.0
-    flow_heading_deg: float = 45.0
+    path_radius_m: float = 2.0
+    path_heading_deg: float = 45.0
     path_match_m: float = 1.0
     path_noise_m: float = 3.0
     path_chord_s: float = 0.5
@@ -441,8 +442,8 @@ class ContextConfig:
     group_radius_m: float = 20.0
     group_match_m: float = 0.3
     group_noise_m: float = 4.0
-    flow_min_speed_mps: float = 0.3
-    flow_sample_s: float = 0.3
+    min_speed_mps: float = 0.3
+    path_sample_s: float = 0.3
     velocity_lag_s: float = 0.5
     kalman_accel_mps2: float = 3.0
     kalman_meas_std_m: float = 0.1

@@ -22,8 +22,8 @@ log = logging.getLogger(__name__)
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
               help="Output CSV: query,id,frame,x,y (query = 0-based row of the queries file).")
 @click.option("--method", type=click.Choice(list(PREDICTION_METHODS)), default=None,
-              help="Predictor: context (aerotrack's path following, default), paper (Ali et al. "
-                   "2007 as written), kalman, constant-velocity.")
+              help="Predictor: context (default: Kalman fused with other objects' paths and "
+                   "co-movers), paper (Ali et al. 2007 as written), kalman, constant-velocity.")
 @click.option("--fps", type=float, default=30.0, show_default=True, help="Frame rate of the tracks.")
 @click.option("--space", type=click.Choice(["image", "map"]), default="image", show_default=True,
               help="Predict box centres (image) or the x,y map columns (map).")

@@ -443,7 +443,7 @@ def _fallback_predict(fr, xy, h, pred: MotionPredictor) -> np.ndarray:
 
 
 class PathIndex:
-    """Other tracks' rows, sampled every ``config.flow_sample_s``, for path-following queries.
+    """Other tracks' rows, sampled every ``config.path_sample_s``, for path-following queries.
 
     Rows are kept when their frame number is a multiple of the sampling stride, so the sample does
     not depend on which later rows exist; each carries its backward velocity over
@@ -457,7 +457,7 @@ class PathIndex:
     """
 
     def __init__(self, table: TrackTable, fps: float, mpu: float, config: ContextConfig) -> None:
-        self.stride = stride = max(1, int(round(config.flow_sample_s * fps)))
+        self.stride = stride = max(1, int(round(config.path_sample_s * fps)))
         lag = max(stride, int(round(config.velocity_lag_s * fps / stride)) * stride)
         sel = np.flatnonzero(table.frames % stride == 0)
         self.ids = table.ids[sel]
@@ -564,7 +564,7 @@ class ContextPredictor(MotionPredictor):
     1. **Kalman** (always): the project's constant-velocity filter over the last F frames, its
        variance ``meas^2 + (a t^2 / 2)^2`` growing with the prediction time t.
     2. **Path following** (past and current objects that drove the same stretch,
-       :meth:`select`): other tracks with a row within ``flow_radius_m`` of the target's position,
+       :meth:`select`): other tracks with a row within ``path_radius_m`` of the target's position,
        seen no later than ``last_seen``, heading and speed alike, whose path passes the target's
        last F positions (mean distance ~``path_match_m``). Each predictor's path from the point
        nearest the target is walked at the target's own speed (arc length, so a slower biker and a
@@ -598,18 +598,18 @@ class ContextPredictor(MotionPredictor):
                p0: np.ndarray, v0: np.ndarray) -> list[tuple[int, int, float]]:
         """The predictors of a target: ``[(track id, matched PathIndex row, path distance)]``.
 
-        A predictor is another track with a row seen no later than ``T`` within ``flow_radius_m``
-        of ``p0``, moving within ``flow_heading_deg`` of the target's heading at 1/ratio to ratio
+        A predictor is another track with a row seen no later than ``T`` within ``path_radius_m``
+        of ``p0``, moving within ``path_heading_deg`` of the target's heading at 1/ratio to ratio
         times its speed, whose path passes the target's last F positions at a mean distance of at
         most twice ``path_match_m``. Returned in id order (world units for the distance).
         """
         c = self.config
         speed = math.hypot(v0[0], v0[1])
-        if table is None or speed * self.fps * self.mpu < c.flow_min_speed_mps:
+        if table is None or speed * self.fps * self.mpu < c.min_speed_mps:
             return []
         index = self.index_for(table)
-        radius = self.m(c.flow_radius_m)
-        cos_gate = math.cos(math.radians(c.flow_heading_deg))
+        radius = self.m(c.path_radius_m)
+        cos_gate = math.cos(math.radians(c.path_heading_deg))
         own = v0 / speed
         # rows are sampled: widen by the spacing so a path passing between two rows is found
         rows = index.near(p0, radius + speed * index.stride, T, track_id)
@@ -619,7 +619,7 @@ class ContextPredictor(MotionPredictor):
         sp = np.hypot(vel[:, 0], vel[:, 1])
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = (vel @ own) / sp
-        ok = np.isfinite(cos) & (cos >= cos_gate) & (sp * self.fps * self.mpu >= c.flow_min_speed_mps)
+        ok = np.isfinite(cos) & (cos >= cos_gate) & (sp * self.fps * self.mpu >= c.min_speed_mps)
         ok &= (sp <= c.path_speed_ratio * speed) & (sp * c.path_speed_ratio >= speed)
         rows = rows[ok]
         # one matched row per predictor track: the nearest to p0 (ties: earliest, canonical order)
