@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from aerotrack.config import ContextConfig  # noqa: E402
 from aerotrack.context.motion import PREDICTION_METHODS, TrackTable, get_predictor  # noqa: E402
-from aerotrack.evaluation.prediction import prediction_errors  # noqa: E402
+from aerotrack.evaluation.prediction import prediction_errors, summarise  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "sdd_stanford_drone_subset"
 SCALES = {  # metres per pixel, SOURCE.md
@@ -129,7 +129,7 @@ def main(argv=None) -> dict:
     res = {"protocol": {"fps": FPS, "F": F, "horizon": H, "stride": args.stride,
                         "scenes": args.scenes, "queries": counts},
            "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
-           "MPE_m": {}, "ratio_to_cv": {}, "seconds": timing}
+           "MPE_m": {}, "ratio_to_cv": {}, "Variance_n_m2": {}, "seconds": timing}
     cv = per["constant-velocity"]
     print(f"queries: {counts}")
     print(f"{'method':<18} {'window':<9} {'n':>4} " + " ".join(f"{k:>13}" for k in NS))
@@ -144,6 +144,8 @@ def main(argv=None) -> dict:
                 ref = float(ecv[:, :n].mean()) if len(ecv) else float("nan")
                 row[k], rrow[k] = mpe, mpe / ref if ref else float("nan")
             res["MPE_m"][m][w], res["ratio_to_cv"][m][w] = row, rrow
+            sm = summarise(e, list(NS.values()))  # Ali et al. sec. 5: per-query MPE_n, Variance_n
+            res["Variance_n_m2"].setdefault(m, {})[w] = {k: sm[n]["Variance"] for k, n in NS.items()}
             print(f"{m:<18} {w:<9} {len(e):>4} " +
                   " ".join(f"{row[k]:6.2f}m {rrow[k]:4.2f}x" for k in NS))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
