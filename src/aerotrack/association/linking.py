@@ -49,10 +49,17 @@ _IN_VIEW = ("observed", "bridged", "stationary")
 
 
 def _positions(t: Track) -> tuple[np.ndarray, np.ndarray]:
-    pts = [p for p in t.points if p.kind in _IN_VIEW]
-    fr = np.array([p.frame for p in pts], dtype=np.int64)
-    xy = np.array([p.world for p in pts], dtype=np.float64).reshape(-1, 2)
-    return fr, xy
+    """(frames (n,), world xy (n, 2)) of a tracklet's in-view points with a finite position, one
+    per frame (the first), sorted by frame."""
+    seen, fr, xy = set(), [], []
+    for p in sorted((p for p in t.points if p.kind in _IN_VIEW), key=lambda p: p.frame):
+        w = np.asarray(p.world, dtype=np.float64).reshape(2)
+        if p.frame in seen or not np.all(np.isfinite(w)):
+            continue
+        seen.add(p.frame)
+        fr.append(p.frame)
+        xy.append(w)
+    return np.array(fr, dtype=np.int64), np.array(xy, dtype=np.float64).reshape(-1, 2)
 
 
 class GlobalLinker:
@@ -107,7 +114,7 @@ class GlobalLinker:
             Sorted by first frame; points sorted by frame, kinds observed / bridged / stationary /
             predicted.
         """
-        tl = [t for t in tracklets if any(p.kind in _IN_VIEW for p in t.points)]
+        tl = [t for t in tracklets if len(_positions(t)[0])]
         if not tl:
             return []
         if not self.metres_per_unit:
