@@ -295,7 +295,7 @@ class AssociationConfig:
     pos_frac: float = 0.06
     size_frac: float = 0.06
     gate_chi2: float = 16.0
-    miss_cost: float = 0.7
+    miss_cost: float = 0.3
     birth_cost: float = 8.0
     app_weight: float = 1.0
     overlap_lambda: float = 4.0

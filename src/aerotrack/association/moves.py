@@ -101,6 +101,8 @@ class SamplerParams:
     gamma: float
 
 
+_ZX = np.zeros(6)
+_ZP = np.zeros((6, 6))
 _EMPTY1 = np.zeros(0)
 _EMPTY2 = np.zeros((0, 0))
 
@@ -198,42 +200,56 @@ class WindowSampler:
 
     def build(self, tid: int, nodes: np.ndarray, prior: Prior | None, base: WTrack | None = None,
               keep: int = 0) -> WTrack:
-        """A track over ``nodes``, reusing the first ``keep`` cached states of ``base``."""
+        """A track over ``nodes`` (gids in frame order) after ``prior``.
+
+        The first ``keep`` nodes must be ``base``'s first ``keep`` nodes with the same prior: their
+        cached states and link terms are reused and only the rest is filtered. A link outside the
+        gate makes the score -inf (no such edge in the graph).
+        """
         nodes = np.asarray(nodes, dtype=np.int64)
         s = self.store
         li = nodes - s.base
         n = len(nodes)
+        born = prior is None
+        if keep == n and keep > 0:
+            links = base.links[:keep]
+            score = float(links.sum()) - (self.p.birth_cost if born else 0.0)
+            return WTrack(tid, nodes, base.xs[:keep], base.Ps[:keep], base.d2[:keep],
+                          base.gaps[:keep], links, prior, score, int(s.frame[li[-1]]),
+                          base.app[:keep])
         if keep > 0:
             x0, P0, f0 = base.xs[keep - 1], base.Ps[keep - 1], int(s.frame[li[keep - 1]])
             has = True
-        elif prior is not None:
+        elif not born:
             x0, P0, f0, has = prior.x, prior.P, prior.frame, True
         else:
-            x0, P0, f0, has = np.zeros(6), np.zeros((6, 6)), 0, False
+            x0, P0, f0, has = _ZX, _ZP, 0, False
         rest = li[keep:]
         xs, Ps, d2, rel, gaps = run_track(x0, P0, f0, has, s.z[rest], s.frame[rest], self.p.fps,
                                           self.p.kf)
         links = 0.5 * self.p.gate2 + rel - self.p.miss_cost * np.maximum(gaps - 1, 0)
+        start = 1 if (born and keep == 0) else 0  # index in `rest` of the first incoming link
+        if start and len(links):
+            links[0] = 0.0
+        valid = not np.any(d2[start:] > self.p.gate2)
+        app = np.zeros(len(rest))
+        if s.hist is not None and self.p.app_weight and len(rest):
+            if len(rest) > 1:
+                app[1:] = self._app(rest[:-1], rest[1:])
+            if keep > 0:
+                app[0] = self._app(li[keep - 1:keep], rest[:1])[0]
+            elif not born and prior.hist is not None:
+                app[0] = self._app_prior(prior.hist, int(rest[0]))
+            links = links + app
         if keep > 0:
             xs = np.concatenate([base.xs[:keep], xs])
             Ps = np.concatenate([base.Ps[:keep], Ps])
             d2 = np.concatenate([base.d2[:keep], d2])
             gaps = np.concatenate([base.gaps[:keep], gaps])
-            links = np.concatenate([base.links[:keep] - base.app[:keep], links])
-        first = 0 if prior is not None else 1
-        if prior is None and n:
-            links[0] = 0.0
-        if s.hist is not None and n:
-            app = np.zeros(n)
-            if n > 1:
-                app[1:] = self._app(li[:-1], li[1:])
-            if prior is not None and prior.hist is not None:
-                app[0] = self._app_prior(prior.hist, int(li[0]))
-            links = links + app
-        else:
-            app = np.zeros(n)
-        score = float(links.sum()) - (self.p.birth_cost if prior is None else 0.0)
-        if n > first and np.any(d2[first:] > self.p.gate2):
+            links = np.concatenate([base.links[:keep], links])
+            app = np.concatenate([base.app[:keep], app])
+        score = float(links.sum()) - (self.p.birth_cost if born else 0.0)
+        if not valid:
             score = -math.inf
         f_end = int(s.frame[li[-1]]) if n else prior.frame
         return WTrack(tid, nodes, xs, Ps, d2, gaps, links, prior, score, f_end, app)
@@ -671,9 +687,14 @@ class WindowSampler:
             return 0.0
         self.swap(out, new)
         d_score += self.overlap_delta(out, new)
-        lr = log_rev()
-        log_a = d_score + lr - log_fwd
-        if math.isfinite(log_a) and (log_a >= 0 or self.rng.random() < math.exp(log_a)):
+        # accept iff d + log q_rev - log q_fwd >= log u; as log q_rev <= 0, a proposal with
+        # d - log q_fwd < log u is rejected without evaluating the (costly) reverse proposal
+        log_u = math.log(max(self.rng.random(), 1e-300))
+        accept = d_score - log_fwd >= log_u
+        if accept:
+            log_a = d_score + log_rev() - log_fwd
+            accept = math.isfinite(log_a) and log_a >= log_u
+        if accept:
             self.accepted[name] += 1
             if any(t.tid == self.next_tid for t in new):
                 self.next_tid += 1
