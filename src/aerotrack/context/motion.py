@@ -492,7 +492,7 @@ class PathIndex:
 
 
 def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, start: np.ndarray, lengths: np.ndarray,
-                frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                frames: np.ndarray, start_frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Displacements along a predictor's polyline from the point nearest ``start``.
 
     Parameters
@@ -509,6 +509,9 @@ def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, start: np.ndarray,
         Arc lengths travelled by the target at each predicted step (world units).
     frames : ndarray, shape (h,)
         The predicted frames; a point of the path may be used only if its row is not later.
+    start_frame : int, optional
+        The frame of ``start`` (``last_seen``): only segments whose rows are no later are used for
+        the projection, so it does not depend on rows that a later prediction step may not see.
 
     Returns
     -------
@@ -521,7 +524,7 @@ def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, start: np.ndarray,
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     best, s0, base = np.inf, 0.0, path_xy[0]
     for j in range(min(2, len(seg))):
-        if seg[j] <= 0:
+        if seg[j] <= 0 or (start_frame is not None and path_frames[j + 1] > start_frame):
             continue
         u = float(np.clip((start - path_xy[j]) @ seg_vec[j] / seg[j] ** 2, 0.0, 1.0))
         q = path_xy[j] + u * seg_vec[j]
@@ -585,13 +588,14 @@ class ContextPredictor(MotionPredictor):
 
     def __init__(self, config=None, fps=30.0, metres_per_unit=None) -> None:
         super().__init__(config, fps, metres_per_unit)
-        self._index_key: int | None = None
+        self._index_table: TrackTable | None = None  # held, so its id cannot be reused
         self._index: PathIndex | None = None
 
     def index_for(self, table: TrackTable) -> PathIndex:
-        if self._index_key != id(table):
+        """The path index of ``table`` (built once per table object)."""
+        if self._index_table is not table:
             self._index = PathIndex(table, self.fps, self.mpu, self.config)
-            self._index_key = id(table)
+            self._index_table = table
         return self._index
 
     def select(self, table: TrackTable, track_id: int, fr: np.ndarray, xy: np.ndarray, T: int,
@@ -681,7 +685,7 @@ class ContextPredictor(MotionPredictor):
             if hi - r0 < chord + 1:
                 continue
             disp, valid = follow_path(index.xy[r0:hi:chord], index.frames[r0:hi:chord], p0, lengths,
-                                      frames)
+                                      frames, start_frame=T)
             disps.append(disp)
             valids.append(valid)
             ws.append(math.exp(-0.5 * (dpath / sigma) ** 2))
