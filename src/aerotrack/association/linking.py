@@ -89,7 +89,7 @@ class GlobalLinker:
         self.last_costs: dict[tuple[int, int], tuple[float, Cues]] = {}
         self._pred: dict[int, np.ndarray] = {}
         self._table: TrackTable | None = None
-        self._table_key: int | None = None
+        self._table_key: list[Track] | None = None
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -130,6 +130,7 @@ class GlobalLinker:
         c = self.config
         n = len(tl)
         self._pred = {}
+        self._table = None  # built again for these tracklets by _forward when needed
         F = max(2, int(round(self.ctx.history_s * self.fps)))
         pos = [_positions(t) for t in tl]
         ends, starts = [], []
@@ -245,9 +246,9 @@ class GlobalLinker:
         pr = self._pred.get(i)
         if pr is not None and len(pr) >= h:
             return pr[:h]
-        if self._table is None or self._table_key != id(tl):
+        if self._table is None or self._table_key is not tl:
             self._table = _table_of([_positions(t) for t in tl])
-            self._table_key = id(tl)
+            self._table_key = tl
         fr, _ = _positions(tl[i])
         return self.predictor.predict(self._table, i, int(fr[-1]), h)
 
