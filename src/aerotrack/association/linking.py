@@ -9,7 +9,7 @@ across occlusions and exits from the view:
    small slack for the noise of short tracklets).
 2. **Cues** for every consistent pair (:mod:`aerotrack.context.reacquire`): the motion context's
    prediction of a at b's first frame (:mod:`aerotrack.context.motion`, which follows the paths of
-   the other tracklets), the appearance context of a against b's first observations with the
+   the other tracklets), the appearance context of a against b's observations with the
    inter-class verification against the other candidates (Ali et al. 4.3), and the Yu & Medioni
    tracklet descriptor (eqs. 12-14).
 3. **Joint assignment**: every tracklet may have at most one successor and one predecessor; the

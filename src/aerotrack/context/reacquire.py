@@ -12,8 +12,8 @@ one), and links all pairs jointly by minimum total cost (see
   the same distance for b's backward prediction to a's last frame), dv the change of velocity, and
   sigmas growing linearly with the gap: a prediction is trusted less the longer the target was
   unseen;
-* appearance context: ``0.5 max(0, z2 - 1)`` with z2 the mean squared z-score of b's first
-  observations under a's intra-class model (about 1 for the same target), plus 1 when the
+* appearance context: ``0.5 max(0, z2 - 1)`` with z2 the mean squared z-score of b's
+  observations (the best of 5 spread over b, against a's) under a's intra-class model (about 1 for the same target), plus 1 when the
   inter-class verification against the other candidates fails;
 * descriptor: the KL distances of eqs. 13 + 14 between the two tracklets' descriptors.
 
