@@ -12,9 +12,10 @@ one), and links all pairs jointly by minimum total cost (see
   the same distance for b's backward prediction to a's last frame), dv the change of velocity, and
   sigmas growing linearly with the gap: a prediction is trusted less the longer the target was
   unseen;
-* appearance context: ``0.5 max(0, z2 - 1)`` with z2 the mean squared z-score of b's
-  observations (the best of 5 spread over b, against a's) under a's intra-class model (about 1 for the same target), plus 1 when the
-  inter-class verification against the other candidates fails;
+* appearance context: ``0.5 max(0, z2 - 1)`` with z2 the mean squared z-score, under a's
+  intra-class model, of the best difference between b's observations (5, spread over b) and a's
+  (about 1 for the same target), plus 1 when the inter-class verification against the other
+  candidates fails;
 * descriptor: the KL distances of eqs. 13 + 14 between the two tracklets' descriptors.
 
 A cue that cannot be computed (no histograms, no descriptor statistics) contributes 0: it neither
