@@ -166,18 +166,28 @@ def test_join_stitches_tracklets_across_the_cut_and_keeps_each_frame_once():
 
 
 # -- real runs on a local cluster -----------------------------------------------------------------
-def test_segments_on_a_cluster_match_the_single_process(scene, client):
+@pytest.mark.slow  # a single-process run and a parallel run: ~20-30 s on 2 shared cores
+def test_segments_on_a_cluster_match_the_single_process(scene, client, tmp_path):
     from aerotrack.evaluation import evaluate
     from aerotrack.io import open_source
     from aerotrack.outputs import track_rows
-    from aerotrack.parallel import run_parallel
+    from aerotrack.parallel import gather_segments, run_parallel
     from aerotrack.pipeline import run
 
     folder, gt = scene
     src = open_source(folder, FPS)
     single = run(src, metres_per_unit=0.3)
+    done = []
     par, report = run_parallel(src, client=client, metres_per_unit=0.3, with_report=True,
-                               parallel=ParallelConfig(segment_s=4.0, min_segments=2))
+                               parallel=ParallelConfig(segment_s=4.0, min_segments=2),
+                               checkpoint_dir=tmp_path, progress=done.append)
+    assert done[-1] == 120 and done == sorted(done)
+    # finished segments were saved: resuming runs nothing (no client needed)
+    segs = plan_segments(1, 120, fps=FPS, segment_s=4.0, overlap_s=4.5, min_segments=2)
+    tasks = make_tasks(folder, config=Config(), fps=FPS, segments=segs, metres_per_unit=0.3)
+    again = gather_segments(None, tasks, checkpoint_dir=tmp_path, resume=True)
+    assert [r.segment for r in again] == segs
+    assert sorted(again[1].registrations) == list(range(segs[1].start, segs[1].stop + 1))
     assert sorted(par.registrations) == sorted(single.registrations) == list(range(1, 121))
     assert [d.frame for d in par.detections] == [d.frame for d in single.detections]
     assert len(report.world_rms) >= 1 and max(report.world_rms) < 1.0  # px of world 0
@@ -199,6 +209,30 @@ def test_segments_on_a_cluster_match_the_single_process(scene, client):
     # and the tracks themselves: the single process's tracks as ground truth for the segments'
     agree = evaluate(rows_s, rows_p)
     assert agree["HOTA"] > 0.85 and agree["IDF1"] > 0.85
+
+
+def test_segments_with_a_map_chain_into_map_pixels(scene, client):
+    from aerotrack.geo import GeoMap
+    from aerotrack.io import open_source
+    from aerotrack.parallel import run_parallel
+
+    folder, _ = scene
+    geomap = GeoMap(TILE)
+
+    def truth(f):  # frame pixels -> map pixels of the rendered camera (render_scene)
+        t = (f - 1) / FPS
+        return np.array([[1, 0, 400 + 4 * t], [0, 1, 420 + 3 * t], [0, 0, 1.0]])
+
+    par, report = run_parallel(open_source(folder, FPS), client=client, geomap=geomap,
+                               H_init=truth(1), with_report=True,
+                               parallel=ParallelConfig(segment_s=4.0, min_segments=2))
+    assert len(report.world_rms) == 1
+    corners = np.array([[0, 0], [240, 0], [240, 180], [0, 180.0]])
+    err = [np.abs(apply_homography(par.registrations[f].H, corners)
+                  - apply_homography(truth(f), corners)).max() for f in sorted(par.registrations)]
+    assert max(err) < 3.0  # map pixels, both segments
+    d = next(d for d in par.detections if d.frame > 100 and len(d))
+    assert d.lonlat is not None and np.all(np.isfinite(d.lonlat))  # segment 1 gets map outputs
 
 
 def test_a_segment_whose_worker_dies_is_run_again(scene, client):

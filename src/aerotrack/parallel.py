@@ -568,14 +568,29 @@ def submit_tasks(client, tasks: Sequence[SegmentTask], *, retries: int = 2, name
                           key=f"aerotrack-{name}-{t.segment.index}-{tag}") for t in tasks]
 
 
-def _segment_file(folder: Path, seg: Segment, stride: int) -> Path:
-    return folder / f"segment-{seg.start}-{seg.stop}-{seg.own_start}-{seg.own_stop}-{stride}.pkl"
+def _segment_file(folder: Path, task: SegmentTask) -> Path:
+    """Checkpoint of one segment, named by its frames and a digest of everything else it depends
+    on (so a resumed run with other settings does not pick up stale segments)."""
+    import hashlib
+
+    from .config import dumps_config
+
+    h = hashlib.sha1()
+    for part in (dumps_config(task.config), task.input_path, task.fps, task.stride, task.seed,
+                 task.metres_per_unit, task.map_path):
+        h.update(repr(part).encode())
+    for arr in (task.H_init, task.detections):
+        h.update(b"-" if arr is None else np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    seg = task.segment
+    return folder / (f"segment-{seg.start}-{seg.stop}-{seg.own_start}-{seg.own_stop}-"
+                     f"{h.hexdigest()[:12]}.pkl")
 
 
 def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
                     checkpoint_dir: Path | None = None, resume: bool = False,
                     progress: Callable[[int], None] | None = None) -> list[SegmentResult]:
-    """Run tasks on the cluster and collect their results in segment order.
+    """Run tasks on the cluster (``client``; None runs them here, in turn) and collect their
+    results in segment order.
 
     With ``checkpoint_dir`` each finished segment is saved there (atomically) as it arrives, and
     with ``resume`` segments already saved are not run again.
@@ -586,7 +601,7 @@ def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
     folder = Path(checkpoint_dir) / "segments" if checkpoint_dir is not None else None
     todo = []
     for t in tasks:
-        path = _segment_file(folder, t.segment, t.stride) if folder is not None else None
+        path = _segment_file(folder, t) if folder is not None else None
         if resume and path is not None and path.exists():
             with open(path, "rb") as fh:
                 done[t.segment.index] = pickle.load(fh)
@@ -594,18 +609,22 @@ def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
             todo.append(t)
     owned = {t.segment.index: (t.segment.own_stop - t.segment.own_start) // t.stride + 1
              for t in tasks}
+    by_index = {t.segment.index: t for t in tasks}
     count = sum(owned[k] for k in done)
     if progress and count:
         progress(count)
     if todo:
-        distributed = _distributed()
-        futures = submit_tasks(client, todo, retries=retries)
-        for fut in distributed.as_completed(futures):
-            res: SegmentResult = fut.result()
+        if client is None:  # in this process, one after the other
+            finished = map(run_segment, todo)
+        else:
+            distributed = _distributed()
+            futures = submit_tasks(client, todo, retries=retries)
+            finished = (fut.result() for fut in distributed.as_completed(futures))
+        for res in finished:
             done[res.segment.index] = res
             if folder is not None:
                 folder.mkdir(parents=True, exist_ok=True)
-                atomic_write_bytes(_segment_file(folder, res.segment, todo[0].stride),
+                atomic_write_bytes(_segment_file(folder, by_index[res.segment.index]),
                                    pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
             count += owned[res.segment.index]
             if progress:
