@@ -29,7 +29,8 @@ from ..errors import ConfigError, InputError
 from ..kalman import ConstantVelocityKF
 from ..types import Detections, Track, TrackPoint, Tracklet
 from .moves import Prior, SamplerParams, WindowSampler, WTrack
-from .posterior import iou_xywh_centre, run_track
+from .graph import HIST_EPS
+from .posterior import iou_xywh_centre, run_track, score_matrix
 
 
 class LocalAssociator:
@@ -208,7 +209,14 @@ class LocalAssociator:
         prior = Prior(tr.xs[k - 1], tr.Ps[k - 1], S.frame_of(g), S.hist_of(g))
         new = WTrack(tr.tid, tr.nodes[k:], tr.xs[k:], tr.Ps[k:], tr.d2[k:], tr.gaps[k:],
                      tr.links[k:], prior, float(tr.links[k:].sum()), tr.f_end, tr.app[k:])
-        S.swap([tr], [new])
+        # the frozen nodes leave with the window; the rest only shift position
+        li = tr.nodes - s.base
+        s.label[li[:k]] = -1
+        s.prev[li[:k]] = -1
+        if len(li) > k:
+            s.idx[li[k:]] -= k
+            s.prev[li[k]] = -1
+        S.tracks[tr.tid] = new
 
     def _finish(self, tid: int) -> list[Tracklet]:
         """Remove an ended track from the sampler; return it if long enough."""
@@ -233,12 +241,24 @@ class LocalAssociator:
         live = [tr for tr in S.tracks.values() if t - self.max_gap <= S.end_frame(tr) < t]
         n = len(gids)
         if live and n:
-            score = np.full((len(live), n), -np.inf)
+            B = 0 if s.hist is None else s.hist.shape[1]
+            X = np.empty((len(live), 6))
+            P = np.empty((len(live), 6, 6))
+            FE = np.empty(len(live), np.int64)
+            HE = np.zeros((len(live), B))
             for r, tr in enumerate(live):
-                x, P, f, h = S.end_state(tr)
-                cols, w = S._children(x, P, f, h, t, t)
-                if cols is not None:
-                    score[r, cols - gids[0]] = w
+                X[r], P[r], FE[r], h = S.end_state(tr)
+                if h is not None:
+                    HE[r] = h
+            a, b = gids[0] - s.base, gids[-1] + 1 - s.base
+            if B:
+                H, LH, LHE = s.hist[a:b], s.loghist[a:b], np.log(HE + HIST_EPS)
+            else:
+                H = LH = np.zeros((n, 0))
+                LHE = HE
+            score = score_matrix(X, P, FE, HE, LHE, s.z[a:b], s.frame[a:b], H, LH, self.fps,
+                                 S.p.kf, c.max_speed_mps, c.gate_chi2, S.p.miss_cost,
+                                 S.p.app_weight if B else 0.0)
             ok_rows = np.flatnonzero(np.isfinite(score).any(axis=1))
             if len(ok_rows):
                 sub = score[ok_rows]

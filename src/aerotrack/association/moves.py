@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .graph import NodeStore
-from .posterior import children_scores, link_step, run_track
+from .posterior import append_link, children_scores, link_step, run_track
 
 MOVES = ("ext_f", "red_f", "ext_b", "red_b", "birth", "death", "split", "merge", "switch")
 #: Proposal probability of each move. Reverse pairs share a weight so that the ratios in the
@@ -217,6 +217,8 @@ class WindowSampler:
             return WTrack(tid, nodes, base.xs[:keep], base.Ps[:keep], base.d2[:keep],
                           base.gaps[:keep], links, prior, score, int(s.frame[li[-1]]),
                           base.app[:keep])
+        if keep > 0 and keep == n - 1:
+            return self._append(tid, nodes, prior, base, keep)
         if keep > 0:
             x0, P0, f0 = base.xs[keep - 1], base.Ps[keep - 1], int(s.frame[li[keep - 1]])
             has = True
@@ -253,6 +255,23 @@ class WindowSampler:
             score = -math.inf
         f_end = int(s.frame[li[-1]]) if n else prior.frame
         return WTrack(tid, nodes, xs, Ps, d2, gaps, links, prior, score, f_end, app)
+
+    def _append(self, tid, nodes, prior, base, keep) -> WTrack:
+        """:meth:`build` for one observation appended to ``base``'s first ``keep`` (compiled)."""
+        s = self.store
+        lp, lg = int(nodes[keep - 1]) - s.base, int(nodes[keep]) - s.base
+        if s.hist is not None:
+            hp, lhp, h, lh = s.hist[lp], s.loghist[lp], s.hist[lg], s.loghist[lg]
+        else:
+            hp = lhp = h = lh = _EMPTY1
+        xs, Ps, d2s, gaps, links, apps, d2, link = append_link(
+            base.xs[:keep], base.Ps[:keep], base.d2[:keep], base.gaps[:keep], base.links[:keep],
+            base.app[:keep], int(s.frame[lp]), s.z[lg], int(s.frame[lg]), hp, lhp, h, lh,
+            self.p.fps, self.p.kf, self.p.gate2, self.p.miss_cost, self.p.app_weight)
+        score = float(links.sum()) - (self.p.birth_cost if prior is None else 0.0)
+        if d2 > self.p.gate2:
+            score = -math.inf
+        return WTrack(tid, nodes, xs, Ps, d2s, gaps, links, prior, score, int(s.frame[lg]), apps)
 
     def end_state(self, t: WTrack):
         """(x, P, frame, hist) at the track's last observation (or its prior)."""

@@ -208,3 +208,58 @@ def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, r
         w[cnt] = s
         cnt += 1
     return idx[:cnt], w[:cnt]
+
+
+@njit(cache=True)
+def score_matrix(X, P, FE, HE, LHE, Z, F, H, LH, fps, params, reach_mps, gate2, miss_cost,
+                 app_weight):
+    """Link scores (K, N) from K track ends (states X (K, 6), P (K, 6, 6) at frames FE (K,),
+    histograms HE, LHE (K, B)) to N new observations; -inf where there is no edge or the gate
+    fails. The Hungarian initialisation of each frame uses it."""
+    K = X.shape[0]
+    N = Z.shape[0]
+    out = np.full((K, N), -np.inf)
+    lab = np.full(N, -1, dtype=np.int64)
+    for k in range(K):
+        idx, w = children_scores(X[k], P[k], FE[k], HE[k], LHE[k], Z, F, lab, H, LH, fps, params,
+                                 reach_mps, gate2, miss_cost, app_weight)
+        for i in range(idx.shape[0]):
+            out[k, idx[i]] = w[i]
+    return out
+
+
+@njit(cache=True)
+def append_link(xs, Ps, d2s, gaps, links, apps, f_end, z, f, h_prev, lh_prev, h, lh, fps, params,
+                gate2, miss_cost, app_weight):
+    """A track's cached arrays with one observation ``z`` at frame ``f`` appended (one Kalman
+    link from its last state at ``f_end``); returns the new arrays, the link's d^2 and score."""
+    n = xs.shape[0]
+    gap = f - f_end
+    xn, Pn, d2, rel = link_step(xs[n - 1], Ps[n - 1], abs(gap) / fps, z, params)
+    link = 0.5 * gate2 + rel - miss_cost * max(abs(gap) - 1, 0)
+    app = 0.0
+    if h.shape[0] > 0 and app_weight > 0:
+        kl = 0.0
+        for b in range(h.shape[0]):
+            kl += (h_prev[b] - h[b]) * (lh_prev[b] - lh[b])
+        app = -0.5 * app_weight * kl
+    link += app
+    xs2 = np.empty((n + 1, 6))
+    Ps2 = np.empty((n + 1, 6, 6))
+    d22 = np.empty(n + 1)
+    gaps2 = np.empty(n + 1, dtype=np.int64)
+    links2 = np.empty(n + 1)
+    apps2 = np.empty(n + 1)
+    xs2[:n] = xs
+    Ps2[:n] = Ps
+    d22[:n] = d2s
+    gaps2[:n] = gaps
+    links2[:n] = links
+    apps2[:n] = apps
+    xs2[n] = xn
+    Ps2[n] = Pn
+    d22[n] = d2
+    gaps2[n] = abs(gap)
+    links2[n] = link
+    apps2[n] = app
+    return xs2, Ps2, d22, gaps2, links2, apps2, d2, link
