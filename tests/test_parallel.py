@@ -310,3 +310,22 @@ def test_batch_tracks_each_input_once_and_skips_finished(tmp_path, scene, client
         s2 = json.loads((out2 / name / "summary.json").read_text())
         assert s2["frames"] == 45
         assert s2["counts"]["detections"] == summary["counts"]["detections"]
+
+
+def test_track_command_runs_on_the_cluster(tmp_path, scene, client):
+    from aerotrack.cli.main import cli
+
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for p in sorted(scene[0].iterdir())[:45]:
+        (clip / p.name).write_bytes(p.read_bytes())
+    out = tmp_path / "run"
+    args = ["track", str(clip), "--out", str(out), "--fps", "10", "--gsd", "0.3"]
+    r = CliRunner().invoke(cli, args + ["--scheduler", client.scheduler.address],
+                           catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 45 and summary["counts"]["registered_frames"] == 45
+    assert not (out / ".partial").exists()
+    r = CliRunner().invoke(cli, args + ["--overwrite", "--workers", "2", "--scheduler", "x:1"])
+    assert isinstance(r.exception, InputError) and "cannot be used together" in str(r.exception)
