@@ -199,7 +199,7 @@ class DetectionConfig:
     window_s: float = 3.0
     causal: bool = False
     sample_every_s: float = 0.2
-    update_every_s: float = 0.1
+    update_every_s: float = 0.2
     model_scale: float = 0.5
     min_valid_samples: int = 3
     threshold_sigma: float = 5.0
@@ -299,8 +299,8 @@ class AssociationConfig:
     birth_cost: float = 8.0
     app_weight: float = 1.0
     overlap_lambda: float = 4.0
-    iters_per_detection: float = 1.0
-    min_iters: int = 20
+    iters_per_detection: float = 0.5
+    min_iters: int = 10
     extend_gamma: float = 0.5
     min_length_s: float = 0.4
 

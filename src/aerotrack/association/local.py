@@ -69,6 +69,7 @@ class LocalAssociator:
         self.mpu = metres_per_unit
         self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self.window = max(2, int(round(config.window_s * fps)))
+        self.slide_batch = max(1, self.window // 3)
         self.max_gap = max(1, min(int(round(config.max_gap_s * fps)), self.window - 1))
         self.kf = ConstantVelocityKF(
             accel_std=config.accel_std_mps2, size_std=config.size_std_m, pos_std=config.pos_std_m,
@@ -180,7 +181,9 @@ class LocalAssociator:
     def _slide(self, w0: int) -> list[Tracklet]:
         """Finalise observations of frames before ``w0``."""
         S = self.sampler
-        if S.store.first_frame >= w0 or not S.store.fstart:
+        # frames are finalised in batches of a third of the window (the window holds between
+        # ``window`` and 4/3 ``window`` frames): one freeze per track per batch instead of per frame
+        if not S.store.fstart or S.store.first_frame > w0 - self.slide_batch:
             return []
         for tr in list(S.tracks.values()):
             if not len(tr):

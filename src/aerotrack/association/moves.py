@@ -60,26 +60,32 @@ class Prior:
     hist: np.ndarray | None
 
 
-@dataclass(frozen=True)
 class WTrack:
-    """A track's part inside the window (immutable).
+    """A track's part inside the window (treated as immutable: moves build new ones).
 
     nodes (n,) gids in frame order; xs (n, 6), Ps (n, 6, 6) filtered states (metres); d2 (n,) and
-    gaps (n,) of each incoming link; links (n,) their log-likelihood ratios; score the track's term
-    of the log posterior (links minus the birth cost when born in the window).
+    gaps (n,) of each incoming link; links (n,) their log-likelihood ratios (motion + appearance
+    + missed detections), app (n,) their appearance part; prior the state before the window (None
+    for a track born in it); score the track's term of the log posterior (links minus the birth
+    cost when born in the window); f_end the frame of its last observation (or of the prior).
+    A plain slotted class: tracks are created at every move, a dataclass costs too much.
     """
 
-    tid: int
-    nodes: np.ndarray
-    xs: np.ndarray
-    Ps: np.ndarray
-    d2: np.ndarray
-    gaps: np.ndarray
-    links: np.ndarray
-    prior: Prior | None
-    score: float
-    f_end: int  # frame of the last observation (of the prior when the window part is empty)
-    app: np.ndarray  # (n,) appearance part of each link (eq. 9)
+    __slots__ = ("tid", "nodes", "xs", "Ps", "d2", "gaps", "links", "prior", "score", "f_end",
+                 "app")
+
+    def __init__(self, tid, nodes, xs, Ps, d2, gaps, links, prior, score, f_end, app):
+        self.tid = tid
+        self.nodes = nodes
+        self.xs = xs
+        self.Ps = Ps
+        self.d2 = d2
+        self.gaps = gaps
+        self.links = links
+        self.prior = prior
+        self.score = score
+        self.f_end = f_end
+        self.app = app
 
     def __len__(self) -> int:
         return len(self.nodes)
