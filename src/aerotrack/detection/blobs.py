@@ -40,6 +40,18 @@ def _disk(r: float) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
 
 
+def close(mask: np.ndarray, radius: float) -> np.ndarray:
+    """Morphological closing with a disk that treats the outside of the image as background.
+
+    (OpenCV's default border lets the erosion keep whatever the dilation pushed against the
+    image edge, which would grow blobs that touch a crop's border.)"""
+    k = _disk(radius)
+    p = k.shape[0]
+    m = cv2.copyMakeBorder(mask, p, p, p, p, cv2.BORDER_CONSTANT, value=0)
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k)
+    return m[p:-p, p:-p]
+
+
 def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
                      min_area: float) -> list[Blob]:
     """Connected components of ``low`` (after a 3x3 opening and a closing) that contain a pixel of
@@ -57,7 +69,7 @@ def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
     m = (np.asarray(low) > 0).astype(np.uint8)
     m = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
     if close_radius >= 0.5:
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, _disk(close_radius))
+        m = close(m, close_radius)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1:
         return []

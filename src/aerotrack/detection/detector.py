@@ -25,7 +25,7 @@ from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
 from .background import box_polygons, to_cv_homography, warp, warp_polygons, window_background
-from .blobs import Blob, hysteresis_blobs, join_fragments, split_blob
+from .blobs import Blob, close, hysteresis_blobs, join_fragments, split_blob
 from .shadows import shadow_mask
 
 
@@ -143,7 +143,8 @@ def ghost_score(small: np.ndarray, bg: np.ndarray, mask: np.ndarray) -> float:
     return float((ei[mask].sum() + 1.0) / (eb[mask].sum() + 1.0))
 
 
-def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0) -> np.ndarray:
+def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0,
+                   soft: bool = False) -> np.ndarray:
     """Per-pixel largest absolute channel difference, (H, W) uint8.
 
     With ``tolerance_px`` = r > 0 the difference is taken to the nearest value of the background
@@ -154,6 +155,9 @@ def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0) -> 
     if tolerance_px <= 0:
         return _channel_max(cv2.absdiff(image, bg))
     k = np.ones((2 * tolerance_px + 1,) * 2, np.uint8)
+    if soft:
+        spread = cv2.subtract(cv2.dilate(bg, k), cv2.erode(bg, k))
+        return _channel_max(cv2.subtract(cv2.absdiff(image, bg), cv2.multiply(spread, 0.5)))
     d = cv2.add(cv2.subtract(image, cv2.dilate(bg, k)), cv2.subtract(cv2.erode(bg, k), image))
     return _channel_max(d)
 
@@ -221,7 +225,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     bgn = _gain_normalise(small, bg_small, config.gain_block_px * scale)
     res = residual_image(small, bgn, 1)
     res[testable == 0] = 0
-    res[border_fill_mask(small) | border_fill_mask(bg_small)] = 0
+    res[border_fill_mask(small)] = 0
     sigma = robust_sigma(res, testable)
     thr = max(config.min_threshold, config.threshold_sigma * sigma)
     low = res > thr
@@ -277,8 +281,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
                                tau_s=config.shadow_tau_s, tau_h=config.shadow_tau_h)
         fg8 = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
         close_full = max(1.0, gates.close_px)
-        fg8 = cv2.morphologyEx(fg8, cv2.MORPH_CLOSE, cv2.getStructuringElement(
-            cv2.MORPH_ELLIPSE, (int(2 * close_full + 1),) * 2))
+        fg8 = close(fg8, close_full)
         fg8 &= region.astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(fg8, connectivity=8)
         if n <= 1:
@@ -424,8 +427,8 @@ class MovingObjectDetector:
             return c - 2 * self.half, c
         return c - self.half, c + self.half
 
-    def _background(self, p: _Pending) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Background, testable mask and held mask of a frame at model resolution."""
+    def _background(self, p: _Pending) -> tuple[np.ndarray, np.ndarray]:
+        """Background and testable mask (255 = trusted) of a frame at model resolution."""
         c, t = p.frame.index, p.frame.time
         Hc = np.asarray(p.reg.H, dtype=np.float64)
         Hc_inv = np.linalg.inv(Hc)
@@ -435,8 +438,7 @@ class MovingObjectDetector:
             M = to_cv_homography(Hc_inv @ prev.H, self.scale)
             bg = warp(prev.bg, M, (w, h), replicate=True)
             testable = warp(prev.testable, M, (w, h), nearest=True)
-            held = warp(prev.held_since, M, (w, h), nearest=True, border=np.inf)
-            return bg, testable, np.isfinite(held)
+            return bg, testable
 
         lo, hi = self._window(c)
         chosen = [s for i, s in self._samples.items() if lo <= i <= hi]
@@ -465,12 +467,12 @@ class MovingObjectDetector:
                 testable[hold] = 255
                 held_since[hold] = since[hold]
         self._bg = _Background(c, Hc, bg, testable, held_since)
-        return bg, testable, np.isfinite(held_since)
+        return bg, testable
 
     def _finalise(self, p: _Pending) -> Detections:
         c = p.frame.index
         Hc = np.asarray(p.reg.H, dtype=np.float64)
-        bg, testable, held = self._background(p)
+        bg, testable = self._background(p)
         gates = self._gates(Hc, p.frame.image.shape[:2])
         r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
         self.last_result = r
@@ -485,14 +487,13 @@ class MovingObjectDetector:
                 s.known = True
         self._last_fg = (c, Hc, fg)
         self._last_final = c
-        stationary = self._stationary(p, r, held)
+        stationary = self._stationary(p, r)
         if self.keep_debug:
             self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
         return self._to_detections(p, r, stationary)
 
-    def _stationary(self, p: _Pending, r: FrameResult, held: np.ndarray) -> np.ndarray:
-        """Flag detections whose pixels did not change over ``stationary_lag_s`` (or that sit on
-        a held background)."""
+    def _stationary(self, p: _Pending, r: FrameResult) -> np.ndarray:
+        """Flag detections whose pixels did not change over ``stationary_lag_s``."""
         n = len(r.boxes)
         out = np.zeros(n, bool)
         if n == 0:
