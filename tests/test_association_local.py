@@ -218,7 +218,7 @@ def test_every_move_keeps_the_partition_valid(seed, n_obj, fp_rate):
     fp = {f: [tuple(rng.uniform(0, 20, 2)) for _ in range(rng.poisson(fp_rate))]
           for f in range(1, n + 1)}
     frames, _ = _frames(tracks, n, fp=fp)
-    cfg = AssociationConfig(window_s=0.5, max_gap_s=0.3, min_iters=0, iters_per_detection=0)
+    cfg = AssociationConfig(window_s=0.5, max_gap_s=0.3, min_iters=0, iters_per_ambiguity=0)
     la = LocalAssociator(cfg, FPS, 1.0, seed=seed)
     for d in frames:
         la.step(d)
@@ -239,7 +239,7 @@ def test_moves_are_accepted_and_all_tried():
                        [f for f in range(1, n + 1) if rng.random() > 0.25], rng, noise=0.4)
               for i in range(6)}
     frames, _ = _frames(tracks, n)
-    la = LocalAssociator(AssociationConfig(iters_per_detection=5), FPS, 1.0, seed=1)
+    la = LocalAssociator(AssociationConfig(iters_per_ambiguity=5), FPS, 1.0, seed=1)
     for d in frames:
         la.step(d)
     S = la.sampler

@@ -273,9 +273,9 @@ class AssociationConfig:
     overlap_lambda : float
         MRF interaction lambda (eq. 10): penalty per unit IoU of two same-frame observations that
         both belong to tracks. Suppresses tracks made of split blobs.
-    iters_per_detection : float
-        MCMC samples per frame, per new detection (plus ``min_iters``). More samples explore more
-        but cost time linearly.
+    iters_per_ambiguity : float
+        MCMC samples per frame, per ambiguous new detection (in the gate of several tracks, or
+        unmatched), plus ``min_iters``. More samples explore more but cost time linearly.
     min_iters : int
         MCMC samples per frame regardless of the number of detections.
     extend_gamma : float
@@ -299,7 +299,7 @@ class AssociationConfig:
     birth_cost: float = 8.0
     app_weight: float = 1.0
     overlap_lambda: float = 4.0
-    iters_per_detection: float = 0.5
+    iters_per_ambiguity: float = 1.0
     min_iters: int = 10
     extend_gamma: float = 0.5
     min_length_s: float = 0.4

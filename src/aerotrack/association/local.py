@@ -165,8 +165,8 @@ class LocalAssociator:
         gids = S.store.add_frame(t, z, None if det.hist is None else np.asarray(det.hist, float),
                                  payload, ious)
         finished = self._slide(t - self.window + 1)
-        self._initialise(gids)
-        n_iter = int(self.config.min_iters + math.ceil(self.config.iters_per_detection * n))
+        n_amb = self._initialise(gids)
+        n_iter = int(self.config.min_iters + math.ceil(self.config.iters_per_ambiguity * n_amb))
         if len(S.tids) or S.n_free():
             S.run(n_iter)
             S.greedy_merges()
@@ -235,14 +235,20 @@ class LocalAssociator:
         return [out]
 
     # ------------------------------------------------------------------ initialisation
-    def _initialise(self, gids: np.ndarray) -> None:
-        """Extend live tracks with the new frame by a Hungarian assignment, then greedy births."""
+    def _initialise(self, gids: np.ndarray) -> int:
+        """Extend live tracks with the new frame by a Hungarian assignment, then greedy births.
+
+        Returns the number of ambiguous new detections (inside the gate of several live tracks,
+        matched to a track that gates several of them, or left unmatched): the data-driven share
+        of the frame's MCMC samples goes to frames where the assignment is in doubt.
+        """
         S = self.sampler
         s = S.store
         t = S.now
         c = self.config
         live = [tr for tr in S.tracks.values() if t - self.max_gap <= S.end_frame(tr) < t]
         n = len(gids)
+        ambiguous = np.ones(n, dtype=bool)
         if live and n:
             B = 0 if s.hist is None else s.hist.shape[1]
             X = np.empty((len(live), 6))
@@ -262,7 +268,10 @@ class LocalAssociator:
             score = score_matrix(X, P, FE, HE, LHE, s.z[a:b], s.frame[a:b], H, LH, self.fps,
                                  S.p.kf, c.max_speed_mps, c.gate_chi2, S.p.miss_cost,
                                  S.p.app_weight if B else 0.0)
-            ok_rows = np.flatnonzero(np.isfinite(score).any(axis=1))
+            fin = np.isfinite(score)
+            per_det = fin.sum(axis=0)
+            per_track = fin.sum(axis=1)
+            ok_rows = np.flatnonzero(per_track > 0)
             if len(ok_rows):
                 sub = score[ok_rows]
                 cost = np.where(np.isfinite(sub), -sub, 1e9)
@@ -274,6 +283,7 @@ class LocalAssociator:
                     new = S.build(tr.tid, np.append(tr.nodes, gids[j]), tr.prior, tr, len(tr))
                     if math.isfinite(new.score):
                         S.swap([tr], [new])
+                        ambiguous[j] = per_det[j] > 1 or per_track[ok_rows[r]] > 1
         # greedy births: chains of free observations ending at the new ones
         for g in gids.tolist():
             if s.label[g - s.base] >= 0:
@@ -285,6 +295,7 @@ class LocalAssociator:
             if new.score > 0:
                 S.next_tid += 1
                 S.swap([], [new])
+        return int(ambiguous.sum())
 
     def _greedy_back_chain(self, g: int) -> list[int]:
         S = self.sampler
