@@ -252,3 +252,19 @@ def test_cli_detect(tmp_path):
     rows = read_mot(tmp_path / "o3" / "detections.csv")
     assert len(rows) and set(np.unique(rows[:, 0])) <= set(range(1, 21))
     assert (tmp_path / "o3" / "config.toml").exists()
+
+
+def test_registration_reset_restarts_the_window():
+    frames, regs, gt = render(MOVERS[:2], 30)
+    shift = np.array([[1.0, 0, 9], [0, 1, -7], [0, 0, 1]])  # new world = old one, offset
+    det = MovingObjectDetector(DetectionConfig(window_s=2.0), FPS)
+    out = []
+    for f, r in zip(frames, regs):
+        if f.index >= 15:  # the registrar reset: positions continue in an offset world frame
+            r = Registration(r.index, shift @ r.H, status="reset" if f.index == 15 else "ok")
+        out += det.step(f, r)
+    out += det.flush()
+    assert [d.frame for d in out] == list(range(1, 31))
+    after = out[14:]
+    tp = sum(any(iou(b, g) >= 0.3 for g in gt[d.frame - 1]) for d in after for b in d.boxes)
+    assert tp / max(1, sum(len(d) for d in after)) >= 0.9  # no burst of false detections

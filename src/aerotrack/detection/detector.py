@@ -29,6 +29,12 @@ from .blobs import Blob, close, hysteresis_blobs, join_fragments, split_blob
 from .shadows import shadow_mask
 
 
+#: Registration statuses after which earlier frames no longer relate to this one.
+RESTART_STATUSES = ("reset", "reanchored")
+#: Statuses whose homography was not measured on this frame.
+UNMEASURED = ("carried",)
+
+
 @dataclass
 class _Sample:
     index: int
@@ -390,13 +396,22 @@ class MovingObjectDetector:
         H, W = img.shape[:2]
         size = (max(1, int(round(W * self.scale))), max(1, int(round(H * self.scale))))
         small = cv2.resize(img, size, interpolation=cv2.INTER_AREA) if self.scale != 1 else img
+        out = []
+        if registration.status in RESTART_STATUSES and self._pending:
+            # The new world frame is unrelated to the old one: finish the frames waiting for their
+            # window with what was seen before, then start a new window.
+            out = self.flush()
+            self._samples.clear()
+            self._bg = None
+            self._last_fg = None
         if self._first is None:
             self._first = frame.index
         Hm = np.asarray(registration.H, dtype=np.float64)
-        if (frame.index - self._first) % self.every == 0:
+        # A frame whose homography is only carried forward (not measured) would smear the
+        # background if it voted; it is still tested against its neighbours.
+        if (frame.index - self._first) % self.every == 0 and registration.status not in UNMEASURED:
             self._samples[frame.index] = _Sample(frame.index, small, Hm)
         self._pending.append(_Pending(frame, registration, small))
-        out = []
         while self._pending and (self.config.causal
                                  or self._pending[0].frame.index + self.half <= frame.index):
             out.append(self._finalise(self._pending.popleft()))
