@@ -50,6 +50,12 @@ class RegistrationConfig:
         After the first estimate, warp the previous frame by it and re-track the inliers (sub-pixel
         residual motion, no zoom or rotation left): removes the bias optical flow has under zoom,
         which chaining turns into drift, for about a third more time.
+    keyframe_s : float
+        Frames are registered against a keyframe at most this old (0: against the previous frame).
+        Longer keyframes chain fewer homographies (less drift) but track over larger motions and
+        see more parallax and appearance change.
+    keyframe_min_overlap : float
+        A new keyframe is taken when fewer than this fraction of its features are still inliers.
     ransac_threshold_px : float
         RANSAC inlier threshold, in full-resolution frame pixels.
     estimator : str
@@ -98,6 +104,8 @@ class RegistrationConfig:
     scale: float = 0.5
     min_track_width_px: int = 480
     polish: bool = True
+    keyframe_s: float = 0.5
+    keyframe_min_overlap: float = 0.6
     ransac_threshold_px: float = 2.0
     estimator: str = "ransac"
     min_inliers: int = 20
@@ -299,8 +307,8 @@ class AssociationConfig:
     birth_cost: float = 8.0
     app_weight: float = 1.0
     overlap_lambda: float = 4.0
-    iters_per_ambiguity: float = 1.0
-    min_iters: int = 10
+    iters_per_ambiguity: float = 2.0
+    min_iters: int = 20
     extend_gamma: float = 0.5
     min_length_s: float = 0.4
 

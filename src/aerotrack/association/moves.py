@@ -651,15 +651,25 @@ class WindowSampler:
         d2 = np.sum((s.z[pr, :2] - zn[:2]) ** 2, axis=1)
         return li[(d1 <= r1**2) & (d2 <= r2**2)] + s.base
 
+    @staticmethod
+    def _switch_weights(t: WTrack) -> np.ndarray:
+        """Data-driven choice of the switch point p (the link p -> p+1): unlikely links first."""
+        return 1.0 - np.exp(-0.5 * t.d2[1:]) + 0.05
+
     def _switch_route(self, t: WTrack, p: int) -> float:
+        """Probability of proposing the switch at ``t``'s node p with a given partner."""
         c = len(self._switch_cands(t, p))
-        return 0.0 if c == 0 else 1.0 / ((len(t) - 1) * c)
+        if c == 0:
+            return 0.0
+        w = self._switch_weights(t)
+        return float(w[p] / w.sum()) / c
 
     def move_switch(self):
         t1 = self._pick_track()
         if t1 is None or len(t1) < 2:
             return None
-        p = int(self.rng.integers(len(t1) - 1))
+        w = self._switch_weights(t1)
+        p = int(self.rng.choice(len(w), p=w / w.sum()))
         cands = self._switch_cands(t1, p)
         if not len(cands):
             return None
