@@ -213,6 +213,7 @@ def estimate_homography(
     max_scale_change: float = 1.5,
     max_condition: float = 4.0,
     polish: bool = True,
+    guess: np.ndarray | None = None,
 ) -> tuple[np.ndarray, EstimateStats] | Failure:
     """Homography from ``prev_gray``'s pixels to ``gray``'s pixels (``H_{i-1,i}``).
 
@@ -239,6 +240,9 @@ def estimate_homography(
     polish : bool
         Re-track the inliers after warping ``prev_gray`` by the first estimate (see ``_polish``):
         about 30 % more time, several times less drift when chained over a zooming camera.
+    guess : (3, 3) array, optional
+        Predicted homography (``lk`` only): optical flow starts from it, so a reference frame
+        several frames back can be used.
 
     Returns
     -------
@@ -261,7 +265,12 @@ def estimate_homography(
             p0 = detect_features(prev_gray, max_features, mask)
         if len(p0) < max(min_inliers, 4):
             return Failure(f"featureless frame ({len(p0)} corners)")
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p0, None, **_LK_PARAMS)
+        if guess is not None:
+            init = cv2.perspectiveTransform(p0, np.asarray(guess, np.float64)).astype(np.float32)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p0, init,
+                                                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK_PARAMS)
+        else:
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p0, None, **_LK_PARAMS)
         if p1 is None:
             return Failure("optical flow failed")
         ok = st.ravel() == 1

@@ -24,8 +24,8 @@ from ..errors import ConfigError, InputError
 from ..io.output import atomic_write_text
 from ..types import Failure, Frame, Registration
 from .chain import normalize, scale_homography
-from .frame2frame import (ESTIMATORS, METHODS, boxes_mask, estimate_homography, frame_quality,
-                          to_gray)
+from .frame2frame import (ESTIMATORS, METHODS, boxes_mask, detect_features, estimate_homography,
+                          frame_quality, to_gray)
 from .mapref import refine_against_map
 
 log = logging.getLogger("aerotrack.registration")
@@ -53,7 +53,9 @@ def check_config(config: RegistrationConfig) -> None:
     for name in ("ransac_threshold_px", "refine_search_px", "refine_max_correction_px"):
         if not getattr(config, name) > 0:
             raise ConfigError(f"config registration.{name}: must be positive")
-    for name in ("refine_every_s", "carry_s", "reset_after_s"):
+    if not (0 < config.keyframe_min_overlap <= 1):
+        raise ConfigError("config registration.keyframe_min_overlap: must be in (0, 1]")
+    for name in ("refine_every_s", "carry_s", "reset_after_s", "keyframe_s"):
         if getattr(config, name) < 0:
             raise ConfigError(f"config registration.{name}: must not be negative")
 
@@ -73,6 +75,12 @@ class FrameRegistrar:
 
     Notes
     -----
+    Frames are registered against a *keyframe* (eq. 1 with fewer, longer links): the keyframe's
+    features are tracked into each new frame, starting from the predicted motion, and a new
+    keyframe is taken every ``keyframe_s`` seconds, when fewer than ``keyframe_min_overlap`` of its
+    features are still tracked, after a map refinement and after a failure. Fewer links in the
+    chain means less drift without a map.
+
     ``step`` returns a :class:`~aerotrack.types.Registration` whose status says how it was
     obtained: ``ok`` (frame-to-frame, chained), ``refined`` (corrected against the map),
     ``carried`` (the frame could not be registered; the last motion is carried forward for up to
@@ -102,7 +110,10 @@ class FrameRegistrar:
         self._ref_H = self.H_init
         self._ref_index = 0
         self._ref_time = 0.0
-        self._points: np.ndarray | None = None
+        self._points: np.ndarray | None = None  # keyframe features, tracking-scale pixels
+        self._key_n = 1  # features the keyframe started with
+        self._M_key_last = np.eye(3)  # keyframe -> last good frame, tracking-scale pixels
+        self._good_index, self._good_time = 0, 0.0  # last frame registered
         self._motion = np.eye(3)  # last frame-to-frame motion, full-res frame pixels
         self._H_last: np.ndarray | None = None
         self._last_refine = -math.inf
@@ -146,58 +157,82 @@ class FrameRegistrar:
         gray = to_gray(frame.image, scale)
         bad = frame_quality(gray, min_contrast=cfg.min_contrast, max_saturated=cfg.max_saturated,
                             min_neighbour_corr=cfg.min_neighbour_corr)
+        # exclude_boxes are the previous frame's detections: a few pixels from where they are now
+        mask = boxes_mask(gray.shape, exclude_boxes, scale, margin=4.0)
         if self._ref_gray is None:
             if bad:
                 return Registration(frame.index, self.H_init.copy(), "reset", 0, float("nan"),
                                     float("nan"), f"{bad.reason}; no reference frame yet")
-            return self._anchor(frame, gray, self.H_init, "ok")
+            return self._anchor(frame, gray, self.H_init, "ok", mask=mask)
         if bad is not None:
             return self._carry(frame, bad.reason, bad=True)
         if gray.shape != self._ref_gray.shape:
             return self._carry(frame, "frame size changed", bad=True)
-        mask = boxes_mask(self._ref_gray.shape, exclude_boxes, scale)
-        points = self._points
-        if points is not None and len(points) < cfg.max_features // 2:
-            points = None
         common = dict(max_features=cfg.max_features,
                       ransac_threshold=cfg.ransac_threshold_px * scale,
                       estimator=cfg.estimator, min_inliers=cfg.min_inliers,
                       min_inlier_ratio=cfg.min_inlier_ratio,
                       max_scale_change=cfg.max_scale_change, max_condition=cfg.max_condition,
                       polish=cfg.polish)
-        est = estimate_homography(self._ref_gray, gray, mask, method=cfg.method, prev_points=points,
-                                  **common)
-        if not est and points is not None:  # stale tracks: retry with fresh corners
-            est = estimate_homography(self._ref_gray, gray, mask, method=cfg.method, **common)
+        guess = self._M_key_last
+        est = estimate_homography(self._ref_gray, gray, method=cfg.method, prev_points=self._points,
+                                  guess=guess if cfg.method == "lk" else None, **common)
+        if not est and cfg.method == "lk":  # stale tracks: retry with fresh corners
+            est = estimate_homography(self._ref_gray, gray, method="lk", guess=guess, **common)
         if not est and cfg.method != "orb":  # too large a motion for optical flow
-            est = estimate_homography(self._ref_gray, gray, mask, method="orb", **common)
+            est = estimate_homography(self._ref_gray, gray, method="orb", **common)
         if not est:
             return self._carry(frame, est.reason, bad=False)
         M_small, stats = est
-        M = scale_homography(M_small, scale)  # reference frame -> this frame, full-res pixels
+        M = scale_homography(M_small, scale)  # keyframe -> this frame, full-res pixels
         H = normalize(self._ref_H @ np.linalg.inv(M))
-        gap = frame.index - self._ref_index
+        gap = frame.index - self._good_index
         if gap == 1:
-            self._motion = M
+            self._motion = normalize(M @ np.linalg.inv(scale_homography(self._M_key_last, scale)))
         elif gap > 1:
             log.info("frame %d: registered against frame %d after %d failed frames",
                      frame.index, self._ref_index, gap - 1)
+        self._M_key_last = M_small
+        self._good_index, self._good_time = frame.index, frame.time
         status = "ok"
-        reason = ""
         if self._map_gray is not None:
             due = (cfg.refine_every_s > 0 and frame.time - self._last_refine >= cfg.refine_every_s - 1e-9)
             degraded = stats.inlier_ratio < cfg.refine_on_inlier_ratio or gap > 1
             if due or degraded:
                 H, status, _ = self._refine(frame, H)
-        self._ref_gray, self._ref_H = gray, H
-        self._ref_index, self._ref_time = frame.index, frame.time
-        self._points = stats.points
+        # a new keyframe when the old one is old or mostly out of view, and after any correction
+        if (status == "refined" or gap > 1 or frame.time - self._ref_time >= cfg.keyframe_s - 1e-9
+                or stats.inliers < cfg.keyframe_min_overlap * self._key_n):
+            self._set_keyframe(frame, gray, H, stats.points, mask)
         return Registration(frame.index, H, status, stats.inliers, stats.inlier_ratio,
-                            stats.error / scale, reason)
+                            stats.error / scale, "")
+
+    def _set_keyframe(self, frame: Frame, gray: np.ndarray, H: np.ndarray,
+                      points: np.ndarray | None, mask: np.ndarray | None) -> None:
+        """Make ``frame`` the reference later frames are registered against.
+
+        Its features are the points tracked into it (cheap) topped up with fresh corners when
+        fewer than ``keyframe_min_overlap`` of ``max_features`` are left; none inside ``mask``'s
+        zeros (moving vehicles).
+        """
+        cfg = self.config
+        pts = np.zeros((0, 2), np.float32) if points is None else np.asarray(points, np.float32)
+        pts = pts.reshape(-1, 2)
+        if mask is not None and len(pts):
+            xi = np.clip(pts[:, 0].astype(int), 0, mask.shape[1] - 1)
+            yi = np.clip(pts[:, 1].astype(int), 0, mask.shape[0] - 1)
+            pts = pts[mask[yi, xi] > 0]
+        if len(pts) < cfg.keyframe_min_overlap * cfg.max_features:
+            pts = detect_features(gray, cfg.max_features, mask).reshape(-1, 2)
+        self._ref_gray, self._ref_H, self._points = gray, normalize(H), pts
+        self._ref_index, self._ref_time = frame.index, frame.time
+        self._key_n = max(len(pts), 1)
+        self._M_key_last = np.eye(3)
 
     def _anchor(self, frame: Frame, gray: np.ndarray, H: np.ndarray, status: str,
-                reason: str = "", search_scale: float = 1.0) -> Registration:
-        """Make ``frame`` the reference at ``H`` (refined against the map when there is one)."""
+                reason: str = "", search_scale: float = 1.0,
+                mask: np.ndarray | None = None) -> Registration:
+        """Make ``frame`` the keyframe at ``H`` (refined against the map when there is one)."""
         if self._map_gray is not None:
             H2, st, why = self._refine(frame, H, search_scale)
             if st == "refined":
@@ -205,8 +240,8 @@ class FrameRegistrar:
                 status = "refined" if status == "ok" else "reanchored"
             elif status != "ok":
                 reason = f"{reason}; {why}" if why else reason
-        self._ref_gray, self._ref_H, self._points = gray, normalize(H), None
-        self._ref_index, self._ref_time = frame.index, frame.time
+        self._set_keyframe(frame, gray, H, None, mask)
+        self._good_index, self._good_time = frame.index, frame.time
         return Registration(frame.index, normalize(H), status, 0, float("nan"), float("nan"), reason)
 
     def _refine(self, frame: Frame, H: np.ndarray, search_scale: float = 1.0
@@ -226,14 +261,14 @@ class FrameRegistrar:
     def _carry(self, frame: Frame, reason: str, *, bad: bool) -> Registration:
         cfg = self.config
         H_last = self._H_last if self._H_last is not None else self._ref_H
-        if frame.time - self._ref_time <= cfg.carry_s + 1e-9:
+        if frame.time - self._good_time <= cfg.carry_s + 1e-9:
             H = normalize(H_last @ np.linalg.inv(self._motion))
         else:
             H = H_last.copy()
-        if not bad and frame.time - self._ref_time >= cfg.reset_after_s - 1e-9:
+        if not bad and frame.time - self._good_time >= cfg.reset_after_s - 1e-9:
             gray = to_gray(frame.image, self._scale(frame.image.shape[1]))
             log.warning("frame %d: no registration for %.1f s (%s); new reference",
-                        frame.index, frame.time - self._ref_time, reason)
+                        frame.index, frame.time - self._good_time, reason)
             self._motion = np.eye(3)
             return self._anchor(frame, gray, H, "reset", f"{reason}; new reference",
                                 search_scale=3.0)
