@@ -336,12 +336,19 @@ def _move_detections(d: Detections, A: np.ndarray, geomap) -> Detections:
     return replace(d, world=new_world, size_world=size, mapxy=mapxy, lonlat=lonlat)
 
 
-def _move_point(p: TrackPoint, A: np.ndarray) -> TrackPoint:
-    w = np.asarray(p.world, dtype=np.float64)[None]
-    size = None
-    if p.size_world is not None:
-        size = _size_to(A, w, np.asarray(p.size_world, dtype=np.float64)[None])[0]
-    return replace(p, world=apply_homography(A, w)[0], size_world=size)
+def _move_track(t: Track, A: np.ndarray) -> Track:
+    """A copy of ``t`` with every point's world position and size carried through ``A``."""
+    if not t.points:
+        return Track(t.id, [])
+    world = np.array([p.world for p in t.points], dtype=np.float64).reshape(-1, 2)
+    new = apply_homography(A, world)
+    has = [i for i, p in enumerate(t.points) if p.size_world is not None]
+    sizes: dict[int, np.ndarray] = {}
+    if has:
+        sz = _size_to(A, world[has], np.array([t.points[i].size_world for i in has], float))
+        sizes = dict(zip(has, sz))
+    return Track(t.id, [replace(p, world=new[i], size_world=sizes.get(i))
+                        for i, p in enumerate(t.points)])
 
 
 def _centres(t: Track, lo: int, hi: int) -> dict[int, np.ndarray]:
@@ -373,8 +380,12 @@ def stitch_pairs(left: Sequence[Track], right: Sequence[Track], lo: int, hi: int
     if not li or not ri:
         return []
     score = np.zeros((len(li), len(ri)))
+    lspan = {i: (min(lc[i]), max(lc[i])) for i in li}
+    rspan = {j: (min(rc[j]), max(rc[j])) for j in ri}
     for a, i in enumerate(li):
         for b, j in enumerate(ri):
+            if lspan[i][1] < rspan[j][0] or rspan[j][1] < lspan[i][0]:
+                continue
             common = lc[i].keys() & rc[j].keys()
             n = 0
             for f in common:
@@ -422,7 +433,7 @@ def join_segments(results: Sequence[SegmentResult], *, geomap=None,
         moved_regs.append(regs)
         moved_tracks.append(
             r.tracklets if k == 0 else
-            [Track(t.id, [_move_point(p, A) for p in t.points]) for t in r.tracklets])
+            [_move_track(t, A) for t in r.tracklets])
         worlds.append(A)
     registrations: dict[int, Registration] = {}
     detections: list[Detections] = []
