@@ -93,7 +93,8 @@ def render_builtin(folder: Path, n: int, size: tuple[int, int], fps: float, seed
 
 
 def make_video(folder: Path, n: int, size: tuple[int, int], fps: float) -> dict:
-    """Frames and ground truth in ``folder`` (reused when already there); returns how they were made."""
+    """Frames and ground truth in ``folder`` (reused when already there); returns how they
+    were made."""
     meta = folder / "bench-meta.json"
     if meta.exists():
         info = json.loads(meta.read_text())
@@ -215,7 +216,8 @@ def main() -> None:
     print(f"video: {a.frames} frames {size[0]}x{size[1]} at {a.fps:g} fps ({info['generator']})")
     print(head)
     for mode, t in table.items():
-        print(f"{mode:10} {t['wall_s']:8.1f} {t['wall_vs_single_1t']:6.3f} {t['frames_per_s']:6.1f} "
+        print(f"{mode:10} {t['wall_s']:8.1f} {t['wall_vs_single_1t']:6.3f} "
+              f"{t['frames_per_s']:6.1f} "
               f"{t['HOTA']:6.3f} {t['IDF1']:6.3f} {t['agreement_HOTA']:7.3f} "
               f"{t['agreement_IDF1']:7.3f} {t['tracks']:6d} {t['join']['segments']}")
     payload = {"video": info, "cpu_count": os.cpu_count(), "repeat": a.repeat,

@@ -73,7 +73,8 @@ def client():
 
 
 # -- planning -------------------------------------------------------------------------------------
-@pytest.mark.parametrize("n,stride,min_segments", [(1000, 1, 1), (1000, 3, 2), (97, 1, 4), (30, 1, 2)])
+@pytest.mark.parametrize("n,stride,min_segments",
+                         [(1000, 1, 1), (1000, 3, 2), (97, 1, 4), (30, 1, 2)])
 def test_plan_partitions_frames_and_cuts_mid_overlap(n, stride, min_segments):
     fps, overlap_s = 10.0, 4.5
     segs = plan_segments(1, n, fps=fps, stride=stride, segment_s=20.0, overlap_s=overlap_s,

@@ -80,10 +80,11 @@ class ParallelConfig:
         ``overlap_s`` more than it owns).
     overlap_s : float or None
         Frames read by both neighbours, in seconds; None uses
-        ``detection.window_s + association.window_s``, so that at the cut (the middle of the overlap)
-        each side has the full centred background window and half an association window of context
-        beyond it. Less than ``detection.window_s`` is refused: frames near the cut would then be
-        detected with a one-sided background and differ from the single process.
+        ``detection.window_s + association.window_s``, so that at the cut (the middle of the
+        overlap) each side has the full centred background window and half an association
+        window of context beyond it. Less than ``detection.window_s`` is refused: frames near
+        the cut would then be detected with a one-sided background and differ from the single
+        process.
     min_segments : int
         At least this many segments when the video is long enough (use the number of workers).
     match_px : float
@@ -570,8 +571,8 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
 
 def submit_tasks(client, tasks: Sequence[SegmentTask], *, retries: int = 2, name: str = "segment"):
     """Submit segment tasks; a task whose worker died is re-run on another worker (the scheduler
-    re-runs tasks of lost workers up to ``distributed.scheduler.allowed-failures`` times) and one that
-    raised is retried ``retries`` times."""
+    re-runs tasks of lost workers up to ``distributed.scheduler.allowed-failures`` times) and one
+    that raised is retried ``retries`` times."""
     import uuid
 
     tag = uuid.uuid4().hex[:8]

@@ -15,7 +15,8 @@ log = logging.getLogger("aerotrack")
 @click.command("batch")
 @click.argument("input_dir", type=click.Path(path_type=Path, file_okay=False))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="Output folder; each input gets OUT/<name>/ with the files of `aerotrack track`.")
+              help="Output folder; each input gets OUT/<name>/ with the files of "
+                   "`aerotrack track`.")
 @click.option("--gsd", type=float, default=None,
               help="Metres per frame pixel (speeds and gates become metric).")
 @fps_option
