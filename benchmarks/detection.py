@@ -33,7 +33,7 @@ from scipy.optimize import linear_sum_assignment
 
 from aerotrack.config import DetectionConfig
 from aerotrack.detection import MovingObjectDetector
-from aerotrack.detection.detector import _Gates, detect_moving
+from aerotrack.detection.detector import SizeGates, detect_moving
 from aerotrack.io.frames import open_source
 from aerotrack.types import Frame, Registration
 
@@ -136,7 +136,7 @@ def run_mog2(frames, fps, config: DetectionConfig):
     mog = cv2.createBackgroundSubtractorMOG2(history=int(round(config.window_s * fps)),
                                              detectShadows=False)
     dets = {}
-    gates = _Gates(config.min_area_px, config.max_length_px, config.close_px, config.join_gap_px)
+    gates = SizeGates(config.min_area_px, config.max_length_px, config.close_px, config.join_gap_px)
     t0 = time.process_time()
     for f in frames:
         small = cv2.resize(f.image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)

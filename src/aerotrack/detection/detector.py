@@ -73,8 +73,10 @@ class FrameResult:
         Blob of each box at full resolution, cropped to ``crops[k]``.
     crops : list of (x0, y0, x1, y1)
         Full-resolution integer crop of each mask.
-    model_masks : list of (Blob)
-        Blobs at model resolution (for keeping them out of the background).
+    model_blobs : list of Blob
+        The same detections' blobs at model resolution (kept out of the background).
+    contrast : ndarray, shape (N,)
+        Mean residual of each blob over the threshold.
     threshold : float
         Residual threshold used, grey levels.
     residual : ndarray, shape (h, w) uint8
@@ -196,7 +198,10 @@ def local_scale(H: np.ndarray, point: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class _Gates:
+class SizeGates:
+    """Size limits of one frame in full-resolution frame pixels (from metres via the frame's
+    scale when known; see ``DetectionConfig``)."""
+
     min_area_px: float
     max_length_px: float
     close_px: float
@@ -205,7 +210,7 @@ class _Gates:
 
 def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
                   testable: np.ndarray, config: DetectionConfig, scale: float,
-                  gates: _Gates) -> FrameResult:
+                  gates: SizeGates) -> FrameResult:
     """Detect moving blobs in one frame against its background.
 
     Parameters
@@ -221,7 +226,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     config : DetectionConfig
     scale : float
         Model / full resolution.
-    gates : _Gates
+    gates : SizeGates
         Size gates in full-resolution pixels for this frame.
 
     Returns
@@ -427,15 +432,15 @@ class MovingObjectDetector:
         return out
 
     # -- internals ------------------------------------------------------------------------
-    def _gates(self, H: np.ndarray, shape: tuple[int, int]) -> _Gates:
+    def _gates(self, H: np.ndarray, shape: tuple[int, int]) -> SizeGates:
         c = self.config
         if self.metres_per_unit:
             mpp = self.metres_per_unit * local_scale(H, np.array([shape[1] / 2, shape[0] / 2]))
             if mpp > 0 and math.isfinite(mpp):
-                return _Gates(min_area_px=c.min_area_m2 / mpp ** 2,
+                return SizeGates(min_area_px=c.min_area_m2 / mpp ** 2,
                               max_length_px=c.max_length_m / mpp,
                               close_px=c.close_m / mpp, join_gap_px=c.join_gap_m / mpp)
-        return _Gates(c.min_area_px, c.max_length_px, c.close_px, c.join_gap_px)
+        return SizeGates(c.min_area_px, c.max_length_px, c.close_px, c.join_gap_px)
 
     def _window(self, c: int) -> tuple[int, int]:
         if self.config.causal:
