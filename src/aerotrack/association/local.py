@@ -28,9 +28,9 @@ from ..config import AssociationConfig
 from ..errors import ConfigError, InputError
 from ..kalman import ConstantVelocityKF
 from ..types import Detections, Track, TrackPoint, Tracklet
-from .moves import Prior, SamplerParams, WindowSampler, WTrack
 from .graph import HIST_EPS
-from .posterior import iou_xywh_centre, run_track, score_matrix
+from .moves import Prior, SamplerParams, WindowSampler, WTrack
+from .posterior import iou_xywh_centre, link_step, score_matrix
 
 
 class LocalAssociator:
@@ -51,8 +51,15 @@ class LocalAssociator:
     Notes
     -----
     Tracklet ids are positive and unique per instance, given in the order the tracklets are
-    emitted. A tracklet is emitted once, when it has ended (its last observation is older than
-    the bridging gap and outside the window) or at :meth:`flush`.
+    emitted. A tracklet is emitted once, when it has ended (no observation can extend it any
+    more: its last one is older than ``max_gap_s`` and final) or at :meth:`flush`, which ends the
+    stream. Points are the detections' rows (``observed``, fields copied from the Detections)
+    plus ``bridged`` points over the missed frames inside the tracklet. Tracklets shorter than
+    ``min_length_s`` or with fewer than two observations are dropped as false positives.
+
+    Image coordinates (no map, e.g. ``--detections`` alone) work the same way: world units are
+    then frame pixels and the scale comes from ``target_size_m``; the gate must then also absorb
+    the camera's motion (``accel_std_mps2``).
     """
 
     def __init__(self, config: AssociationConfig | None = None, fps: float = 30.0,
@@ -303,7 +310,6 @@ class LocalAssociator:
         x, P = single.xs[0], single.Ps[0]
         f, h = S.frame_of(g), S.hist_of(g)
         chain = [g]
-        from .posterior import link_step
         while True:
             lo, hi = max(f - self.max_gap, S.store.first_frame), f - 1
             cands, w = S._children(x, P, f, h, lo, hi)
@@ -362,4 +368,4 @@ def associate(frames: Iterable[Detections], config: AssociationConfig | None = N
     return out
 
 
-__all__ = ["LocalAssociator", "associate", "run_track"]
+__all__ = ["LocalAssociator", "associate"]

@@ -626,7 +626,13 @@ class WindowSampler:
         return [t1, t2], [new], log_fwd, log_rev
 
     def _switch_cands(self, t: WTrack, p: int) -> np.ndarray:
-        """Nodes y = k2(q+1) such that swapping tails after t(p) and k2(q) is allowed (eq. 11)."""
+        """Nodes y = k2(q+1) such that exchanging the tails after t(p) and k2(q) is allowed.
+
+        Eq. 11's pairs, plus (as a natural extension, q = -1) the first node of a track born in
+        the window: then t keeps its head and takes all of k2, and t's old tail becomes a track of
+        its own. This repairs a track that took a wrong observation where the right one started a
+        new track, which neither a merge (the tracks overlap in time) nor eq. 11 can do.
+        """
         s = self.store
         gp, gn = int(t.nodes[p]), int(t.nodes[p + 1])
         fp, fn = self.frame_of(gp), self.frame_of(gn)
@@ -634,22 +640,31 @@ class WindowSampler:
         if hi <= lo:
             return np.zeros(0, np.int64)
         li = np.arange(lo - s.base, hi - s.base)
+        lab = s.label[li]
+        li = li[(lab >= 0) & (lab != t.tid)]
         pr = s.prev[li]
-        ok = (s.label[li] >= 0) & (s.label[li] != t.tid) & (pr >= 0)
-        li, pr = li[ok], pr[ok] - s.base
+        heads = li[pr < 0]
+        if len(heads):
+            heads = heads[[self.tracks[int(v)].prior is None for v in s.label[heads]]]
+        li, pr = li[pr >= 0], pr[pr >= 0] - s.base
         fq = s.frame[pr]
         ok = (fq < fn) & (fq >= fn - self.p.max_gap)
         li, pr = li[ok], pr[ok]
-        if not len(li):
-            return li
-        dt1 = (s.frame[li] - fp) / self.p.fps
-        dt2 = (fn - s.frame[pr]) / self.p.fps
         zp, zn = s.z[gp - s.base], s.z[gn - s.base]
-        r1 = self.p.reach_mps * dt1 + 0.25 * (s.z[li, 2] + s.z[li, 3])
-        r2 = self.p.reach_mps * dt2 + 0.25 * (zn[2] + zn[3])
-        d1 = np.sum((s.z[li, :2] - zp[:2]) ** 2, axis=1)
-        d2 = np.sum((s.z[pr, :2] - zn[:2]) ** 2, axis=1)
-        return li[(d1 <= r1**2) & (d2 <= r2**2)] + s.base
+        if len(li):
+            dt1 = (s.frame[li] - fp) / self.p.fps
+            dt2 = (fn - s.frame[pr]) / self.p.fps
+            r1 = self.p.reach_mps * dt1 + 0.25 * (s.z[li, 2] + s.z[li, 3])
+            r2 = self.p.reach_mps * dt2 + 0.25 * (zn[2] + zn[3])
+            d1 = np.sum((s.z[li, :2] - zp[:2]) ** 2, axis=1)
+            d2 = np.sum((s.z[pr, :2] - zn[:2]) ** 2, axis=1)
+            li = li[(d1 <= r1**2) & (d2 <= r2**2)]
+        if len(heads):
+            dt1 = (s.frame[heads] - fp) / self.p.fps
+            r1 = self.p.reach_mps * dt1 + 0.25 * (s.z[heads, 2] + s.z[heads, 3])
+            d1 = np.sum((s.z[heads, :2] - zp[:2]) ** 2, axis=1)
+            li = np.concatenate([li, heads[d1 <= r1**2]])
+        return li + s.base
 
     @staticmethod
     def _switch_weights(t: WTrack) -> np.ndarray:
@@ -677,7 +692,8 @@ class WindowSampler:
         s = self.store
         t2 = self.tracks[int(s.label[y - s.base])]
         q = int(s.idx[y - s.base]) - 1
-        fwd = self._switch_route(t1, p) + self._switch_route(t2, q)
+        # with q = -1 (t2 born at y) only the route from t1 exists, in both directions
+        fwd = self._switch_route(t1, p) + (self._switch_route(t2, q) if q >= 0 else 0.0)
         n1 = self.build(t1.tid, np.concatenate([t1.nodes[:p + 1], t2.nodes[q + 1:]]), t1.prior,
                         t1, p + 1)
         n2 = self.build(t2.tid, np.concatenate([t2.nodes[:q + 1], t1.nodes[p + 1:]]), t2.prior,
@@ -686,7 +702,7 @@ class WindowSampler:
         log_fwd = math.log(_P["switch"] / K * fwd)
 
         def log_rev():
-            rev = self._switch_route(n1, p) + self._switch_route(n2, q)
+            rev = self._switch_route(n1, p) + (self._switch_route(n2, q) if q >= 0 else 0.0)
             return math.log(_P["switch"] / K * rev) if rev > 0 else -math.inf
         return [t1, t2], [n1, n2], log_fwd, log_rev
 
@@ -784,9 +800,6 @@ class WindowSampler:
                 self.swap([t1, best[0]], [best[1]])
                 done += 1
         return done
-
-    def snapshot(self) -> dict[int, WTrack]:
-        return dict(self.tracks)
 
     def restore(self, tracks: dict[int, WTrack]) -> None:
         for t in list(self.tracks.values()):
