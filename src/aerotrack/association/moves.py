@@ -164,6 +164,7 @@ class WindowSampler:
         self.tids = IndexedSet()
         self.now = 0
         self.next_tid = 1
+        self._trim_checked: dict[tuple[int, int], int] = {}
         self.accepted = dict.fromkeys(MOVES, 0)
         self.proposed = dict.fromkeys(MOVES, 0)
 
@@ -325,6 +326,15 @@ class WindowSampler:
 
     def add_track(self, t: WTrack) -> None:
         self._set(t)
+
+    def overlap_gain(self, g: int) -> float:
+        """Rise of the eq. 10 term when assigned node ``g`` becomes a false alarm."""
+        ov = self.store.overlaps.get(g)
+        if ov is None:
+            return 0.0
+        s = self.store
+        return self.p.overlap_lambda * float(sum(
+            iou for h, iou in zip(ov[0].tolist(), ov[1].tolist()) if s.label[h - s.base] >= 0))
 
     def overlap_delta(self, out: list[WTrack], new: list[WTrack]) -> float:
         """Change of the eq. 10 interaction term when ``out`` is replaced by ``new`` (applied)."""
@@ -779,13 +789,30 @@ class WindowSampler:
             self.restore(best_state)
 
     def greedy_merges(self) -> int:
-        """Deterministic hill climbing after sampling: join every track that stopped before the
+        """Deterministic hill climbing after sampling: drop the first observations of tracks born in
+        the window while that raises the posterior, and join every track that stopped before the
         current frame to its best merge candidate when that raises the posterior. A chain of
         Metropolis-Hastings samples can leave a fragment behind (a split accepted early, with the
         gains of other moves later); this repairs it. Returns the number of merges."""
         done = 0
+        if len(self._trim_checked) > 4 * len(self.tracks) + 256:  # memory bounded by the window
+            base = self.store.base
+            self._trim_checked = {k: v for k, v in self._trim_checked.items() if k[1] >= base}
         for tid in list(self.tracks):
             t1 = self.tracks.get(tid)
+            # a birth that starts on a false alarm: drop head nodes while that raises the posterior
+            # (checked again each time the track has doubled in length, not every frame)
+            while t1 is not None and t1.prior is None and len(t1) >= 3:
+                key = (tid, int(t1.nodes[0]))
+                if 2 * self._trim_checked.get(key, 1) > len(t1):
+                    break
+                self._trim_checked[key] = len(t1)
+                trimmed = self.build(tid, t1.nodes[1:], None)
+                if trimmed.score + self.overlap_gain(int(t1.nodes[0])) <= t1.score:
+                    break
+                self.swap([t1], [trimmed])
+                t1 = trimmed
+                done += 1
             if t1 is None or t1.f_end >= self.now:
                 continue
             best, best_d = None, 0.0
