@@ -1,0 +1,419 @@
+"""Vehicles, the UAV camera and the renderer of a generated scene, with exact ground truth.
+
+Definitions shared with every checker (the CLI contract): a target is **visible** when its box centre
+is in the frame, at least half its box is inside the frame, and it is not under an occluder; its box
+is the axis-aligned bounds of its projected footprint (without shadow).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..types import Frame
+from .world import World
+
+#: Scenario name -> settings. Each changes what the scene stresses; all share the same world.
+SCENARIOS: dict[str, dict] = {
+    "default": dict(n_vehicles=22, convoys=3, n_trees=10, camera="survey", stop_prob=0.25),
+    "static": dict(n_vehicles=20, convoys=2, n_trees=8, camera="static", stop_prob=0.25),
+    "occlusion": dict(n_vehicles=14, convoys=2, n_trees=18, camera="hover", stop_prob=0.2,
+                      speed=(5.0, 9.0)),
+    "exits": dict(n_vehicles=14, convoys=1, n_trees=6, camera="pan", stop_prob=0.15),
+    "convoy": dict(n_vehicles=18, convoys=5, n_trees=8, camera="survey", stop_prob=0.2),
+    "dense": dict(n_vehicles=40, convoys=4, n_trees=10, camera="survey", stop_prob=0.3),
+}
+
+VEHICLE_TYPES = [  # kind, length range m, width range m, probability
+    ("car", (4.2, 4.9), (1.7, 1.9), 0.70),
+    ("suv", (4.8, 5.3), (1.9, 2.0), 0.17),
+    ("van", (5.3, 6.0), (2.0, 2.1), 0.09),
+    ("truck", (7.0, 9.0), (2.3, 2.5), 0.04),
+]
+COLOURS = np.array([  # BGR body colours, weighted towards the common white/grey/black
+    [235, 235, 238], [225, 228, 230], [180, 182, 185], [150, 150, 152], [40, 40, 42],
+    [25, 25, 28], [40, 40, 170], [150, 80, 30], [60, 90, 40], [90, 140, 200], [30, 150, 210],
+], dtype=np.float64)
+COLOUR_P = np.array([0.2, 0.12, 0.14, 0.1, 0.12, 0.08, 0.07, 0.07, 0.03, 0.04, 0.03])
+SUN = np.array([0.9, 0.7])  # shadow offset on the ground, metres (sun in the north-west)
+
+
+@dataclass
+class Vehicle:
+    id: int
+    kind: str
+    length: float
+    width: float
+    colour: np.ndarray
+    road: int
+    s: float
+    direction: int
+    cruise: float
+    route: np.random.Generator
+    speed: float = 0.0
+    stop_until: float = -1.0
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    heading: float | None = None
+    pos: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    last_junction: tuple = ()
+
+
+class Camera:
+    """A UAV camera over the metric plane: centre (m), yaw (rad), ground sample distance (m/px).
+
+    ``H_map(t)`` maps frame pixels to map pixels: map <- metric (axis scales) <- similarity
+    (centre, yaw, gsd) <- a slight fixed tilt (a true homography, not an affine map).
+    """
+
+    def __init__(self, world: World, size: tuple[int, int], mode: str, rng: np.random.Generator):
+        self.world, self.size, self.mode = world, size, mode
+        w, h = size
+        W = world.width * world.mx
+        Hm = world.height * world.my
+        self.gsd0 = {"static": 0.30, "hover": 0.28, "pan": 0.26, "survey": 0.28}[mode]
+        self.zoom_amp = 0.0 if mode == "static" else 0.08
+        # The camera centre keeps at least 45 % of the half-diagonal from the tile's edge: the view
+        # may reach past the tile, where the ground is the tile mirrored about its edge (static
+        # texture, so registration still sees one plane) and vehicles never go.
+        radius = 0.45 * 0.5 * math.hypot(w, h) * self.gsd0 * (1 + self.zoom_amp)
+        if mode == "static":
+            radius = 0.5 * math.hypot(w, h) * self.gsd0 * 1.02
+        self.lo = np.array([radius, radius])
+        self.hi = np.array([W - radius, Hm - radius])
+        if np.any(self.hi <= self.lo):  # frame larger than the tile: stay centred
+            self.lo = self.hi = np.array([W / 2, Hm / 2])
+        self.phase = rng.uniform(0, 2 * np.pi, 6)
+        self.tilt = rng.uniform(-1.0, 1.0, 2) * np.array([1.2e-5, 1.6e-5])
+        self.yaw0 = rng.uniform(-0.3, 0.3)
+        self.speed = {"hover": 2.0, "survey": 4.0, "pan": 7.0}.get(mode, 4.0)
+        self.dwell = {"hover": 10.0, "survey": 4.0, "pan": 1.0}.get(mode, 4.0)
+        self.route = self._waypoints(rng)
+
+    def _waypoints(self, rng: np.random.Generator) -> np.ndarray:
+        """Camera centre waypoints (metric): road junctions clipped into the allowed box, so the
+        camera looks at roads and sweeps across them (vehicles leave and re-enter the view)."""
+        pts = []
+        for j in self.world.junctions:
+            p, _ = self.world.roads[j.a].at(j.sa)
+            pts.append(np.clip(p, self.lo, self.hi))
+        for r in self.world.roads:
+            pts.append(np.clip(r.at(r.length / 2)[0], self.lo, self.hi))
+        pts = np.unique(np.round(np.array(pts), 1), axis=0) if pts else np.array([(self.lo + self.hi) / 2])
+        order = rng.permutation(len(pts))
+        route = [pts[i] for i in order] + [np.clip(pts[order[0]] + rng.normal(0, 30, 2), self.lo, self.hi)]
+        return np.array(route)
+
+    def params(self, t: float) -> tuple[np.ndarray, float, float]:
+        """Camera centre (metric), yaw (rad) and ground sample distance (m/px) at time t."""
+        p = self.phase
+        mid = (self.lo + self.hi) / 2
+        if self.mode == "static":
+            return mid, 0.0, self.gsd0
+        if self.mode == "hover":
+            amp = (self.hi - self.lo) / 2 * 0.2
+            c = np.clip(self.route[0], self.lo + amp, self.hi - amp) + amp * np.array(
+                [math.sin(2 * math.pi * t / 60.0 + p[0]), math.sin(2 * math.pi * t / 47.0 + p[1])])
+        else:
+            c = self._along_route(t)
+        yaw = self.yaw0 + 0.35 * math.sin(2 * math.pi * t / 45.0 + p[2])
+        gsd = self.gsd0 * (1 + self.zoom_amp * math.sin(2 * math.pi * t / 31.0 + p[3]))
+        return c, yaw, gsd
+
+    def _along_route(self, t: float) -> np.ndarray:
+        """Smooth (cosine-eased) flight from waypoint to waypoint at ``self.speed`` m/s, pausing
+        ``self.dwell`` s over each."""
+        route = self.route
+        legs = np.linalg.norm(np.diff(np.vstack([route, route[:1]]), axis=0), axis=1)
+        durs = legs / self.speed + self.dwell
+        total = durs.sum()
+        tt = t % total
+        i = int(np.searchsorted(np.cumsum(durs), tt, side="right"))
+        i = min(i, len(route) - 1)
+        t0 = tt - (np.cumsum(durs)[i - 1] if i else 0.0)
+        a, b = route[i], route[(i + 1) % len(route)]
+        move = max(durs[i] - self.dwell, 1e-6)
+        u = float(np.clip((t0 - self.dwell) / move, 0, 1))
+        u = 0.5 - 0.5 * math.cos(math.pi * u)
+        return a + (b - a) * u
+
+    def H_map(self, t: float) -> np.ndarray:
+        """3x3: frame pixels -> map pixels at time t."""
+        c, yaw, gsd = self.params(t)
+        w, h = self.size
+        ca, sa = math.cos(yaw), math.sin(yaw)
+        S = np.array([[gsd * ca, -gsd * sa, 0], [gsd * sa, gsd * ca, 0], [0, 0, 1.0]])
+        T = np.array([[1, 0, c[0]], [0, 1, c[1]], [0, 0, 1.0]])
+        C = np.array([[1, 0, -w / 2], [0, 1, -h / 2], [0, 0, 1.0]])
+        P = np.array([[1, 0, 0], [0, 1, 0], [self.tilt[0], self.tilt[1], 1.0]])
+        # tilt about the image centre so the centre keeps its place
+        Pc = np.linalg.inv(C) @ P @ C
+        Pc /= Pc[2, 2]
+        H = self.world.A @ T @ S @ C @ Pc
+        return H / H[2, 2]
+
+
+class Scenario:
+    """A generated scene: iterate ``frames()`` for (Frame, Truth) pairs, streamed.
+
+    Parameters
+    ----------
+    seed : int
+    frames : int
+        Number of frames.
+    size : (int, int)
+        Frame (width, height) in pixels.
+    fps : float
+    name : str
+        One of :data:`SCENARIOS`.
+    """
+
+    def __init__(self, seed: int = 0, frames: int = 900, size: tuple[int, int] = (640, 480),
+                 fps: float = 30.0, name: str = "default") -> None:
+        self.validate(frames=frames, size=size, fps=fps, name=name)
+        self.seed, self.n_frames, self.size, self.fps, self.name = seed, frames, size, fps, name
+        self.settings = dict(SCENARIOS[name])
+        rng = np.random.default_rng(seed)
+        self.world = World(rng, n_trees=self.settings["n_trees"])
+        self.camera = Camera(self.world, size, self.settings["camera"], rng)
+        self.vehicles = self._spawn(rng)
+        self._rng = rng
+        h, w = size[1], size[0]
+        self._noise = rng.normal(0, 2.5, (h + 64, w + 64, 3)).astype(np.float32)
+        self._gain_phase = rng.uniform(0, 2 * np.pi)
+
+    @staticmethod
+    def validate(*, frames: int, size: tuple[int, int], fps: float, name: str) -> None:
+        """Raise InputError for settings no scene can have."""
+        if name not in SCENARIOS:
+            raise InputError(f"--scenario {name!r}: unknown (valid: {', '.join(SCENARIOS)})")
+        if frames < 1:
+            raise InputError(f"--frames {frames}: must be at least 1")
+        if size[0] < 64 or size[1] < 48 or size[0] > 8192 or size[1] > 8192:
+            raise InputError(f"--size {size[0]}x{size[1]}: must be between 64x48 and 8192x8192")
+        if not (fps > 0 and math.isfinite(fps)):
+            raise InputError(f"--fps {fps}: must be a positive number")
+
+    # -- vehicles ---------------------------------------------------------------------------------
+    def _spawn(self, rng: np.random.Generator) -> list[Vehicle]:
+        n = self.settings["n_vehicles"]
+        speed = self.settings.get("speed", (6.0, 12.0))
+        roads = self.world.roads
+        weights = np.array([r.length for r in roads])
+        out: list[Vehicle] = []
+        vid = 1
+        convoys = self.settings["convoys"]
+        while len(out) < n:
+            size = min(3, n - len(out)) if convoys > 0 else 1
+            convoys -= 1 if size > 1 else 0
+            road = int(rng.choice(len(roads), p=weights / weights.sum()))
+            r = roads[road]
+            direction = int(rng.choice([-1, 1]))
+            s0 = rng.uniform(0.15, 0.85) * r.length
+            route_seed = int(rng.integers(2**31))
+            cruise = rng.uniform(*speed)
+            for k in range(size):
+                kinds = [v[0] for v in VEHICLE_TYPES]
+                ki = int(rng.choice(len(kinds), p=[v[3] for v in VEHICLE_TYPES]))
+                _, lr, wr, _ = VEHICLE_TYPES[ki]
+                colour = COLOURS[rng.choice(len(COLOURS), p=COLOUR_P / COLOUR_P.sum())]
+                colour = np.clip(colour * rng.uniform(0.9, 1.08), 0, 255)
+                s = s0 - direction * k * rng.uniform(10.0, 14.0)
+                if not (2.0 < s < r.length - 2.0):
+                    continue
+                if any(v.road == road and abs(v.s - s) < 9 for v in out):
+                    continue
+                out.append(Vehicle(
+                    id=vid, kind=kinds[ki], length=rng.uniform(*lr), width=rng.uniform(*wr),
+                    colour=colour, road=road, s=s, direction=direction,
+                    cruise=cruise if size > 1 else rng.uniform(*speed),
+                    route=np.random.default_rng(route_seed), speed=cruise * 0.8))
+                vid += 1
+        for v in out:
+            self._place(v, 0.0, init=True)
+        return out
+
+    def _place(self, v: Vehicle, dt: float, init: bool = False) -> None:
+        r = self.world.roads[v.road]
+        p, tan = r.at(v.s)
+        d = tan * v.direction
+        right = np.array([-d[1], d[0]])
+        lane = p + right * (1.8 if r.lanes > 1 else 1.4)
+        target = math.atan2(d[1], d[0])
+        if init or v.heading is None:
+            v.heading = target
+        else:
+            diff = (target - v.heading + math.pi) % (2 * math.pi) - math.pi
+            step = math.radians(150) * dt
+            v.heading += float(np.clip(diff, -step, step))
+            v.offset *= math.exp(-dt / 0.6)
+        v.pos = lane + v.offset
+
+    def _advance(self, t: float, dt: float) -> None:
+        world, roads = self.world, self.world.roads
+        for v in self.vehicles:
+            # car following: slow down behind the nearest vehicle ahead in the same lane
+            limit = v.cruise
+            for u in self.vehicles:
+                if u is v or u.road != v.road or u.direction != v.direction:
+                    continue
+                gap = (u.s - v.s) * v.direction - (u.length + v.length) / 2
+                if 0 <= gap < 30:
+                    limit = min(limit, max(0.0, (gap - 3.0) / 1.1))
+            if t < v.stop_until:
+                limit = 0.0
+            acc = 2.5 if limit > v.speed else -4.0
+            v.speed = float(np.clip(v.speed + acc * dt, min(limit, v.speed), max(limit, v.speed)))
+            s_prev = v.s
+            v.s += v.direction * v.speed * dt
+            r = roads[v.road]
+            switched = False
+            if v.last_junction and abs(v.s - v.last_junction[2]) > 15:
+                v.last_junction = ()
+            for j in world.junctions:
+                if j.a != v.road or (j.b, round(j.sb)) == v.last_junction[:2]:
+                    continue
+                crossed = (s_prev - j.sa) * (v.s - j.sa) <= 0 and s_prev != v.s
+                at_end = v.s <= 0 or v.s >= r.length
+                near_end = abs(j.sa - (0 if v.direction < 0 else r.length)) < 10
+                if not (crossed or (at_end and near_end)):
+                    continue
+                if v.route.random() < (0.4 if not near_end else 0.9):
+                    rb = roads[j.b]
+                    room = {1: rb.length - j.sb, -1: j.sb}
+                    dirs = [d for d in (1, -1) if room[d] > 15]
+                    if dirs:
+                        old = v.pos.copy()
+                        v.road, v.s = j.b, j.sb
+                        v.direction = int(v.route.choice(dirs))
+                        v.last_junction = (j.a, round(j.sa), j.sb)
+                        self._place(v, 0.0, init=False)
+                        v.offset = old - (v.pos - v.offset)
+                        switched = True
+                if v.route.random() < self.settings["stop_prob"] * 0.3:
+                    v.stop_until = t + v.route.uniform(2.0, 6.0)
+                break
+            r = roads[v.road]
+            if not switched and (v.s <= 0 or v.s >= r.length):  # dead end: U-turn
+                v.s = float(np.clip(v.s, 0.0, r.length))
+                v.direction *= -1
+                v.speed *= 0.3
+                v.last_junction = ()
+            self._place(v, dt)
+
+    def footprint(self, v: Vehicle) -> np.ndarray:
+        """(4, 2) corners of the vehicle in the metric plane."""
+        c, s = math.cos(v.heading), math.sin(v.heading)
+        f, r = np.array([c, s]), np.array([-s, c])
+        hl, hw = v.length / 2, v.width / 2
+        return np.array([v.pos + f * hl + r * hw, v.pos + f * hl - r * hw,
+                         v.pos - f * hl - r * hw, v.pos - f * hl + r * hw])
+
+    # -- truth ------------------------------------------------------------------------------------
+    def truth(self, index: int, H: np.ndarray) -> list[dict]:
+        """Per-vehicle ground truth of one frame (every vehicle, visible or not)."""
+        w, h = self.size
+        Hinv = np.linalg.inv(H)
+        out = []
+        for v in self.vehicles:
+            corners_map = self.world.to_map(self.footprint(v))
+            centre_map = self.world.to_map(v.pos[None])[0]
+            pts = np.hstack([corners_map, np.ones((4, 1))]) @ Hinv.T
+            fr = pts[:, :2] / pts[:, 2:]
+            x0, y0 = fr.min(axis=0)
+            x1, y1 = fr.max(axis=0)
+            box = np.array([x0, y0, x1 - x0, y1 - y0])
+            cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+            ix = max(0.0, min(x1, w) - max(x0, 0.0)) * max(0.0, min(y1, h) - max(y0, 0.0))
+            inside = 0 <= cx < w and 0 <= cy < h and ix >= 0.5 * box[2] * box[3]
+            occluded = bool(self.world.occluded(centre_map[None])[0])
+            state = "outside" if not inside else ("occluded" if occluded else "visible")
+            out.append({"frame": index, "id": v.id, "state": state, "map": centre_map,
+                        "box": box, "heading": math.degrees(v.heading) % 360.0,
+                        "speed": v.speed, "occ_dist_m":
+                        float(self.world.distance_to_occluder_m(centre_map[None])[0])})
+        return out
+
+    # -- rendering --------------------------------------------------------------------------------
+    def render(self, t: float, H: np.ndarray) -> np.ndarray:
+        """The BGR uint8 frame seen through homography H (frame -> map pixels) at time t."""
+        w, h = self.size
+        world = self.world
+        corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
+        hc = np.hstack([corners, np.ones((4, 1))]) @ H.T
+        mc = hc[:, :2] / hc[:, 2:]
+        x0 = int(max(0, np.floor(mc[:, 0].min()) - 4))
+        y0 = int(max(0, np.floor(mc[:, 1].min()) - 4))
+        x1 = int(min(world.width, np.ceil(mc[:, 0].max()) + 4))
+        y1 = int(min(world.height, np.ceil(mc[:, 1].max()) + 4))
+        canvas = world.image[y0:y1, x0:x1].copy()
+        origin = np.array([x0, y0], float)
+        shadow = np.zeros(canvas.shape[:2], np.uint8)
+        bodies = []
+        for v in self.vehicles:
+            fp = world.to_map(self.footprint(v)) - origin
+            if fp[:, 0].max() < -5 or fp[:, 1].max() < -5 or fp[:, 0].min() > x1 - x0 + 5 \
+                    or fp[:, 1].min() > y1 - y0 + 5:
+                continue
+            sh = world.to_map(self.footprint(v) + SUN) - origin
+            cv2.fillConvexPoly(shadow, np.round(sh * 8).astype(np.int32), 255, cv2.LINE_AA, 3)
+            bodies.append((v, fp))
+        if bodies:
+            soft = cv2.GaussianBlur(shadow, (0, 0), 1.2).astype(np.float32) / 255.0
+            canvas = (canvas * (1.0 - 0.5 * soft[..., None])).astype(np.uint8)
+        for v, fp in bodies:
+            self._draw_vehicle(canvas, v, fp)
+        occ = world.occ_mask[y0:y1, x0:x1]
+        if occ.any():
+            a = (occ.astype(np.float32) / 255.0)[..., None]
+            canvas = (canvas * (1 - a) + world.occ_layer[y0:y1, x0:x1] * a).astype(np.uint8)
+        shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]])
+        M = np.linalg.inv(shift @ H)
+        frame = cv2.warpPerspective(canvas, M, (w, h), flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REFLECT)
+        gain = 1.0 + 0.06 * math.sin(2 * math.pi * t / 17.0 + self._gain_phase)
+        ox, oy = self._rng.integers(0, 64, 2)
+        noisy = frame.astype(np.float32) * gain + self._noise[oy:oy + h, ox:ox + w]
+        return np.clip(noisy, 0, 255).astype(np.uint8)
+
+    def _draw_vehicle(self, canvas: np.ndarray, v: Vehicle, fp: np.ndarray) -> None:
+        col = tuple(float(c) for c in v.colour)
+        cv2.fillConvexPoly(canvas, np.round(fp * 8).astype(np.int32), col, cv2.LINE_AA, 3)
+        # windscreen (dark band behind the bonnet) and roof highlight, in footprint coordinates
+        f0, f1, b1, b0 = fp  # front-right, front-left, back-left, back-right
+
+        def lerp(a, b, u):
+            return a + (b - a) * u
+
+        def quad(u0, u1, inset):
+            fr = lerp(f0, b0, u0)
+            fl = lerp(f1, b1, u0)
+            br = lerp(f0, b0, u1)
+            bl = lerp(f1, b1, u1)
+            q = np.array([lerp(fr, fl, inset), lerp(fl, fr, inset), lerp(bl, br, inset),
+                          lerp(br, bl, inset)])
+            return np.round(q * 8).astype(np.int32)
+
+        dark = tuple(float(c) * 0.25 + 10 for c in v.colour)
+        cv2.fillConvexPoly(canvas, quad(0.22, 0.38, 0.1), dark, cv2.LINE_AA, 3)
+        light = tuple(min(255.0, float(c) * 1.08 + 8) for c in v.colour)
+        cv2.fillConvexPoly(canvas, quad(0.42, 0.75, 0.15), light, cv2.LINE_AA, 3)
+        if v.kind in ("truck", "van"):
+            cv2.fillConvexPoly(canvas, quad(0.45, 0.98, 0.05), tuple(c * 0.92 for c in light),
+                               cv2.LINE_AA, 3)
+
+    # -- streaming ----------------------------------------------------------------------------------
+    def frames(self) -> Iterator[tuple[Frame, np.ndarray, list[dict]]]:
+        """Yield (Frame, H frame->map pixels, per-vehicle truth) for every frame, streamed."""
+        dt = 1.0 / self.fps
+        for index in range(1, self.n_frames + 1):
+            t = (index - 1) * dt
+            if index > 1:
+                self._advance(t, dt)
+            H = self.camera.H_map(t)
+            truth = self.truth(index, H)
+            yield Frame(index=index, image=self.render(t, H), time=t), H, truth
