@@ -289,7 +289,7 @@ class LocalAssociator:
                     tr = live[ok_rows[r]]
                     new = S.build(tr.tid, np.append(tr.nodes, gids[j]), tr.prior, tr, len(tr))
                     if math.isfinite(new.score):
-                        S.swap([tr], [new])
+                        S.replace_extended(tr, new)
                         ambiguous[j] = per_det[j] > 1 or per_track[ok_rows[r]] > 1
         # greedy births: chains of free observations ending at the new ones
         for g in gids.tolist():

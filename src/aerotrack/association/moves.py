@@ -318,6 +318,16 @@ class WindowSampler:
         del self.tracks[t.tid]
         self.tids.discard(t.tid)
 
+    def replace_extended(self, old: WTrack, new: WTrack) -> None:
+        """Swap in ``new``, which is ``old`` with observations appended (only those are labelled)."""
+        s = self.store
+        k = len(old)
+        li = new.nodes[k:] - s.base
+        s.label[li] = new.tid
+        s.idx[li] = np.arange(k, len(new))
+        s.prev[li] = new.nodes[k - 1:-1] if k else np.concatenate([[-1], new.nodes[:-1]])
+        self.tracks[new.tid] = new
+
     def swap(self, out: list[WTrack], new: list[WTrack]) -> None:
         for t in out:
             self._unset(t)
