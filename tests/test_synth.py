@@ -1,0 +1,154 @@
+"""The scenario generator's invariants: boxes on roads, occluded targets absent from gt.txt,
+homographies consistent with the rendered pixels, plausible vehicle sizes, determinism."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from aerotrack.cli.main import main
+from aerotrack.geo import GeoMap, read_map_init
+from aerotrack.io.mot import read_mot
+from aerotrack.synth import Scenario, perturb_map, render_to
+from aerotrack.types import apply_homography
+
+N = 75
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    out = tmp_path_factory.mktemp("scene")
+    render_to(out, seed=1, frames=N, scenario="default")
+    return out
+
+
+def states(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def homographies(path):
+    rows = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {int(r[0]): r[1:].reshape(3, 3) for r in rows}
+
+
+def test_files_written(scene):
+    for name in ("gt.txt", "states.csv", "homographies.csv", "map.tif", "map_init.txt",
+                 "map_init_gcps.csv", "map_init_lonlat.csv", "occluders.csv", "scenario.json"):
+        assert (scene / name).is_file(), name
+    assert len(list((scene / "frames").glob("*.jpg"))) == N
+    assert (scene / "frames" / "000001.jpg").is_file()
+    info = json.loads((scene / "scenario.json").read_text())
+    assert info["states"]["visible"] > 0
+
+
+def test_gt_is_exactly_the_visible_states(scene):
+    gt = read_mot(scene / "gt.txt")
+    vis = {(int(s["frame"]), int(s["id"])) for s in states(scene / "states.csv")
+           if s["state"] == "visible"}
+    hidden = {(int(s["frame"]), int(s["id"])) for s in states(scene / "states.csv")
+              if s["state"] != "visible"}
+    got = {(int(r[0]), int(r[1])) for r in gt}
+    assert got == vis
+    assert not got & hidden
+
+
+def test_visible_boxes_inside_frame_and_on_roads(scene):
+    sc = Scenario(seed=1, frames=1)
+    world = sc.world
+    roads = np.vstack([r.points for r in world.roads])
+    Hs = homographies(scene / "homographies.csv")
+    gt = read_mot(scene / "gt.txt")
+    centres = gt[:, 2:4] + gt[:, 4:6] / 2
+    assert np.all((centres >= 0) & (centres < [640, 480]))
+    dists = []
+    for row, c in zip(gt, centres):
+        m = world.to_metric(apply_homography(Hs[int(row[0])], c[None]))[0]
+        dists.append(np.min(np.linalg.norm(roads - m, axis=1)))
+    dists = np.array(dists)
+    # lane centres sit 1.4-1.8 m right of the centre-line; turns blend over a few metres
+    assert np.median(dists) < 2.5
+    assert np.percentile(dists, 95) < 6.0
+
+
+def test_vehicle_sizes(scene):
+    gt = read_mot(scene / "gt.txt")
+    length = np.maximum(gt[:, 4], gt[:, 5])
+    assert 14 <= np.median(length) <= 21
+
+
+def test_true_homographies_match_rendered_pixels(scene):
+    Hs = homographies(scene / "homographies.csv")
+    mp = GeoMap(scene / "map.tif").read_image()
+    map_gray = cv2.cvtColor(cv2.imread(str(scene / "map.tif")), cv2.COLOR_BGR2GRAY)
+    assert mp.shape[:2] == map_gray.shape
+    for f in (1, N):
+        img = cv2.cvtColor(cv2.imread(str(scene / "frames" / f"{f:06d}.jpg")), cv2.COLOR_BGR2GRAY)
+        warped = cv2.warpPerspective(img, Hs[f], (map_gray.shape[1], map_gray.shape[0]),
+                                     flags=cv2.INTER_LINEAR, borderValue=0)
+        valid = cv2.warpPerspective(np.full_like(img, 255), Hs[f],
+                                    (map_gray.shape[1], map_gray.shape[0])) == 255
+        valid = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        a, b = warped[valid].astype(float), map_gray[valid].astype(float)
+        assert np.corrcoef(a, b)[0, 1] > 0.85
+        # and a 3-pixel misregistration is clearly worse
+        shifted = np.roll(map_gray, 3, axis=1)[valid].astype(float)
+        assert np.corrcoef(a, shifted)[0, 1] < np.corrcoef(a, b)[0, 1] - 0.05
+
+
+def test_map_init_files_agree_with_frame_1(scene):
+    H1 = homographies(scene / "homographies.csv")[1]
+    geomap = GeoMap(scene / "map.tif")
+    pts = np.array([[0, 0], [640, 480], [320, 100]], float)
+    for name in ("map_init.txt", "map_init_gcps.csv", "map_init_lonlat.csv"):
+        H = read_map_init(scene / name, geomap)
+        np.testing.assert_allclose(apply_homography(H, pts), apply_homography(H1, pts), atol=0.05)
+
+
+def test_occluders_hide_vehicles():
+    """Over 40 s of the occlusion scenario (truth only, no rendering), vehicles pass under
+    occluders and come out again visible."""
+    sc = Scenario(seed=4, frames=1200, name="occlusion")
+    states_by_id: dict[int, list[str]] = {}
+    dt = 1 / sc.fps
+    for index in range(1, sc.n_frames + 1):
+        if index > 1:
+            sc._advance((index - 1) * dt, dt)
+        for t in sc.truth(index, sc.camera.H_map((index - 1) * dt)):
+            states_by_id.setdefault(t["id"], []).append(t["state"])
+    reappeared = 0
+    for seq in states_by_id.values():
+        s = "".join("v" if x == "visible" else ("h" if x == "occluded" else "x") for x in seq)
+        reappeared += s.count("vh") > 0 and "hv" in s
+    assert reappeared >= 1
+
+
+def test_deterministic(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    render_to(a, seed=7, frames=12)
+    render_to(b, seed=7, frames=12)
+    assert (a / "gt.txt").read_text() == (b / "gt.txt").read_text()
+    assert (a / "states.csv").read_text() == (b / "states.csv").read_text()
+    c = tmp_path / "c"
+    render_to(c, seed=8, frames=12)
+    assert (a / "states.csv").read_text() != (c / "states.csv").read_text()
+
+
+def test_perturb_map_returns_true_transform():
+    rng = np.random.default_rng(0)
+    img = (rng.random((200, 200, 3)) * 255).astype(np.uint8)
+    out, A = perturb_map(img, 1)
+    assert out.shape == img.shape and A.shape == (3, 3)
+    assert not np.array_equal(out, img)
+
+
+def test_bad_scenario_is_one_line_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--out", str(tmp_path / "o"), "--scenario", "bogus"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "bogus" in err and "default" in err and "Traceback" not in err
