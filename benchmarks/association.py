@@ -1,4 +1,4 @@
-"""Local association (MCMC tracklets) on UAVDT-derived detections and synthetic scenes, beside peers.
+"""Local association (MCMC tracklets) on UAVDT-derived detections and synthetic scenes, vs peers.
 
 Usage::
 

@@ -1,4 +1,4 @@
-"""The one Kalman filter of aerotrack: constant velocity in world coordinates (Yu & Medioni eqs. 6-8).
+"""The one Kalman filter of aerotrack: constant velocity in world coordinates (Yu & Medioni 6-8).
 
 State ``x = [l_x, l_y, w, h, v_x, v_y]`` (centre position, size and velocity, world units and world
 units per second); observation ``z = [l_x, l_y, w, h]`` (world units). Position follows a
@@ -11,7 +11,8 @@ constant-velocity model driven by white-noise acceleration, the size a random wa
 
 The filter is a set of pure functions on plain arrays (``transition``, ``process_noise``,
 ``measurement_noise``, ``initiate``, ``predict``, ``update``), compiled by numba so that the MCMC
-hot loop can call them without Python overhead (they are called from Python as usual), and :class:`ConstantVelocityKF`, a small class holding the noise parameters. Every stage
+hot loop can call them without Python overhead (they are called from Python as usual), and
+:class:`ConstantVelocityKF`, a small class holding the noise parameters. Every stage
 (local association, bridging, prediction) uses this filter with its own parameters; never copy it.
 
 Time steps are in seconds (``dt`` may be any positive number: a gap of several frames is one
@@ -102,8 +103,10 @@ def initiate(z: np.ndarray, R: np.ndarray, vel_std: float) -> tuple[np.ndarray, 
 
 
 @_njit(cache=True)
-def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Prior state (6,) and covariance (6, 6) after one transition (eq. 6): ``A x``, ``A P A^T + Q``.
+def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Prior state (6,) and covariance (6, 6) after one transition (eq. 6): ``A x``,
+    ``A P A^T + Q``.
 
     Written as explicit loops so that the compiled twin allocates nothing but its results.
     """
@@ -295,7 +298,8 @@ class ConstantVelocityKF:
 
 @_njit(cache=True)
 def filter_sequence(zs, times, params):
-    """Compiled filter over observations ``zs`` (N, 4) at ``times`` (N,) seconds, initiating at zs[0].
+    """Compiled filter over observations ``zs`` (N, 4) at ``times`` (N,) seconds, initiated at
+    zs[0].
 
     ``params`` is :meth:`ConstantVelocityKF.as_array`. Returns states (N, 6), covariances (N, 6, 6),
     log-likelihoods (N,) and squared Mahalanobis distances (N,) of each step (0 for the first).

@@ -1,4 +1,4 @@
-"""Data association: local (MCMC tracklets within a sliding window) and global (tracklet linking)."""
+"""Data association: local (MCMC tracklets in a sliding window) and global (tracklet linking)."""
 
 from .local import LocalAssociator, associate
 

@@ -58,7 +58,9 @@ class NodeStore:
 
     def add_frame(self, frame: int, z: np.ndarray, hist: np.ndarray | None, payload: list,
                   ious: np.ndarray) -> np.ndarray:
-        """Append one frame's nodes; ``ious`` (n, n) their pairwise overlaps (eq. 10). Returns gids."""
+        """Append one frame's nodes; ``ious`` (n, n) their pairwise overlaps (eq. 10).
+
+        Returns their gids."""
         n = len(z)
         self._reserve(n)
         lo = self.next - self.base

@@ -12,8 +12,10 @@ backward ext./red.  the same at the start of tracks born in the window, with rev
 birth / death       a false alarm u.a.r. starts a track, extended forward or backward u.a.r. /
                     a track born in the window u.a.r. is dissolved into false alarms
 split / merge       cut a track at a link drawn with probability ``1 - p(link)`` (the least
-                    likely links first) / join a pair u.a.r. from ``C_merge``
-switch              exchange the tails of two tracks at a pair u.a.r. from ``C_switch`` (eq. 11)
+                    likely links first) / join a pair of ``C_merge``: a track u.a.r., then a
+                    partner u.a.r. among the tracks born at its last node's children
+switch              exchange the tails of two tracks (eq. 11): a track u.a.r., a switch point
+                    drawn by link unlikelihood, a partner u.a.r. among its candidates
 ==================  ==========================================================================
 
 Every move is paired with its reverse and the acceptance ratio uses the exact proposal
@@ -319,7 +321,7 @@ class WindowSampler:
         self.tids.discard(t.tid)
 
     def replace_extended(self, old: WTrack, new: WTrack) -> None:
-        """Swap in ``new``, which is ``old`` with observations appended (only those are labelled)."""
+        """Swap in ``new``, which is ``old`` with observations appended (only those get labels)."""
         s = self.store
         k = len(old)
         li = new.nodes[k:] - s.base

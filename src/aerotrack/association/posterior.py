@@ -7,12 +7,15 @@ For a partition ``omega`` of the window's observations into tracks and false ala
                        - lambda * sum_{same-frame pairs both in tracks} IoU          (eq. 10)
 
 * **motion** (eqs. 5-8): each link ``y_{t1} -> y_{t2}`` of a track is scored by the Kalman motion
-  likelihood of ``y_{t2}`` given the track's filtered state at ``t1``. Eq. 8's normalising constant
-  depends on the units and makes a link worth less than leaving both observations as false
-  alarms whenever ``det S`` is large, so we use its likelihood ratio against the false-alarm
-  hypothesis of eq. 7 whose (uniform) density equals the motion likelihood at the gate boundary:
-  ``0.5 * (gate^2 - d^2)`` with ``d^2`` the squared Mahalanobis distance of the innovation. A link
-  inside the gate is evidence for the track, one outside it is forbidden (the graph has no edge).
+  likelihood of ``y_{t2}`` given the track's filtered state at ``t1``, as a log-likelihood ratio
+  against the false-alarm hypothesis of eq. 7:
+  ``0.5 * (gate^2 - d^2) - 0.5 * log(det S / det R)``, with ``d^2`` the squared Mahalanobis
+  distance of the innovation, ``S`` its covariance and ``R`` the observation noise. This is
+  ``log N(e; 0, S)`` (eq. 8) minus the log-density of a uniform false alarm taken equal to the
+  likelihood, at the gate boundary, of a perfectly known state. The paper leaves the false-alarm
+  density unspecified; this choice is unit-free, forbids links outside the gate (the graph has no
+  such edge), and keeps eq. 8's ``det S`` so that uncertain predictions (new tracks, long gaps)
+  earn less: without it, cutting a track and restarting it with a vague velocity would pay.
 * **missed detections**: ``-miss_cost`` per frame skipped by a link, so that long gaps are bridged
   only by consistent motion.
 * **appearance** (eq. 9, with the minus sign that makes it a likelihood):
@@ -39,13 +42,6 @@ except ImportError:  # pragma: no cover
         return lambda f: f
 
 from .graph import HIST_EPS
-
-
-def sym_kl(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Symmetric KL divergence ``sum (p - q) log(p / q)`` over the last axis (broadcasting)."""
-    p = np.asarray(p, dtype=np.float64) + HIST_EPS
-    q = np.asarray(q, dtype=np.float64) + HIST_EPS
-    return np.sum((p - q) * (np.log(p) - np.log(q)), axis=-1)
 
 
 def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:
