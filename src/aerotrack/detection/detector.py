@@ -520,19 +520,23 @@ class MovingObjectDetector:
             return out
         c = p.frame.index
         past = [i for i in self._samples if i <= c - self.lag]
-        h, w = p.small.shape[:2]
-        warped = None
-        if past:
-            s = self._samples[past[-1]]
-            M = to_cv_homography(np.linalg.inv(p.reg.H) @ s.H, self.scale)
-            warped = warp(s.small, M, (w, h))
-            vis = warp(np.full(s.small.shape[:2], 255, np.uint8), M, (w, h), nearest=True)
+        if not past:
+            return out
+        s = self._samples[past[-1]]
+        M = to_cv_homography(np.linalg.inv(p.reg.H) @ s.H, self.scale)
+        sh, sw = s.small.shape[:2]
         for k, b in enumerate(r.model_blobs):
             x, y, bw, bh = b.box
             m = b.mask
-            if warped is None or not (vis[y:y + bh, x:x + bw][m] > 0).all():
-                continue
-            d = residual_image(p.small[y:y + bh, x:x + bw], warped[y:y + bh, x:x + bw], 1)[m]
+            # Warp only the blob's box: a translated homography into a (bh, bw) image.
+            Mk = np.array([[1.0, 0, -x], [0, 1.0, -y], [0, 0, 1]]) @ M
+            seen = cv2.warpPerspective(s.small, Mk, (bw, bh), flags=cv2.INTER_LINEAR,
+                                       borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+            back = apply_homography(np.linalg.inv(M), np.array([[x, y], [x + bw, y + bh],
+                                                                [x, y + bh], [x + bw, y]], float))
+            if not (np.all(back >= 0) and np.all(back[:, 0] < sw) and np.all(back[:, 1] < sh)):
+                continue  # the earlier frame did not see the whole blob
+            d = residual_image(p.small[y:y + bh, x:x + bw], seen, 1)[m]
             out[k] = float(np.mean(d > r.threshold)) < 0.2
         return out
 
