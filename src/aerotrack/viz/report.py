@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from ..errors import AerotrackError
-from ..io.output import atomic_write_text
+from ..io.output import atomic_write_bytes, atomic_write_text
 from .colours import id_hex
 from .mapplot import figure_png, plot_map, plot_registration, plot_space_time
 from .overlay import OverlayPainter, OverlayStyle, render_overlay
@@ -181,7 +181,15 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         if p.is_file() and p.stat().st_mtime >= t_tracks:
             return p.read_bytes()
         fig = make()
-        return None if fig is None else figure_png(fig)
+        if fig is None:
+            return None
+        png = figure_png(fig)
+        try:  # keep the picture beside the results too (map.png, spacetime.png, ...)
+            atomic_write_bytes(p, png)
+            p.chmod(0o644)
+        except OSError as exc:
+            log.warning("%s not written: %s", p, exc)
+        return png
 
     pictures: dict[str, str] = {}
     for name, make in (("map", lambda: plot_map(results, geomap, background=first_image())),
