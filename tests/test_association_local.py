@@ -245,3 +245,36 @@ def test_moves_are_accepted_and_all_tried():
     S = la.sampler
     assert all(S.proposed[m] > 0 for m in MOVES)
     assert sum(S.accepted.values()) > 0
+
+
+def test_sampler_visits_partitions_in_proportion_to_the_posterior():
+    """Correct Metropolis-Hastings ratios: on a tiny window (two close targets, one dropout) the
+    chain's visit frequencies of the most likely partitions follow exp(log posterior)."""
+    rng = np.random.default_rng(0)
+    n = 4
+    tracks = {1: _line(0, 0, 6, 0, range(1, n + 1), rng, noise=0.3),
+              2: _line(0, 1.2, 6, 0, [1, 2, 4], rng, noise=0.3)}
+    frames, _ = _frames(tracks, n)
+    cfg = AssociationConfig(window_s=1.0, max_gap_s=0.2, min_iters=0, iters_per_ambiguity=0,
+                            birth_cost=3.0, overlap_lambda=0.0)
+    la = LocalAssociator(cfg, FPS, 1.0, seed=0)
+    for d in frames:
+        la.step(d)
+    S = la.sampler
+    counts: dict = {}
+    scores: dict = {}
+    steps = 30000
+    for _ in range(steps):
+        S.step_mcmc()
+        k = tuple(sorted(tuple(t.nodes.tolist()) for t in S.tracks.values()))
+        counts[k] = counts.get(k, 0) + 1
+        scores[k] = sum(t.score for t in S.tracks.values())
+    top = sorted(counts, key=counts.get, reverse=True)[:4]
+    best = top[0]
+    assert counts[best] / steps > 0.8
+    for k in top[1:]:
+        if counts[k] / steps < 0.008:
+            continue
+        observed = np.log(counts[k] / counts[best])
+        expected = scores[k] - scores[best]
+        assert abs(observed - expected) < 0.6, (k, observed, expected)
