@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .graph import NodeStore
-from .posterior import append_link, children_scores, link_step, run_track
+from .posterior import append_link, children_scores, link_step, run_track, switch_candidates
 
 MOVES = ("ext_f", "red_f", "ext_b", "red_b", "birth", "death", "split", "merge", "switch")
 #: Proposal probability of each move. Reverse pairs share a weight so that the ratios in the
@@ -661,32 +661,14 @@ class WindowSampler:
         lo, hi = s.range(fp + 1, min(fp + self.p.max_gap, self.now))
         if hi <= lo:
             return np.zeros(0, np.int64)
-        li = np.arange(lo - s.base, hi - s.base)
-        lab = s.label[li]
-        li = li[(lab >= 0) & (lab != t.tid)]
-        pr = s.prev[li]
-        heads = li[pr < 0]
+        reg, heads = switch_candidates(s.label, s.prev, s.frame, s.z, s.base, lo - s.base,
+                                       hi - s.base, t.tid, fp, fn, s.z[gp - s.base],
+                                       s.z[gn - s.base], self.p.fps, self.p.reach_mps,
+                                       self.p.max_gap)
         if len(heads):
             heads = heads[[self.tracks[int(v)].prior is None for v in s.label[heads]]]
-        li, pr = li[pr >= 0], pr[pr >= 0] - s.base
-        fq = s.frame[pr]
-        ok = (fq < fn) & (fq >= fn - self.p.max_gap)
-        li, pr = li[ok], pr[ok]
-        zp, zn = s.z[gp - s.base], s.z[gn - s.base]
-        if len(li):
-            dt1 = (s.frame[li] - fp) / self.p.fps
-            dt2 = (fn - s.frame[pr]) / self.p.fps
-            r1 = self.p.reach_mps * dt1 + 0.25 * (s.z[li, 2] + s.z[li, 3])
-            r2 = self.p.reach_mps * dt2 + 0.25 * (zn[2] + zn[3])
-            d1 = np.sum((s.z[li, :2] - zp[:2]) ** 2, axis=1)
-            d2 = np.sum((s.z[pr, :2] - zn[:2]) ** 2, axis=1)
-            li = li[(d1 <= r1**2) & (d2 <= r2**2)]
-        if len(heads):
-            dt1 = (s.frame[heads] - fp) / self.p.fps
-            r1 = self.p.reach_mps * dt1 + 0.25 * (s.z[heads, 2] + s.z[heads, 3])
-            d1 = np.sum((s.z[heads, :2] - zp[:2]) ** 2, axis=1)
-            li = np.concatenate([li, heads[d1 <= r1**2]])
-        return li + s.base
+            reg = np.concatenate([reg, heads])
+        return reg + s.base
 
     @staticmethod
     def _switch_weights(t: WTrack) -> np.ndarray:

@@ -259,3 +259,47 @@ def append_link(xs, Ps, d2s, gaps, links, apps, f_end, z, f, h_prev, lh_prev, h,
     links2[n] = link
     apps2[n] = app
     return xs2, Ps2, d22, gaps2, links2, apps2, d2, link
+
+
+@njit(cache=True)
+def switch_candidates(label, prev, frame, Z, base, lo, hi, tid, fp, fn, zp, zn, fps, reach_mps,
+                      max_gap):
+    """Candidates y of a switch after a track's consecutive nodes at frames ``fp`` -> ``fn``
+    (positions zp, zn), among store indices lo..hi (the frames after ``fp`` within the gap).
+
+    y must lie in another track within eq. 3's reach of zp, and either its predecessor (eq. 11;
+    ``prev`` holds gids, ``base`` turns them into store indices) lies before ``fn``, within the
+    gap and within reach of zn, or it has none (a track head; the caller keeps the heads of tracks
+    born in the window). Returns the store indices (regular, heads).
+    """
+    m = hi - lo
+    reg = np.empty(m, dtype=np.int64)
+    heads = np.empty(m, dtype=np.int64)
+    nr = 0
+    nh = 0
+    for j in range(lo, hi):
+        if label[j] < 0 or label[j] == tid:
+            continue
+        dt1 = (frame[j] - fp) / fps
+        r1 = reach_mps * dt1 + 0.25 * (Z[j, 2] + Z[j, 3])
+        dx = Z[j, 0] - zp[0]
+        dy = Z[j, 1] - zp[1]
+        if dx * dx + dy * dy > r1 * r1:
+            continue
+        if prev[j] < 0:
+            heads[nh] = j
+            nh += 1
+            continue
+        q = prev[j] - base
+        fq = frame[q]
+        if fq >= fn or fq < fn - max_gap:
+            continue
+        dt2 = (fn - fq) / fps
+        r2 = reach_mps * dt2 + 0.25 * (zn[2] + zn[3])
+        dx = Z[q, 0] - zn[0]
+        dy = Z[q, 1] - zn[1]
+        if dx * dx + dy * dy > r2 * r2:
+            continue
+        reg[nr] = j
+        nr += 1
+    return reg[:nr], heads[:nh]
