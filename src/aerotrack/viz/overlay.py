@@ -157,25 +157,38 @@ class OverlayPainter:
         if trail_n > 0:
             for r in rows:
                 self._draw_trail(img, frame, r.id, trail_n, lw)
-        for r in sorted(rows, key=lambda r: r.observed):  # predicted first, observed on top
+        # predicted shapes first, observed boxes on top; labels of observed targets always, those
+        # of predicted ones only where they do not hide another label (most recently seen first)
+        pending = []
+        hud = self._hud_box(frame, rows, scale, thick) if self.style.hud else None
+        pscale = scale * max(0.015, 0.85 * self.style.text_height) / self.style.text_height
+        for r in sorted((r for r in rows if not r.observed), key=lambda r: r.since_s):
             colour = id_bgr(r.id)
             x, y, bw, bh = (float(v) for v in r.box)
-            if r.observed:
-                cv2.rectangle(img, _pt(x, y), _pt(x + bw, y + bh), colour, lw, cv2.LINE_AA)
-                _label(img, str(r.id), x, y, y + bh, colour, scale, thick)
-                continue
             cx, cy = x + bw / 2, y + bh / 2
             radius = 0.5 * math.hypot(bw, bh) + r.radius_world * self._world_scale(frame, np.array([cx, cy]))
             radius = min(radius, 2.0 * h)
             text = f"{r.id} +{r.since_s:.1f}s"
-            pscale = scale * max(0.015, 0.85 * self.style.text_height) / self.style.text_height
-            if -radius <= cx <= w + radius and -radius <= cy <= h + radius and 0 <= cx < w and 0 <= cy < h:
+            if 0 <= cx < w and 0 <= cy < h:
                 _dashed_rect(img, x, y, bw, bh, colour, lw)
                 _dashed_circle(img, cx, cy, radius, colour, max(1, lw // 2 + 1))
-                _label(img, text, x, y, y + bh, colour, pscale, thick, hollow=True)
+                pending.append((text, x, y, y + bh, colour))
             else:
-                self._draw_offscreen(img, cx, cy, text, colour, pscale, thick, lw,
-                                     keep_out=self._hud_box(frame, rows, scale, thick) if self.style.hud else None)
+                pending.append((text, *self._draw_offscreen(img, cx, cy, colour, lw, keep_out=hud), colour))
+        placed: list[tuple[int, int, int, int]] = []
+        if hud is not None:
+            placed.append((0, 0, hud[0], hud[1]))
+        for r in (r for r in rows if r.observed):
+            colour = id_bgr(r.id)
+            x, y, bw, bh = (float(v) for v in r.box)
+            cv2.rectangle(img, _pt(x, y), _pt(x + bw, y + bh), colour, lw, cv2.LINE_AA)
+            _label(img, str(r.id), x, y, y + bh, colour, scale, thick, placed=placed)
+        for text, x, top, bottom, colour in pending:
+            _label(img, text, x, top, bottom, colour, pscale, thick, hollow=True, placed=placed,
+                   optional=True)
+        for r in (r for r in rows if r.observed):  # again, on top of any predicted label edge
+            x, y, bw, bh = (float(v) for v in r.box)
+            _label(img, str(r.id), x, y, y + bh, id_bgr(r.id), scale, thick)
         if self.style.hud:
             self._draw_hud(img, frame, rows, scale, thick)
         return img
@@ -203,7 +216,9 @@ class OverlayPainter:
         for i in np.flatnonzero(good & ~obs)[::2]:  # predicted part: dotted
             cv2.circle(img, (int(ipts[i, 0]), int(ipts[i, 1])), lw, colour, -1, cv2.LINE_AA)
 
-    def _draw_offscreen(self, img, cx, cy, text, colour, scale, thick, lw, keep_out=None) -> None:
+    def _draw_offscreen(self, img, cx, cy, colour, lw, keep_out=None) -> tuple[float, float, float]:
+        """Arrow on the image border towards a predicted position outside the image; returns the
+        label anchor (x, top, bottom)."""
         h, w = img.shape[:2]
         m = int(0.04 * h)
         ex, ey = min(max(cx, m), w - 1 - m), min(max(cy, m), h - 1 - m)
@@ -215,14 +230,11 @@ class OverlayPainter:
                 ey = keep_out[1] + m
         d = np.array([cx - ex, cy - ey])
         n = np.hypot(*d)
-        if n < 1e-6 or not np.isfinite(n):
-            return
-        d /= n
+        d = d / n if n > 1e-6 and np.isfinite(n) else np.array([0.0, -1.0])
         tip = np.array([ex, ey]) + d * m * 0.9
         tail = np.array([ex, ey]) - d * m * 0.6
         cv2.arrowedLine(img, _pt(*tail), _pt(*tip), colour, max(2, lw), cv2.LINE_AA, tipLength=0.45)
-        _label(img, text, tail[0] - m * 0.5, tail[1] - m * 0.3, tail[1] + m * 0.3, colour, scale, thick,
-               hollow=True)
+        return tail[0] - m * 0.5, tail[1] - m * 0.3, tail[1] + m * 0.3
 
     def _hud_text(self, frame, rows) -> str:
         n_obs = sum(r.observed for r in rows)
@@ -249,8 +261,13 @@ def _pt(x: float, y: float) -> tuple[int, int]:
     return (int(round(x)), int(round(y)))
 
 
-def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False) -> None:
-    """A filled (or outlined, for predicted targets) label above the box, or below at the top edge."""
+def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False, placed=None,
+           optional=False) -> bool:
+    """A filled (or outlined, for predicted targets) label above the box, or below at the top edge.
+
+    ``placed`` collects the rectangles of labels drawn so far; an ``optional`` label that would
+    cover more than a quarter of its area with one of them is skipped. Returns whether it was drawn.
+    """
     h, w = img.shape[:2]
     (tw, th), base = cv2.getTextSize(text, FONT, scale, thick)
     pad = max(1, int(th * 0.25))
@@ -258,6 +275,16 @@ def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False) -> Non
     y0 = top - bh if top - bh >= 0 else bottom
     y0 = int(min(max(y0, 0), h - bh))
     x0 = int(min(max(x, 0), max(0, w - tw - 2 * pad)))
+    rect = (x0, y0, x0 + tw + 2 * pad, y0 + bh)
+    if placed is not None:
+        if optional:
+            area = (rect[2] - rect[0]) * (rect[3] - rect[1])
+            for q in placed:
+                ix = min(rect[2], q[2]) - max(rect[0], q[0])
+                iy = min(rect[3], q[3]) - max(rect[1], q[1])
+                if ix > 0 and iy > 0 and ix * iy > 0.25 * area:
+                    return False
+        placed.append(rect)
     if hollow:
         roi = img[y0:y0 + bh, x0:x0 + tw + 2 * pad]
         roi[:] = (roi * 0.3).astype(np.uint8)
@@ -267,6 +294,7 @@ def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False) -> Non
         cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, -1)
         fg = text_colour_on(colour)
     cv2.putText(img, text, (x0 + pad, y0 + pad + th), FONT, scale, fg, thick, cv2.LINE_AA)
+    return True
 
 
 def _dashed_line(img, p, q, colour, lw, dash) -> None:
