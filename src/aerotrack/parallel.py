@@ -33,6 +33,16 @@ run in their own first frame's pixels (metres per unit taken from segment 0's in
 are chained into map pixels as above. Their drift is therefore not corrected against the map
 (``refined`` registrations only occur in segment 0); for long flights over a map the single
 process is more accurate.
+
+Differences from the single process (measured by ``benchmarks/parallel.py``: 900 generated frames,
+2 segments, the same code in every run). Frames before the first cut are identical. After it,
+results differ for two reasons that are not specific to the join: the MCMC of local association
+restarts its random stream at the segment's first frame (the same detections associated with
+another seed agree with seed 0 only to HOTA 0.86 / IDF1 0.87 on that video), and the background
+model is resampled on a world grid with another sub-pixel phase (segment k's world is its own first
+frame; chained to world 0 with 0.05 px RMS disagreement), so a few blobs near the threshold change.
+The join itself stitched every tracklet that crossed the cut. Against the ground truth the two-
+segment run scored HOTA +0.006 and IDF1 +0.000 relative to the single process.
 """
 
 from __future__ import annotations
