@@ -9,7 +9,7 @@ optical flow (a sudden jump or rotation). Every failure is returned as a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -198,6 +198,15 @@ def _polish(prev_gray: np.ndarray, gray: np.ndarray, H: np.ndarray, p0: np.ndarr
     return _fit(q0[ok], c1[ok].reshape(-1, 2), gray.shape, **fit)
 
 
+def _as_first_pass(polished: tuple[np.ndarray, EstimateStats], first: EstimateStats
+                   ) -> tuple[np.ndarray, EstimateStats]:
+    """Polished estimate with the inlier ratio counted against the first pass's correspondences
+    (the polish only re-tracks inliers, so its own ratio says little about the frame)."""
+    H, st = polished
+    return H, replace(st, tentative=first.tentative,
+                      inlier_ratio=min(1.0, st.inliers / max(first.tentative, 1)))
+
+
 def estimate_homography(
     prev_gray: np.ndarray,
     gray: np.ndarray,
@@ -279,7 +288,7 @@ def estimate_homography(
             inl = res[1].source
             better = _polish(prev_gray, gray, res[0], inl, fit)
             if better:
-                return better
+                return _as_first_pass(better, res[1])
         return res
     if method == "orb":
         orb = cv2.ORB_create(nfeatures=max(2 * max_features, 500))
@@ -298,7 +307,8 @@ def estimate_homography(
         c0 = detect_features(prev_gray, max_features, mask)
         if len(c0) >= max(min_inliers, 4):
             polished = _polish(prev_gray, gray, res[0], c0.reshape(-1, 2), fit)
-            if polished:
-                return polished
+            if polished:  # fresh corners: the ORB matches' ratio describes the frame pair
+                return polished[0], replace(polished[1], tentative=res[1].tentative,
+                                            inlier_ratio=res[1].inlier_ratio)
         return res
     raise ConfigError(f"config registration.method: unknown {method!r} (valid: {', '.join(METHODS)})")
