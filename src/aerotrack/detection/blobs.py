@@ -36,8 +36,20 @@ class Blob:
 
 
 def _disk(r: float) -> np.ndarray:
-    k = max(1, int(round(2 * r + 1)))
+    """Disk of radius ~r with an odd side, so that its anchor is its centre (an even kernel
+    would shift every opening/closing by half a pixel... rounded to a whole one)."""
+    k = 2 * max(0, int(round(r))) + 1
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+
+
+def open2(mask: np.ndarray) -> np.ndarray:
+    """Opening by a 2x2 square without a shift (removes isolated pixels and 1-pixel lines).
+
+    ``cv2.morphologyEx(MORPH_OPEN)`` with an even kernel uses one anchor for the erosion and the
+    dilation, which moves the result by one pixel down and right; anchoring the two at opposite
+    corners cancels it."""
+    k = np.ones((2, 2), np.uint8)
+    return cv2.dilate(cv2.erode(mask, k, anchor=(1, 1)), k, anchor=(0, 0))
 
 
 def close(mask: np.ndarray, radius: float) -> np.ndarray:
@@ -67,7 +79,7 @@ def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
         Smallest component area in pixels.
     """
     m = (np.asarray(low) > 0).astype(np.uint8)
-    m = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
+    m = open2(m)
     if close_radius >= 0.5:
         m = close(m, close_radius)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)

@@ -25,7 +25,7 @@ from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
 from .background import box_polygons, to_cv_homography, warp, warp_polygons, window_background
-from .blobs import Blob, close, hysteresis_blobs, join_fragments, split_blob
+from .blobs import Blob, close, hysteresis_blobs, join_fragments, open2, split_blob
 from .shadows import shadow_mask
 
 
@@ -290,7 +290,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         if config.shadow_suppression:
             fg &= ~shadow_mask(crop, bg_crop, alpha=config.shadow_alpha, beta=config.shadow_beta,
                                tau_s=config.shadow_tau_s, tau_h=config.shadow_tau_h)
-        fg8 = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
+        fg8 = open2(fg.astype(np.uint8))
         close_full = max(1.0, gates.close_px)
         fg8 = close(fg8, close_full)
         fg8 &= region.astype(np.uint8)
