@@ -133,10 +133,36 @@ def _draw_tracks(ax, tracks: list[TrackView], xy_of, fs: float, label: bool = Tr
         for r in tv.reacquisitions():
             if np.all(np.isfinite(xy[r])):
                 ax.plot(*xy[r], "*", ms=13, mfc=c, mec="black", mew=1.0, zorder=7)
-        if label and len(obs_idx):
-            e = xy[obs_idx[-1]]
-            ax.text(e[0], e[1], f" {tv.id}", color=c, fontsize=fs, fontweight="bold", zorder=8,
-                    va="center", path_effects=[pe.withStroke(linewidth=2.5, foreground="black")])
+    if label:
+        _draw_labels(ax, tracks, xy_of, fs)
+
+
+def _draw_labels(ax, tracks: list[TrackView], xy_of, fs: float) -> None:
+    """ID labels at each track's last in-view point; longer tracks first, and a label that would
+    overlap one already placed is left out (the colour still tells the track)."""
+    import matplotlib.patheffects as pe
+
+    ax.apply_aspect()
+    px = fs * DPI / 72.0
+    placed: list[tuple[float, float, float, float]] = []
+    order = sorted(tracks, key=lambda tv: -int(tv.observed.sum()))
+    xlim, ylim = sorted(ax.get_xlim()), sorted(ax.get_ylim())
+    for tv in order:
+        xy = xy_of(tv)
+        obs_idx = np.flatnonzero(tv.observed & np.all(np.isfinite(xy), axis=1))
+        if not len(obs_idx):
+            continue
+        e = xy[obs_idx[-1]]
+        if not (xlim[0] <= e[0] <= xlim[1] and ylim[0] <= e[1] <= ylim[1]):
+            continue
+        d = ax.transData.transform(e)
+        text = f" {tv.id}"
+        rect = (d[0], d[1] - 0.5 * px, d[0] + 0.62 * px * len(text), d[1] + 0.5 * px)
+        if any(rect[0] < q[2] and q[0] < rect[2] and rect[1] < q[3] and q[1] < rect[3] for q in placed):
+            continue
+        placed.append(rect)
+        ax.text(e[0], e[1], text, color=id_rgb(tv.id), fontsize=fs, fontweight="bold", zorder=8,
+                va="center", path_effects=[pe.withStroke(linewidth=2.5, foreground="black")])
 
 
 def _ground_px(geomap, at) -> tuple[float, float]:
@@ -290,6 +316,10 @@ def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float 
         if unit == "px":
             xy = xy * np.array([1.0, -1.0])  # so that the image's "up" is up in the plot
         xs[tv.id] = xy
+    if unit == "m" and xs:  # metres about the centre of the tracks
+        allxy = np.vstack(list(xs.values()))
+        centre = np.nanmedian(allxy, axis=0) if np.isfinite(allxy).any() else np.zeros(2)
+        xs = {k: v - centre for k, v in xs.items()}
     # limits from the in-view positions; predicted points beyond them are dropped (3-D axes do
     # not clip lines)
     obs = [xs[tv.id][tv.observed] for tv in tracks]

@@ -57,7 +57,9 @@ class TrackStats:
 
 
 def metric_positions(track: TrackView, geomap=None, metres_per_unit: float | None = None):
-    """(N, 2) positions in metres in a local frame, or in world units when no scale is known.
+    """(N, 2) positions in metres east/north in a local frame (azimuthal equidistant about the map
+    centre for lon/lat maps, the map CRS itself for projected ones), or world units (frame 1's
+    pixels) when no scale is known.
 
     Returns
     -------
@@ -73,7 +75,8 @@ def metric_positions(track: TrackView, geomap=None, metres_per_unit: float | Non
         if crs.is_geographic:
             ll = geomap.crs_to_lonlat(np.nan_to_num(xy))
             ok = np.all(np.isfinite(xy), axis=1)
-            lat0, lon0 = np.nanmean(ll[ok, 1]), np.nanmean(ll[ok, 0])
+            # one origin for every track (the map's centre), so positions are comparable
+            lon0, lat0 = geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0]
             local = CRS.from_proj4(f"+proj=aeqd +lat_0={lat0} +lon_0={lon0} +datum=WGS84 +units=m")
             t = Transformer.from_crs(CRS.from_epsg(4326), local, always_xy=True)
             x, y = t.transform(ll[:, 0], ll[:, 1])
