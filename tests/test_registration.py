@@ -354,3 +354,35 @@ def test_registrar_resets_after_a_cut_to_another_place(map_img):
     first_reset = statuses.index("reset")
     assert all(s == "ok" for s in statuses[first_reset + 1:])
     assert all(np.all(np.isfinite(r.H)) for r in out)
+
+
+def _continuous(Hi: np.ndarray) -> np.ndarray:
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    return T @ Hi @ np.linalg.inv(T)
+
+
+@pytest.mark.parametrize("perturbed", [False, True])
+def test_registrar_on_generated_scene(perturbed):
+    """The scenario generator's scene (vehicles, shadows, trees) against its map, or against the
+    map as another date would show it: corner error under a map pixel throughout."""
+    from aerotrack.synth import Scenario, perturb_map
+
+    sc = Scenario(seed=3, frames=25, size=(480, 360), fps=10.0)
+    geomap = sc.world.geomap
+    A = np.eye(3)
+    base = sc.world.image
+    if perturbed:
+        base, A = perturb_map(base, rng=4)
+        A = _continuous(A)
+    geomap._image = base
+    try:
+        reg = None
+        for frame, H_true, _ in sc.frames():
+            truth = A @ _continuous(H_true)
+            if reg is None:
+                reg = FrameRegistrar(RegistrationConfig(), sc.fps, geomap, truth)
+            r = reg.step(frame)
+            assert corner_error(r.H, truth, *sc.size) < 1.0, (frame.index, r)
+        assert reg.counts["refined"] >= 3
+    finally:
+        geomap._image = None
