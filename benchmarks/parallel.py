@@ -151,6 +151,46 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path) -> None
                                "join": join, "rows": rows.tolist()}))
 
 
+def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
+    """Segments against the single process on known detections (association and linking alone):
+    ``common.synthetic_dets`` with 10 and 30 targets, 2 segments run in this process (the engine
+    does not change results), HOTA/IDF1 against the true ids; the single process with another
+    MCMC seed shows how much the random stream alone moves them."""
+    from common import synthetic_dets
+
+    from aerotrack.config import Config
+    from aerotrack.evaluation import evaluate
+    from aerotrack.outputs import track_rows
+    from aerotrack.parallel import (ParallelConfig, assemble, gather_segments, make_tasks,
+                                    plan_segments)
+    from aerotrack.pipeline import run
+
+    out = {}
+    config = Config()
+    for n in (10, 30):
+        gt = synthetic_dets(n, n_frames=frames, size=(1280, 720))
+        dets = gt.copy()
+        dets[:, 1] = -1
+        single = run(None, detections=dets, fps=fps, config=config)
+        segs = plan_segments(1, frames, fps=fps, segment_s=frames / fps / 2,
+                             overlap_s=ParallelConfig().overlap(config), min_segments=2)
+        tasks = make_tasks(None, config=config, fps=fps, segments=segs, detections=dets)
+        par, report = assemble(gather_segments(None, tasks), config=config, fps=fps)
+        other = run(None, detections=dets, fps=fps, config=config, seed=1)
+        es, ep, eo = (evaluate(gt, track_rows(r, None)[0]) for r in (single, par, other))
+        out[f"{n}_targets"] = {
+            "segments": len(segs), "stitched": report.stitched, "cut": report.cut,
+            "single": {"HOTA": round(es["HOTA"], 4), "IDF1": round(es["IDF1"], 4)},
+            "segments_run": {"HOTA": round(ep["HOTA"], 4), "IDF1": round(ep["IDF1"], 4)},
+            "delta_HOTA": round(ep["HOTA"] - es["HOTA"], 4),
+            "delta_IDF1": round(ep["IDF1"] - es["IDF1"], 4),
+            "single_seed1": {"HOTA": round(eo["HOTA"], 4), "IDF1": round(eo["IDF1"], 4)}}
+        print(f"association alone, {n} targets: single HOTA {es['HOTA']:.3f} IDF1 {es['IDF1']:.3f}"
+              f" | 2 segments HOTA {ep['HOTA']:.3f} IDF1 {ep['IDF1']:.3f}"
+              f" | single, seed 1: HOTA {eo['HOTA']:.3f} IDF1 {eo['IDF1']:.3f}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=900)
@@ -161,6 +201,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2,
                     help="Runs of each mode, interleaved; the fastest counts (a shared machine's "
                          "load only ever slows a run down).")
+    ap.add_argument("--no-association", dest="association", action="store_false",
+                    help="Skip the association-alone parity table.")
     ap.add_argument("--run", help=argparse.SUPPRESS)  # internal: one mode in a child process
     ap.add_argument("--input", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
@@ -220,7 +262,9 @@ def main() -> None:
               f"{t['frames_per_s']:6.1f} "
               f"{t['HOTA']:6.3f} {t['IDF1']:6.3f} {t['agreement_HOTA']:7.3f} "
               f"{t['agreement_IDF1']:7.3f} {t['tracks']:6d} {t['join']['segments']}")
+    assoc = association_parity() if a.association else {}
     payload = {"video": info, "cpu_count": os.cpu_count(), "repeat": a.repeat,
+               "association_alone": assoc,
                "load_avg_1min_at_starts": [round(v, 2) for v in load], "runs": table,
                "note": "wall_vs_single_1t: wall time / single process limited to one thread; "
                        "Dask wall excludes cluster start-up (cluster_startup_s)"}
