@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
-from pathlib import Path
 
 import numpy as np
 
@@ -18,9 +16,9 @@ from . import __version__
 from .config import Config, dumps_config
 from .geo import GeoMap
 from .io.mot import write_mot
-from .io.output import OutputDir, atomic_write_text
+from .io.output import OutputDir
 from .pipeline import Result
-from .types import Registration, Track, apply_homography
+from .types import Registration, apply_homography
 
 log = logging.getLogger(__name__)
 
@@ -82,24 +80,6 @@ def detection_rows(result: Result) -> np.ndarray:
     return _sorted(rows)
 
 
-def write_registration_csv(path: Path, registrations: dict[int, Registration]) -> None:
-    """``frame,h00..h22,status,inliers,inlier_ratio,error`` (frame pixels -> world)."""
-    lines = ["frame,h00,h01,h02,h10,h11,h12,h20,h21,h22,status,inliers,inlier_ratio,error,reason"]
-    for idx in sorted(registrations):
-        r = registrations[idx]
-        H = np.asarray(r.H, dtype=np.float64).reshape(-1)
-        reason = r.reason.replace(",", ";").replace("\n", " ")
-        lines.append(
-            f"{idx}," + ",".join(f"{v:.12g}" for v in H)
-            + f",{r.status},{int(r.inliers)},{_f(r.inlier_ratio)},{_f(r.error)},{reason}"
-        )
-    atomic_write_text(path, "\n".join(lines) + "\n")
-
-
-def _f(v: float) -> str:
-    return "" if v is None or not math.isfinite(v) else f"{v:.4f}"
-
-
 def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: GeoMap | None,
                   run_info: dict | None = None, out_crs: str | None = None) -> dict:
     """Write every contract file into ``out`` (atomically) and return the summary dict."""
@@ -108,7 +88,10 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
     write_mot(out.file("predicted.csv"), predicted)
     write_mot(out.file("detections.csv"), detection_rows(result))
     if result.registrations:
-        write_registration_csv(out.file("registration.csv"), result.registrations)
+        from .registration import write_registration_csv
+
+        write_registration_csv(out.file("registration.csv"),
+                               [result.registrations[i] for i in sorted(result.registrations)])
     if geomap is not None:
         try:
             from .io.geojson import write_tracks_geojson

@@ -23,7 +23,7 @@ import numpy as np
 from .config import Config
 from .errors import InputError
 from .geo import GeoMap
-from .types import Detections, Frame, Registration, Track, TrackPoint, apply_homography
+from .types import Detections, Frame, Registration, Track, apply_homography
 
 log = logging.getLogger(__name__)
 

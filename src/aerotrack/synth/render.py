@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import cv2
 import numpy as np
 
 from ..io.mot import format_mot_rows
-from ..io.output import OutputDir, atomic_write, atomic_write_bytes, atomic_write_text
+from ..io.output import OutputDir, atomic_write_bytes, atomic_write_text
 from .scene import Scenario
 
 log = logging.getLogger(__name__)
