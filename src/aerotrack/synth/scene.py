@@ -63,6 +63,15 @@ class Vehicle:
     last_junction: tuple = ()
 
 
+def _padded(img: np.ndarray, y0: int, y1: int, x0: int, x1: int, pad: tuple) -> np.ndarray:
+    """``img[y0:y1, x0:x1]`` extended by ``pad`` = (top, bottom, left, right) pixels of mirror
+    image about the image's own edges."""
+    crop = img[y0:y1, x0:x1]
+    if not any(pad):
+        return crop.copy()
+    return cv2.copyMakeBorder(crop, *[max(0, int(p)) for p in pad], cv2.BORDER_REFLECT)
+
+
 class Camera:
     """A UAV camera over the metric plane: centre (m), yaw (rad), ground sample distance (m/px).
 
@@ -346,11 +355,17 @@ class Scenario:
         corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
         hc = np.hstack([corners, np.ones((4, 1))]) @ H.T
         mc = hc[:, :2] / hc[:, 2:]
-        x0 = int(max(0, np.floor(mc[:, 0].min()) - 4))
-        y0 = int(max(0, np.floor(mc[:, 1].min()) - 4))
-        x1 = int(min(world.width, np.ceil(mc[:, 0].max()) + 4))
-        y1 = int(min(world.height, np.ceil(mc[:, 1].max()) + 4))
-        canvas = world.image[y0:y1, x0:x1].copy()
+        # The crop of the map under the frame; where the view reaches past the tile, the ground is
+        # the tile mirrored about its edge (static texture). Vehicles are drawn after padding so
+        # they are never mirrored.
+        x0 = int(np.floor(mc[:, 0].min()) - 4)
+        y0 = int(np.floor(mc[:, 1].min()) - 4)
+        x1 = int(np.ceil(mc[:, 0].max()) + 4)
+        y1 = int(np.ceil(mc[:, 1].max()) + 4)
+        cx0, cy0 = min(max(x0, 0), world.width - 1), min(max(y0, 0), world.height - 1)
+        cx1, cy1 = max(min(x1, world.width), cx0 + 1), max(min(y1, world.height), cy0 + 1)
+        pad = (cy0 - y0, y1 - cy1, cx0 - x0, x1 - cx1)
+        canvas = _padded(world.image, cy0, cy1, cx0, cx1, pad)
         origin = np.array([x0, y0], float)
         shadow = np.zeros(canvas.shape[:2], np.uint8)
         bodies = []
@@ -367,14 +382,15 @@ class Scenario:
             canvas = (canvas * (1.0 - 0.5 * soft[..., None])).astype(np.uint8)
         for v, fp in bodies:
             self._draw_vehicle(canvas, v, fp)
-        occ = world.occ_mask[y0:y1, x0:x1]
+        occ = _padded(world.occ_mask, cy0, cy1, cx0, cx1, pad)
         if occ.any():
             a = (occ.astype(np.float32) / 255.0)[..., None]
-            canvas = (canvas * (1 - a) + world.occ_layer[y0:y1, x0:x1] * a).astype(np.uint8)
+            layer = _padded(world.occ_layer, cy0, cy1, cx0, cx1, pad)
+            canvas = (canvas * (1 - a) + layer * a).astype(np.uint8)
         shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]])
         M = np.linalg.inv(shift @ H)
         frame = cv2.warpPerspective(canvas, M, (w, h), flags=cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REFLECT)
+                                    borderMode=cv2.BORDER_REPLICATE)
         gain = 1.0 + 0.06 * math.sin(2 * math.pi * t / 17.0 + self._gain_phase)
         ox, oy = self._rng.integers(0, 64, 2)
         noisy = frame.astype(np.float32) * gain + self._noise[oy:oy + h, ox:ox + w]
