@@ -300,7 +300,9 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         # Keep the components that carry most of the blob (drop stray noise pixels).
         areas = stats[1:, cv2.CC_STAT_AREA]
         keep = np.flatnonzero(areas >= max(2.0, 0.15 * areas.max())) + 1
-        fgm = np.isin(labels, keep)
+        lut = np.zeros(n, bool)
+        lut[keep] = True
+        fgm = lut[labels]
         area = int(fgm.sum())
         if area < gates.min_area_px:
             continue
