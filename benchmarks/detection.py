@@ -208,8 +208,8 @@ def mog2_speed(frames) -> float:
 
 def speed(results: dict, quick: bool) -> None:
     n = 40 if quick else 90
-    truck, tfps = load_frames(TRUCK / "frames", stop=n)
-    santiago_frames, sfps = load_frames(SANTIAGO / "video_sift_estabilizado_filtrado.mp4", stop=n)
+    truck, _ = load_frames(TRUCK / "frames", stop=n)
+    santiago_frames, _ = load_frames(SANTIAGO / "video_sift_estabilizado_filtrado.mp4", stop=n)
     cases = {
         "1280x720 truck4 (moving camera)": (truck, 30.0),
         "1920x1080 Santiago": (santiago_frames, 30.0),
@@ -251,7 +251,7 @@ def truck4(results: dict, quick: bool) -> None:
     g2 = np.loadtxt(TRUCK / "truck4_2.txt", delimiter=",")
     gt = {i + 1: g1[i] for i in range(len(g1))}
     gt.update({193 + i: g2[i] for i in range(len(g2))})
-    out, regs, run_fps = run_registered(frames, fps, DetectionConfig())
+    out, _, run_fps = run_registered(frames, fps, DetectionConfig())
     dets = {d.frame: d for d in out}
     hit = {}
     for f in sorted(dets):

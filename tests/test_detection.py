@@ -9,8 +9,14 @@ import numpy as np
 import pytest
 
 from aerotrack.config import DetectionConfig
-from aerotrack.detection import (MovingObjectDetector, colour_histogram, describe, ring_descriptor,
-                                 shadow_mask, stack_median)
+from aerotrack.detection import (
+    MovingObjectDetector,
+    colour_histogram,
+    describe,
+    ring_descriptor,
+    shadow_mask,
+    stack_median,
+)
 from aerotrack.errors import ConfigError
 from aerotrack.types import Frame, Registration, apply_homography
 
@@ -244,7 +250,7 @@ def test_cli_detect(tmp_path):
     from aerotrack.cli.main import main
     from aerotrack.io.mot import read_mot
 
-    frames, regs, _ = render(MOVERS[:2], 20)
+    frames, _, _ = render(MOVERS[:2], 20)
     folder = tmp_path / "frames"
     folder.mkdir()
     for f in frames:

@@ -109,7 +109,7 @@ def split_blob(blob: Blob, *, min_area: float, max_radius: int) -> list[Blob]:
     list of Blob
         ``[blob]`` when it does not split.
     """
-    x0, y0, w, h = blob.box
+    x0, y0 = blob.box[:2]
     m = np.pad(blob.mask.astype(np.uint8), 1)
     for r in range(1, max_radius + 1):
         core = cv2.erode(m, _disk(r))

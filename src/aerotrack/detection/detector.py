@@ -24,10 +24,9 @@ from ..config import DetectionConfig
 from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
-from .background import box_polygons, to_cv_homography, warp, warp_polygons, window_background
+from .background import to_cv_homography, warp, warp_polygons, window_background
 from .blobs import Blob, close, hysteresis_blobs, join_fragments, open2, split_blob
 from .shadows import shadow_mask
-
 
 #: Registration statuses after which earlier frames no longer relate to this one.
 RESTART_STATUSES = ("reset", "reanchored")
@@ -123,7 +122,7 @@ def border_fill_mask(image: np.ndarray, level: int = 12) -> np.ndarray:
     dark = _channel_max(image) < level
     if not (dark[0].any() or dark[-1].any() or dark[:, 0].any() or dark[:, -1].any()):
         return np.zeros(dark.shape, bool)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
     h, w = dark.shape
     x, y, bw, bh = stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3]
     touch = (x == 0) | (y == 0) | (x + bw == w) | (y + bh == h)
