@@ -35,12 +35,15 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from common import REPO, SHARED_DATA, write_results
 
 from aerotrack.config import RegistrationConfig
 from aerotrack.geo import GeoMap
-from aerotrack.registration import FrameRegistrar, corner_error, refine_against_map, to_gray
+from aerotrack.registration import (
+    FrameRegistrar,
+    corner_error,
+    refine_against_map,
+)
 from aerotrack.registration.mosaic import paint_mosaic
 from aerotrack.types import Frame
 
@@ -290,6 +293,7 @@ def run_speed(map_img: np.ndarray, n: int = 60) -> dict:
             ours = FrameRegistrar(RegistrationConfig(), 30.0)
             peer = peer_cmc()
             t_ours, t_peer, e_ours, e_peer = [], [], [], []
+            prevH = np.eye(3)
             for k, img in enumerate(seq):  # interleaved, so both see the same machine load
                 fr = Frame(k + 1, img, k / 30.0)
                 t0 = time.perf_counter()

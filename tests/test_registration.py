@@ -14,9 +14,18 @@ from hypothesis import strategies as st
 from aerotrack.config import RegistrationConfig
 from aerotrack.errors import ConfigError, InputError
 from aerotrack.geo import GeoMap
-from aerotrack.registration import (FrameRegistrar, chain, check_homography, corner_error,
-                                    estimate_homography, frame_quality, read_registration_csv,
-                                    refine_against_map, to_gray, write_registration_csv)
+from aerotrack.registration import (
+    FrameRegistrar,
+    chain,
+    check_homography,
+    corner_error,
+    estimate_homography,
+    frame_quality,
+    read_registration_csv,
+    refine_against_map,
+    to_gray,
+    write_registration_csv,
+)
 from aerotrack.types import Failure, Frame
 
 TILE = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
@@ -89,7 +98,7 @@ def test_mask_keeps_features_off_excluded_boxes(map_img):
     b = to_gray(render(map_img, camera(0.2)))
     mask = np.full(a.shape, 255, np.uint8)
     mask[50:150, 100:200] = 0
-    Hest, stats = estimate_homography(a, b, mask)
+    _, stats = estimate_homography(a, b, mask)
     Hb = np.linalg.inv(camera(0.2)) @ camera(0.0)
     from aerotrack.types import apply_homography
     src = apply_homography(np.linalg.inv(Hb), stats.points)  # inliers back in frame a

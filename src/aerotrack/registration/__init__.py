@@ -5,15 +5,41 @@ coordinates (map pixels with a map, frame 1's pixels otherwise); the algorithms 
 beside it: :func:`estimate_homography`, :func:`chain` (eq. 1), :func:`refine_against_map`.
 """
 
-from .chain import chain, check_homography, corner_error, frame_corners, normalize, scale_homography
+from .chain import (
+                        chain,
+                        check_homography,
+                        corner_error,
+                        frame_corners,
+                        normalize,
+                        scale_homography,
+)
 from .frame2frame import EstimateStats, estimate_homography, frame_quality, to_gray
 from .mapref import RefineStats, mutual_information_surface, refine_against_map
-from .registrar import (STATUSES, FrameRegistrar, read_registration_csv, register_frames,
-                        write_registration_csv)
+from .registrar import (
+                        STATUSES,
+                        FrameRegistrar,
+                        read_registration_csv,
+                        register_frames,
+                        write_registration_csv,
+)
 
 __all__ = [
-    "FrameRegistrar", "register_frames", "write_registration_csv", "read_registration_csv",
-    "STATUSES", "estimate_homography", "EstimateStats", "frame_quality", "to_gray", "chain",
-    "check_homography", "corner_error", "frame_corners", "normalize", "scale_homography",
-    "refine_against_map", "RefineStats", "mutual_information_surface",
+                        "STATUSES",
+                        "EstimateStats",
+                        "FrameRegistrar",
+                        "RefineStats",
+                        "chain",
+                        "check_homography",
+                        "corner_error",
+                        "estimate_homography",
+                        "frame_corners",
+                        "frame_quality",
+                        "mutual_information_surface",
+                        "normalize",
+                        "read_registration_csv",
+                        "refine_against_map",
+                        "register_frames",
+                        "scale_homography",
+                        "to_gray",
+                        "write_registration_csv",
 ]

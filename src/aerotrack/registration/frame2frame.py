@@ -95,7 +95,7 @@ def frame_quality(gray: np.ndarray, *, min_contrast: float = 4.0, max_saturated:
     Failure or None
     """
     g = gray[::2]  # every other row: adjacency along rows is kept, half the cost
-    mean, std = cv2.meanStdDev(g)
+    _, std = cv2.meanStdDev(g)
     sd = float(std[0, 0])
     if sd < min_contrast:
         return Failure(f"blank frame (grey-level std {sd:.1f})")

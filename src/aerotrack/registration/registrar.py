@@ -24,8 +24,15 @@ from ..errors import ConfigError, InputError
 from ..io.output import atomic_write_text
 from ..types import Failure, Frame, Registration
 from .chain import normalize, scale_homography
-from .frame2frame import (ESTIMATORS, METHODS, boxes_mask, detect_features, estimate_homography,
-                          frame_quality, to_gray)
+from .frame2frame import (
+    ESTIMATORS,
+    METHODS,
+    boxes_mask,
+    detect_features,
+    estimate_homography,
+    frame_quality,
+    to_gray,
+)
 from .mapref import refine_against_map
 
 log = logging.getLogger("aerotrack.registration")
