@@ -84,12 +84,9 @@ def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the CLI, mapping aerotrack errors to exit code 2."""
     try:
         cli.main(args=argv, prog_name="aerotrack", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("aerotrack: interrupted", err=True)
-        sys.exit(130)
-    except KeyboardInterrupt:
-        click.echo("aerotrack: interrupted; finished work is kept in the output's .partial/ "
-                   "(continue with --resume)", err=True)
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        click.echo("aerotrack: interrupted; finished work is kept in the output folder's "
+                   ".partial/ (continue with --resume)", err=True)
         sys.exit(130)
     except click.exceptions.ClickException as exc:
         exc.show()
