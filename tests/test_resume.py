@@ -90,3 +90,23 @@ def test_cli_ctrl_c_keeps_partial_and_resume_finishes(tmp_path):
     assert summary["frames"] == 3000
     assert len(read_mot(out / "tracks.csv")) > 0
     assert not (out / ".partial").exists()
+
+
+def test_track_from_cached_stages(tmp_path, capsys):
+    d = tmp_path / "d.txt"
+    write_mot(d, detections(n_frames=150))
+    first = tmp_path / "first"
+    main(["-q", "track", "--detections", str(d), "--out", str(first)])
+    assert list((first / "stages").glob("chunk_*.npz"))
+    again = tmp_path / "again"
+    main(["-q", "track", "--from", str(first), "--out", str(again)])
+    assert (again / "tracks.csv").read_text() == (first / "tracks.csv").read_text()
+    other = tmp_path / "other"
+    main(["-q", "track", "--from", str(first), "--out", str(other), "--set",
+          "association.min_tracklet_s=2.0"])
+    assert "min_tracklet_s = 2.0" in (other / "config.toml").read_text()
+    assert len(read_mot(other / "tracks.csv")) <= len(read_mot(first / "tracks.csv"))
+    with pytest.raises(SystemExit) as exc:
+        main(["track", "--from", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")])
+    assert exc.value.code == 2
+    assert "no cached stages" in capsys.readouterr().err

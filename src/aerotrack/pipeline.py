@@ -300,6 +300,7 @@ class Pipeline:
     def finish(self) -> Result:
         """Flush every stage and link tracklets into final tracks."""
         self.finish_local()
+        self.checkpoint()  # the last chunk: checkpoints then hold every stage result
         t0 = time.perf_counter()
         tracks = self._link(self.tracklets)
         if self.min_speed_mps:
@@ -418,6 +419,28 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     except KeyboardInterrupt:
         pipe.checkpoint()
         raise
+    return pipe.finish()
+
+
+def run_cached(stages: Path, *, config: Config | None = None, fps: float,
+               geomap: GeoMap | None = None, seed: int = 0, metres_per_unit: float | None = None,
+               frame_size: tuple[int, int] | None = None, regions: list | None = None,
+               min_speed_mps: float | None = None) -> Result:
+    """Association and linking alone, on the registrations and detections cached by an earlier
+    run (its ``stages/`` folder): changing association parameters does not redo registration and
+    detection."""
+    from .io.checkpoint import load_chunks
+
+    config = config or Config()
+    regs, dets, _ = load_chunks(stages)
+    pipe = Pipeline(config, fps, geomap=geomap, seed=seed, detections={},
+                    metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps)
+    pipe.registrations.update(regs)
+    pipe.frame_size = frame_size
+    frames = sorted({*regs, *(d.frame for d in dets)})
+    if frames:
+        pipe.first_frame, pipe.last_frame, pipe.n_frames = frames[0], frames[-1], len(frames)
+    pipe._associate(sorted(dets, key=lambda d: d.frame))
     return pipe.finish()
 
 

@@ -167,6 +167,9 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Process frames A..B only (1-based, inclusive; either end may be empty).")
 @click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
               help="Use every N-th frame.")
+@click.option("--from", "from_dir", type=click.Path(path_type=Path), default=None,
+              help="Reuse the registrations and detections cached by an earlier run in this folder "
+                   "(its stages/): only association and linking run again.")
 @click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in --out.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
@@ -178,7 +181,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_path, gsd, fps,
                   seed, config_path, overrides, telemetry_path, intrinsics_path, roi_paths,
                   ignore_paths, min_speed, out_crs, frame_range, stride, overwrite, resume,
-                  workers, scheduler):
+                  workers, scheduler, from_dir=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -200,6 +203,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     from ..errors import InputError
 
     config = load_config(config_path, overrides)
+    if from_dir is not None:
+        return _track_from_cache(ctx, from_dir, out_dir, config, map_path, seed, gsd, fps,
+                                 min_speed, out_crs, overwrite)
     start, stop = parse_frame_range(frame_range)
     if min_speed is not None and not min_speed >= 0:
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
@@ -253,9 +259,55 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     }
     summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                             out_crs=out_crs)
-    out.finish()
+    out.finish(keep_as="stages")
     c = summary["counts"]
     if not quiet:
         click.echo(
             f"aerotrack: {result.frames} frames, {c['detections']} detections, {c['tracks']} tracks "
             f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s)", err=True)
+
+
+def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed, gsd, fps,
+                      min_speed, out_crs, overwrite) -> None:
+    """``track --from DIR``: association and linking on DIR/stages."""
+    import json
+
+    from ..errors import InputError
+    from ..geo import GeoMap
+    from ..io.output import OutputDir
+    from ..outputs import write_outputs
+    from ..pipeline import run_cached
+
+    stages = Path(from_dir) / "stages"
+    summary_path = Path(from_dir) / "summary.json"
+    if not stages.is_dir() or not summary_path.is_file():
+        raise InputError(f"--from {from_dir}: no cached stages (stages/ and summary.json) there; "
+                         "run `aerotrack track` into that folder first")
+    try:
+        prev = json.loads(summary_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"--from {from_dir}: unreadable summary.json ({exc})") from None
+    map_path = map_path or prev.get("map")
+    geomap = GeoMap(map_path) if map_path else None
+    fps = fps or prev.get("fps") or 30.0
+    mpu = None if geomap else (gsd or prev.get("metres_per_unit"))
+    same = Path(out_dir).resolve() == Path(from_dir).resolve()
+    out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
+    t0 = time.perf_counter()
+    result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
+                        metres_per_unit=mpu, frame_size=tuple(prev["frame_size"])
+                        if prev.get("frame_size") else None, min_speed_mps=min_speed)
+    info = {"input": prev.get("input"), "detections": prev.get("detections"),
+            "map": str(map_path) if map_path else None, "seed": seed, "from": str(from_dir),
+            "wall_time_s": round(time.perf_counter() - t0, 3)}
+    summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
+                            out_crs=out_crs)
+    if not same:
+        import shutil
+
+        shutil.copytree(stages, out.path / "stages", dirs_exist_ok=True)
+    out.finish()
+    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    if not quiet:
+        click.echo(f"aerotrack: association and linking on cached stages of {from_dir}: "
+                   f"{summary['counts']['tracks']} tracks -> {out.path}/tracks.csv", err=True)

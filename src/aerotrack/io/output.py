@@ -109,6 +109,12 @@ class OutputDir:
         atomic_write_text(dest, text)
         return dest
 
-    def finish(self) -> None:
-        """Remove ``.partial/`` once every final file is in place."""
-        shutil.rmtree(self.partial, ignore_errors=True)
+    def finish(self, keep_as: str | None = None) -> None:
+        """Once every final file is in place: remove ``.partial/``, or keep its content under the
+        name ``keep_as`` (``stages/``: cached registrations and detections for ``track --from``)."""
+        if keep_as is None:
+            shutil.rmtree(self.partial, ignore_errors=True)
+            return
+        dest = self.path / keep_as
+        shutil.rmtree(dest, ignore_errors=True)
+        os.replace(self.partial, dest)
