@@ -103,8 +103,8 @@ def test_track_from_cached_stages(tmp_path, capsys):
     assert (again / "tracks.csv").read_text() == (first / "tracks.csv").read_text()
     other = tmp_path / "other"
     main(["-q", "track", "--from", str(first), "--out", str(other), "--set",
-          "association.min_tracklet_s=2.0"])
-    assert "min_tracklet_s = 2.0" in (other / "config.toml").read_text()
+          "association.min_length_s=2.0"])
+    assert "min_length_s = 2.0" in (other / "config.toml").read_text()
     assert len(read_mot(other / "tracks.csv")) <= len(read_mot(first / "tracks.csv"))
     with pytest.raises(SystemExit) as exc:
         main(["track", "--from", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")])
