@@ -218,14 +218,14 @@ class Pipeline:
             for region in self.regions:
                 if len(dets):
                     dets = dets.subset(region.keep_detections(dets.centers, dets.world))
-            self.detections.append(dets)
+            self.detections.append(_light(dets))
             self._pending_dets.append(dets)
             if len(dets):
                 size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
                 self._last_boxes_world = np.hstack([dets.world, size])
             else:
                 self._last_boxes_world = None
-            self.tracklets.extend(self.associator.step(dets))
+            self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
         self.timings["association"] += time.perf_counter() - t0
 
     def step_detections_only(self, index: int) -> None:
@@ -293,7 +293,7 @@ class Pipeline:
             self.timings["detection"] += time.perf_counter() - t0
             self._associate(rest)
         t0 = time.perf_counter()
-        self.tracklets.extend(self.associator.flush())
+        self.tracklets.extend(_thin_appearance(t) for t in self.associator.flush())
         self.timings["association"] += time.perf_counter() - t0
         return self.tracklets
 
@@ -336,6 +336,40 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     linker = GlobalLinker(config.linking, config.context, fps, metres_per_unit=metres_per_unit)
     tracks = linker.link(tracklets, frame_size=frame_size, registrations=registrations or None)
     return _renumber(tracks)
+
+
+#: Observed points per tracklet that keep their appearance data (first, last and evenly spread).
+APPEARANCE_KEEP = 24
+
+
+def _light(dets: Detections) -> Detections:
+    """The detections without appearance arrays: what outputs need, so a long run's memory is not
+    held by per-blob histograms and descriptors (the checkpoints keep the full data)."""
+    if dets.hist is None and not dets.extra:
+        return dets
+    return Detections(frame=dets.frame, boxes=dets.boxes, conf=dets.conf, world=dets.world,
+                      mapxy=dets.mapxy, lonlat=dets.lonlat, size_world=dets.size_world)
+
+
+def _thin_appearance(tracklet: Track, keep: int = APPEARANCE_KEEP) -> Track:
+    """Keep appearance (``hist``, ``desc``) on at most ~``3 * keep`` observed points of a finished
+    tracklet: its first and last ``keep`` and ``keep`` evenly spread between.
+
+    Global linking compares a tracklet's ends and its accumulated descriptor; a descriptor summed
+    over a few dozen blobs is as good as over thousands, and this bounds memory per tracklet
+    instead of growing with its length.
+    """
+    obs = [i for i, p in enumerate(tracklet.points) if p.hist is not None or p.desc is not None]
+    if len(obs) <= 3 * keep:
+        return tracklet
+    spread = np.linspace(keep, len(obs) - keep - 1, keep).round().astype(int)
+    kept = {*obs[:keep], *obs[-keep:], *(obs[i] for i in spread)}
+    for i in obs:
+        if i not in kept:
+            p = tracklet.points[i]
+            p.hist = None
+            p.desc = None
+    return tracklet
 
 
 def _renumber(tracks: list[Track]) -> list[Track]:
