@@ -101,7 +101,8 @@ def make_video(folder: Path, n: int, size: tuple[int, int], fps: float) -> dict:
         if info.get("frames") == n and info.get("size") == list(size) and info.get("fps") == fps:
             return info
     folder.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "aerotrack", "synth", "--out", str(folder), "--frames", str(n)]
+    cmd = [sys.executable, "-m", "aerotrack", "synth", "--out", str(folder), "--frames", str(n),
+           "--size", f"{size[0]}x{size[1]}", "--fps", f"{fps:g}", "--overwrite"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode == 0 and (folder / "frames").is_dir() and (folder / "gt.txt").is_file():
         generator = "aerotrack synth"
@@ -215,7 +216,7 @@ def main() -> None:
     from aerotrack.evaluation import evaluate
 
     size = tuple(int(v) for v in a.size.lower().split("x"))
-    folder = WORK / f"parallel-{a.frames}-{size[0]}x{size[1]}-{a.fps:g}"
+    folder = WORK / f"parallel-synth-{a.frames}-{size[0]}x{size[1]}-{a.fps:g}"
     info = make_video(folder, a.frames, size, a.fps)
     gt = np.loadtxt(folder / "gt.txt", delimiter=",", ndmin=2)
     runs: dict[str, dict] = {}

@@ -98,8 +98,8 @@ def test_plan_partitions_frames_and_cuts_mid_overlap(n, stride, min_segments):
 
 def test_overlap_defaults_to_the_stage_windows_and_refuses_less():
     config = Config()
-    assert ParallelConfig().overlap(config) == (config.detection.window_s
-                                                + config.association.window_s)
+    assert ParallelConfig().overlap(config) == 2 * (config.detection.window_s
+                                                    + config.association.window_s)
     with pytest.raises(InputError, match="overlap_s"):
         ParallelConfig(overlap_s=config.detection.window_s / 2).overlap(config)
 
@@ -180,7 +180,8 @@ def test_segments_on_a_cluster_match_the_single_process(scene, client, tmp_path)
     single = run(src, metres_per_unit=0.3)
     done = []
     par, report = run_parallel(src, client=client, metres_per_unit=0.3, with_report=True,
-                               parallel=ParallelConfig(segment_s=4.0, min_segments=2),
+                               parallel=ParallelConfig(segment_s=4.0, overlap_s=4.5,
+                                                       min_segments=2),
                                checkpoint_dir=tmp_path, progress=done.append)
     assert done[-1] == 120 and done == sorted(done)
     # finished segments were saved: resuming runs nothing (no client needed)
@@ -226,7 +227,8 @@ def test_segments_with_a_map_chain_into_map_pixels(scene, client):
 
     par, report = run_parallel(open_source(folder, FPS), client=client, geomap=geomap,
                                H_init=truth(1), with_report=True,
-                               parallel=ParallelConfig(segment_s=4.0, min_segments=2))
+                               parallel=ParallelConfig(segment_s=4.0, overlap_s=4.5,
+                                                       min_segments=2))
     assert len(report.world_rms) == 1
     corners = np.array([[0, 0], [240, 0], [240, 180], [0, 180.0]])
     err = [np.abs(apply_homography(par.registrations[f].H, corners)

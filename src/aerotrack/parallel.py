@@ -34,15 +34,22 @@ are chained into map pixels as above. Their drift is therefore not corrected aga
 (``refined`` registrations only occur in segment 0); for long flights over a map the single
 process is more accurate.
 
-Differences from the single process (measured by ``benchmarks/parallel.py``: 900 generated frames,
-2 segments, the same code in every run). Frames before the first cut are identical. After it,
-results differ for two reasons that are not specific to the join: the MCMC of local association
-restarts its random stream at the segment's first frame (the same detections associated with
-another seed agree with seed 0 only to HOTA 0.86 / IDF1 0.87 on that video), and the background
-model is resampled on a world grid with another sub-pixel phase (segment k's world is its own first
-frame; chained to world 0 with 0.05 px RMS disagreement), so a few blobs near the threshold change.
-The join itself stitched every tracklet that crossed the cut. Against the ground truth the two-
-segment run scored HOTA +0.006 and IDF1 +0.000 relative to the single process.
+Differences from the single process (generated 900-frame video at 15 frames/s, 2 segments, the
+same code in every run; see ``benchmarks/parallel.py``). Frames before the first cut are identical.
+After it results differ, for reasons that are not the join itself (which stitched every tracklet
+crossing the cut):
+
+* the detector settles only 4-6 s after a segment's first frame (more than half its background
+  window), hence the default overlap of ``2 * (detection.window_s + association.window_s)``; with
+  half of that, detections just after the cut differed and the run lost 0.014 HOTA / 0.022 IDF1;
+* the MCMC of local association restarts its random stream at the segment's first frame. The
+  single process itself moves by that much with another seed: seeds 1 and 2 changed HOTA by
+  -0.007 / +0.002 and IDF1 by -0.022 / -0.008 on the same video;
+* segment k's world is its own first frame, chained to world 0 (0.05-0.1 px RMS), so the
+  background is resampled with another sub-pixel phase and a few borderline blobs change.
+
+With the default overlap (9 s) the two-segment run scored HOTA +0.004 and IDF1 -0.000 relative to
+the single process.
 """
 
 from __future__ import annotations
@@ -90,11 +97,13 @@ class ParallelConfig:
         ``overlap_s`` more than it owns).
     overlap_s : float or None
         Frames read by both neighbours, in seconds; None uses
-        ``detection.window_s + association.window_s``, so that at the cut (the middle of the
-        overlap) each side has the full centred background window and half an association
-        window of context beyond it. Less than ``detection.window_s`` is refused: frames near
-        the cut would then be detected with a one-sided background and differ from the single
-        process.
+        ``2 * (detection.window_s + association.window_s)``: at the cut (the middle of the
+        overlap) each side has then run a whole background window and a whole association window.
+        Half of that would already give a centred background window at the cut, but the detector
+        settles more slowly after its first frame (measured on a generated 15 frames/s video:
+        detections still differ from the single process's 4-6 s after a segment's start, and a
+        4.5 s overlap cost 0.014 HOTA / 0.022 IDF1 where 9 s cost +0.004 / -0.000). Less than
+        ``detection.window_s`` is refused.
     min_segments : int
         At least this many segments when the video is long enough (use the number of workers).
     match_px : float
@@ -116,7 +125,7 @@ class ParallelConfig:
         """The overlap in seconds, resolved against the stage windows of ``config``."""
         need = config.detection.window_s
         if self.overlap_s is None:
-            return config.detection.window_s + config.association.window_s
+            return 2.0 * (config.detection.window_s + config.association.window_s)
         if self.overlap_s < need:
             raise ConfigError(f"overlap_s {self.overlap_s}: must be at least detection.window_s "
                               f"({need} s)")
