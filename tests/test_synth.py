@@ -38,7 +38,8 @@ def homographies(path):
 
 def test_files_written(scene):
     for name in ("gt.txt", "states.csv", "homographies.csv", "map.tif", "map_init.txt",
-                 "map_init_gcps.csv", "map_init_lonlat.csv", "occluders.csv", "scenario.json"):
+                 "map_init_gcps.csv", "map_init_lonlat.csv", "occluders.csv", "occluders.geojson",
+                 "scenario.json"):
         assert (scene / name).is_file(), name
     assert len(list((scene / "frames").glob("*.jpg"))) == N
     assert (scene / "frames" / "000001.jpg").is_file()
@@ -125,6 +126,27 @@ def test_occluders_hide_vehicles():
         s = "".join("v" if x == "visible" else ("h" if x == "occluded" else "x") for x in seq)
         reappeared += s.count("vh") > 0 and "hv" in s
     assert reappeared >= 1
+
+
+def test_occluder_outlines_agree_with_states(scene):
+    """occluders.geojson (map pixels) decides the occluded state, up to half a map pixel."""
+    feats = json.loads((scene / "occluders.geojson").read_text())["features"]
+    assert {f["properties"]["kind"] for f in feats} >= {"tree", "overpass"}
+    rings = []
+    for f in feats:
+        g = f["geometry"]
+        polys = [g["coordinates"]] if g["type"] == "Polygon" else g["coordinates"]
+        rings += [np.asarray(p[0], np.float32) for p in polys]
+    checked = 0
+    for s in states(scene / "states.csv"):
+        if s["state"] == "outside":
+            continue
+        pt = (float(s["map_x"]), float(s["map_y"]))
+        d = max(cv2.pointPolygonTest(r, pt, True) for r in rings)
+        if abs(d) > 0.75:  # clear of every outline's edge
+            assert (d > 0) == (s["state"] == "occluded"), (s, d)
+            checked += 1
+    assert checked > 50
 
 
 def test_deterministic(tmp_path):

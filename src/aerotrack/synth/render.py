@@ -26,7 +26,8 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     ``states.csv`` (every target every frame: state visible/occluded/outside, map pixel and lon/lat
     position, box, heading, speed), ``homographies.csv`` (true frame -> map pixels), ``map.tif``,
     ``map_init.txt`` (frame-1 homography), ``map_init_gcps.csv`` and ``map_init_lonlat.csv``
-    (control points), ``occluders.csv`` and ``scenario.json``.
+    (control points), ``occluders.csv`` (bounding boxes), ``occluders.geojson`` (outlines in map
+    pixels) and ``scenario.json``.
     """
     if not isinstance(out, OutputDir):
         out = OutputDir(out)
@@ -78,6 +79,7 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     atomic_write_text(out.file("occluders.csv"), "kind,x0,y0,x1,y1\n" + "".join(
         f"{o['kind']},{o['x0']:.1f},{o['y0']:.1f},{o['x1']:.1f},{o['y1']:.1f}\n"
         for o in world.occluders))
+    atomic_write_text(out.file("occluders.geojson"), _occluders_geojson(world))
     info = {
         "seed": seed, "scenario": scenario, "frames": frames, "fps": fps, "size": list(size),
         "map_metres_per_pixel": [world.mx, world.my], "camera_gsd_m": sc.camera.gsd0,
@@ -89,6 +91,29 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     atomic_write_text(out.file("scenario.json"), json.dumps(info, indent=2) + "\n")
     out.finish()
     return info
+
+
+def _occluders_geojson(world) -> str:
+    """Occluder outlines as a GeoJSON FeatureCollection in **map pixels** (col, row), not lon/lat.
+
+    One feature per occluder (``kind`` tree or overpass), a Polygon or MultiPolygon of its mask's
+    outline(s); each feature also carries ``lonlat``, the same rings in degrees, for GIS tools.
+    """
+    feats = []
+    for i, o in enumerate(world.occluders, start=1):
+        rings = [np.vstack([q, q[:1]]) for q in o.get("polygons", [])]
+        if not rings:
+            continue
+        px = [[[round(float(x), 3), round(float(y), 3)] for x, y in r] for r in rings]
+        ll = [[[round(float(x), 9), round(float(y), 9)] for x, y in world.geomap.pixel_to_lonlat(r)]
+              for r in rings]
+        geom = ({"type": "Polygon", "coordinates": px} if len(px) == 1
+                else {"type": "MultiPolygon", "coordinates": [[r] for r in px]})
+        feats.append({"type": "Feature", "id": i,
+                      "properties": {"kind": o["kind"], "crs": "map pixels (col, row)",
+                                     "lonlat": ll},
+                      "geometry": geom})
+    return json.dumps({"type": "FeatureCollection", "features": feats}) + "\n"
 
 
 def _write_map(path: Path, world) -> None:

@@ -187,7 +187,8 @@ class World:
             ys, xs = np.nonzero(sel)
             if len(xs):
                 self.occluders.append({"kind": "tree", "x0": float(xs.min()), "y0": float(ys.min()),
-                                       "x1": float(xs.max() + 1), "y1": float(ys.max() + 1)})
+                                       "x1": float(xs.max() + 1), "y1": float(ys.max() + 1),
+                                       "polygons": _outline(sel)})
 
     def _place_overpass(self, rng: np.random.Generator, width_m: float = 22.0) -> None:
         """A concrete deck 22 m wide crossing the longest road at right angles."""
@@ -214,7 +215,8 @@ class World:
         self.occ_mask = np.maximum(self.occ_mask, mask)
         ys, xs = np.nonzero(sel)
         self.occluders.append({"kind": "overpass", "x0": float(xs.min()), "y0": float(ys.min()),
-                               "x1": float(xs.max() + 1), "y1": float(ys.max() + 1)})
+                               "x1": float(xs.max() + 1), "y1": float(ys.max() + 1),
+                               "polygons": _outline(sel)})
 
     def occluded(self, map_px: np.ndarray) -> np.ndarray:
         """Boolean (N,): is the map point under an occluder."""
@@ -232,3 +234,15 @@ class World:
         p = np.clip(np.floor(np.asarray(map_px)).astype(np.int64).reshape(-1, 2),
                     0, [self.width - 1, self.height - 1])
         return self._occ_dist[p[:, 1], p[:, 0]]
+
+
+def _outline(sel: np.ndarray) -> list[np.ndarray]:
+    """Outer outlines of a boolean (H, W) map-pixel mask, as (K, 2) float64 polygons in continuous
+    map pixels (col, row).
+
+    Each outline joins the centres of the mask's boundary pixels (pixel [r, c] covers
+    [c, c+1) x [r, r+1), centre (c + 0.5, r + 0.5)), so point-in-polygon on it agrees with the mask
+    (which decides the ``occluded`` state) except within half a pixel of the edge.
+    """
+    contours, _ = cv2.findContours(sel.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    return [c.reshape(-1, 2).astype(np.float64) + 0.5 for c in contours if len(c) >= 3]
