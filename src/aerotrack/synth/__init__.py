@@ -8,4 +8,4 @@ from .render import perturb_map, render_to
 from .scene import SCENARIOS, Scenario
 from .world import World, colourise
 
-__all__ = ["Scenario", "SCENARIOS", "World", "colourise", "render_to", "perturb_map"]
+__all__ = ["SCENARIOS", "Scenario", "World", "colourise", "perturb_map", "render_to"]

@@ -20,13 +20,13 @@ from .world import World
 
 #: Scenario name -> settings. Each changes what the scene stresses; all share the same world.
 SCENARIOS: dict[str, dict] = {
-    "default": dict(n_vehicles=22, convoys=3, n_trees=10, camera="survey", stop_prob=0.25),
-    "static": dict(n_vehicles=20, convoys=2, n_trees=8, camera="static", stop_prob=0.25),
-    "occlusion": dict(n_vehicles=14, convoys=2, n_trees=18, camera="hover", stop_prob=0.2,
-                      speed=(5.0, 9.0)),
-    "exits": dict(n_vehicles=14, convoys=1, n_trees=6, camera="pan", stop_prob=0.15),
-    "convoy": dict(n_vehicles=18, convoys=5, n_trees=8, camera="survey", stop_prob=0.2),
-    "dense": dict(n_vehicles=40, convoys=4, n_trees=10, camera="survey", stop_prob=0.3),
+    "default": {"n_vehicles": 22, "convoys": 3, "n_trees": 10, "camera": "survey", "stop_prob": 0.25},
+    "static": {"n_vehicles": 20, "convoys": 2, "n_trees": 8, "camera": "static", "stop_prob": 0.25},
+    "occlusion": {"n_vehicles": 14, "convoys": 2, "n_trees": 18, "camera": "hover", "stop_prob": 0.2,
+                      "speed": (5.0, 9.0)},
+    "exits": {"n_vehicles": 14, "convoys": 1, "n_trees": 6, "camera": "pan", "stop_prob": 0.15},
+    "convoy": {"n_vehicles": 18, "convoys": 5, "n_trees": 8, "camera": "survey", "stop_prob": 0.2},
+    "dense": {"n_vehicles": 40, "convoys": 4, "n_trees": 10, "camera": "survey", "stop_prob": 0.3},
 }
 
 VEHICLE_TYPES = [  # kind, length range m, width range m, probability
@@ -192,7 +192,12 @@ class Scenario:
         self.vehicles = self._spawn(rng)
         self._rng = rng
         h, w = size[1], size[0]
-        self._noise = rng.normal(0, 2.5, (h + 64, w + 64, 3)).astype(np.float32)
+        noise = np.round(rng.normal(0, 2.5, (h + 64, w + 64, 3)))
+        # sensor noise as its positive and negative parts, added/subtracted with saturation
+        self._noise_pos = np.clip(noise, 0, 255).astype(np.uint8)
+        self._noise_neg = np.clip(-noise, 0, 255).astype(np.uint8)
+        self._occ_over: np.ndarray | None = None
+        self._occ_keep: np.ndarray | None = None
         self._gain_phase = rng.uniform(0, 2 * np.pi)
 
     @staticmethod
@@ -377,24 +382,30 @@ class Scenario:
             sh = world.to_map(self.footprint(v) + SUN) - origin
             cv2.fillConvexPoly(shadow, np.round(sh * 8).astype(np.int32), 255, cv2.LINE_AA, 3)
             bodies.append((v, fp))
+        # Integer OpenCV arithmetic on the crop (float numpy here cost most of the render time).
         if bodies:
-            soft = cv2.GaussianBlur(shadow, (0, 0), 1.2).astype(np.float32) / 255.0
-            canvas = (canvas * (1.0 - 0.5 * soft[..., None])).astype(np.uint8)
+            soft = cv2.GaussianBlur(shadow, (0, 0), 1.2)
+            keep = cv2.cvtColor(255 - (soft >> 1), cv2.COLOR_GRAY2BGR)  # 1 - 0.5 * shadow
+            canvas = cv2.multiply(canvas, keep, scale=1.0 / 255.0)
         for v, fp in bodies:
             self._draw_vehicle(canvas, v, fp)
-        occ = _padded(world.occ_mask, cy0, cy1, cx0, cx1, pad)
-        if occ.any():
-            a = (occ.astype(np.float32) / 255.0)[..., None]
-            layer = _padded(world.occ_layer, cy0, cy1, cx0, cx1, pad)
-            canvas = (canvas * (1 - a) + layer * a).astype(np.uint8)
+        if world.occ_mask[cy0:cy1, cx0:cx1].any() or any(pad):
+            if self._occ_over is None:
+                a = world.occ_mask.astype(np.float32)[..., None] / 255.0
+                self._occ_over = np.round(world.occ_layer * a).astype(np.uint8)  # premultiplied
+                self._occ_keep = cv2.cvtColor(255 - world.occ_mask, cv2.COLOR_GRAY2BGR)
+            keep = _padded(self._occ_keep, cy0, cy1, cx0, cx1, pad)
+            over = _padded(self._occ_over, cy0, cy1, cx0, cx1, pad)
+            canvas = cv2.add(cv2.multiply(canvas, keep, scale=1.0 / 255.0), over)
         shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]])
         M = np.linalg.inv(shift @ H)
         frame = cv2.warpPerspective(canvas, M, (w, h), flags=cv2.INTER_LINEAR,
                                     borderMode=cv2.BORDER_REPLICATE)
         gain = 1.0 + 0.06 * math.sin(2 * math.pi * t / 17.0 + self._gain_phase)
         ox, oy = self._rng.integers(0, 64, 2)
-        noisy = frame.astype(np.float32) * gain + self._noise[oy:oy + h, ox:ox + w]
-        return np.clip(noisy, 0, 255).astype(np.uint8)
+        frame = cv2.multiply(frame, (gain, gain, gain, 0.0))
+        frame = cv2.add(frame, self._noise_pos[oy:oy + h, ox:ox + w])
+        return cv2.subtract(frame, self._noise_neg[oy:oy + h, ox:ox + w])
 
     def _draw_vehicle(self, canvas: np.ndarray, v: Vehicle, fp: np.ndarray) -> None:
         col = tuple(float(c) for c in v.colour)
