@@ -102,6 +102,14 @@ class Camera:
         self.speed = {"hover": 2.0, "survey": 4.0, "pan": 7.0}.get(mode, 4.0)
         self.dwell = {"hover": 10.0, "survey": 4.0, "pan": 1.0}.get(mode, 4.0)
         self.route = self._waypoints(rng)
+        if mode == "hover":
+            # hover over the overpass, where most road occlusions happen (no extra rng draws, so
+            # the other modes' scenes are unchanged)
+            deck = [o for o in world.occluders if o["kind"] == "overpass"]
+            if deck:
+                o = deck[0]
+                c = world.to_metric(np.array([[(o["x0"] + o["x1"]) / 2, (o["y0"] + o["y1"]) / 2]]))
+                self.route[0] = np.clip(c[0], self.lo, self.hi)
 
     def _waypoints(self, rng: np.random.Generator) -> np.ndarray:
         """Camera centre waypoints (metric): road junctions clipped into the allowed box, so the
@@ -218,6 +226,9 @@ class Scenario:
         speed = self.settings.get("speed", (6.0, 12.0))
         roads = self.world.roads
         weights = np.array([r.length for r in roads])
+        if self.settings["camera"] == "hover":
+            # the hovering camera watches the overpass on the longest road: put traffic there
+            weights[int(np.argmax(weights))] *= 6.0
         out: list[Vehicle] = []
         vid = 1
         convoys = self.settings["convoys"]
