@@ -537,7 +537,9 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         raise InputError(f"--workers {workers}: must be at least 1")
     cluster = distributed.LocalCluster(
         n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-        dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR)
+        dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR,
+        # no dashboard; the scheduler's HTTP endpoints on a free loopback port, not 8787
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     try:
         client = distributed.Client(cluster)
         try:
