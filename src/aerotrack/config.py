@@ -343,9 +343,23 @@ class LinkingConfig:
     max_cost : float
         A pair whose fused cost exceeds this is never linked (the cost of "a new target").
     min_tracklet_s : float
-        Tracklets shorter than this still link but do not get their own prediction horizon.
+        Tracks (chains of linked tracklets, first to last observation) shorter than this get no
+        prediction after their end: most are false alarms or split blobs.
     predict_gaps : bool
         Add ``predicted`` points in the frames between linked tracklets and after a track's end.
+    lag_sigma_growth_mps : float
+        How far a target may fall behind its predicted position per second of gap (slowing down,
+        waiting at a light behind an occluder), metres per second. Larger links stop-and-go
+        targets after long gaps but lets a later look-alike on the same path take the identity.
+    turn_max_gap_s : float
+        Gaps up to this long may hide a turn or U-turn: a link may then change heading freely if
+        its speed and reach are consistent (the tracklet often breaks exactly there).
+    turn_cost : float
+        Extra cost of that manoeuvre hypothesis over a straight continuation.
+    in_view_horizon_s : float
+        A track's final prediction stops once its predicted position has been inside the frame
+        this long (it should have been detected again: a lost or spurious track); outside the
+        frame it runs to ``context.prediction_horizon_s``. Needs registrations (frames).
     """
 
     max_gap_s: float = 12.0
@@ -361,8 +375,12 @@ class LinkingConfig:
     weight_appearance: float = 1.0
     weight_descriptor: float = 0.5
     max_cost: float = 6.0
-    min_tracklet_s: float = 0.2
+    min_tracklet_s: float = 1.0
     predict_gaps: bool = True
+    lag_sigma_growth_mps: float = 6.0
+    turn_max_gap_s: float = 1.5
+    turn_cost: float = 2.0
+    in_view_horizon_s: float = 4.0
 
 
 @dataclass(frozen=True)

@@ -103,10 +103,10 @@ class GlobalLinker:
             Local association's tracklets; points in world coordinates (``TrackPoint.world``),
             observed points may carry ``hist`` and ``desc``.
         frame_size : (W, H), optional
-            Unused by the decision (kept for the stage interface); predicted points are projected
-            to frame pixels by the output writer with ``registrations``.
+            With ``registrations``: a track's final prediction stops once it has lain inside the
+            frame for ``in_view_horizon_s`` (:meth:`_tail_length`).
         registrations : dict frame -> Registration, optional
-            Unused here, see ``frame_size``.
+            Frame pixels -> world of every frame.
 
         Returns
         -------
@@ -123,7 +123,7 @@ class GlobalLinker:
             log.info("linking: no scale known; taking the median object (%.1f world units) as %.1f m",
                      self.ctx.image_object_size_m / self.mpu, self.ctx.image_object_size_m)
         links, _ = self.solve(tl)
-        return self.build_tracks(tl, links)
+        return self.build_tracks(tl, links, registrations, frame_size)
 
     def solve(self, tl: list[Track]) -> tuple[dict[int, int], np.ndarray]:
         """Links as {index of a: index of b} and the (n, n) cost matrix (inf where inconsistent)."""
@@ -150,6 +150,10 @@ class GlobalLinker:
                 gap_s = gaps[b] / self.fps
                 d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
                 dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
+                if gap_s <= c.turn_max_gap_s:
+                    # a turn may hide in the gap and in the velocity windows: only the speed
+                    dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
+                    gap_s += self.ctx.history_s
                 if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
                         dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
                     cand.setdefault(a, []).append(int(b))
@@ -175,12 +179,8 @@ class GlobalLinker:
                 gap = int(first[b] - last[a])
                 m = float("nan")
                 if a in preds:
-                    d = float(np.hypot(*(preds[a][gap - 1] - pos[b][1][0]))) * self.mpu
-                    # backward: b's start state run back to a's last frame (constant velocity)
-                    back = starts[b][0] - starts[b][1] * gap
-                    d = 0.5 * (d + float(np.hypot(*(back - pos[a][1][-1]))) * self.mpu)
-                    dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
-                    m = motion_cost(d, gap / self.fps, c, dv)
+                    m = self._motion(preds[a][:gap], pos[a][1][-1], pos[b][1][0], ends[a],
+                                     starts[b], gap)
                 ap = float("nan")
                 if c.weight_appearance > 0 and a in app.intra:
                     s = track_histograms(tl[b], max_obs=5)
@@ -199,10 +199,44 @@ class GlobalLinker:
         self._pred = preds
         return _assign(C, c.max_cost), C
 
+    def _motion(self, pred: np.ndarray, a_end: np.ndarray, b_start: np.ndarray, end_state,
+                start_state, gap: int) -> float:
+        """Motion cost of linking a (ending at ``a_end``, predicted ``pred`` (gap, 2) world) to b
+        (starting at ``b_start`` ``gap`` frames later), :func:`~aerotrack.context.reacquire.motion_cost`.
+
+        The distance is from b's start to the *path* a was predicted to follow (its last position
+        included), and from a's end to b's constant-velocity backward path, averaged; how far along
+        each path the closest point falls short of the full gap is the lag (the target slowed
+        down or stopped while unseen)."""
+        c, mpu, fps = self.config, self.mpu, self.fps
+        path = np.vstack([a_end[None], pred])
+        dist = np.hypot(*(path - b_start).T)
+        k = int(np.argmin(dist))
+        d_f, lag_f = float(dist[k]) * mpu, float(np.hypot(*(path[-1] - path[k]))) * mpu
+        p0, vb = np.asarray(start_state[0], float), np.asarray(start_state[1], float)
+        vv = float(vb @ vb)
+        t = float(np.clip((p0 - a_end) @ vb / vv, 0.0, gap)) if vv > 0 else 0.0
+        d_b = float(np.hypot(*(p0 - vb * t - a_end))) * mpu
+        lag_b = (gap - t) * np.sqrt(vv) * mpu
+        va = np.asarray(end_state[1], float)
+        dv = float(np.hypot(*(vb - va))) * mpu * fps
+        gap_s = gap / fps
+        turn = None
+        if gap_s <= c.turn_max_gap_s:
+            sa, sb = _speed(va) * mpu * fps, _speed(vb) * mpu * fps
+            reach = max(sa, sb) * gap_s
+            chord = float(np.hypot(*(b_start - a_end))) * mpu
+            turn = (max(0.0, chord - reach), abs(sb - sa))
+        log.debug("motion: d %.2f/%.2f m lag %.1f/%.1f m dv %.2f m/s turn %s", d_f, d_b, lag_f,
+                  lag_b, dv, turn)
+        return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn)
+
     # -- output -----------------------------------------------------------------------------------
 
-    def build_tracks(self, tl: list[Track], links: dict[int, int]) -> list[Track]:
-        """One track per chain of links, with predicted points in gaps and after the end."""
+    def build_tracks(self, tl: list[Track], links: dict[int, int], registrations=None,
+                     frame_size: tuple[int, int] | None = None) -> list[Track]:
+        """One track per chain of links, with predicted points in gaps and after the end (cut
+        short by :meth:`_tail_length` when ``registrations`` and ``frame_size`` are given)."""
         has_pred = set(links.values())
         video_end = max(t.last for t in tl)
         horizon = int(round(self.ctx.prediction_horizon_s * self.fps))
@@ -232,14 +266,39 @@ class GlobalLinker:
                         points.extend(_predicted(last_obs, pr[:gap - 1] + ramp * miss))
                 else:
                     h = min(horizon, video_end - last_obs.frame)
-                    if h > 0 and (tl[i].last - tl[i].first) >= min_len:
-                        points.extend(_predicted(last_obs, self._forward(tl, i, h)))
+                    if h > 0 and (tl[i].last - tl[chain[0]].first) >= min_len:
+                        pr = self._forward(tl, i, h)
+                        pr = pr[:self._tail_length(last_obs.frame, pr, registrations, frame_size)]
+                        points.extend(_predicted(last_obs, pr))
             points.sort(key=lambda p: p.frame)
             out.append(Track(id=0, points=points))
         out.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
         for k, t in enumerate(out, start=1):
             t.id = k
         return out
+
+    def _tail_length(self, last: int, pr: np.ndarray, registrations, frame_size) -> int:
+        """How many of a track's final predictions (``pr`` (h, 2) world, frames last+1..) to keep.
+
+        A target whose predicted position stays inside the frame should be detected again: once
+        it has been predicted in view for ``in_view_horizon_s`` (an occlusion longer than that, or
+        a lost or spurious track) the prediction stops. Outside the frame (an exit) it runs on to
+        ``prediction_horizon_s``. Without registrations or frame size every prediction is kept."""
+        if not registrations or frame_size is None:
+            return len(pr)
+        W, H = frame_size
+        limit = int(round(self.config.in_view_horizon_s * self.fps))
+        inside = 0
+        for k, w in enumerate(pr):
+            reg = registrations.get(last + k + 1)
+            if reg is None:
+                continue
+            q = np.linalg.inv(reg.H) @ np.array([w[0], w[1], 1.0])
+            if q[2] != 0 and 0 <= q[0] / q[2] < W and 0 <= q[1] / q[2] < H:
+                inside += 1
+                if inside > limit:
+                    return k
+        return len(pr)
 
     def _forward(self, tl: list[Track], i: int, h: int) -> np.ndarray:
         """Motion-context prediction of tracklet i for h frames after its last in-view point."""
@@ -266,6 +325,10 @@ def estimate_scale(tracklets: list[Track], object_size_m: float) -> float:
             if size is not None and np.all(np.isfinite(size)) and max(size) > 0:
                 sides.append(float(max(size)))
     return object_size_m / float(np.median(sides)) if sides else 1.0
+
+
+def _speed(v) -> float:
+    return float(np.hypot(*np.asarray(v, dtype=np.float64).reshape(2)))
 
 
 def _table_of(pos: list[tuple[np.ndarray, np.ndarray]]) -> TrackTable:

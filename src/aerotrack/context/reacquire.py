@@ -7,11 +7,13 @@ each scaled like a negative log-likelihood ratio (about 0 to 1 for a true link, 
 one), and links all pairs jointly by minimum total cost (see
 :class:`aerotrack.association.linking.GlobalLinker` and docs/CONTEXT.md):
 
-* motion: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2`` with d the distance, in metres, between
-  where the motion context predicted a to be at b's first frame and where b starts (averaged with
-  the same distance for b's backward prediction to a's last frame), dv the change of velocity, and
-  sigmas growing linearly with the gap: a prediction is trusted less the longer the target was
-  unseen;
+* motion: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2 + 0.5 (lag / sigma_l)^2`` with d the
+  distance, in metres, from b's start to the path the motion context predicted for a (averaged with
+  the same distance of a's end from b's backward path), lag how far behind its prediction the target
+  fell (a stop behind an occluder), dv the change of velocity, and sigmas growing linearly with the
+  gap: a prediction is trusted less the longer the target was unseen. For short gaps a manoeuvre
+  hypothesis (turn, U-turn: heading free, speed and reach kept) competes at an extra cost
+  (:func:`motion_cost`);
 * appearance context: ``0.5 max(0, z2 - 1)`` with z2 the mean squared z-score, under a's
   intra-class model, of the best difference between b's observations (5, spread over b) and a's
   (about 1 for the same target), plus 1 when the inter-class verification against the other
@@ -42,12 +44,45 @@ class Cues:
 
 
 def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
-                speed_change_mps: float = 0.0) -> float:
-    """``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2``: the predicted-versus-observed distance and
-    velocity change in units of their expected errors, which grow with the gap."""
-    sp = config.motion_sigma_m + config.motion_sigma_growth_mps * max(gap_s, 0.0)
-    sv = config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * max(gap_s, 0.0)
-    return 0.5 * (distance_m / sp) ** 2 + 0.5 * (speed_change_mps / sv) ** 2
+                speed_change_mps: float = 0.0, lag_m: float = 0.0,
+                turn: tuple[float, float] | None = None) -> float:
+    """Motion cost of a candidate link: the cheaper of two hypotheses.
+
+    * **along the prediction**: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2 + 0.5 (lag / sigma_l)^2``
+      with d the distance from the predicted path, dv the change of velocity and ``lag`` how far
+      the target fell behind its predicted position (it slowed down or stopped behind an occluder:
+      a queue at a light); the sigmas grow linearly with the gap;
+    * **manoeuvre** (only when ``turn`` is given, for short gaps): a turn or U-turn during or just
+      before the gap, which the end/start velocities (each averaged over up to ``history_s``)
+      cannot follow. ``turn = (excess_m, speed_change_mps)``: the straight-line distance beyond
+      what the target could cover at its speed, and the change of speed (not of heading); it
+      costs ``turn_cost`` more than a straight continuation.
+
+    Parameters
+    ----------
+    distance_m : float
+        Distance from the predicted path (forward and backward averaged), metres.
+    gap_s : float
+        Length of the gap, seconds.
+    speed_change_mps : float
+        Norm of the velocity change between the end of a and the start of b, m/s.
+    lag_m : float
+        Along-path shortfall, metres.
+    turn : (float, float), optional
+        Manoeuvre-hypothesis distance excess (m) and speed change (m/s).
+    """
+    g = max(gap_s, 0.0)
+    sp = config.motion_sigma_m + config.motion_sigma_growth_mps * g
+    sv = config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * g
+    sl = config.motion_sigma_m + config.lag_sigma_growth_mps * g
+    straight = 0.5 * (distance_m / sp) ** 2 + 0.5 * (speed_change_mps / sv) ** 2 \
+        + 0.5 * (lag_m / sl) ** 2
+    if turn is None:
+        return straight
+    excess, dspeed = turn
+    # a turn slows the target; its speed is averaged over windows of up to history_s each side
+    st = sv + 0.5 * config.a_max_mps2 * (g + 1.0)
+    return min(straight, config.turn_cost + 0.5 * (excess / sp) ** 2 + 0.5 * (dspeed / st) ** 2)
 
 
 def appearance_cost(z2: float, verified: bool) -> float:
