@@ -227,8 +227,8 @@ class Scenario:
         roads = self.world.roads
         weights = np.array([r.length for r in roads])
         if self.settings["camera"] == "hover":
-            # the hovering camera watches the overpass on the longest road: put traffic there
-            weights[int(np.argmax(weights))] *= 6.0
+            # the hovering camera watches the overpass: put traffic on its road
+            weights[getattr(self.world, "overpass_road", int(np.argmax(weights)))] *= 6.0
         out: list[Vehicle] = []
         vid = 1
         convoys = self.settings["convoys"]

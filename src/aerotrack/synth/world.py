@@ -191,8 +191,19 @@ class World:
                                        "polygons": _outline(sel)})
 
     def _place_overpass(self, rng: np.random.Generator, width_m: float = 22.0) -> None:
-        """A concrete deck 22 m wide crossing the longest road at right angles."""
-        road = max(self.roads, key=lambda r: r.length)
+        """A concrete deck 22 m wide crossing the longest road (counting only its length at least
+        50 m inside the tile) at right angles."""
+        W, H = self.width * self.mx, self.height * self.my
+
+        def inner_length(r: Road) -> float:
+            # roads hugging the tile's edge make a deck the camera can hardly see: count only the
+            # length at least 50 m inside the tile
+            pts = np.array([r.at(s)[0] for s in np.linspace(0, r.length, 41)])
+            inside = (np.minimum(pts, [W, H] - pts).min(axis=1) > 50.0).mean()
+            return r.length * inside
+
+        self.overpass_road = max(range(len(self.roads)), key=lambda i: inner_length(self.roads[i]))
+        road = self.roads[self.overpass_road]
         p, t = road.at(road.length * rng.uniform(0.35, 0.65))
         n = np.array([-t[1], t[0]])
         half_len = 60.0
