@@ -38,9 +38,12 @@ def colourise(gray: np.ndarray, rng: np.random.Generator | None = None) -> np.nd
     veg = cv2.GaussianBlur(veg, (0, 0), 3.0) * np.clip((0.5 - g) * 4.0, 0, 1)
     bright = np.clip((mean - 0.55) * 3.0, 0, 1)
     sandy = np.clip(1.0 - np.abs(mean - 0.5) * 4.0, 0, 1) * np.clip(1.0 - texture * 12, 0, 1)
-    b = g * (1.0 - 0.35 * veg - 0.10 * bright - 0.12 * sandy)
-    gr = g * (1.0 + 0.18 * veg - 0.02 * bright - 0.02 * sandy)
-    r = g * (1.0 - 0.15 * veg + 0.08 * bright + 0.08 * sandy)
+    # Las Vegas ground (desert lots, gravel yards) is tan whatever its texture: a mild warm tint on
+    # everything that is neither vegetation nor dark (asphalt, shadow).
+    soil = np.clip((mean - 0.22) * 4.0, 0, 1) * (1.0 - veg)
+    b = g * (1.0 - 0.45 * veg - 0.10 * bright - 0.12 * sandy - 0.12 * soil)
+    gr = g * (1.0 + 0.22 * veg - 0.02 * bright - 0.02 * sandy - 0.02 * soil)
+    r = g * (1.0 - 0.22 * veg + 0.08 * bright + 0.08 * sandy + 0.07 * soil)
     img = np.stack([b, gr, r], axis=-1)
     return np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
