@@ -46,7 +46,10 @@ crossing the cut):
   single process itself moves by that much with another seed: seeds 1 and 2 changed HOTA by
   -0.007 / +0.002 and IDF1 by -0.022 / -0.008 on the same video;
 * segment k's world is its own first frame, chained to world 0 (0.05-0.1 px RMS), so the
-  background is resampled with another sub-pixel phase and a few borderline blobs change.
+  background is resampled with another sub-pixel phase and a few borderline blobs change;
+* the detector keeps vehicles that stopped for up to ``detection.max_hold_s``: a segment does not
+  know about a vehicle that stopped before its first frame (seen on an ``aerotrack synth`` scene
+  with stops: extra detections 6-7 s after the cut).
 
 With the default overlap (9 s) the two-segment run scored HOTA +0.004 and IDF1 -0.000 relative to
 the single process.
