@@ -153,12 +153,17 @@ class DetectionConfig:
         Fewer samples that saw a pixel (inside the view and not under a detection) than this and
         the pixel's background is held from before, or the pixel is not tested.
     threshold_sigma : float
-        Residual threshold as a multiple of the frame's robust residual noise (1.4826 MAD).
+        Residual threshold as a multiple of the frame's residual noise (its 0.9 quantile over the
+        half-normal's, since the median of the registration-tolerant residual is 0).
         Raising it removes noise blobs but loses low-contrast vehicles.
     min_threshold : float
         Lower bound of the residual threshold, grey levels (0-255).
     seed_ratio : float
         A blob must contain a pixel above ``seed_ratio`` x threshold (hysteresis).
+    residual_sigma_px : float
+        Gaussian (full-resolution pixels) applied to the signed frame - background difference
+        before thresholding: averages out per-pixel noise so low-contrast (dark on dark)
+        vehicles pass a threshold that noise does not; 0 disables.
     gain_block_px : float
         Side (full-resolution pixels) of the blocks over which the frame's local gain against
         the background is estimated and divided out (illumination changes, auto-exposure).
@@ -210,9 +215,10 @@ class DetectionConfig:
     update_every_s: float = 0.2
     model_scale: float = 0.5
     min_valid_samples: int = 3
-    threshold_sigma: float = 5.0
-    min_threshold: float = 14.0
+    threshold_sigma: float = 7.0
+    min_threshold: float = 10.0
     seed_ratio: float = 1.5
+    residual_sigma_px: float = 0.0
     gain_block_px: float = 96.0
     close_m: float = 0.8
     close_px: float = 4.0

@@ -169,6 +169,31 @@ def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0,
     return _channel_max(d)
 
 
+def smoothed_residual(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 1,
+                      sigma_px: float = 0.0) -> np.ndarray:
+    """Residual of :func:`residual_image` whose *signed* per-channel difference is low-pass
+    filtered before the largest absolute channel is taken, (H, W) uint8.
+
+    A vehicle is a coherent difference over many pixels while sensor and compression noise is
+    not: a Gaussian of ``sigma_px`` pixels cuts the noise by roughly ``2 sqrt(pi) sigma`` and keeps
+    the difference inside regions wider than the kernel, so that dark vehicles on dark asphalt
+    (a difference of a few grey levels per pixel) rise above the threshold. ``sigma_px`` = 0 is
+    :func:`residual_image`.
+    """
+    if sigma_px <= 0:
+        return residual_image(image, bg, tolerance_px)
+    if tolerance_px > 0:
+        k = np.ones((2 * tolerance_px + 1,) * 2, np.uint8)
+        pos = cv2.subtract(image, cv2.dilate(bg, k))
+        neg = cv2.subtract(cv2.erode(bg, k), image)
+    else:
+        pos = cv2.subtract(image, bg)
+        neg = cv2.subtract(bg, image)
+    d = cv2.subtract(pos, neg, dtype=cv2.CV_16S)
+    d = cv2.GaussianBlur(d, (0, 0), sigma_px)
+    return _channel_max(cv2.convertScaleAbs(d))
+
+
 def _channel_max(img: np.ndarray) -> np.ndarray:
     """Largest channel of an (H, W, 3) image (OpenCV: numpy's axis-2 max is ~20x slower)."""
     if img.ndim == 2:
@@ -177,14 +202,38 @@ def _channel_max(img: np.ndarray) -> np.ndarray:
     return cv2.max(cv2.max(b, g), r)
 
 
-def robust_sigma(residual: np.ndarray, valid: np.ndarray | None = None) -> float:
-    """1.4826 x median of a uint8 residual over the valid pixels (noise level, grey levels)."""
+def _half_normal_quantile(p: float) -> float:
+    """``Phi^-1((1 + p) / 2)``: the p-quantile of |N(0, 1)| (bisection on erf)."""
+    lo, hi = 0.0, 10.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if math.erf(mid / math.sqrt(2.0)) < p:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def robust_sigma(residual: np.ndarray, valid: np.ndarray | None = None,
+                 quantile: float = 0.9) -> float:
+    """Noise level of a uint8 residual over the valid pixels, grey levels.
+
+    The ``quantile`` of the residual divided by that of a half-normal distribution (1.645 for
+    0.9). A high quantile rather than the median (1.4826 MAD): the residual with registration
+    tolerance is 0 on most pixels, so its median says nothing about the noise. The quantile is
+    interpolated inside the integer histogram bins (bin ``k`` spans ``[k - 0.5, k + 0.5)``).
+    """
     hist = cv2.calcHist([residual], [0], None if valid is None else valid, [256], [0, 256]).ravel()
     total = hist.sum()
     if total <= 0:
         return 0.0
-    med = int(np.searchsorted(np.cumsum(hist), total / 2.0))
-    return 1.4826 * med
+    cum = np.cumsum(hist)
+    target = quantile * total
+    k = int(np.searchsorted(cum, target))
+    below = cum[k - 1] if k > 0 else 0.0
+    frac = (target - below) / max(hist[k], 1.0)
+    q = max(0.0, k - 0.5 + frac)
+    return q / _half_normal_quantile(quantile)
 
 
 def local_scale(H: np.ndarray, point: np.ndarray) -> float:
@@ -233,7 +282,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     FrameResult
     """
     bgn = _gain_normalise(small, bg_small, config.gain_block_px * scale)
-    res = residual_image(small, bgn, 1)
+    res = smoothed_residual(small, bgn, 1, config.residual_sigma_px * scale)
     res[testable == 0] = 0
     res[border_fill_mask(small)] = 0
     sigma = robust_sigma(res, testable)
@@ -280,7 +329,8 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         size = (fx1 - fx0, fy1 - fy0)
         crop = image[fy0:fy1, fx0:fx1]
         bg_crop = cv2.resize(bgn[my0:my1, mx0:mx1], size, interpolation=cv2.INTER_LINEAR)
-        res_full = residual_image(crop, bg_crop, max(1, int(round(1.0 / scale))))
+        res_full = smoothed_residual(crop, bg_crop, max(1, int(round(1.0 / scale))),
+                                     config.residual_sigma_px)
         mm = np.zeros((my1 - my0, mx1 - mx0), np.uint8)
         mm[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw] = b.mask.astype(np.uint8) * 255
         mm = cv2.dilate(mm, np.ones((3, 3), np.uint8))
@@ -502,21 +552,26 @@ class MovingObjectDetector:
         # that has just stopped must not leak into them.
         if c in self._samples and self.config.hold_stopped:
             self._samples[c].holes = blob_polygons(r.model_blobs, grow=1)
-        fg = blob_polygons(r.model_blobs, grow=2)
         for i, s in self._samples.items():
             if i <= c:
                 s.known = True
-        self._last_fg = (c, Hc, fg)
+        changed = self._changed(p, r)
+        stationary = changed < 0.2
+        # Every detection is protected, moving ones too: keeping only stationary ones out of the
+        # not-yet-final samples avoids trails behind fast vehicles but lets queues of slow
+        # vehicles leak into the median (measured: Santiago P 0.60 -> 0.54, R 0.78 -> 0.69).
+        self._last_fg = (c, Hc, blob_polygons(r.model_blobs, grow=2))
         self._last_final = c
-        stationary = self._stationary(p, r)
         if self.keep_debug:
             self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
         return self._to_detections(p, r, stationary)
 
-    def _stationary(self, p: _Pending, r: FrameResult) -> np.ndarray:
-        """Flag detections whose pixels did not change over ``stationary_lag_s``."""
+    def _changed(self, p: _Pending, r: FrameResult) -> np.ndarray:
+        """Fraction of each detection's pixels that changed over ``stationary_lag_s`` (0 for a
+        vehicle standing still, near 1 for one that moved by more than its length; 0 when the
+        earlier frame did not see the whole blob)."""
         n = len(r.boxes)
-        out = np.zeros(n, bool)
+        out = np.zeros(n, np.float64)
         if n == 0:
             return out
         c = p.frame.index
@@ -538,7 +593,7 @@ class MovingObjectDetector:
             if not (np.all(back >= 0) and np.all(back[:, 0] < sw) and np.all(back[:, 1] < sh)):
                 continue  # the earlier frame did not see the whole blob
             d = residual_image(p.small[y:y + bh, x:x + bw], seen, 1)[m]
-            out[k] = float(np.mean(d > r.threshold)) < 0.2
+            out[k] = float(np.mean(d > r.threshold))
         return out
 
     def _to_detections(self, p: _Pending, r: FrameResult, stationary: np.ndarray) -> Detections:
