@@ -183,6 +183,10 @@ class DetectionConfig:
         Only blobs larger than this multiple of the frame's median blob area are split (needs 5
         blobs in the frame), and each part must reach half the median area. Lower splits more
         merged pairs but also cuts single long vehicles.
+    join_parts_ratio : float
+        Two blobs within twice the join gap are joined, closest first, when their union's
+        oriented extent is at most this multiple of the frame's median blob length and width
+        (needs 5 blobs): the bonnet and boot of a car whose roof matches the road. 0 disables.
     shadow_suppression : bool
         Remove moving cast shadows (Prati et al.'s deterministic non-model-based HSV test) from
         blobs before boxing them.
@@ -230,6 +234,7 @@ class DetectionConfig:
     max_length_px: float = 300.0
     split_blobs: bool = True
     split_area_ratio: float = 1.7
+    join_parts_ratio: float = 1.5
     shadow_suppression: bool = True
     shadow_alpha: float = 0.4
     shadow_beta: float = 0.9

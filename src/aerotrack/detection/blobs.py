@@ -186,6 +186,36 @@ def join_fragments(blobs: list[Blob], *, gap: float, max_length: float,
     return blobs
 
 
+def join_vehicle_parts(blobs: list[Blob], *, gap: float, max_long: float,
+                       max_short: float) -> list[Blob]:
+    """Join pairs of blobs (of any relative size) whose union still has the size of one vehicle.
+
+    A light vehicle whose dark windscreen and roof match the road leaves its bonnet and boot as
+    two similar blobs, which :func:`join_fragments` (small to big only) keeps apart. Two blobs
+    within ``gap`` pixels are joined, closest pair first, when the union's oriented extent (its
+    minimum-area rectangle) is at most ``max_long`` x ``max_short``: two whole vehicles queueing
+    bumper to bumper make a union about twice a vehicle's length and stay apart.
+    """
+    blobs = list(blobs)
+    while len(blobs) > 1:
+        best, best_gap = None, gap + 1e-9
+        for i in range(len(blobs)):
+            for j in range(i + 1, len(blobs)):
+                g = box_gap(blobs[i].box, blobs[j].box)
+                if g <= best_gap:
+                    u = merge_blobs(blobs[i], blobs[j])
+                    pts = np.column_stack(np.nonzero(u.mask)[::-1]).astype(np.float32)
+                    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
+                    if max(rw, rh) <= max_long and min(rw, rh) <= max_short:
+                        best, best_gap = (i, j, u), g
+        if best is None:
+            break
+        i, j, u = best
+        blobs[i] = u
+        del blobs[j]
+    return blobs
+
+
 def merge_blobs(a: Blob, b: Blob) -> Blob:
     """The union of two blobs (mask of both, box around both)."""
     x0, y0 = min(a.box[0], b.box[0]), min(a.box[1], b.box[1])

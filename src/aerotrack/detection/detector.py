@@ -25,7 +25,8 @@ from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
 from .background import to_cv_homography, warp, warp_polygons, window_background
-from .blobs import Blob, close, hysteresis_blobs, join_fragments, open2, split_blob
+from .blobs import (Blob, close, hysteresis_blobs, join_fragments, join_vehicle_parts, open2,
+                    split_blob)
 from .shadows import shadow_mask
 
 #: Registration statuses after which earlier frames no longer relate to this one.
@@ -307,6 +308,14 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
                 split.append(b)
         blobs = split
     blobs = join_fragments(blobs, gap=gates.join_gap_px * scale, max_length=max_len_model)
+    if config.join_parts_ratio > 0 and len(blobs) >= 5:
+        # Without a vehicle model the frame's typical blob is the best guess of one vehicle.
+        sides = np.array([sorted(cv2.minAreaRect(np.column_stack(np.nonzero(b.mask)[::-1])
+                                                 .astype(np.float32))[1]) for b in blobs])
+        long_t, short_t = np.median(sides[:, 1]), np.median(sides[:, 0])
+        blobs = join_vehicle_parts(blobs, gap=2 * gates.join_gap_px * scale,
+                                   max_long=config.join_parts_ratio * long_t,
+                                   max_short=config.join_parts_ratio * short_t)
 
     H, W = image.shape[:2]
     h, w = small.shape[:2]
