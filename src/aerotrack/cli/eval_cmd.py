@@ -142,12 +142,15 @@ def _table(rows: list[tuple[str, dict]]) -> str:
 @click.option("--fix-gt", is_flag=True,
               help="Correct the ground truth first (reflect boxes with negative sizes, drop exact "
                    "duplicates), say what changed, and report the corrected score.")
+@click.option("--geo-crs", "geo_crs", default=None, metavar="CRS",
+              help="Also report the geo error: metres between the x, y columns of matched true and "
+                   "predicted boxes, both in this CRS (e.g. EPSG:4326 for lon/lat).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
                    "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets; combined over sequences, with a "
                    "'sequences' entry when there are several).")
 def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero_based, fix_gt,
-                 as_json):
+                 geo_crs, as_json):
     """Score tracks against a ground truth: HOTA, MOTA, IDF1 and counts (TrackEval).
 
     Boxes are class-agnostic; every ground-truth row counts whatever its confidence. The ground
@@ -186,8 +189,26 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     res = evaluate_sequences(seqs, iou_threshold=iou_threshold,
                              frames={n: window for n in seqs} if window else None)
     single = len(seqs) == 1
+    geo = None
+    if geo_crs is not None:
+        from ..evaluation.geo import geo_errors
+
+        # frames are per sequence: offset them so sequences never mix
+        off = 0
+        parts_g, parts_p = [], []
+        for g, p, _ in seqs.values():
+            g, p = g.copy(), p.copy()
+            g[:, 0] += off
+            p[:, 0] += off
+            off += int(max(g[:, 0].max(initial=0), p[:, 0].max(initial=0))) + 1
+            parts_g.append(g)
+            parts_p.append(p)
+        gt_all, pred_all = np.vstack(parts_g), np.vstack(parts_p)
+        geo = geo_errors(gt_all, pred_all, geo_crs, iou_threshold=iou_threshold)
     if as_json:
         out = {k: res["combined"][k] for k in METRIC_KEYS}
+        if geo is not None:
+            out["geo_error"] = geo
         if not single:
             out["sequences"] = {n: {k: r[k] for k in METRIC_KEYS}
                                 for n, r in res["sequences"].items()}
@@ -202,5 +223,8 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
                f"  IDP {c['IDP']:.3f}  IDR {c['IDR']:.3f}  (IoU {iou_threshold:g}"
                + (f", {c['ignored_pred']} predictions in ignore regions dropped" if ignores else "")
                + (", corrected ground truth" if fix_gt else "") + ")")
+    if geo is not None:
+        click.echo(f"geo error over {geo['matches']} matched boxes: median {geo['median_m']:.2f} m, "
+                   f"mean {geo['mean_m']:.2f} m, 90% {geo['p90_m']:.2f} m")
     if any(np.isnan(float(c[k])) for k in ("HOTA", "MOTA", "IDF1")):
         log.warning("some scores are undefined (empty ground truth or predictions)")
