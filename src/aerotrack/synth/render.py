@@ -25,7 +25,8 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
               jpeg_quality: int = 90, progress: Callable[[int], None] | None = None) -> dict:
     """Render a scene into ``out`` and return its ``scenario.json`` content.
 
-    Writes ``frames/000001.jpg...``, ``gt.txt`` (MOTChallenge, visible targets only),
+    Writes ``frames/000001.jpg...``, ``gt.txt`` (MOTChallenge, visible targets only; x, y = the
+    ground point in the map CRS, lon/lat, so `aerotrack eval --geo-crs EPSG:4326` scores positions),
     ``states.csv`` (every target every frame: state visible/occluded/outside, map pixel and lon/lat
     position, box, heading, speed), ``homographies.csv`` (true frame -> map pixels), ``map.tif``,
     ``map_init.txt`` (frame-1 homography), ``map_init_gcps.csv`` and ``map_init_lonlat.csv``
@@ -66,7 +67,7 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
                 f"{ll[0]:.8f},{ll[1]:.8f},{b[0]:.3f},{b[1]:.3f},{b[2]:.3f},{b[3]:.3f},"
                 f"{t['heading']:.2f},{t['speed']:.3f},{t['occ_dist_m']:.2f}")
             if t["state"] == "visible":
-                gt_rows.append([t["frame"], t["id"], *b, 1, -1, -1, -1])
+                gt_rows.append([t["frame"], t["id"], *b, 1, ll[0], ll[1], -1])
         if progress:
             progress(frame.index)
     atomic_write_text(out.file("gt.txt"), format_mot_rows(gt_rows))
