@@ -56,10 +56,19 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
     gt = read_mot(scene / "gt.txt", strict=False)
     pred = read_mot(run_dir / "tracks.csv")
     scores = evaluate(gt, pred)
+    from ..errors import InputError
+    from ..evaluation.geo import geo_errors
+
+    try:
+        geo = geo_errors(gt, pred, "EPSG:4326")
+    except InputError:  # no matched boxes: nothing to measure
+        geo = None
     summary_path = run_dir / "summary.json"
     summary = json.loads(summary_path.read_text())
     summary["eval"] = {k: scores[k] for k in ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW",
                                               "GT_IDs", "Pred_IDs")}
+    if geo is not None:
+        summary["eval"]["geo_error_median_m"] = geo["median_m"]
     from ..io.output import atomic_write_text
 
     atomic_write_text(summary_path, json.dumps(summary, indent=2) + "\n")
@@ -71,6 +80,8 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
         f"HOTA {scores['HOTA']:.3f}  IDF1 {scores['IDF1']:.3f}  MOTA {scores['MOTA']:.3f}  "
         f"ID switches {int(scores['IDSW'])}  ({scores['GT_IDs']} true vehicles, "
         f"{scores['Pred_IDs']} tracks)  tracking at {summary.get('frames_per_second')} frames/s"
+        + (f"\nmedian position error of matched vehicles: {geo['median_m']:.2f} m on the map"
+           if geo else "")
     )
     click.echo(f"report:  {run_dir / 'report.html'}")
     click.echo(f"overlay: {run_dir / 'overlay.webm'}")
