@@ -50,7 +50,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import WORK, write_results  # noqa: E402
+from common import RESULTS, WORK, write_results
 
 SIZES = {"640x480": 150, "1280x720": 120, "1920x1080": 90, "4000x3000": 24}
 QUICK_SIZES = {"640x480": 45, "1280x720": 30}
@@ -99,7 +99,7 @@ def naive_opencv(frames) -> tuple[float, int]:
         fg = mog.apply(f.image)
         fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, k_open)
         fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, k_close)
-        n, _, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+        _, _, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
         blobs += int((stats[1:, cv2.CC_STAT_AREA] >= 20).sum())
     return time.perf_counter() - t0, blobs
 
@@ -128,7 +128,13 @@ def held_bytes(pipe) -> dict:
                     if isinstance(a, np.ndarray):
                         per_field[f"{k}.{kk}"] = per_field.get(f"{k}.{kk}", 0) + a.nbytes
     points = sum(len(t.points) for t in pipe.tracklets)
-    return {"detections_frames": len(pipe.detections), "detections": n_det,
+    # appearance rows kept in tracklet points (views of the detections' arrays when not copied)
+    app = sum((p.hist.nbytes if p.hist is not None else 0) + (p.desc.nbytes if p.desc is not None
+              else 0) for t in pipe.tracklets for p in t.points)
+    regs = sum(sum(v.nbytes for v in vars(r).values() if isinstance(v, np.ndarray))
+               for r in pipe.registrations.values())
+    return {"tracklet_appearance_mb": round(app / 2**20, 2),
+            "registrations_array_mb": round(regs / 2**20, 2),"detections_frames": len(pipe.detections), "detections": n_det,
             "detections_array_mb": round(det_bytes / 2**20, 2),
             "detections_array_mb_by_field": {k: round(v / 2**20, 2) for k, v in per_field.items()},
             "registrations": len(pipe.registrations), "tracklets": len(pipe.tracklets),
@@ -181,7 +187,7 @@ def child_memory(minutes: float, fps: float, seed: int = 0, generator_only: bool
     from aerotrack.config import Config
     from aerotrack.pipeline import Pipeline
 
-    n = int(round(minutes * 60 * fps))
+    n = round(minutes * 60 * fps)
     sc, geomap = _scene(seed, n, (960, 540), fps)
     samples = []
     start_rss = _rss_mb()
@@ -200,11 +206,17 @@ def child_memory(minutes: float, fps: float, seed: int = 0, generator_only: bool
     if pipe is not None:
         before = _rss_mb()
         out["held_before_linking"] = held_bytes(pipe)
-        res = pipe.finish()
         out["rss_before_finish_mb"] = round(before, 1)
-        out["rss_after_finish_mb"] = round(_rss_mb(), 1)
-        out["tracks"] = len(res.tracks)
-        out["stage_s"] = res.timings
+        out["peak_rss_before_finish_mb"] = round(_peak_mb(), 1)
+        try:  # others edit the stages while this runs: keep the streaming numbers if linking fails
+            res = pipe.finish()
+        except Exception as exc:  # noqa: BLE001 - recorded, not hidden
+            out["finish_error"] = f"{type(exc).__name__}: {exc}"
+            out["stage_s"] = pipe.timings
+        else:
+            out["rss_after_finish_mb"] = round(_rss_mb(), 1)
+            out["tracks"] = len(res.tracks)
+            out["stage_s"] = res.timings
     out["wall_s"] = time.perf_counter() - t0
     out["peak_rss_mb"] = round(_peak_mb(), 1)
     return out
@@ -224,7 +236,8 @@ def _child(kind: str, args: dict, env: dict | None = None) -> dict:
     out = WORK / f"suite-{kind}-{os.getpid()}.json"
     cmd = [sys.executable, __file__, "--child", kind, "--args", json.dumps(args), "--out", str(out)]
     load = os.getloadavg()[0]
-    r = subprocess.run(cmd, env={**os.environ, **(env or {})}, capture_output=True, text=True)
+    r = subprocess.run(cmd, env={**os.environ, **(env or {})}, capture_output=True, text=True,
+                       check=False)
     if r.returncode != 0:
         msg = (r.stderr.strip().splitlines() or ["?"])[-1]
         print(f"  {kind} {args}: FAILED: {msg}", file=sys.stderr)
@@ -287,7 +300,7 @@ def part_dask(frames: int, size: str, fps: float, gsd: float = 0.3) -> dict:
         cmd = [sys.executable, str(Path(__file__).parent / "parallel.py"), "--run", mode,
                "--input", str(folder / "frames"), "--out", str(res), "--fps", str(fps),
                "--gsd", str(gsd)]
-        r = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        r = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
         if r.returncode != 0:
             out["modes"][mode] = {"error": (r.stderr.strip().splitlines() or ["?"])[-1]}
             continue
@@ -326,7 +339,7 @@ def print_table(results: dict) -> None:
     a = results.get("association")
     if a and "error" not in a:
         print("\nAssociation alone, frames/s (ratio to ByteTrack in brackets)")
-        labels = [k for k in next(iter(v for k, v in a.items() if k.isdigit())).keys()]
+        labels = list(next(iter(v for k, v in a.items() if k.isdigit())))
         print(f"{'objects':>8} " + " ".join(f"{lab:>18}" for lab in labels))
         for n, row in a.items():
             if not n.isdigit():
@@ -379,6 +392,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--minutes", default=None, help="video lengths for memory (default 1,5,10)")
     ap.add_argument("--memory-fps", type=float, default=5.0)
     ap.add_argument("--dask-frames", type=int, default=600)
+    ap.add_argument("--update", action="store_true",
+                    help="Re-run only the --only parts (memory: only the --minutes given, without "
+                         "the 30 frames/s and generator-alone runs) into the existing suite.json")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--args", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
@@ -393,12 +409,24 @@ def main(argv: list[str] | None = None) -> None:
                else ([0.5, 1.0] if a.quick else [1.0, 5.0, 10.0]))
     results: dict = {"quick": a.quick, "cpu_count": os.cpu_count(),
                      "started_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())}
+    previous = RESULTS / "suite.json"
+    if a.update and previous.exists():
+        results = {**json.loads(previous.read_text()), "updated_utc": results["started_utc"]}
     if "speed" in parts:
         results["speed"] = part_speed(QUICK_SIZES if a.quick else SIZES)
     if "association" in parts:
         results["association"] = part_association(a.quick)
     if "memory" in parts:
-        results["memory"] = part_memory(minutes, a.memory_fps, a.quick)
+        mem = part_memory(minutes, a.memory_fps, a.quick or a.update)
+        if a.update and "memory" in results and results["memory"]["fps"] == mem["fps"]:
+            old = results["memory"]
+            old["runs"].update(mem["runs"])
+            old["runs"] = dict(sorted(old["runs"].items(), key=lambda kv: float(kv[0])))
+            ok = [r for r in old["runs"].values() if "peak_rss_mb" in r]
+            if len(ok) >= 2:
+                old["growth_first_to_last"] = ok[-1]["peak_rss_mb"] / ok[0]["peak_rss_mb"] - 1
+            mem = old
+        results["memory"] = mem
     if "dask" in parts and not a.quick:
         results["dask"] = part_dask(a.dask_frames, "480x270", 15.0)
     results["load_avg_1min_at_end"] = os.getloadavg()[0]
