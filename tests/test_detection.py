@@ -17,6 +17,8 @@ from aerotrack.detection import (
     shadow_mask,
     stack_median,
 )
+from aerotrack.detection.blobs import Blob, join_vehicle_parts
+from aerotrack.detection.detector import robust_sigma
 from aerotrack.errors import ConfigError
 from aerotrack.types import Frame, Registration, apply_homography
 
@@ -282,3 +284,26 @@ def test_registration_reset_restarts_the_window():
     after = out[14:]
     tp = sum(any(iou(b, g) >= 0.3 for g in gt[d.frame - 1]) for d in after for b in d.boxes)
     assert tp / max(1, sum(len(d) for d in after)) >= 0.85  # no burst (0.36 without restart)
+
+
+def _rect_blob(x: int, y: int, w: int, h: int) -> Blob:
+    return Blob((x, y, w, h), np.ones((h, w), bool))
+
+
+def test_join_vehicle_parts_joins_halves_but_not_queued_vehicles():
+    # Bonnet and boot of one 30x14 car (roof missing from the residual), 8 px apart...
+    car = [_rect_blob(100, 50, 11, 14), _rect_blob(119, 50, 11, 14)]
+    # ...and two whole 30x14 cars queueing bumper to bumper, 4 px apart.
+    queue = [_rect_blob(10, 150, 30, 14), _rect_blob(44, 150, 30, 14)]
+    out = join_vehicle_parts(car + queue, gap=10, max_long=36, max_short=17)
+    boxes = sorted(b.box for b in out)
+    assert boxes == [(10, 150, 30, 14), (44, 150, 30, 14), (100, 50, 30, 14)]
+
+
+def test_robust_sigma_reads_noise_where_the_median_is_zero():
+    rng = np.random.default_rng(1)
+    noise = np.abs(rng.normal(0, 3.0, (200, 200)))
+    res = np.clip(np.round(noise - 2.0), 0, 255).astype(np.uint8)  # tolerance shaves ~2 levels
+    assert np.median(res) == 0
+    # The 0.9 quantile of |N(0, 3)| - 2 is 2.93 levels -> sigma ~1.8: nonzero, of the noise's order.
+    assert 1.2 < robust_sigma(res) < 2.4
