@@ -25,8 +25,15 @@ from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
 from .background import to_cv_homography, warp, warp_polygons, window_background
-from .blobs import (Blob, close, hysteresis_blobs, join_fragments, join_vehicle_parts, open2,
-                    split_blob)
+from .blobs import (
+    Blob,
+    close,
+    hysteresis_blobs,
+    join_fragments,
+    join_vehicle_parts,
+    open2,
+    split_blob,
+)
 from .shadows import shadow_mask
 
 #: Registration statuses after which earlier frames no longer relate to this one.
