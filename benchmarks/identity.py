@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import argparse
 import copy
-import hashlib
 import dataclasses
+import hashlib
 import json
 import pickle
 import subprocess
@@ -57,12 +57,14 @@ from scipy.optimize import linear_sum_assignment
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from aerotrack.cli.track_cmd import load_inputs  # noqa: E402
-from aerotrack.config import Config, load_config  # noqa: E402
-from aerotrack.evaluation.mot import evaluate  # noqa: E402
-from aerotrack.io.mot import read_mot, write_mot  # noqa: E402
-from aerotrack.outputs import track_rows  # noqa: E402
-from aerotrack.pipeline import Pipeline, Result, link  # noqa: E402
+import itertools
+
+from aerotrack.cli.track_cmd import load_inputs
+from aerotrack.config import Config, load_config
+from aerotrack.evaluation.mot import evaluate
+from aerotrack.io.mot import read_mot, write_mot
+from aerotrack.outputs import track_rows
+from aerotrack.pipeline import Pipeline, Result, link
 
 CACHE = Path("/tmp/aerotrack_identity")
 FPS = 30.0
@@ -124,7 +126,7 @@ def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool):
         info = json.loads((scene / "scenario.json").read_text())
         dets_path = scene / "gtdets.txt"
         write_mot(dets_path, noisy_detections(gt, int(info["seed"]) + 1000, tuple(info["size"])))
-    source, dets, geomap, H_init, undistort, _ = load_inputs(
+    source, dets, geomap, H_init, _undistort, _ = load_inputs(
         scene / "frames", dets_path, scene / "map.tif", scene / "map_init.txt", None, None, None, None)
     per_frame = None
     if dets is not None:
@@ -134,9 +136,9 @@ def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool):
     for frame in source.frames():
         pipe.step(frame)
     tl = pipe.finish_local()
-    out = dict(tracklets=tl, registrations=pipe.registrations, detections=pipe.detections,
-               fps=pipe.fps, frame_size=pipe.frame_size, mpu=pipe.metres_per_unit,
-               frames=pipe.n_frames, seconds=time.perf_counter() - t0)
+    out = {"tracklets": tl, "registrations": pipe.registrations, "detections": pipe.detections,
+               "fps": pipe.fps, "frame_size": pipe.frame_size, "mpu": pipe.metres_per_unit,
+               "frames": pipe.n_frames, "seconds": time.perf_counter() - t0}
     key.write_bytes(pickle.dumps(out))
     return out
 
@@ -183,7 +185,7 @@ def gaps_of(states: dict) -> list[tuple[int, int, int, str]]:
     for tid, st in states.items():
         frames = sorted(st)
         vis = [f for f in frames if st[f][0] == "visible"]
-        for a, b in zip(vis[:-1], vis[1:]):
+        for a, b in itertools.pairwise(vis):
             if b - a - 1 >= MIN_GAP:
                 kinds = {st[f][0] for f in range(a + 1, b) if f in st}
                 out.append((tid, a, b, "exit" if "outside" in kinds else "occlusion"))
@@ -203,8 +205,8 @@ def reacquisition(states, gaps, matched) -> list[dict]:
         after = [f for f in after if f in st][:10]
         ib = majority([int(matched[(f, tid)][1]) for f in before if (f, tid) in matched])
         ia = majority([int(matched[(f, tid)][1]) for f in after if (f, tid) in matched])
-        res.append(dict(id=tid, last=a, first=b, kind=kind, gap_s=(b - a - 1) / FPS,
-                        id_before=ib, id_after=ia, ok=ib is not None and ib == ia))
+        res.append({"id": tid, "last": a, "first": b, "kind": kind, "gap_s": (b - a - 1) / FPS,
+                        "id_before": ib, "id_after": ia, "ok": ib is not None and ib == ia})
     return res
 
 
@@ -259,8 +261,8 @@ def tail_stats(states, gt, tracks, predicted) -> dict:
         mt = match(gt, tracks, 0.3)
         vis_pred = sum(1 for key in m if key not in mt)
     n_tracks = len(np.unique(tracks[:, 1])) if len(tracks) else 0
-    return dict(predicted_rows=int(len(predicted)), predicted_on_visible_target=int(vis_pred),
-                tracks=n_tracks)
+    return {"predicted_rows": len(predicted), "predicted_on_visible_target": int(vis_pred),
+                "tracks": n_tracks}
 
 
 # -- main ------------------------------------------------------------------------------------------
@@ -286,7 +288,7 @@ def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool) -> dict:
         t0 = time.perf_counter()
         if cfg is None:
             tracks = link(tl, dataclasses.replace(config, linking=dataclasses.replace(
-                config.linking, max_gap_s=1e-6, predict_gaps=False)), run["fps"],
+                config.linking, max_gap_s=1e-6, predict_gaps=False, min_track_s=0.0)), run["fps"],
                 metres_per_unit=run["mpu"])
         else:
             tracks = link(tl, cfg, run["fps"], metres_per_unit=run["mpu"],
@@ -329,15 +331,15 @@ def gap_mpe(per_scene: dict) -> dict:
     out = {}
     for s in (1, 2, 4):
         a, b = [], []
-        for sc, r in per_scene.items():
+        for r in per_scene.values():
             ea, eb = r["linked"]["_gap_err"], r["linked (kalman)"]["_gap_err"]
             for key in ea:
                 if key[1] == s and key in eb:
                     a.append(ea[key])
                     b.append(eb[key])
-        out[f"{s}s"] = dict(context=float(np.mean(a)) if a else float("nan"),
-                            kalman=float(np.mean(b)) if b else float("nan"), n=len(a),
-                            ratio=float(np.mean(a) / np.mean(b)) if a and np.mean(b) > 0 else float("nan"))
+        out[f"{s}s"] = {"context": float(np.mean(a)) if a else float("nan"),
+                            "kalman": float(np.mean(b)) if b else float("nan"), "n": len(a),
+                            "ratio": float(np.mean(a) / np.mean(b)) if a and np.mean(b) > 0 else float("nan")}
     return out
 
 
@@ -365,13 +367,13 @@ def main(argv=None) -> None:
                 f"{v}: IDF1 {r[v]['IDF1']:.3f} occl {r[v]['reacq_occlusion_le4s']:.2f}/"
                 f"{r[v]['n_occlusion_le4s']} exit {r[v]['reacq_exit_le10s']:.2f}/{r[v]['n_exit_le10s']}"
                 for v in ("local only", "linked")), flush=True)
-        results[mode] = dict(
-            variants={v: summarise(per_scene, v) for v in ("local only", "linked", "linked (kalman)")},
-            gap_MPE_m=gap_mpe(per_scene),
-            per_scene={k: {v: {kk: vv for kk, vv in r[v].items() if not kk.startswith("_")}
+        results[mode] = {
+            "variants": {v: summarise(per_scene, v) for v in ("local only", "linked", "linked (kalman)")},
+            "gap_MPE_m": gap_mpe(per_scene),
+            "per_scene": {k: {v: {kk: vv for kk, vv in r[v].items() if not kk.startswith("_")}
                            for v in ("local only", "linked")} for k, r in per_scene.items()},
-            failures={k: [g for g in r["linked"]["_reacq"] if not g["ok"]] for k, r in per_scene.items()},
-        )
+            "failures": {k: [g for g in r["linked"]["_reacq"] if not g["ok"]] for k, r in per_scene.items()},
+        }
     cols = ["IDF1", "HOTA", "IDSW", "tracks", "reacq_occlusion_le4s", "n_occlusion_le4s",
             "reacq_exit_le10s", "n_exit_le10s", "pos_err_m", "predicted_rows",
             "predicted_on_visible_target"]
@@ -384,10 +386,10 @@ def main(argv=None) -> None:
         for s, m in r["gap_MPE_m"].items():
             print(f"  {mode} gap MPE {s}: context {m['context']:.2f} m, kalman {m['kalman']:.2f} m, "
                   f"ratio {m['ratio']:.2f} (n={m['n']})")
-    payload = dict(protocol=dict(scenes=args.scenes, frames=args.frames, overrides=args.overrides, fps=FPS, min_gap_frames=MIN_GAP,
-                                 source="aerotrack.synth scenes; gt-dets = gt.txt with 10% dropped, "
-                                        "1 px / 5% jitter, 0.1 false alarm per frame"),
-                   results=results)
+    payload = {"protocol": {"scenes": args.scenes, "frames": args.frames, "overrides": args.overrides, "fps": FPS, "min_gap_frames": MIN_GAP,
+                                 "source": "aerotrack.synth scenes; gt-dets = gt.txt with 10% dropped, "
+                                        "1 px / 5% jitter, 0.1 false alarm per frame"},
+                   "results": results}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(payload, indent=2, default=str))
 

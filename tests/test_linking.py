@@ -175,3 +175,65 @@ def test_pixel_tracks_without_a_scale_are_linked():
     assert len(tracks) == 1
     pred = [p for p in tracks[0].points if p.kind == "predicted"]
     assert [p.frame for p in pred] == list(range(40, 80))
+
+
+def _turn_path(n1, n2, speed=10.0):
+    """East at ``speed`` m/s for n1 frames, then south for n2 frames from the corner."""
+    a = _line([0, 0], [speed, 0], n1)
+    b = _line(a[-1] + [0, speed / FPS], [0, speed], n2)
+    return np.vstack([a, b])
+
+
+def test_a_turn_hidden_in_a_gap_is_linked_and_a_crossing_newcomer_is_not():
+    # target 1 turns right at the corner while hidden for 2 s (frames 80-140); target 2, a
+    # look-alike, crosses further east out of reach
+    paths = {1: _turn_path(100, 200), 2: _line([60, -60], [0, 10], 200)}
+    start = {1: 1, 2: 100}
+    colours = {1: [0.4, 0.3, 0.2, 0.1], 2: [0.4, 0.3, 0.2, 0.1]}  # look-alikes
+    tl, truth = _tracklets(paths, start, {1: [(80, 140)]}, colours)
+    tracks = GlobalLinker(LinkingConfig(turn_max_gap_s=12.0), ContextConfig(), FPS,
+                          metres_per_unit=1.0).link(tl)
+    ids = sorted(sorted(_identity_of(t, tl, truth)) for t in tracks)
+    assert ids == [[1], [2]]
+    assert len(tracks) == 2
+    # without the manoeuvre hypothesis (gaps up to 0 s) the turn breaks the track; in image
+    # coordinates (no scale) it is limited to turn_max_gap_image_s = 1.5 s
+    straight = GlobalLinker(LinkingConfig(turn_max_gap_s=0.0), ContextConfig(), FPS,
+                            metres_per_unit=1.0).link(tl)
+    assert len(straight) == 3
+    assert len(GlobalLinker(LinkingConfig(turn_max_gap_s=12.0), ContextConfig(), FPS).link(tl)) == 3
+
+
+def test_a_target_that_stopped_behind_an_occluder_is_linked():
+    # 10 m/s, hidden for 4 s during which it waits 3 s: it reappears 10 m on instead of 40 m
+    a = _line([0, 0], [10, 0], 100)
+    wait = np.repeat(a[-1:] + [1.0, 0], 90, axis=0)
+    b = _line(wait[-1], [10, 0], 200)
+    paths = {1: np.vstack([a, wait, b])}
+    tl, truth = _tracklets(paths, {1: 1}, {1: [(101, 221)]}, {1: [0.25] * 4})
+    assert len(tl) == 2
+    tracks = GlobalLinker(LinkingConfig(turn_max_gap_s=0.0), ContextConfig(), FPS).link(tl)
+    assert len(tracks) == 1
+
+
+def test_final_prediction_stops_after_the_in_view_horizon():
+    from aerotrack.types import Registration
+
+    # the target ends at frame 60 inside a 100 x 100 view (identity registration); at 0.5 m/s it
+    # stays in view: the prediction stops after 2 s, not at the 10 s horizon
+    paths = {1: _line([10, 50], [0.5, 0], 60)}
+    tl, _ = _tracklets(paths, {1: 1}, {}, {1: [0.25] * 4})
+    regs = {f: Registration(f, np.eye(3)) for f in range(1, 600)}
+    tl.append(Track(0, [TrackPoint(f, np.array([80.0, 80.0, 4, 2]), np.array([82.0, 81.0]), 1.0)
+                        for f in range(1, 599)]))  # another target keeps the video going
+    linker = GlobalLinker(LinkingConfig(in_view_horizon_s=2.0), ContextConfig(), FPS,
+                          metres_per_unit=1.0)
+    tracks = linker.link(tl, frame_size=(100, 100), registrations=regs)
+    first = min(tracks, key=lambda t: t.first)
+    pred = [p for p in first.points if p.kind == "predicted"]
+    assert len(pred) == int(2.0 * FPS)
+    # without registrations the prediction runs to the horizon (10 s)
+    tracks = GlobalLinker(LinkingConfig(in_view_horizon_s=2.0), ContextConfig(), FPS,
+                          metres_per_unit=1.0).link(tl)
+    first = min(tracks, key=lambda t: t.first)
+    assert len([p for p in first.points if p.kind == "predicted"]) == int(10 * FPS)

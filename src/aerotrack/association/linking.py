@@ -85,6 +85,8 @@ class GlobalLinker:
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
+        self.turn_max_gap_s = self.config.turn_max_gap_s if metres_per_unit else \
+            min(self.config.turn_max_gap_s, self.config.turn_max_gap_image_s)
         self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
         self.last_costs: dict[tuple[int, int], tuple[float, Cues]] = {}
         self._pred: dict[int, np.ndarray] = {}
@@ -150,7 +152,7 @@ class GlobalLinker:
                 gap_s = gaps[b] / self.fps
                 d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
                 dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
-                if gap_s <= c.turn_max_gap_s:
+                if gap_s <= self.turn_max_gap_s:
                     # a turn may hide in the gap and in the velocity windows: only the speed
                     dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
                     gap_s += self.ctx.history_s
@@ -222,7 +224,7 @@ class GlobalLinker:
         dv = float(np.hypot(*(vb - va))) * mpu * fps
         gap_s = gap / fps
         turn = None
-        if gap_s <= c.turn_max_gap_s:
+        if gap_s <= self.turn_max_gap_s:
             sa, sb = _speed(va) * mpu * fps, _speed(vb) * mpu * fps
             reach = max(sa, sb) * gap_s
             chord = float(np.hypot(*(b_start - a_end))) * mpu
@@ -271,6 +273,8 @@ class GlobalLinker:
                         pr = pr[:self._tail_length(last_obs.frame, pr, registrations, frame_size)]
                         points.extend(_predicted(last_obs, pr))
             points.sort(key=lambda p: p.frame)
+            if (tl[chain[-1]].last - tl[chain[0]].first) < self.config.min_track_s * self.fps:
+                continue  # a short unlinked blip: a false alarm or a split blob
             out.append(Track(id=0, points=points))
         out.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
         for k, t in enumerate(out, start=1):
