@@ -69,7 +69,7 @@ from aerotrack.pipeline import Pipeline, Result, link
 CACHE = Path("/tmp/aerotrack_identity")
 FPS = 30.0
 MIN_GAP = 15
-DEFAULT_SCENES = ["occlusion:0", "occlusion:1", "exits:0", "exits:1", "default:0"]
+DEFAULT_SCENES = ["default:0", "default:2", "occlusion:1", "exits:1", "exits:2"]
 
 
 # -- scenes ----------------------------------------------------------------------------------------
@@ -288,7 +288,8 @@ def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool) -> dict:
         t0 = time.perf_counter()
         if cfg is None:
             tracks = link(tl, dataclasses.replace(config, linking=dataclasses.replace(
-                config.linking, max_gap_s=1e-6, predict_gaps=False, min_track_s=0.0)), run["fps"],
+                config.linking, max_gap_s=1e-6, predict_gaps=False,
+                **({'min_track_s': 0.0} if hasattr(config.linking, 'min_track_s') else {}))), run["fps"],
                 metres_per_unit=run["mpu"])
         else:
             tracks = link(tl, cfg, run["fps"], metres_per_unit=run["mpu"],
