@@ -210,7 +210,7 @@ def test_a_target_that_stopped_behind_an_occluder_is_linked():
     wait = np.repeat(a[-1:] + [1.0, 0], 90, axis=0)
     b = _line(wait[-1], [10, 0], 200)
     paths = {1: np.vstack([a, wait, b])}
-    tl, truth = _tracklets(paths, {1: 1}, {1: [(101, 221)]}, {1: [0.25] * 4})
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(101, 221)]}, {1: [0.25] * 4})
     assert len(tl) == 2
     tracks = GlobalLinker(LinkingConfig(turn_max_gap_s=0.0), ContextConfig(), FPS).link(tl)
     assert len(tracks) == 1

@@ -7,9 +7,11 @@ across occlusions and exits from the view:
    continue an earlier one a when it starts after a ends, within ``max_gap_s``, no farther than
    ``v_max x gap`` from a's end and with a velocity change of at most ``a_max x gap`` (each with a
    small slack for the noise of short tracklets).
-2. **Cues** for every consistent pair (:mod:`aerotrack.context.reacquire`): the motion context's
-   prediction of a at b's first frame (:mod:`aerotrack.context.motion`, which follows the paths of
-   the other tracklets), the appearance context of a against b's observations with the
+2. **Cues** for every consistent pair (:mod:`aerotrack.context.reacquire`): how far b starts from
+   the path the motion context predicted for a (:mod:`aerotrack.context.motion`, which follows the
+   paths of the other tracklets) and how far behind it (a stop behind an occluder), or, competing
+   at a fixed extra cost, a manoeuvre (turn, U-turn, a vehicle coming back into the view the
+   other way) that keeps only speed and reach (:meth:`GlobalLinker._motion`); the appearance context of a against b's observations with the
    inter-class verification against the other candidates (Ali et al. 4.3), and the Yu & Medioni
    tracklet descriptor (eqs. 12-14).
 3. **Joint assignment**: every tracklet may have at most one successor and one predecessor; the
@@ -18,7 +20,10 @@ across occlusions and exits from the view:
 4. **Output**: one track per chain with the observed, bridged and stationary points of its
    tracklets, and ``predicted`` points for every unobserved frame: across each linked gap (the
    forward prediction, corrected linearly to land on the re-acquired position) and after the
-   track's last observation up to ``prediction_horizon_s`` or the end of the video.
+   track's last observation up to ``prediction_horizon_s`` or the end of the video, but for no
+   more than ``in_view_horizon_s`` inside the frame (a target there should be seen again), and
+   not at all for tracks shorter than ``min_tracklet_s``; final tracks shorter than
+   ``min_track_s`` are dropped.
 """
 
 from __future__ import annotations
