@@ -18,7 +18,7 @@ from aerotrack.detection import (
     stack_median,
 )
 from aerotrack.detection.blobs import Blob, join_vehicle_parts
-from aerotrack.detection.detector import robust_sigma
+from aerotrack.detection.detector import SizeGates, detect_moving, robust_sigma
 from aerotrack.errors import ConfigError
 from aerotrack.types import Frame, Registration, apply_homography
 
@@ -307,3 +307,23 @@ def test_robust_sigma_reads_noise_where_the_median_is_zero():
     assert np.median(res) == 0
     # The 0.9 quantile of |N(0, 3)| - 2 is 2.93 levels -> sigma ~1.8: nonzero, of the noise's order.
     assert 1.2 < robust_sigma(res) < 2.4
+
+
+def test_thin_parallax_edge_is_refused_and_vehicle_kept():
+    rng = np.random.default_rng(2)
+    bg = np.clip(100 + rng.normal(0, 2, (120, 160, 3)), 0, 255).astype(np.uint8)
+    img = bg.copy()
+    img[30:34, 20:100] = 200  # an overpass edge: 80 x 4 px
+    img[70:82, 60:90] = 200   # a vehicle: 30 x 12 px
+    small = cv2.resize(img, (80, 60), interpolation=cv2.INTER_AREA)
+    bg_small = cv2.resize(bg, (80, 60), interpolation=cv2.INTER_AREA)
+    testable = np.full((60, 80), 255, np.uint8)
+    gates = SizeGates(min_area_px=40, max_length_px=200, close_px=2, join_gap_px=3, min_width_px=5)
+    r = detect_moving(img, small, bg_small, testable, DetectionConfig(shadow_suppression=False),
+                      0.5, gates)
+    assert len(r.boxes) == 1
+    np.testing.assert_allclose(r.boxes[0], [60, 70, 30, 12], atol=1.5)
+    off = dataclasses.replace(gates, min_width_px=0)
+    r = detect_moving(img, small, bg_small, testable, DetectionConfig(shadow_suppression=False),
+                      0.5, off)
+    assert len(r.boxes) == 2

@@ -262,6 +262,7 @@ class SizeGates:
     max_length_px: float
     close_px: float
     join_gap_px: float
+    min_width_px: float = 0.0
 
 
 def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
@@ -371,6 +372,13 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         area = int(fgm.sum())
         if area < gates.min_area_px:
             continue
+        if gates.min_width_px > 0:
+            # Thickness = twice the largest inscribed radius: the residual of a parallax edge
+            # (a wall or overpass side the ground homography does not register) is a thin
+            # line however long; a vehicle is at least about its width thick.
+            dist = cv2.distanceTransform(np.pad(fgm, 1).astype(np.uint8), cv2.DIST_L2, 3)
+            if 2.0 * float(dist.max()) < gates.min_width_px:
+                continue
         ys, xs = np.nonzero(fgm)
         x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
         if max(x1 - x0, y1 - y0) > gates.max_length_px:
@@ -506,8 +514,10 @@ class MovingObjectDetector:
             if mpp > 0 and math.isfinite(mpp):
                 return SizeGates(min_area_px=c.min_area_m2 / mpp ** 2,
                               max_length_px=c.max_length_m / mpp,
-                              close_px=c.close_m / mpp, join_gap_px=c.join_gap_m / mpp)
-        return SizeGates(c.min_area_px, c.max_length_px, c.close_px, c.join_gap_px)
+                              close_px=c.close_m / mpp, join_gap_px=c.join_gap_m / mpp,
+                              min_width_px=c.min_width_m / mpp)
+        return SizeGates(c.min_area_px, c.max_length_px, c.close_px, c.join_gap_px,
+                         c.min_width_px)
 
     def _window(self, c: int) -> tuple[int, int]:
         if self.config.causal:
@@ -660,7 +670,8 @@ def _validate(c: DetectionConfig) -> None:
         ("gain_block_px", c.gain_block_px >= 0), ("close_m", c.close_m >= 0),
         ("close_px", c.close_px >= 0), ("min_area_m2", c.min_area_m2 >= 0),
         ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
-        ("max_length_px", c.max_length_px > 0),
+        ("max_length_px", c.max_length_px > 0), ("min_width_m", c.min_width_m >= 0),
+        ("min_width_px", c.min_width_px >= 0),
         ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),
