@@ -4,7 +4,7 @@ peak memory against video length, a naive OpenCV floor and the Dask speed-up, in
 Usage::
 
     /tmp/venv/bin/python benchmarks/suite.py [--quick] [--only speed,association,memory,dask]
-        [--minutes 1,5,10] [--memory-fps 5]
+        [--minutes 1,5,10] [--memory-fps 2] [--update]
 
 Every measurement runs in a fresh child process (this file with ``--child``), so peak RSS and
 warm caches do not leak from one to the next. Frames come from :class:`aerotrack.synth.Scenario`
@@ -23,7 +23,7 @@ runs on ``aerotrack synth`` output.
    ByteTrack and OC-SORT in the same run (``association.speed`` -> ``peers.speed_table``).
 3. **Peak memory** (``ru_maxrss`` of a fresh child, and RSS sampled along the run) for 1, 5 and 10
    minutes of 960x540 video streamed from the generator into the pipeline, at ``--memory-fps``
-   (default 5 frames/s so that 10 minutes stay affordable on a shared 2-core machine: the minutes
+   (default 2 frames/s so that 10 minutes stay affordable on a shared 2-core machine: the minutes
    are real minutes of scene time and of every time-based window, only the frame count is lower),
    plus one 60 s run at 30 frames/s for the < 1.5 GB goal and the generator alone as the floor of
    RSS. Each run also reports what the pipeline holds at the end (``Pipeline.detections``,
@@ -40,6 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -318,7 +319,10 @@ def part_dask(frames: int, size: str, fps: float, gsd: float = 0.3) -> dict:
 
 # -- table ----------------------------------------------------------------------------------------
 def _f(v, fmt="6.1f") -> str:
-    return format(v, fmt) if isinstance(v, (int, float)) else f"{'-':>{fmt.split('.')[0]}}"
+    if isinstance(v, (int, float)):
+        return format(v, fmt)
+    width = int(re.match(r"\d*", fmt).group() or 1)
+    return "-".rjust(width)
 
 
 def print_table(results: dict) -> None:
@@ -390,7 +394,7 @@ def main(argv: list[str] | None = None) -> None:
                          "0.5 and 1 min, no Dask (a couple of minutes)")
     ap.add_argument("--only", default="speed,association,memory,dask")
     ap.add_argument("--minutes", default=None, help="video lengths for memory (default 1,5,10)")
-    ap.add_argument("--memory-fps", type=float, default=5.0)
+    ap.add_argument("--memory-fps", type=float, default=2.0)
     ap.add_argument("--dask-frames", type=int, default=600)
     ap.add_argument("--update", action="store_true",
                     help="Re-run only the --only parts (memory: only the --minutes given, without "
@@ -412,10 +416,20 @@ def main(argv: list[str] | None = None) -> None:
     previous = RESULTS / "suite.json"
     if a.update and previous.exists():
         results = {**json.loads(previous.read_text()), "updated_utc": results["started_utc"]}
+    def save() -> Path:
+        if a.quick:  # keep the committed full results; the quick subset goes to scratch
+            WORK.mkdir(parents=True, exist_ok=True)
+            path = WORK / "suite-quick.json"
+            path.write_text(json.dumps(results, indent=2, sort_keys=True, default=float) + "\n")
+            return path
+        return write_results("suite", results)
+
     if "speed" in parts:
         results["speed"] = part_speed(QUICK_SIZES if a.quick else SIZES)
+        save()
     if "association" in parts:
         results["association"] = part_association(a.quick)
+        save()
     if "memory" in parts:
         mem = part_memory(minutes, a.memory_fps, a.quick or a.update)
         if a.update and "memory" in results and results["memory"]["fps"] == mem["fps"]:
@@ -427,16 +441,12 @@ def main(argv: list[str] | None = None) -> None:
                 old["growth_first_to_last"] = ok[-1]["peak_rss_mb"] / ok[0]["peak_rss_mb"] - 1
             mem = old
         results["memory"] = mem
+        save()
     if "dask" in parts and not a.quick:
         results["dask"] = part_dask(a.dask_frames, "480x270", 15.0)
     results["load_avg_1min_at_end"] = os.getloadavg()[0]
+    path = save()
     print_table(results)
-    if a.quick:  # keep the committed full results; the quick subset goes to the scratch folder
-        WORK.mkdir(parents=True, exist_ok=True)
-        path = WORK / "suite-quick.json"
-        path.write_text(json.dumps(results, indent=2, sort_keys=True, default=float) + "\n")
-    else:
-        path = write_results("suite", results)
     print(f"\nwrote {path}")
 
 
