@@ -331,7 +331,11 @@ def print_table(results: dict) -> None:
         print("\nSpeed, frames/s (wall clock; generated 30 frames/s scene against its map)")
         print(f"{'size':10} {'frames':>6} {'reg':>6} {'det':>6} {'assoc':>7} {'link':>7} "
               f"{'PIPE':>6} {'naive':>6} {'pipe/naive':>10} {'load':>5}")
-        for size, r in sp.items():
+        def area(kv):
+            w, h = kv[0].split("x")
+            return int(w) * int(h)
+
+        for size, r in sorted(sp.items(), key=area):
             if "error" in r:
                 print(f"{size:10} failed: {r['error']}")
                 continue
@@ -345,9 +349,8 @@ def print_table(results: dict) -> None:
         print("\nAssociation alone, frames/s (ratio to ByteTrack in brackets)")
         labels = list(next(iter(v for k, v in a.items() if k.isdigit())))
         print(f"{'objects':>8} " + " ".join(f"{lab:>18}" for lab in labels))
-        for n, row in a.items():
-            if not n.isdigit():
-                continue
+        for n, row in sorted(((k, v) for k, v in a.items() if k.isdigit()),
+                             key=lambda kv: int(kv[0])):
             bt = row.get("ByteTrack")
             cells = [f"{row[lab]:9.0f} ({row[lab] / bt:5.2f})" if bt else f"{row[lab]:18.0f}"
                      for lab in labels]
@@ -357,7 +360,8 @@ def print_table(results: dict) -> None:
         print(f"\nPeak memory, 960x540 streamed from the generator ({m['fps']:g} frames/s)")
         print(f"{'video':22} {'frames':>7} {'peak MB':>8} {'RSS pre-link':>12} {'dets held':>9} "
               f"{'det MB':>7} {'regs':>6} {'wall s':>7}")
-        rows = [(f"{k} min", v) for k, v in m["runs"].items()]
+        rows = [(f"{k} min", v) for k, v in sorted(m["runs"].items(),
+                                                    key=lambda kv: float(kv[0]))]
         if "60s_at_30fps" in m:
             rows.insert(0, ("60 s at 30 frames/s", m["60s_at_30fps"]))
         if "generator_only_1min" in m:
@@ -397,8 +401,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--memory-fps", type=float, default=2.0)
     ap.add_argument("--dask-frames", type=int, default=600)
     ap.add_argument("--update", action="store_true",
-                    help="Re-run only the --only parts (memory: only the --minutes given, without "
-                         "the 30 frames/s and generator-alone runs) into the existing suite.json")
+                    help="Re-run only the --only parts into the existing suite.json")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--args", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
@@ -431,8 +434,10 @@ def main(argv: list[str] | None = None) -> None:
         results["association"] = part_association(a.quick)
         save()
     if "memory" in parts:
-        mem = part_memory(minutes, a.memory_fps, a.quick or a.update)
-        if a.update and "memory" in results and results["memory"]["fps"] == mem["fps"]:
+        mem = part_memory(minutes, a.memory_fps, a.quick)
+        if a.update and "memory" in results and results["memory"]["fps"] != mem["fps"]:
+            mem["previous_stream"] = {k: results["memory"][k] for k in ("fps", "runs")}
+        elif a.update and "memory" in results:
             old = results["memory"]
             old["runs"].update(mem["runs"])
             old["runs"] = dict(sorted(old["runs"].items(), key=lambda kv: float(kv[0])))

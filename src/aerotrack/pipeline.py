@@ -164,7 +164,8 @@ class Pipeline:
         self.timings["registration"] += t1 - t0
         if reg is not None and frame.index not in self.registrations:
             self.registrations[frame.index] = reg
-            self._pending_regs.append(reg)
+            if self.checkpoint_dir is not None:  # else nothing ever empties it (a leak per frame)
+                self._pending_regs.append(reg)
         if self.external is not None:
             final = [self._external_detections(frame, reg)]
         elif reg is None:
@@ -219,7 +220,8 @@ class Pipeline:
                 if len(dets):
                     dets = dets.subset(region.keep_detections(dets.centers, dets.world))
             self.detections.append(_light(dets))
-            self._pending_dets.append(dets)
+            if self.checkpoint_dir is not None:  # full detections, appearance included: only
+                self._pending_dets.append(dets)  # kept until the next checkpoint empties them
             if len(dets):
                 size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
                 self._last_boxes_world = np.hstack([dets.world, size])
