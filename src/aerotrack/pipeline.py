@@ -341,7 +341,7 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
 
 
 #: Observed points per tracklet that keep their appearance data (first, last and evenly spread).
-APPEARANCE_KEEP = 24
+APPEARANCE_KEEP = 16
 
 
 def _light(dets: Detections) -> Detections:
@@ -354,14 +354,20 @@ def _light(dets: Detections) -> Detections:
 
 
 def _thin_appearance(tracklet: Track, keep: int = APPEARANCE_KEEP) -> Track:
-    """Keep appearance (``hist``, ``desc``) on at most ~``3 * keep`` observed points of a finished
-    tracklet: its first and last ``keep`` and ``keep`` evenly spread between.
+    """Keep appearance (``hist``, ``desc``, as float32) on at most ~``3 * keep`` observed points of
+    a finished tracklet: its first and last ``keep`` and ``keep`` evenly spread between.
 
     Global linking compares a tracklet's ends and its accumulated descriptor; a descriptor summed
     over a few dozen blobs is as good as over thousands, and this bounds memory per tracklet
     instead of growing with its length.
     """
     obs = [i for i, p in enumerate(tracklet.points) if p.hist is not None or p.desc is not None]
+    for i in obs:  # float32 halves what long runs hold; the linker sums in float64
+        p = tracklet.points[i]
+        if p.hist is not None:
+            p.hist = np.asarray(p.hist, dtype=np.float32)
+        if p.desc is not None:
+            p.desc = np.asarray(p.desc, dtype=np.float32)
     if len(obs) <= 3 * keep:
         return tracklet
     spread = np.linspace(keep, len(obs) - keep - 1, keep).round().astype(int)
