@@ -41,6 +41,37 @@ def make_progress(total: int | None, label: str, quiet: bool):
     return log_line, (lambda: None)
 
 
+def stop_between_frames(progress):
+    """Make Ctrl-C stop the run between two frames, where finished work can be checkpointed.
+
+    A SIGINT arriving inside compiled code (numba, OpenCV) can surface as another exception; so the
+    first Ctrl-C only sets a flag that the per-frame progress callback turns into a
+    KeyboardInterrupt at a safe point. A second Ctrl-C interrupts at once. Returns the wrapped
+    callback and a function restoring the previous handler.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return progress, (lambda: None)
+    state = {"stop": False}
+
+    def handler(signum, frame):
+        if state["stop"]:
+            raise KeyboardInterrupt
+        state["stop"] = True
+        log.warning("interrupt: stopping after this frame (Ctrl-C again to stop at once)")
+
+    previous = signal.signal(signal.SIGINT, handler)
+
+    def wrapped(n: int) -> None:
+        progress(n)
+        if state["stop"]:
+            raise KeyboardInterrupt
+
+    return wrapped, (lambda: signal.signal(signal.SIGINT, previous))
+
+
 def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
                 telemetry_path=None, intrinsics_path=None):
     """Open and validate every input before any work starts (so bad input fails fast)."""
@@ -241,6 +272,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         from ..parallel import run_on_dask
 
         run = partial(run_on_dask, workers=workers, scheduler=scheduler)
+    progress, restore_sigint = stop_between_frames(progress)
     try:
         result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
                      detections=dets, metres_per_unit=None if geomap else gsd, progress=progress,
@@ -248,6 +280,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                      stride=stride, undistort=undistort, regions=regions,
                      min_speed_mps=min_speed)
     finally:
+        restore_sigint()
         close()
     info = {
         "input": str(input_path) if input_path else None,
