@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from ..errors import FormatError, GeoreferenceError, InputError
+from ..io.textfile import read_text
 from .maprast import GeoMap
 
 
@@ -35,10 +36,7 @@ def read_map_init(path: str | Path, geomap: GeoMap | None = None, *,
         if geomap is None:
             raise InputError(f"{label}: control points in a map CRS need --map")
         return read_qgis_points(p, option=option).homography(geomap)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{label}: cannot read ({exc})") from None
+    text = read_text(p, label)
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")]
     if not lines:
         raise FormatError(f"{label}: file is empty")

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from ..errors import FormatError, InputError
+from ..io.textfile import read_text
 from ..types import Frame
 
 _DIST_LENGTHS = (4, 5, 8, 12, 14)
@@ -82,12 +83,7 @@ def read_intrinsics(path: str | Path, *, option: str = "--intrinsics") -> Camera
     """
     p = Path(path)
     label = f"{option} {p}"
-    if not p.is_file():
-        raise InputError(f"{label}: file not found")
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{label}: cannot read ({exc})") from None
+    text = read_text(p, label)
     if p.suffix.lower() == ".json":
         try:
             data = json.loads(text)

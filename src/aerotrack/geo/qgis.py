@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from ..errors import FormatError, GeoreferenceError, InputError
+from ..io.textfile import read_text
 
 
 @dataclass(frozen=True)
@@ -122,13 +123,6 @@ def fit_homography(src: np.ndarray, dst: np.ndarray, label: str) -> np.ndarray:
     return H / H[2, 2]
 
 
-def _read_text(p: Path, label: str) -> str:
-    if not p.is_file():
-        raise InputError(f"{label}: file not found")
-    try:
-        return p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{label}: cannot read ({exc})") from None
 
 
 def _parse_crs(text: str, label: str, lineno: int):
@@ -188,7 +182,7 @@ def read_qgis_points(path: str | Path, *, option: str = "--map-init") -> Control
     """
     p = Path(path)
     label = f"{option} {p}"
-    header, rows, crs = _table(_read_text(p, label), label)
+    header, rows, crs = _table(read_text(p, label), label)
     src_names = (("sourcex", "sourcey"), ("pixelx", "pixely"))
     try:
         ix_map = header.index("mapx"), header.index("mapy")
@@ -222,7 +216,7 @@ def read_crs_gcps(path: str | Path, *, option: str = "--map-init") -> ControlPoi
     """Read a ``frame_x,frame_y,crs_x,crs_y`` CSV with a ``# crs: ...`` line (module docstring)."""
     p = Path(path)
     label = f"{option} {p}"
-    header, rows, crs = _table(_read_text(p, label), label)
+    header, rows, crs = _table(read_text(p, label), label)
     if header != ["frame_x", "frame_y", "crs_x", "crs_y"]:
         raise FormatError(f"{label}: header must be frame_x,frame_y,crs_x,crs_y, "
                           f"found {','.join(header)!r}")

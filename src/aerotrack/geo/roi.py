@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError, InputError
+from ..io.textfile import read_text
 from ..types import Track
 
 SPACES = ("frame", "world")
@@ -165,12 +166,7 @@ def read_region(path: str | Path, geomap: Any = None, *, mode: str = "include",
 
     p = Path(path)
     label = f"{option} {p}"
-    if not p.is_file():
-        raise InputError(f"{label}: file not found")
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{label}: cannot read ({exc})") from None
+    text = read_text(p, label)
     crs = None
     if p.suffix.lower() in (".geojson", ".json"):
         try:

@@ -53,6 +53,7 @@ import cv2
 import numpy as np
 
 from ..errors import FormatError, InputError
+from ..io.textfile import read_text
 from ..types import Failure
 
 #: Width of the 35-mm film frame, mm: ``hfov = 2 atan(36 / (2 f_35mm))``.
@@ -404,7 +405,7 @@ def read_telemetry_csv(path: str | Path, *, fps: float = 30.0,
     """
     p = Path(path)
     label = f"{option} {p}"
-    text = _read_text(p, label)
+    text = read_text(p, label)
     lines = [(i, ln) for i, ln in enumerate(text.splitlines(), start=1)
              if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
@@ -455,7 +456,7 @@ def read_dji_srt(path: str | Path, *, defaults: dict[str, float] | None = None,
     """
     p = Path(path)
     label = f"{option} {p}"
-    text = _read_text(p, label)
+    text = read_text(p, label)
     rows = []
     lines = text.splitlines()
     cue_start = None
@@ -511,13 +512,6 @@ def read_telemetry(path: str | Path, *, fps: float = 30.0,
                               option=option)
 
 
-def _read_text(p: Path, label: str) -> str:
-    if not p.is_file():
-        raise InputError(f"{label}: file not found")
-    try:
-        return p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{label}: cannot read ({exc})") from None
 
 
 # -- metric scale without a map ----------------------------------------------------------------
