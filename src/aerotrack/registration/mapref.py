@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -49,12 +50,36 @@ class RefineStats:
 
 
 def quantize(gray: np.ndarray, valid: np.ndarray | None, bins: int) -> np.ndarray:
-    """Grey levels -> bin indices 0..bins-1 by the quantiles of the valid pixels (uint8)."""
-    vals = gray[valid] if valid is not None else gray.ravel()
-    if vals.size == 0:
+    """Grey levels -> bin indices 0..bins-1 by the quantiles of the valid pixels (uint8).
+
+    The quantiles (``numpy.quantile``'s linear interpolation between order statistics) are read
+    from the 256-bin histogram, and the image is mapped through a 256-entry table: the same
+    result as ``searchsorted(quantile(gray[valid]), gray)`` at a fraction of the cost.
+    """
+    hist = np.bincount((gray[valid] if valid is not None else gray).ravel().astype(np.intp),
+                       minlength=256)
+    n = int(hist.sum())
+    if n == 0:
         return np.zeros(gray.shape, np.uint8)
-    edges = np.quantile(vals, np.linspace(0, 1, bins + 1)[1:-1])
-    return np.searchsorted(edges, gray, side="right").astype(np.uint8)
+    cum = np.cumsum(hist)
+    pos = np.linspace(0, 1, bins + 1)[1:-1] * (n - 1)
+    lo = np.floor(pos)
+    t = pos - lo
+    a = np.searchsorted(cum, lo, side="right").astype(np.float64)  # order statistic lo
+    b = np.searchsorted(cum, np.minimum(lo + 1, n - 1), side="right").astype(np.float64)
+    diff = b - a
+    edges = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp
+    lut = np.searchsorted(edges, np.arange(256), side="right").astype(np.uint8)
+    return cv2.LUT(gray, lut) if gray.dtype == np.uint8 else lut[gray]
+
+
+@lru_cache(maxsize=8)
+def _xlogx(n: int) -> np.ndarray:
+    """``k log k`` for k = 0..n (0 log 0 = 0)."""
+    k = np.arange(n + 1, dtype=np.float64)
+    out = np.zeros(n + 1)
+    out[1:] = k[1:] * np.log(k[1:])
+    return out
 
 
 def mutual_information_surface(template: np.ndarray, search: np.ndarray, bins: int,
@@ -79,20 +104,24 @@ def mutual_information_surface(template: np.ndarray, search: np.ndarray, bins: i
     p, q = template.shape
     win = sliding_window_view(search, (p, q))  # (2r+1, 2s+1, p, q), a view
     ny, nx = win.shape[:2]
-    t = template.ravel().astype(np.int64)
-    w = win.reshape(ny * nx, p * q)
-    if valid is not None:
+    k = ny * nx
+    # joint bin index of every (offset, pixel) pair; 16-bit while it fits (a third of the cost)
+    dt = np.uint16 if k * bins * bins <= np.iinfo(np.uint16).max else np.intp
+    t = template.ravel().astype(dt)
+    w = win.reshape(k, p * q)
+    if valid is not None and not valid.all():
         keep = np.flatnonzero(valid.ravel())
         t, w = t[keep], w[:, keep]
-    k = ny * nx
-    joint_idx = (w.astype(np.int64) * bins + t) + (np.arange(k, dtype=np.int64) * bins * bins)[:, None]
+    n = t.size
+    if n == 0:
+        return np.zeros((ny, nx))
+    joint_idx = w.astype(dt) * dt(bins) + t + (np.arange(k, dtype=dt) * dt(bins * bins))[:, None]
     joint = np.bincount(joint_idx.ravel(), minlength=k * bins * bins).reshape(k, bins, bins)
-    joint = joint.astype(np.float64) / max(t.size, 1)
-    pw = joint.sum(axis=2, keepdims=True)
-    pt = joint.sum(axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        terms = joint * np.log(joint / (pw * pt))
-    mi = np.nansum(terms, axis=(1, 2))
+    # MI from integer counts: (sum c log c - sum cw log cw - sum ct log ct) / n + log n
+    xlx = _xlogx(n)
+    cw = joint.sum(axis=2)
+    ct = np.bincount(t, minlength=bins)
+    mi = (xlx[joint].sum(axis=(1, 2)) - xlx[cw].sum(axis=1) - xlx[ct].sum()) / n + math.log(n)
     return mi.reshape(ny, nx)
 
 
@@ -115,7 +144,7 @@ def _match_patch(warped_q: np.ndarray, valid: np.ndarray, map_q: np.ndarray, cy:
     if y0 < 0 or x0 < 0 or y0 + 2 * half > H or x0 + 2 * half > W:
         return None
     vt = valid[y0:y0 + 2 * half, x0:x0 + 2 * half]
-    if vt.mean() < 0.95:
+    if np.count_nonzero(vt) < 0.95 * vt.size:
         return None
     tmpl = warped_q[y0:y0 + 2 * half, x0:x0 + 2 * half]
     py, px = int(round(prior[0])), int(round(prior[1]))
@@ -130,7 +159,8 @@ def _match_patch(warped_q: np.ndarray, valid: np.ndarray, map_q: np.ndarray, cy:
     fy, fx = _subpixel(surf, iy, ix)
     # distinctiveness: the peak must stand out from the rest of the surface
     peak = surf[iy, ix]
-    med = float(np.median(surf))
+    flat = surf.ravel()  # (2r+1)^2 offsets, an odd count: the middle order statistic is the median
+    med = float(np.partition(flat, flat.size // 2)[flat.size // 2])
     if peak - med < 0.05:
         return None
     return py + iy - radius + fy, px + ix - radius + fx, peak - med
@@ -208,9 +238,13 @@ def refine_against_map(
         fgray = cv2.GaussianBlur(fgray, (0, 0), 0.5 / shrink)
     size = (x1 - x0, y1 - y0)
     warped = cv2.warpPerspective(fgray, Hw, size, flags=cv2.INTER_LINEAR)
-    valid = cv2.warpPerspective(np.full(fgray.shape, 255, np.uint8), Hw, size,
-                                flags=cv2.INTER_NEAREST) > 0
-    valid = cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    # the frame's footprint, rasterised from its corners (ROI pixel indices, 1/16 px precision)
+    # rather than warped: one warp instead of two
+    outline = corners - [x0 + 0.5, y0 + 0.5]
+    valid = np.zeros((size[1], size[0]), np.uint8)
+    cv2.fillConvexPoly(valid, np.round(outline * 16).astype(np.int32), 1, lineType=cv2.LINE_8,
+                       shift=4)
+    valid = cv2.erode(valid, np.ones((3, 3), np.uint8)).astype(bool)
     mroi = mgray[y0:y1, x0:x1]
     # pyramid of quantised images, finest first
     pyr = []
