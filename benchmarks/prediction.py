@@ -13,8 +13,19 @@ Each method predicts with :meth:`aerotrack.context.motion.MotionPredictor.predic
 scene's table: the target's rows after `last_seen` and other tracks' rows after each predicted frame
 are ignored by construction (tested in tests/test_predict.py).
 
+Generated scenes (``--synth``, issue 6 "prediction on generated scenes"): scenes of
+:mod:`aerotrack.synth` (made and cached as ``benchmarks/identity.py`` does, in
+/tmp/aerotrack_identity), where convoys and earlier vehicles drive the same roads. The table holds
+every vehicle's TRUE position (``states.csv`` map_x, map_y scaled to metres per axis) in the frames
+where it is visible; for every gap (a run of >= 0.5 s occluded/outside between two visible stretches)
+the target is predicted from its last visible frame, and the error against its true position (known
+while hidden) is taken 1, 2 and 4 s into the gap when the gap is still running. Occlusions and exits
+are reported apart and together, as ratios to the Kalman filter.
+
 Run: /tmp/venv/bin/python benchmarks/prediction.py [--scenes deathCircle/video4 ...] [--stride 15]
-Writes benchmarks/results/prediction.json.
+     /tmp/venv/bin/python benchmarks/prediction.py --synth [--synth-scenes occlusion:1 exits:2 ...]
+Writes benchmarks/results/prediction.json (the SDD part under ``sdd``, the generated scenes under
+``synth``; a run of one part keeps the other's last results).
 """
 
 from __future__ import annotations
@@ -30,6 +41,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from aerotrack.config import ContextConfig  # noqa: E402
 from aerotrack.context.motion import PREDICTION_METHODS, TrackTable, get_predictor  # noqa: E402
@@ -116,20 +128,125 @@ def run(scenes, stride, methods, config):
     return per, timing, counts
 
 
+SYNTH_SCENES = ["default:0", "default:2", "occlusion:1", "exits:1", "exits:2"]
+SYNTH_AT = {"1s": 30, "2s": 60, "4s": 120}
+MIN_GAP = 15  # frames: 0.5 s
+
+
+def synth_queries(scene: Path):
+    """(table of visible true positions in metres, [(id, last_seen, kind, {frame: true xy})]) of a
+    generated scene: one query per gap of >= MIN_GAP hidden frames between two visible stretches."""
+    from identity import gaps_of, load_states  # benchmarks/identity.py: the same gap definition
+
+    info = json.loads((scene / "scenario.json").read_text())
+    mpp = np.asarray(info["map_metres_per_pixel"], float)
+    states = load_states(scene)
+    ids, frames, xy = [], [], []
+    for tid, st in states.items():
+        for f, (state, x, y) in st.items():
+            if state == "visible":
+                ids.append(tid)
+                frames.append(f)
+                xy.append((x * mpp[0], y * mpp[1]))
+    table = TrackTable.from_arrays(ids, frames, xy)
+    queries = []
+    for tid, a, b, kind in gaps_of(states):
+        truth = {a + n: np.array(states[tid][a + n][1:]) * mpp
+                 for n in SYNTH_AT.values() if a + n < b and a + n in states[tid]}
+        if truth:
+            queries.append((tid, a, kind, truth))
+    return table, queries
+
+
+def run_synth(specs, frames, methods, config):
+    """Errors {method: {kind: {"1s": [m...]}}} at 1/2/4 s into every gap, and seconds per query."""
+    from identity import make_scene
+
+    per = {m: {k: {s: [] for s in SYNTH_AT} for k in ("occlusion", "exit")} for m in methods}
+    timing = {m: 0.0 for m in methods}
+    counts: dict[str, dict[str, int]] = {}
+    nq = 0
+    for spec in specs:
+        scen, seed = spec.split(":")
+        scene = make_scene(scen, int(seed), frames, False)
+        table, queries = synth_queries(scene)
+        counts[spec] = {k: sum(q[2] == k for q in queries) for k in ("occlusion", "exit")}
+        nq += len(queries)
+        h = max(SYNTH_AT.values())
+        for m in methods:
+            pred = get_predictor(m, config, FPS, metres_per_unit=None)
+            t0 = time.perf_counter()
+            out = [pred.predict(table, i, T, h) for i, T, _, _ in queries]
+            timing[m] += time.perf_counter() - t0
+            for (i, T, kind, truth), p in zip(queries, out):
+                for s, n in SYNTH_AT.items():
+                    if T + n in truth:
+                        per[m][kind][s].append(float(np.hypot(*(p[n - 1] - truth[T + n]))))
+    return per, {m: t / max(nq, 1) for m, t in timing.items()}, counts
+
+
+def synth_report(specs, frames, methods, config) -> dict:
+    per, timing, counts = run_synth(specs, frames, methods, config)
+    res = {"protocol": {"scenes": specs, "frames": frames, "fps": FPS, "min_gap_frames": MIN_GAP,
+                        "at": SYNTH_AT, "gaps": counts,
+                        "source": "aerotrack.synth true positions of visible vehicles, metres"},
+           "MPE_m": {}, "ratio_to_kalman": {}, "n": {}, "seconds_per_query": timing}
+    print(f"generated scenes {specs}: gaps {counts}")
+    print(f"{'method':<18} {'gaps':<10} " + " ".join(f"{k:>16}" for k in SYNTH_AT))
+    for m in methods:
+        res["MPE_m"][m], res["ratio_to_kalman"][m] = {}, {}
+        for kind in ("occlusion", "exit", "all"):
+            kinds = ("occlusion", "exit") if kind == "all" else (kind,)
+            row, rrow, nrow = {}, {}, {}
+            for s in SYNTH_AT:
+                e = [x for k in kinds for x in per[m][k][s]]
+                ek = [x for k in kinds for x in per["kalman"][k][s]]
+                row[s] = float(np.mean(e)) if e else float("nan")
+                rrow[s] = row[s] / float(np.mean(ek)) if ek and np.mean(ek) > 0 else float("nan")
+                nrow[s] = len(e)
+            res["MPE_m"][m][kind], res["ratio_to_kalman"][m][kind] = row, rrow
+            res["n"][kind] = nrow
+            print(f"{m:<18} {kind:<10} " + " ".join(
+                f"{row[s]:6.2f}m {rrow[s]:4.2f}x" + f"({nrow[s]:>3})" for s in SYNTH_AT))
+    print("predict time per query: " + ", ".join(f"{m} {t * 1e3:.2f} ms" for m, t in timing.items()))
+    return res
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=list(SCALES))
     ap.add_argument("--stride", type=int, default=15, help="frames between queries (15 = 0.5 s)")
     ap.add_argument("--methods", nargs="+", default=list(PREDICTION_METHODS))
+    ap.add_argument("--synth", action="store_true", help="generated scenes instead of SDD")
+    ap.add_argument("--synth-scenes", nargs="+", default=SYNTH_SCENES, help="scenario:seed ...")
+    ap.add_argument("--synth-frames", type=int, default=900)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "prediction.json"))
     args = ap.parse_args(argv)
     config = ContextConfig()
+    out = Path(args.out)
+    old = json.loads(out.read_text()) if out.exists() else {}
+    if old and "sdd" not in old and "synth" not in old:
+        old = {"sdd": old}
+    if args.synth:
+        methods = list(dict.fromkeys(["kalman", "constant-velocity", *args.methods]))
+        old["synth"] = synth_report(args.synth_scenes, args.synth_frames, methods, config)
+        old["synth"]["config"] = {k: getattr(config, k) for k in config.__dataclass_fields__}
+    else:
+        old["sdd"] = sdd_report(args, config)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(old, indent=2))
+    return old
+
+
+def sdd_report(args, config) -> dict:
     methods = list(dict.fromkeys(["constant-velocity", *args.methods]))
     per, timing, counts = run(args.scenes, args.stride, methods, config)
+    nq = sum(c["curved"] + c["straight"] for c in counts.values())
     res = {"protocol": {"fps": FPS, "F": F, "horizon": H, "stride": args.stride,
                         "scenes": args.scenes, "queries": counts},
            "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
-           "MPE_m": {}, "ratio_to_cv": {}, "Variance_n_m2": {}, "seconds": timing}
+           "MPE_m": {}, "ratio_to_cv": {}, "Variance_n_m2": {}, "seconds": timing,
+           "seconds_per_query": {m: t / max(nq, 1) for m, t in timing.items()}}
     cv = per["constant-velocity"]
     print(f"queries: {counts}")
     print(f"{'method':<18} {'window':<9} {'n':>4} " + " ".join(f"{k:>13}" for k in NS))
@@ -148,8 +265,8 @@ def main(argv=None) -> dict:
             res["Variance_n_m2"].setdefault(m, {})[w] = {k: sm[n]["Variance"] for k, n in NS.items()}
             print(f"{m:<18} {w:<9} {len(e):>4} " +
                   " ".join(f"{row[k]:6.2f}m {rrow[k]:4.2f}x" for k in NS))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(res, indent=2))
+    print("predict time per query: " + ", ".join(
+        f"{m} {t * 1e3:.2f} ms" for m, t in res["seconds_per_query"].items()))
     return res
 
 

@@ -21,6 +21,7 @@ from aerotrack.context.motion import (
     PaperPredictor,
     TrackTable,
     affine_regression,
+    bridge_gaps,
     fit_constant_velocity,
     get_predictor,
     kalman_start,
@@ -131,6 +132,68 @@ def test_context_uses_predictors_on_the_same_path_not_a_diverging_one():
     e_cv = prediction_errors(cv, truth).mean()
     assert e_ctx < 0.6 * e_cv, (e_ctx, e_cv)
     assert out[-1, 1] > 2.0
+
+
+def test_bridge_gaps_rebuilds_a_hidden_corner_and_u_turn():
+    """A chord across a gap is replaced by the entry and exit headings' legs; the rebuilt points
+    carry the frame of the row that fixed the exit heading."""
+    fr = np.array([0, 5, 10, 25, 30])
+    corner = np.array([[0, 0], [5, 0], [10, 0], [20, 10], [20, 15]], float)   # east, hidden, north
+    xy, f = bridge_gaps(corner, fr, 7)
+    np.testing.assert_allclose(xy, [[0, 0], [5, 0], [10, 0], [20, 0], [20, 10], [20, 15]])
+    np.testing.assert_array_equal(f, [0, 5, 10, 30, 30, 30])
+    # out at 1 unit/frame, back in the next lane: 15 frames hidden = 15 units driven, 3.6 apart
+    uturn = np.array([[0, 0], [5, 0], [10, 0], [10, 3.6], [5, 3.6]], float)
+    xy, _ = bridge_gaps(uturn, fr, 7)
+    np.testing.assert_allclose(xy[3:5], [[15.7, 0.0], [15.7, 3.6]])
+    straight = np.array([[0, 0], [5, 0], [10, 0], [25, 0], [30, 0]], float)
+    xy, f = bridge_gaps(straight, fr, 7)
+    np.testing.assert_array_equal(xy, straight)
+
+
+def test_context_follows_predecessors_through_a_hidden_turn():
+    """Earlier cars turned left behind an occluder (x in [20, 40]: no rows there); the target enters
+    it. Their rebuilt hidden paths bend the prediction; before any of them came out, nothing does."""
+    cfg = ContextConfig()
+    fps = 30.0
+
+    def hidden(f, xy):
+        keep = ~((xy[:, 0] >= 20) & (xy[:, 0] <= 40) & (xy[:, 1] < 20))
+        return f[keep], xy[keep]
+
+    tracks = {i: hidden(*_straight_then(fr0, 300, 0.0, turn_at=100, speed=0.3))
+              for i, fr0 in enumerate((1, 60), start=2)}  # corner at x = 30
+    tracks[1] = _straight_then(400, 64, 0.0, turn_at=100, speed=0.3)  # target, last seen at x = 18.9
+    table = _table(tracks)
+    truth = _straight_then(400, 124, 0.0, turn_at=100, speed=0.3)[1][64:]
+    ctx = ContextPredictor(cfg, fps).predict(table, 1, 463, 60)
+    kf = get_predictor("kalman", cfg, fps).predict(table, 1, 463, 60)
+    e_ctx, e_kf = prediction_errors(ctx, truth)[-1], prediction_errors(kf, truth)[-1]
+    assert e_ctx < 0.5 * e_kf, (e_ctx, e_kf)
+    # the same moment, when the predecessors had not yet come out: the Kalman prediction
+    early = {i: hidden(*_straight_then(fr0, 300, 0.0, turn_at=100, speed=0.3))
+             for i, fr0 in enumerate((380, 390), start=2)}  # hidden from frame 447 to 547 and on
+    early[1] = tracks[1]
+    out = ContextPredictor(cfg, fps).predict(_table(early), 1, 463, 60)
+    np.testing.assert_allclose(out, kf, atol=1e-3)  # (the flow speed prior nudges it by < 1 mm)
+
+
+def test_context_takes_a_short_track_speed_from_the_flow():
+    """A target seen for two frames has no reliable velocity; cars seen earlier on its lane drove
+    9 m/s. After a second of its own motion (6 m/s) it keeps its own speed."""
+    cfg = ContextConfig()
+    fps = 30.0
+    tracks = {i: _straight_then(fr0, 200, 0.0, speed=0.3) for i, fr0 in enumerate((1, 50), start=2)}
+    tracks[1] = (np.array([300, 301]), np.array([[10.0, 0.0], [10.2, 0.0]]))
+    pred = ContextPredictor(cfg, fps)
+    out = pred.predict(_table(tracks), 1, 301, 30)
+    assert abs((out[-1, 0] - 10.2) / 30 - 0.3) < 0.03, out[-1]
+    kf = get_predictor("kalman", cfg, fps).predict(_table(tracks), 1, 301, 30)
+    assert abs((kf[-1, 0] - 10.2) / 30 - 0.3) > 0.05  # the filter alone does not know
+    tracks[1] = _straight_then(270, 32, 0.0, speed=0.2)
+    tracks[1] = (tracks[1][0], tracks[1][1] + [4.0, 0.0])
+    out = pred.predict(_table(tracks), 1, 301, 30)
+    assert abs((out[-1, 0] - out[0, 0]) / 29 - 0.2) < 0.01
 
 
 def test_constant_velocity_fit_and_unknown_method():

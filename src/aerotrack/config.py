@@ -473,6 +473,27 @@ class ContextConfig:
     path_sample_s : float
         ``context``: other tracks' rows are sampled every this many seconds (speed vs density).
     velocity_lag_s : float
+    flow_radius_m : float
+        ``context``: the learned road (the local flow of earlier objects). Their rows within this
+        distance of the target (heading within ``flow_heading_deg``) give a target with a short
+        history its likely velocity, and with ``flow_follow`` they steer the prediction. 0
+        disables both. Larger finds more support but mixes neighbouring lanes.
+    flow_heading_deg : float
+        ``context``: flow rows whose heading differs from the predicted heading by more than this
+        are ignored (opposite lane, crossing traffic, the other branch of a fork).
+    flow_follow : bool
+        ``context``: turn the prediction as the local flow turns
+        (:func:`~aerotrack.context.motion.follow_flow`). Off by default: measured on SDD and on
+        generated scenes it gained nothing over path following (SDD straight windows lost 1-4%).
+    flow_prior_weight : float
+        ``context``, ``flow_follow``: support (sum of row weights) at which the flow's turn is half
+        believed. Raising it follows the road only where many earlier objects passed.
+    flow_step_s : float
+        ``context``, ``flow_follow``: seconds between heading updates along the learned road.
+    flow_velocity_std_mps : float
+        ``context``: least uncertainty of the flow's velocity used as a prior for the target's own
+        (fused by their covariances: only a target with a short history takes the flow's speed).
+        Raising it trusts the target's short history more.
         ``context``: a row's velocity is its backward difference over this many seconds.
     kalman_accel_mps2 : float
         Process noise of the constant-velocity Kalman filter (white acceleration), m/s^2.
@@ -506,6 +527,12 @@ class ContextConfig:
     kalman_accel_mps2: float = 3.0
     kalman_meas_std_m: float = 0.1
     kalman_vel_std_mps: float = 5.0
+    flow_radius_m: float = 3.0
+    flow_heading_deg: float = 45.0
+    flow_follow: bool = False
+    flow_prior_weight: float = 5.0
+    flow_step_s: float = 0.2
+    flow_velocity_std_mps: float = 1.0
     image_object_size_m: float = 4.5
 
 

@@ -52,6 +52,9 @@ __all__ = [
     "lce",
     "affine_regression",
     "fit_constant_velocity",
+    "kalman_state",
+    "follow_flow",
+    "bridge_gaps",
 ]
 
 
@@ -323,13 +326,33 @@ def kalman_start(fr: np.ndarray, xy: np.ndarray, fps: float, mpu: float,
     """
     from ..kalman import ConstantVelocityKF  # the project's one Kalman filter
 
+    p, v, _ = kalman_state(fr, xy, fps, mpu, config)
+    return p, v
+
+
+def kalman_state(fr: np.ndarray, xy: np.ndarray, fps: float, mpu: float,
+                 config: ContextConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`kalman_start` with the posterior velocity covariance.
+
+    Returns
+    -------
+    p : ndarray, shape (2,)
+        Position at the last frame, world units.
+    v : ndarray, shape (2,)
+        Velocity, world units per frame.
+    Pv : ndarray, shape (2, 2)
+        Covariance of ``v``, (world units per frame)^2: large after one or two rows (the prior
+        ``kalman_vel_std_mps``), small after a second of steady motion.
+    """
+    from ..kalman import ConstantVelocityKF  # the project's one Kalman filter
+
     kf = ConstantVelocityKF(accel_std=config.kalman_accel_mps2 / mpu,
                             pos_std=config.kalman_meas_std_m / mpu, pos_frac=0.0,
                             size_std=1.0, size_std_obs=1.0, size_frac=0.0,
                             vel_std=config.kalman_vel_std_mps / mpu)
     zs = np.column_stack([xy, np.ones((len(xy), 2))])
-    xs, _, _ = kf.filter(zs, np.asarray(fr, dtype=np.float64) / fps)
-    return xs[-1, :2].copy(), xs[-1, 4:6] / fps
+    xs, Ps, _ = kf.filter(zs, np.asarray(fr, dtype=np.float64) / fps)
+    return xs[-1, :2].copy(), xs[-1, 4:6] / fps, Ps[-1, 4:6, 4:6] / (fps * fps)
 
 
 class KalmanPredictor(MotionPredictor):
@@ -491,6 +514,232 @@ class PathIndex:
         return cand[keep]
 
 
+    def flow(self, p: np.ndarray, u: np.ndarray | None, frame: int, exclude_id: int, radius: float,
+             cos_gate: float, min_speed: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """The local flow at ``p``: what earlier objects did where the target is.
+
+        Rows within ``radius`` of ``p`` (world units), seen no later than ``frame``, of another id,
+        moving at >= ``min_speed`` (units per frame) and, when ``u`` (unit heading) is given,
+        within the heading gate ``cos(angle) >= cos_gate``, weighted by ``exp(-2 d^2 / radius^2)``.
+
+        Returns
+        -------
+        w : ndarray, shape (m,)
+            Weights, in canonical (id, frame) order of the rows.
+        vel : ndarray, shape (m, 2)
+            The rows' velocities, world units per frame.
+        total : float
+            Sum of ``w`` (0 without support).
+        """
+        rows = self.near(p, radius, frame, exclude_id)
+        if len(rows) == 0:
+            return np.zeros(0), np.zeros((0, 2)), 0.0
+        vel = self.vel[rows]
+        sp = np.hypot(vel[:, 0], vel[:, 1])
+        ok = np.isfinite(sp) & (sp >= min_speed)
+        if u is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ok &= (vel @ u) >= cos_gate * sp
+        rows, vel = rows[ok], vel[ok]
+        d2 = ((self.xy[rows] - p) ** 2).sum(axis=1)
+        w = np.exp(-2.0 * d2 / (radius * radius))
+        return w, vel, float(w.sum())
+
+
+def flow_velocity(index: PathIndex, p0: np.ndarray, v0: np.ndarray, Pv: np.ndarray, T: int,
+                  exclude_id: int, radius: float, cos_gate: float, min_speed: float,
+                  floor_std: float) -> np.ndarray:
+    """The target's velocity with the local flow as a prior (Bayesian fusion of two Gaussians).
+
+    A target seen for a frame or two has an almost unknown velocity (its Kalman covariance ``Pv`` is
+    the prior ``kalman_vel_std_mps``); the objects that passed where it is tell how things move
+    there. The flow's velocity is the weighted mean of :meth:`PathIndex.flow` (heading-gated by
+    ``v0`` once the target's own heading is known, i.e. ``|v0|^2 > trace(Pv)``) with covariance
+    its weighted spread + ``floor_std^2``. After a second of steady motion ``Pv`` is small and the
+    result is the target's own velocity.
+
+    Parameters
+    ----------
+    p0, v0 : ndarray, shape (2,)
+        Kalman position (world units) and velocity (units per frame) at ``T``.
+    Pv : ndarray, shape (2, 2)
+        Covariance of ``v0``.
+    floor_std : float
+        Units per frame: the least uncertainty of the flow's velocity (objects on the same road
+        drive at different speeds). Raising it trusts the target's own short history more.
+
+    Returns
+    -------
+    ndarray, shape (2,), units per frame.
+    """
+    known = float(v0 @ v0) > float(np.trace(Pv))
+    sp = math.hypot(v0[0], v0[1])
+    w, vel, total = index.flow(p0, v0 / sp if known and sp > 0 else None, T, exclude_id, radius,
+                               cos_gate, min_speed)
+    if total <= 0:
+        return v0
+    vf = (w[:, None] * vel).sum(axis=0) / total
+    dv = vel - vf
+    Sf = (w[:, None, None] * dv[:, :, None] * dv[:, None, :]).sum(axis=0) / total
+    Sf = Sf + floor_std * floor_std * np.eye(2)
+    A = np.linalg.inv(Pv + 1e-12 * np.eye(2))
+    B = np.linalg.inv(Sf)
+    return np.linalg.solve(A + B, A @ v0 + B @ vf)
+
+
+def _flow_heading(index: PathIndex, q: np.ndarray, u: np.ndarray, frame: int, exclude_id: int,
+                  radius: float, cos_gate: float, min_speed: float) -> tuple[np.ndarray, float]:
+    """Weighted mean unit heading of the flow at ``q`` gated around ``u``, and its total weight."""
+    w, vel, total = index.flow(q, u, frame, exclude_id, radius, cos_gate, min_speed)
+    if total <= 0:
+        return u, 0.0
+    sp = np.hypot(vel[:, 0], vel[:, 1])
+    d = (w[:, None] * vel / sp[:, None]).sum(axis=0)
+    n = math.hypot(d[0], d[1])
+    return (d / n, total) if n > 0 else (u, 0.0)
+
+
+def _rotate(u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``u`` turned by the angle from unit vector ``a`` to unit vector ``b``."""
+    c, s = float(a @ b), float(a[0] * b[1] - a[1] * b[0])
+    return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1]])
+
+
+def follow_flow(index: PathIndex, p0: np.ndarray, v0: np.ndarray, T: int, h: int, exclude_id: int,
+                radius: float, cos_gate: float, min_speed: float, prior_weight: float,
+                step: int) -> np.ndarray:
+    """Drive along the learned road: turn the target's heading as the local flow turns.
+
+    The flow heading at a point is the weighted mean unit heading of :meth:`PathIndex.flow` there
+    (rows seen no later than that point's frame, within the heading gate, so at a fork the branch
+    most earlier objects took wins and an opposite lane is ignored). Every ``step`` frames the
+    target's heading is its own starting heading turned by the angle between the flow heading at
+    ``p0`` and at the current position (the flow's *change*, not its direction: on a straight road
+    the target's own heading, which is more precise than an average over a lane, is kept), shrunk
+    by the confidence ``W / (W + prior_weight)`` of the support ``W`` found there. The speed stays
+    ``|v0|``. Without support the heading is kept, so with no earlier objects the result is the
+    straight line ``p0 + k v0``, the Kalman prediction.
+
+    Parameters
+    ----------
+    p0 : ndarray, shape (2,)
+        Start (world units) at frame ``T``.
+    v0 : ndarray, shape (2,)
+        Velocity, units per frame.
+    h : int
+        Frames to predict.
+    prior_weight : float
+        Support (sum of row weights, each at most 1) at which the flow's turn is half believed.
+        Raising it follows the road only where many earlier objects passed.
+    step : int
+        Frames between heading updates.
+
+    Returns
+    -------
+    ndarray, shape (h, 2), world units, frames ``T+1 .. T+h``.
+    """
+    k = np.arange(1, h + 1, dtype=np.float64)
+    speed = math.hypot(v0[0], v0[1])
+    straight = p0[None] + k[:, None] * v0[None]
+    if speed < min_speed or index.tree is None:
+        return straight
+    u0 = np.asarray(v0, dtype=np.float64) / speed
+    f0, W0 = _flow_heading(index, p0, u0, T, exclude_id, radius, cos_gate, min_speed)
+    if W0 <= 0:
+        return straight
+    out = np.empty((h, 2))
+    q = np.asarray(p0, dtype=np.float64).copy()
+    u, fq = u0, f0
+    for j0 in range(0, h, step):
+        if j0 > 0:
+            f, W = _flow_heading(index, q, fq, T + j0, exclude_id, radius, cos_gate, min_speed)
+            if W > 0:
+                fq = f
+                turned = _rotate(u0, f0, f)
+                a = W / (W + prior_weight)
+                d = a * turned + (1 - a) * u
+                n = math.hypot(d[0], d[1])
+                u = d / n if n > 0 else u
+        j1 = min(j0 + step, h)
+        out[j0:j1] = q[None] + (np.arange(1, j1 - j0 + 1) * speed)[:, None] * u[None]
+        q = out[j1 - 1].copy()
+    return out
+
+
+def bridge_gaps(path_xy: np.ndarray, path_frames: np.ndarray, max_step: int,
+                parallel_sin: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """Reconstruct where a predictor drove while it was hidden (the gaps in its track).
+
+    A chord from the last row before a gap (A) to the first after it (B) is not where the object
+    drove: it cuts the corner of a turn and hides a U-turn. The hidden path is rebuilt from two legs,
+    one along the heading it had entering (A - A_prev) and one along the heading it had leaving
+    (B_next - B), as roads do:
+
+    * headings at an angle (``|sin| > parallel_sin``) whose rays meet ahead of A and behind B: the
+      corner C where they meet, path A -> C -> B;
+    * opposite headings (a U-turn at a dead end or a roundabout): out along the entry heading and
+      back, each leg half of the distance it could drive in the gap (mean of its entry and exit
+      speeds times the gap) beyond |AB|, path A -> A + L h_in -> B + L h_in -> B;
+    * otherwise (straight on, or no exit heading): the chord.
+
+    The rebuilt points become known only when B_next is seen: they and B carry B_next's frame, so
+    :func:`follow_path` uses them only for predicted frames at or after it (causality).
+
+    Parameters
+    ----------
+    path_xy : ndarray, shape (n, 2)
+        A predictor's rows (world units), sorted by frame.
+    path_frames : ndarray, shape (n,)
+    max_step : int
+        Rows more than this many frames apart enclose a gap.
+    parallel_sin : float
+        Headings closer to parallel than this are "straight on" or "U-turn".
+
+    Returns
+    -------
+    xy : ndarray, shape (m, 2), m >= n
+    frames : ndarray, shape (m,)
+        The frame at which each point is known (not monotonic where points were inserted).
+    """
+    path_xy = np.asarray(path_xy, dtype=np.float64)
+    path_frames = np.asarray(path_frames)
+    gaps = np.flatnonzero(np.diff(path_frames) > max_step)
+    if len(gaps) == 0:
+        return path_xy, path_frames
+    xs, fs = [path_xy[: gaps[0] + 1]], [path_frames[: gaps[0] + 1]]
+    for n, g in enumerate(gaps):
+        a, b = g, g + 1
+        A, B = path_xy[a], path_xy[b]
+        fB = path_frames[b]
+        insert: list[np.ndarray] = []
+        if a >= 1 and b + 1 < len(path_xy) and path_frames[b + 1] - fB <= max_step:
+            din, dout = A - path_xy[a - 1], path_xy[b + 1] - B
+            lin, lout = math.hypot(*din), math.hypot(*dout)
+            if lin > 0 and lout > 0:
+                hin, hout = din / lin, dout / lout
+                fB = path_frames[b + 1]
+                speed = 0.5 * (lin / (path_frames[a] - path_frames[a - 1])
+                               + lout / (path_frames[b + 1] - path_frames[b]))
+                d = B - A
+                sin = hin[0] * hout[1] - hin[1] * hout[0]
+                if abs(sin) > parallel_sin:
+                    L1 = (d[0] * hout[1] - d[1] * hout[0]) / sin
+                    L2 = (hin[0] * d[1] - hin[1] * d[0]) / sin
+                    if L1 > 0 and L2 > 0:
+                        insert = [A + L1 * hin]
+                elif hin @ hout < 0:
+                    L = 0.5 * (speed * (path_frames[b] - path_frames[a]) - math.hypot(*d))
+                    if L > 0:
+                        insert = [A + L * hin, B + L * hin]
+        end = gaps[n + 1] + 1 if n + 1 < len(gaps) else len(path_xy)
+        if insert:
+            xs.append(np.array(insert))
+            fs.append(np.full(len(insert), fB))
+        xs.append(path_xy[b:end])
+        fs.append(np.concatenate([[fB], path_frames[b + 1:end]]))
+    return np.concatenate(xs), np.concatenate(fs)
+
+
 def follow_path(path_xy: np.ndarray, path_frames: np.ndarray, start: np.ndarray, lengths: np.ndarray,
                 frames: np.ndarray, start_frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Displacements along a predictor's polyline from the point nearest ``start``.
@@ -646,9 +895,20 @@ class ContextPredictor(MotionPredictor):
 
     def _predict(self, table, track_id, fr, xy, T, h):
         c = self.config
-        p0, v0 = kalman_start(fr, xy, self.fps, self.mpu, c)
+        p0, v0, Pv = kalman_state(fr, xy, self.fps, self.mpu, c)
         k = np.arange(1, h + 1)
+        if table is not None and c.flow_radius_m > 0:
+            index = self.index_for(table)
+            radius = self.m(c.flow_radius_m)
+            cos_gate = math.cos(math.radians(c.flow_heading_deg))
+            vmin = self.m(c.min_speed_mps) / self.fps
+            v0 = flow_velocity(index, p0, v0, Pv, T, track_id, radius, cos_gate, vmin,
+                               self.m(c.flow_velocity_std_mps) / self.fps)
         base = p0 + k[:, None] * v0
+        if table is not None and c.flow_radius_m > 0 and c.flow_follow:
+            step = max(1, int(round(c.flow_step_s * self.fps)))
+            base = follow_flow(index, p0, v0, T, h, track_id, radius, cos_gate, vmin,
+                               c.flow_prior_weight, step)
         t = k / self.fps
         var_kf = self.m(c.kalman_meas_std_m) ** 2 + (0.5 * self.m(c.kalman_accel_mps2) * t * t) ** 2
         estimates = [(base, var_kf)]
@@ -684,8 +944,9 @@ class ContextPredictor(MotionPredictor):
             r0 = r - chord if r - chord >= lo else r
             if hi - r0 < chord + 1:
                 continue
-            disp, valid = follow_path(index.xy[r0:hi:chord], index.frames[r0:hi:chord], p0, lengths,
-                                      frames, start_frame=T)
+            pxy, pfr = bridge_gaps(index.xy[r0:hi:chord], index.frames[r0:hi:chord],
+                                   int(1.5 * chord * index.stride))
+            disp, valid = follow_path(pxy, pfr, p0, lengths, frames, start_frame=T)
             disps.append(disp)
             valids.append(valid)
             ws.append(math.exp(-0.5 * (dpath / sigma) ** 2))
