@@ -108,7 +108,14 @@ def make_queries(table: TrackTable, labels: dict, mpp: float, stride: int):
     return out
 
 
+def warm_up(config) -> None:
+    """Compile the Kalman filter (numba) before anything is timed."""
+    get_predictor("kalman", config, FPS).predict(
+        TrackTable.from_arrays([1, 1, 1], [1, 2, 3], [[0, 0], [1, 0], [2, 0]]), 1, 3, 2)
+
+
 def run(scenes, stride, methods, config):
+    warm_up(config)
     per = {m: {"curved": [], "straight": []} for m in methods}
     timing = {m: 0.0 for m in methods}
     counts = {}
@@ -128,7 +135,8 @@ def run(scenes, stride, methods, config):
     return per, timing, counts
 
 
-SYNTH_SCENES = ["default:0", "default:2", "occlusion:1", "exits:1", "exits:2"]
+SYNTH_SCENES = ([f"default:{i}" for i in range(6)] + [f"exits:{i}" for i in range(8)]
+                + [f"occlusion:{i}" for i in range(8)])
 SYNTH_AT = {"1s": 30, "2s": 60, "4s": 120}
 MIN_GAP = 15  # frames: 0.5 s
 
@@ -162,6 +170,7 @@ def run_synth(specs, frames, methods, config):
     """Errors {method: {kind: {"1s": [m...]}}} at 1/2/4 s into every gap, and seconds per query."""
     from identity import make_scene
 
+    warm_up(config)
     per = {m: {k: {s: [] for s in SYNTH_AT} for k in ("occlusion", "exit")} for m in methods}
     timing = {m: 0.0 for m in methods}
     counts: dict[str, dict[str, int]] = {}

@@ -311,3 +311,28 @@ def test_context_moves_a_hidden_car_with_its_queue():
     e_ctx = prediction_errors(ctx, truth).mean()
     e_cv = prediction_errors(cv, truth).mean()
     assert e_ctx < 0.25 * e_cv, (e_ctx, e_cv)
+
+
+def test_follow_flow_turns_with_the_road_and_keeps_straight_without_support():
+    """Earlier objects drove a circle of radius 40 m; following their flow stays near the circle,
+    far closer than the straight line; with no earlier objects it is the straight line."""
+    from aerotrack.context.motion import PathIndex, follow_flow
+
+    cfg = ContextConfig()
+    fps, r, w = 30.0, 40.0, 0.3 / 40.0  # 9 m/s
+    tracks = {}
+    for i, fr0 in enumerate((1, 100, 200), start=2):
+        f = np.arange(fr0, fr0 + 800)
+        a = w * (f - fr0)
+        tracks[i] = (f, np.column_stack([r * np.cos(a), r * np.sin(a)]))
+    p0, v0 = np.array([0.0, r]), np.array([-0.3, 0.0])  # a quarter of the way round
+    tracks[1] = (np.array([1000]), p0[None])
+    index = PathIndex(_table(tracks), fps, 1.0, cfg)
+    gate = math.cos(math.radians(45))
+    out = follow_flow(index, p0, v0, 1000, 90, 1, 3.0, gate, 0.01, 1.0, 6)
+    radial = np.hypot(out[:, 0], out[:, 1]) - r
+    straight = np.hypot(r, 0.3 * 90) - r
+    assert abs(radial[-1]) < 0.15 * straight, (radial[-1], straight)
+    alone = PathIndex(_table({1: tracks[1]}), fps, 1.0, cfg)
+    out = follow_flow(alone, p0, v0, 1000, 90, 1, 3.0, gate, 0.01, 1.0, 6)
+    np.testing.assert_allclose(out, p0 + np.arange(1, 91)[:, None] * v0)

@@ -12,9 +12,9 @@ Four predictors share one interface, :meth:`MotionPredictor.predict`, chosen by 
 ``context`` (default)
     aerotrack's motion context. The paper's idea, that predictors are objects that move or moved along
     the same stretch of path, used by *position*: the paths of past and current objects that passed
-    where the target is, walked at the target's own speed, and the observed displacement of objects
-    that were moving with it (a queue, a convoy), fused with the Kalman prediction by inverse
-    variance (:class:`ContextPredictor`).
+    where the target is (their hidden stretches rebuilt, :func:`bridge_gaps`), walked at the
+    target's own speed, and the observed displacement of objects that were moving with it (a queue,
+    a convoy), fused with the Kalman prediction by inverse variance (:class:`ContextPredictor`).
 ``kalman``
     The project's constant-velocity Kalman filter (:mod:`aerotrack.kalman`), run over the last F
     frames and then predicted forward.
@@ -814,13 +814,22 @@ class ContextPredictor(MotionPredictor):
     ways, each an estimate with a variance, fused with the Kalman prediction:
 
     1. **Kalman** (always): the project's constant-velocity filter over the last F frames, its
-       variance ``meas^2 + (a t^2 / 2)^2`` growing with the prediction time t.
+       variance ``meas^2 + (a t^2 / 2)^2`` growing with the prediction time t. Its velocity is
+       fused with the local flow's (:func:`flow_velocity`, the learned road: what earlier objects
+       did where the target is) by their covariances, so a target seen for a frame or two moves
+       like the traffic there while one seen for a second keeps its own velocity. With
+       ``flow_follow`` the straight line turns as the flow turns (:func:`follow_flow`; off by
+       default, it did not help on the benchmarks).
     2. **Path following** (past and current objects that drove the same stretch,
        :meth:`select`): other tracks with a row within ``path_radius_m`` of the target's position,
        seen no later than ``last_seen``, heading and speed alike, whose path passes the target's
        last F positions (mean distance ~``path_match_m``). Each predictor's path from the point
        nearest the target is walked at the target's own speed (arc length, so a slower biker and a
        faster cart on the same curve agree), using only rows no later than the predicted frame.
+       Where a predictor was itself hidden (an occluder, outside the view), its hidden path is
+       rebuilt from its entry and exit headings (:func:`bridge_gaps`: a corner, a U-turn), not
+       taken as the chord, which cuts corners. Gaps are where predictions matter and where every
+       object is hidden alike, so these hidden transits are most of the support there.
        Variance: the predictors' spread + their match distance + ``path_noise_m^2 / W``.
     3. **Co-movers** (:meth:`comovers`): tracks seen at ``last_seen`` within ``group_radius_m``
        whose last F frames moved like the target's (the start-normalised sections of eq. 1,
