@@ -43,9 +43,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from aerotrack.config import ContextConfig  # noqa: E402
-from aerotrack.context.motion import PREDICTION_METHODS, TrackTable, get_predictor  # noqa: E402
-from aerotrack.evaluation.prediction import prediction_errors, summarise  # noqa: E402
+from aerotrack.config import ContextConfig
+from aerotrack.context.motion import PREDICTION_METHODS, TrackTable, get_predictor
+from aerotrack.evaluation.prediction import prediction_errors, summarise
 
 DATA = ROOT.parent / "shared" / "data" / "sdd_stanford_drone_subset"
 SCALES = {  # metres per pixel, SOURCE.md
@@ -144,7 +144,10 @@ MIN_GAP = 15  # frames: 0.5 s
 def synth_queries(scene: Path):
     """(table of visible true positions in metres, [(id, last_seen, kind, {frame: true xy})]) of a
     generated scene: one query per gap of >= MIN_GAP hidden frames between two visible stretches."""
-    from identity import gaps_of, load_states  # benchmarks/identity.py: the same gap definition
+    from identity import (  # benchmarks/identity.py: the same gap definition
+        gaps_of,
+        load_states,
+    )
 
     info = json.loads((scene / "scenario.json").read_text())
     mpp = np.asarray(info["map_metres_per_pixel"], float)

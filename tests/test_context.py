@@ -28,7 +28,12 @@ from aerotrack.context.motion import (
     lce,
 )
 from aerotrack.errors import ConfigError
-from aerotrack.evaluation.prediction import mpe_n, prediction_errors, summarise, variance_n
+from aerotrack.evaluation.prediction import (
+    mpe_n,
+    prediction_errors,
+    summarise,
+    variance_n,
+)
 
 # ---------------------------------------------------------------- regression (Ali et al. 4.1)
 

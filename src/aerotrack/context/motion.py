@@ -41,20 +41,20 @@ from ..config import ContextConfig
 from ..errors import ConfigError, InputError
 
 __all__ = [
-    "TrackTable",
-    "MotionPredictor",
-    "ConstantVelocityPredictor",
-    "KalmanPredictor",
-    "PaperPredictor",
-    "ContextPredictor",
     "PREDICTION_METHODS",
-    "get_predictor",
-    "lce",
+    "ConstantVelocityPredictor",
+    "ContextPredictor",
+    "KalmanPredictor",
+    "MotionPredictor",
+    "PaperPredictor",
+    "TrackTable",
     "affine_regression",
-    "fit_constant_velocity",
-    "kalman_state",
-    "follow_flow",
     "bridge_gaps",
+    "fit_constant_velocity",
+    "follow_flow",
+    "get_predictor",
+    "kalman_state",
+    "lce",
 ]
 
 
@@ -80,7 +80,7 @@ class TrackTable:
     xy: np.ndarray
 
     @classmethod
-    def from_arrays(cls, ids, frames, xy) -> "TrackTable":
+    def from_arrays(cls, ids, frames, xy) -> TrackTable:
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         frames = np.asarray(frames, dtype=np.int64).reshape(-1)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
@@ -105,7 +105,7 @@ class TrackTable:
     def track_ids(self) -> np.ndarray:
         return np.unique(self.ids)
 
-    def without(self, track_id: int) -> "TrackTable":
+    def without(self, track_id: int) -> TrackTable:
         keep = self.ids != track_id
         return TrackTable(self.ids[keep], self.frames[keep], self.xy[keep])
 
@@ -324,8 +324,6 @@ def kalman_start(fr: np.ndarray, xy: np.ndarray, fps: float, mpu: float,
         Posterior velocity, world units per frame. Its mean prediction ``p + k v`` is the
         ``kalman`` method.
     """
-    from ..kalman import ConstantVelocityKF  # the project's one Kalman filter
-
     p, v, _ = kalman_state(fr, xy, fps, mpu, config)
     return p, v
 
