@@ -381,7 +381,11 @@ class LinkingConfig:
         ``--gsd``): there the camera's own motion looks like manoeuvres and the reach is only
         estimated, and long-gap manoeuvre links were wrong more often than right (UAVDT).
     turn_cost : float
-        Extra cost of that manoeuvre hypothesis over a straight continuation.
+        Extra cost of that manoeuvre hypothesis over a straight continuation, on top of
+        ``log(1 + reach / sigma)`` for the spread of where a target with a free heading may
+        re-appear (:func:`aerotrack.context.reacquire.motion_cost`). Measured with that term on
+        generated scenes (gt-dets and detector, benchmarks/identity.py), UAVDT and Santiago: 0.5
+        beat 1.0 and 2.0.
     min_track_s : float
         Final tracks (after linking) spanning less than this, first to last in-view point, are
         dropped as false alarms; 0 keeps every tracklet local association kept. Makes tracking
@@ -410,7 +414,7 @@ class LinkingConfig:
     lag_sigma_growth_mps: float = 6.0
     turn_max_gap_s: float = 12.0
     turn_max_gap_image_s: float = 1.5
-    turn_cost: float = 2.0
+    turn_cost: float = 0.5
     in_view_horizon_s: float = 4.0
     min_track_s: float = 1.0
 

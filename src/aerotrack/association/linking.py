@@ -233,7 +233,7 @@ class GlobalLinker:
             sa, sb = _speed(va) * mpu * fps, _speed(vb) * mpu * fps
             reach = max(sa, sb) * gap_s
             chord = float(np.hypot(*(b_start - a_end))) * mpu
-            turn = (max(0.0, chord - reach), abs(sb - sa))
+            turn = (max(0.0, chord - reach), abs(sb - sa), reach, dv)
         log.debug("motion: d %.2f/%.2f m lag %.1f/%.1f m dv %.2f m/s turn %s", d_f, d_b, lag_f,
                   lag_b, dv, turn)
         return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn)

@@ -45,18 +45,26 @@ class Cues:
 
 def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
                 speed_change_mps: float = 0.0, lag_m: float = 0.0,
-                turn: tuple[float, float] | None = None) -> float:
+                turn: tuple[float, ...] | None = None) -> float:
     """Motion cost of a candidate link: the cheaper of two hypotheses.
 
     * **along the prediction**: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2 + 0.5 (lag / sigma_l)^2``
       with d the distance from the predicted path, dv the change of velocity and ``lag`` how far
       the target fell behind its predicted position (it slowed down or stopped behind an occluder:
       a queue at a light); the sigmas grow linearly with the gap;
-    * **manoeuvre** (only when ``turn`` is given, for short gaps): a turn or U-turn during or just
-      before the gap, which the end/start velocities (each averaged over up to ``history_s``)
-      cannot follow. ``turn = (excess_m, speed_change_mps)``: the straight-line distance beyond
-      what the target could cover at its speed, and the change of speed (not of heading); it
-      costs ``turn_cost`` more than a straight continuation.
+    * **manoeuvre** (only when ``turn`` is given, for gaps up to ``turn_max_gap_s``): a turn or
+      U-turn during or just before the gap, which the end/start velocities (each averaged over up
+      to ``history_s``) cannot follow. ``turn = (excess_m, speed_change_mps, reach_m,
+      velocity_change_mps)``: the straight-line distance beyond what the target could cover at its
+      speed, the change of speed, the distance it could cover (speed x gap) and the norm of the
+      change of velocity. It costs ``turn_cost`` plus ``log(1 + reach / sigma_p)``: with the
+      heading free, where the target re-appears is spread along the roads within its reach
+      (a one-dimensional set of length ~reach) instead of the prediction's Gaussian, so a turn
+      hidden in a gap of a few frames costs little more than ``turn_cost`` and one hidden in
+      10 s about 2.5 more (the flat cost used before let any look-alike within reach of a long
+      gap take the link). The velocity may change by at most ``a_max_mps2`` x (gap + the 1 s of
+      the velocity windows); beyond that the excess costs like the speed change (a vehicle does
+      not reverse at the image edge in a quarter of a second).
 
     Parameters
     ----------
@@ -68,8 +76,9 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
         Norm of the velocity change between the end of a and the start of b, m/s.
     lag_m : float
         Along-path shortfall, metres.
-    turn : (float, float), optional
-        Manoeuvre-hypothesis distance excess (m) and speed change (m/s).
+    turn : tuple of float, optional
+        Manoeuvre hypothesis ``(excess_m, speed_change_mps[, reach_m[, velocity_change_mps]])``
+        (missing terms count 0).
     """
     g = max(gap_s, 0.0)
     sp = config.motion_sigma_m + config.motion_sigma_growth_mps * g
@@ -79,10 +88,14 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
         + 0.5 * (lag_m / sl) ** 2
     if turn is None:
         return straight
-    excess, dspeed = turn
+    excess, dspeed, reach, dvel = (tuple(turn) + (0.0, 0.0))[:4]
     # a turn slows the target; its speed is averaged over windows of up to history_s each side
-    st = sv + 0.5 * config.a_max_mps2 * (g + 1.0)
-    return min(straight, config.turn_cost + 0.5 * (excess / sp) ** 2 + 0.5 * (dspeed / st) ** 2)
+    window = g + 1.0
+    st = sv + 0.5 * config.a_max_mps2 * window
+    too_fast = max(0.0, dvel - config.a_max_mps2 * window)
+    manoeuvre = config.turn_cost + math.log(1.0 + reach / sp) + 0.5 * (excess / sp) ** 2 \
+        + 0.5 * (dspeed / st) ** 2 + 0.5 * (too_fast / st) ** 2
+    return min(straight, manoeuvre)
 
 
 def appearance_cost(z2: float, verified: bool) -> float:
