@@ -167,7 +167,8 @@ def test_context_follows_predecessors_through_a_hidden_turn():
         return f[keep], xy[keep]
 
     tracks = {i: hidden(*_straight_then(fr0, 300, 0.0, turn_at=100, speed=0.3))
-              for i, fr0 in enumerate((1, 60), start=2)}  # corner at x = 30
+              for i, fr0 in enumerate((1, 60, 323), start=2)}  # corner at x = 30
+    # (the third comes out of the occluder at frame 490, during the prediction)
     tracks[1] = _straight_then(400, 64, 0.0, turn_at=100, speed=0.3)  # target, last seen at x = 18.9
     table = _table(tracks)
     truth = _straight_then(400, 124, 0.0, turn_at=100, speed=0.3)[1][64:]
@@ -175,6 +176,11 @@ def test_context_follows_predecessors_through_a_hidden_turn():
     kf = get_predictor("kalman", cfg, fps).predict(table, 1, 463, 60)
     e_ctx, e_kf = prediction_errors(ctx, truth)[-1], prediction_errors(kf, truth)[-1]
     assert e_ctx < 0.5 * e_kf, (e_ctx, e_kf)
+    # causality: the frames up to f do not depend on rows after f (B_next of a gap included)
+    for f in (470, 480, 492, 500, 510):
+        cut = {i: (fr[fr <= f], xy[fr <= f]) for i, (fr, xy) in tracks.items()}
+        part = ContextPredictor(cfg, fps).predict(_table(cut), 1, 463, 60)
+        np.testing.assert_array_equal(part[: f - 463], ctx[: f - 463])
     # the same moment, when the predecessors had not yet come out: the Kalman prediction
     early = {i: hidden(*_straight_then(fr0, 300, 0.0, turn_at=100, speed=0.3))
              for i, fr0 in enumerate((380, 390), start=2)}  # hidden from frame 447 to 547 and on

@@ -678,10 +678,12 @@ def bridge_gaps(path_xy: np.ndarray, path_frames: np.ndarray, max_step: int,
     * opposite headings (a U-turn at a dead end or a roundabout): out along the entry heading and
       back, each leg half of the distance it could drive in the gap (mean of its entry and exit
       speeds times the gap) beyond |AB|, path A -> A + L h_in -> B + L h_in -> B;
-    * otherwise (straight on, or no exit heading): the chord.
+    * otherwise (straight on): the chord.
 
     The rebuilt points become known only when B_next is seen: they and B carry B_next's frame, so
-    :func:`follow_path` uses them only for predicted frames at or after it (causality).
+    :func:`follow_path` uses them only for predicted frames at or after it. Without B_next (the
+    track ends at B, or B is followed by another gap) the path ends at A: a later row must not
+    change what is known at an earlier frame (causality).
 
     Parameters
     ----------
@@ -707,28 +709,29 @@ def bridge_gaps(path_xy: np.ndarray, path_frames: np.ndarray, max_step: int,
     xs, fs = [path_xy[: gaps[0] + 1]], [path_frames[: gaps[0] + 1]]
     for n, g in enumerate(gaps):
         a, b = g, g + 1
+        if b + 1 >= len(path_xy) or path_frames[b + 1] - path_frames[b] > max_step:
+            break  # no exit heading (yet): the path ends before the gap, as it would have when
+            # only the rows up to B were known; the rest cannot be rebuilt
         A, B = path_xy[a], path_xy[b]
-        fB = path_frames[b]
+        fB = path_frames[b + 1]
         insert: list[np.ndarray] = []
-        if a >= 1 and b + 1 < len(path_xy) and path_frames[b + 1] - fB <= max_step:
-            din, dout = A - path_xy[a - 1], path_xy[b + 1] - B
-            lin, lout = math.hypot(*din), math.hypot(*dout)
-            if lin > 0 and lout > 0:
-                hin, hout = din / lin, dout / lout
-                fB = path_frames[b + 1]
-                speed = 0.5 * (lin / (path_frames[a] - path_frames[a - 1])
-                               + lout / (path_frames[b + 1] - path_frames[b]))
-                d = B - A
-                sin = hin[0] * hout[1] - hin[1] * hout[0]
-                if abs(sin) > parallel_sin:
-                    L1 = (d[0] * hout[1] - d[1] * hout[0]) / sin
-                    L2 = (hin[0] * d[1] - hin[1] * d[0]) / sin
-                    if L1 > 0 and L2 > 0:
-                        insert = [A + L1 * hin]
-                elif hin @ hout < 0:
-                    L = 0.5 * (speed * (path_frames[b] - path_frames[a]) - math.hypot(*d))
-                    if L > 0:
-                        insert = [A + L * hin, B + L * hin]
+        din, dout = A - path_xy[a - 1] if a >= 1 else np.zeros(2), path_xy[b + 1] - B
+        lin, lout = math.hypot(*din), math.hypot(*dout)
+        if lin > 0 and lout > 0:
+            hin, hout = din / lin, dout / lout
+            speed = 0.5 * (lin / (path_frames[a] - path_frames[a - 1])
+                           + lout / (path_frames[b + 1] - path_frames[b]))
+            d = B - A
+            sin = hin[0] * hout[1] - hin[1] * hout[0]
+            if abs(sin) > parallel_sin:
+                L1 = (d[0] * hout[1] - d[1] * hout[0]) / sin
+                L2 = (hin[0] * d[1] - hin[1] * d[0]) / sin
+                if L1 > 0 and L2 > 0:
+                    insert = [A + L1 * hin]
+            elif hin @ hout < 0:
+                L = 0.5 * (speed * (path_frames[b] - path_frames[a]) - math.hypot(*d))
+                if L > 0:
+                    insert = [A + L * hin, B + L * hin]
         end = gaps[n + 1] + 1 if n + 1 < len(gaps) else len(path_xy)
         if insert:
             xs.append(np.array(insert))
@@ -951,8 +954,16 @@ class ContextPredictor(MotionPredictor):
             r0 = r - chord if r - chord >= lo else r
             if hi - r0 < chord + 1:
                 continue
-            pxy, pfr = bridge_gaps(index.xy[r0:hi:chord], index.frames[r0:hi:chord],
-                                   int(1.5 * chord * index.stride))
+            # every chord-th row, and the rows on both sides of a gap (so a short visible stretch
+            # between two hidden ones still gives its exit heading)
+            fr_t = index.frames[r0:hi]
+            max_step = int(1.5 * chord * index.stride)
+            edge = np.flatnonzero(np.diff(fr_t) > max_step)
+            keep = np.zeros(len(fr_t), bool)
+            keep[::chord] = True
+            keep[edge] = keep[edge + 1] = True
+            keep[np.minimum(edge + 2, len(fr_t) - 1)] = True
+            pxy, pfr = bridge_gaps(index.xy[r0:hi][keep], fr_t[keep], max_step)
             disp, valid = follow_path(pxy, pfr, p0, lengths, frames, start_frame=T)
             disps.append(disp)
             valids.append(valid)
