@@ -10,6 +10,7 @@ from aerotrack.kalman import (
     cholesky_solve,
     filter_sequence,
     initiate,
+    mahalanobis,
     measurement_noise,
     predict,
     process_noise,
@@ -70,6 +71,18 @@ def test_cholesky_solve_and_logdet():
     np.testing.assert_allclose(logdet, np.log(11.0))
     X, logdet = cholesky_solve(np.array([[1.0, 2.0], [2.0, 1.0]]), B)
     assert np.isinf(logdet) and np.isnan(X).all()
+
+
+def test_mahalanobis_and_logdet():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(4, 4))
+    S = A @ A.T + 0.5 * np.eye(4)
+    e = rng.normal(size=4)
+    d2, logdet = mahalanobis(S, e)
+    np.testing.assert_allclose(d2, e @ np.linalg.solve(S, e), rtol=1e-10)
+    np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-10)
+    d2, logdet = mahalanobis(np.array([[1.0, 2.0], [2.0, 1.0]]), np.ones(2))
+    assert np.isinf(d2) and np.isinf(logdet)
 
 
 def test_measurement_noise_grows_with_size():

@@ -134,10 +134,10 @@ def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray
 
 
 @_njit(cache=True)
-def cholesky_solve(S: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, float]:
-    """Solve ``S X = B`` for symmetric positive-definite S (m, m), B (m, k); also ``log det S``.
+def cholesky(S: np.ndarray) -> tuple[np.ndarray, float]:
+    """Lower Cholesky factor L (m, m) of a symmetric positive-definite S (m, m) and ``log det S``.
 
-    Returns (X, logdet); X is all-NaN and logdet +inf when S is not positive definite.
+    logdet is +inf (and L incomplete) when S is not positive definite.
     """
     m = S.shape[0]
     L = np.zeros((m, m))
@@ -149,11 +149,43 @@ def cholesky_solve(S: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, float]:
                 acc -= L[i, k] * L[j, k]
             if i == j:
                 if acc <= 0.0:
-                    return np.full(B.shape, np.nan), np.inf
+                    return L, np.inf
                 L[i, i] = np.sqrt(acc)
-                logdet += 2.0 * np.log(L[i, i])
+                logdet += np.log(acc)
             else:
                 L[i, j] = acc / L[j, j]
+    return L, logdet
+
+
+@_njit(cache=True)
+def mahalanobis(S: np.ndarray, e: np.ndarray) -> tuple[float, float]:
+    """Squared Mahalanobis distance ``e^T S^-1 e`` of ``e`` (m,) and ``log det S`` (one Cholesky
+    factorisation and a forward substitution); (+inf, +inf) when S is not positive definite."""
+    L, logdet = cholesky(S)
+    if not np.isfinite(logdet):
+        return np.inf, np.inf
+    m = S.shape[0]
+    y = np.zeros(m)
+    d2 = 0.0
+    for i in range(m):
+        acc = e[i]
+        for k in range(i):
+            acc -= L[i, k] * y[k]
+        y[i] = acc / L[i, i]
+        d2 += y[i] * y[i]
+    return d2, logdet
+
+
+@_njit(cache=True)
+def cholesky_solve(S: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, float]:
+    """Solve ``S X = B`` for symmetric positive-definite S (m, m), B (m, k); also ``log det S``.
+
+    Returns (X, logdet); X is all-NaN and logdet +inf when S is not positive definite.
+    """
+    L, logdet = cholesky(S)
+    if not np.isfinite(logdet):
+        return np.full(B.shape, np.nan), np.inf
+    m = S.shape[0]
     nb = B.shape[1]
     X = np.zeros((m, nb))
     for c in range(nb):
@@ -230,6 +262,7 @@ measurement_noise_nb = measurement_noise
 initiate_nb = initiate
 predict_nb = predict
 update_nb = update
+mahalanobis_nb = mahalanobis
 
 
 @dataclass(frozen=True)

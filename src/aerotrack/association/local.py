@@ -46,7 +46,11 @@ class LocalAssociator:
         Metres per world unit. When None, estimated from the first detections' median size and
         ``config.target_size_m`` (or world units are taken as metres if that is 0).
     seed : int or numpy.random.Generator
-        Seeds the instance's random generator: the same seed gives the same tracklets.
+        The same seed gives the same tracklets. The MCMC of each frame ``t`` draws from its own
+        stream, ``numpy.random.default_rng([seed, t])`` (a Generator is turned into an integer
+        seed once): the samples of a frame do not depend on how many frames came before, so a run
+        started later in the video (a segment of :mod:`aerotrack.parallel`) draws the same numbers
+        and, once its window has filled, reproduces the single process.
 
     Notes
     -----
@@ -74,7 +78,12 @@ class LocalAssociator:
             raise ConfigError("config association.extend_gamma: must be in (0, 1)")
         self.fps = float(fps)
         self.mpu = metres_per_unit
-        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        if isinstance(seed, np.random.Generator):
+            seed = int(seed.integers(2**63 - 1))
+        if int(seed) < 0:
+            raise ConfigError(f"association: seed must be >= 0, got {seed}")
+        self.seed = int(seed)
+        self.rng = np.random.default_rng([self.seed, 0])
         self.window = max(2, int(round(config.window_s * fps)))
         self.slide_batch = max(1, self.window // 3)
         self.max_gap = max(1, min(int(round(config.max_gap_s * fps)), self.window - 1))
@@ -169,6 +178,7 @@ class LocalAssociator:
         ious = iou_xywh_centre(z, z) if n > 1 else np.zeros((n, n))
         payload = [(det, i) for i in range(n)]
         S.now = t
+        S.rng = self.rng = np.random.default_rng([self.seed, max(t, 0)])
         gids = S.store.add_frame(t, z, None if det.hist is None else np.asarray(det.hist, float),
                                  payload, ious)
         finished = self._slide(t - self.window + 1)
@@ -179,7 +189,7 @@ class LocalAssociator:
             S.greedy_merges()
             self.stats["mcmc_iters"] += n_iter
         # tracks that can no longer be extended
-        for tid in list(S.tracks):
+        for tid in sorted(S.tracks):
             tr = S.tracks[tid]
             if not len(tr) and tr.prior.frame < t - self.max_gap:
                 finished.extend(self._finish(tid))
@@ -189,8 +199,11 @@ class LocalAssociator:
         """Finalise observations of frames before ``w0``."""
         S = self.sampler
         # frames are finalised in batches of a third of the window (the window holds between
-        # ``window`` and 4/3 ``window`` frames): one freeze per track per batch instead of per frame
-        if not S.store.fstart or S.store.first_frame > w0 - self.slide_batch:
+        # ``window`` and 4/3 ``window`` frames): one freeze per track per batch instead of per
+        # frame. The cuts fall on multiples of the batch in absolute frame numbers, so that a run
+        # started at another frame (a segment) freezes the same observations at the same frames.
+        w0 -= w0 % self.slide_batch
+        if not S.store.fstart or S.store.first_frame >= w0:
             return []
         for tr in list(S.tracks.values()):
             if not len(tr):
@@ -253,7 +266,8 @@ class LocalAssociator:
         s = S.store
         t = S.now
         c = self.config
-        live = [tr for tr in S.tracks.values() if t - self.max_gap <= S.end_frame(tr) < t]
+        live = [S.tracks[k] for k in sorted(S.tracks)
+                if t - self.max_gap <= S.end_frame(S.tracks[k]) < t]
         n = len(gids)
         ambiguous = np.ones(n, dtype=bool)
         if live and n:

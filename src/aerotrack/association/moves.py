@@ -32,6 +32,7 @@ costs one Kalman step, and re-filtering (split tails, merges, switches) runs in 
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -116,31 +117,33 @@ _EMPTY2 = np.zeros((0, 0))
 
 
 class IndexedSet:
-    """A set of ints with O(1) add, remove and uniform sampling."""
+    """A set of ints kept sorted, with uniform sampling.
+
+    Sorted rather than in insertion order so that a draw depends only on the members (track ids
+    are handed out in the order tracks are created), not on the history of additions and
+    removals: a run started later in the video then draws the same tracks from the same random
+    numbers. Sets hold at most a few hundred tracks, where ``bisect`` and list inserts are cheap.
+    """
 
     def __init__(self):
         self.items: list[int] = []
-        self.pos: dict[int, int] = {}
 
     def __len__(self) -> int:
         return len(self.items)
 
     def __contains__(self, v: int) -> bool:
-        return v in self.pos
+        i = bisect.bisect_left(self.items, v)
+        return i < len(self.items) and self.items[i] == v
 
     def add(self, v: int) -> None:
-        if v not in self.pos:
-            self.pos[v] = len(self.items)
-            self.items.append(v)
+        i = bisect.bisect_left(self.items, v)
+        if i == len(self.items) or self.items[i] != v:
+            self.items.insert(i, v)
 
     def discard(self, v: int) -> None:
-        i = self.pos.pop(v, None)
-        if i is None:
-            return
-        last = self.items.pop()
-        if i < len(self.items):
-            self.items[i] = last
-            self.pos[last] = i
+        i = bisect.bisect_left(self.items, v)
+        if i < len(self.items) and self.items[i] == v:
+            del self.items[i]
 
     def choice(self, rng: np.random.Generator) -> int:
         return self.items[int(rng.integers(len(self.items)))]
@@ -792,7 +795,7 @@ class WindowSampler:
         if len(self._trim_checked) > 4 * len(self.tracks) + 256:  # memory bounded by the window
             base = self.store.base
             self._trim_checked = {k: v for k, v in self._trim_checked.items() if k[1] >= base}
-        for tid in list(self.tracks):
+        for tid in sorted(self.tracks):
             t1 = self.tracks.get(tid)
             # a birth that starts on a false alarm: drop head nodes while that raises the posterior
             # (checked again each time the track has doubled in length, not every frame)

@@ -31,7 +31,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kalman import measurement_noise_nb, predict_nb, process_noise_nb, transition_nb, update_nb
+from ..kalman import (
+    mahalanobis_nb,
+    measurement_noise_nb,
+    predict_nb,
+    process_noise_nb,
+    transition_nb,
+    update_nb,
+)
 
 try:
     from numba import njit
@@ -124,7 +131,7 @@ def run_track(x0, P0, f0, has_prior, zs, frames, fps, params):
 
 @njit(cache=True)
 def _d2_predicted(xp, Pp, z, params):
-    """Squared Mahalanobis distance of ``z`` from a predicted state (4x4 Cholesky solve), and
+    """Squared Mahalanobis distance of ``z`` from a predicted state, and
     ``log det S - log det R`` (how much the prediction's uncertainty widens the likelihood)."""
     S = Pp[:4, :4].copy()
     logdet_r = 0.0
@@ -135,28 +142,12 @@ def _d2_predicted(xp, Pp, z, params):
         S[i, i] += r_pos
         S[i + 2, i + 2] += r_size
         logdet_r += np.log(r_pos) + np.log(r_size)
-    L = np.zeros((4, 4))
-    logdet_s = 0.0
+    e = np.empty(4)
     for i in range(4):
-        for j in range(i + 1):
-            acc = S[i, j]
-            for k in range(j):
-                acc -= L[i, k] * L[j, k]
-            if i == j:
-                if acc <= 0.0:
-                    return np.inf, 0.0
-                L[i, i] = np.sqrt(acc)
-                logdet_s += np.log(acc)
-            else:
-                L[i, j] = acc / L[j, j]
-    y = np.zeros(4)
-    d2 = 0.0
-    for i in range(4):
-        acc = z[i] - xp[i]
-        for k in range(i):
-            acc -= L[i, k] * y[k]
-        y[i] = acc / L[i, i]
-        d2 += y[i] * y[i]
+        e[i] = z[i] - xp[i]
+    d2, logdet_s = mahalanobis_nb(S, e)
+    if not np.isfinite(d2):
+        return np.inf, 0.0
     return d2, logdet_s - logdet_r
 
 
