@@ -92,17 +92,20 @@ def render_builtin(folder: Path, n: int, size: tuple[int, int], fps: float, seed
     np.savetxt(folder / "gt.txt", np.asarray(gt), delimiter=",", fmt="%g")
 
 
-def make_video(folder: Path, n: int, size: tuple[int, int], fps: float) -> dict:
+def make_video(folder: Path, n: int, size: tuple[int, int], fps: float,
+               scenario: str = "default") -> dict:
     """Frames and ground truth in ``folder`` (reused when already there); returns how they
     were made."""
     meta = folder / "bench-meta.json"
     if meta.exists():
         info = json.loads(meta.read_text())
-        if info.get("frames") == n and info.get("size") == list(size) and info.get("fps") == fps:
+        if (info.get("frames") == n and info.get("size") == list(size) and info.get("fps") == fps
+                and info.get("scenario", "default") == scenario):
             return info
     folder.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "aerotrack", "synth", "--out", str(folder), "--frames", str(n),
-           "--size", f"{size[0]}x{size[1]}", "--fps", f"{fps:g}", "--overwrite"]
+           "--size", f"{size[0]}x{size[1]}", "--fps", f"{fps:g}", "--scenario", scenario,
+           "--overwrite"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode == 0 and (folder / "frames").is_dir() and (folder / "gt.txt").is_file():
         generator = "aerotrack synth"
@@ -110,7 +113,8 @@ def make_video(folder: Path, n: int, size: tuple[int, int], fps: float) -> dict:
         generator = "built-in (aerotrack synth unavailable: " + (r.stderr.strip().splitlines()
                                                                 or ["?"])[-1][:80] + ")"
         render_builtin(folder, n, size, fps)
-    info = {"frames": n, "size": list(size), "fps": fps, "generator": generator}
+    info = {"frames": n, "size": list(size), "fps": fps, "generator": generator,
+            "scenario": scenario}
     meta.write_text(json.dumps(info))
     return info
 
@@ -139,7 +143,8 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path) -> None
                                           with_report=True)
             wall = time.perf_counter() - t0
         join = {"segments": len(report.world_rms) + 1, "world_rms": report.world_rms,
-                "stitched": report.stitched, "cut": report.cut}
+                "stitched": report.stitched, "cut": report.cut,
+                "plan": [[g.start, g.stop, g.own_start, g.own_stop] for g in report.segments]}
     else:
         from aerotrack.pipeline import run
 
@@ -148,8 +153,99 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path) -> None
         wall = time.perf_counter() - t0
         join = {"segments": 1}
     rows = track_rows(result, None)[0]
+    dets = [[d.frame] + [round(float(v), 2) for v in d.boxes.ravel()] for d in result.detections]
     out.write_text(json.dumps({"wall_s": wall, "startup_s": startup, "timings": result.timings,
-                               "join": join, "rows": rows.tolist()}))
+                               "join": join, "rows": rows.tolist(), "detections": dets}))
+
+
+def _match_ids(base: "np.ndarray", rows: "np.ndarray", iou_min: float = 0.5) -> dict:
+    """(frame, base id) -> id of ``rows`` for boxes matched in the same frame (Hungarian on IoU)."""
+    import numpy as np
+    from scipy.optimize import linear_sum_assignment
+
+    out = {}
+    by_frame: dict[int, list] = {}
+    for r in rows:
+        by_frame.setdefault(int(r[0]), []).append(r)
+    for f in np.unique(base[:, 0]).astype(int):
+        a = base[base[:, 0] == f]
+        b = np.asarray(by_frame.get(int(f), []))
+        if not len(b):
+            continue
+        x0 = np.maximum(a[:, None, 2], b[None, :, 2])
+        y0 = np.maximum(a[:, None, 3], b[None, :, 3])
+        x1 = np.minimum(a[:, None, 2] + a[:, None, 4], b[None, :, 2] + b[None, :, 4])
+        y1 = np.minimum(a[:, None, 3] + a[:, None, 5], b[None, :, 3] + b[None, :, 5])
+        inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+        union = (a[:, None, 4] * a[:, None, 5] + b[None, :, 4] * b[None, :, 5] - inter)
+        iou = inter / np.maximum(union, 1e-9)
+        ri, ci = linear_sum_assignment(-iou)
+        for i, j in zip(ri, ci):
+            if iou[i, j] >= iou_min:
+                out[(int(f), int(a[i, 1]))] = int(b[j, 1])
+    return out
+
+
+def _identity_changes(base, rows, frame: int, w: int) -> tuple[int, int]:
+    """Tracks of ``base`` seen within ``w`` frames on both sides of ``frame`` whose matched id in
+    ``rows`` changes there (split), and the reverse (merged: one id of ``rows`` over two of
+    ``base``)."""
+    import numpy as np
+
+    def changes(a, b):
+        m = _match_ids(a, b)
+        n = 0
+        for tid in np.unique(a[:, 1]).astype(int):
+            before = [m[(f, tid)] for f in range(frame - w, frame + 1) if (f, tid) in m]
+            after = [m[(f, tid)] for f in range(frame + 1, frame + w + 1) if (f, tid) in m]
+            if before and after and max(set(before), key=before.count) != max(
+                    set(after), key=after.count):
+                n += 1
+        return n
+
+    lo, hi = frame - w, frame + w
+    a = base[(base[:, 0] >= lo) & (base[:, 0] <= hi)]
+    b = rows[(rows[:, 0] >= lo) & (rows[:, 0] <= hi)]
+    if not len(a) or not len(b):
+        return 0, 0
+    return changes(a, b), changes(b, a)
+
+
+def join_differences(base: dict, run: dict, fps: float, window_s: float = 5.0) -> dict:
+    """Where a segmented run differs from the single process (``base``), per join.
+
+    For each cut (the last frame a segment owns): tracks split there (one track of the single
+    process, two ids in the run within ``window_s`` either side) and merged there (the reverse);
+    the same at the middle of each segment's owned range, as the rate away from joins. Detections:
+    frames whose boxes differ from the single process's in each segment, and the first such frame
+    after the segment's start.
+    """
+    import numpy as np
+
+    brows = np.asarray(base["rows"]).reshape(-1, 10)
+    rows = np.asarray(run["rows"]).reshape(-1, 10)
+    w = max(1, round(window_s * fps))
+    plan = run["join"].get("plan") or []
+    bdet = {int(d[0]): d[1:] for d in base.get("detections", [])}
+    rdet = {int(d[0]): d[1:] for d in run.get("detections", [])}
+    differ = sorted(f for f in set(bdet) | set(rdet) if bdet.get(f) != rdet.get(f))
+    out = {"joins": [], "segments": []}
+    for k, (start, stop, own0, own1) in enumerate(plan):
+        mid = (own0 + own1) // 2
+        split, merged = _identity_changes(brows, rows, mid, w)
+        mine = [f for f in differ if own0 <= f <= own1]
+        out["segments"].append({
+            "reads": [start, stop], "owns": [own0, own1],
+            "frames_with_other_detections": len(mine),
+            "first_other_detections_s_after_own_start":
+                round((mine[0] - own0) / fps, 2) if mine else None,
+            "mid_frame": mid, "split_at_mid": split, "merged_at_mid": merged})
+        if k + 1 < len(plan):
+            split, merged = _identity_changes(brows, rows, own1, w)
+            out["joins"].append({"cut": own1, "split": split, "merged": merged,
+                                 "stitched": run["join"]["stitched"][k],
+                                 "cut_unmatched": run["join"]["cut"][k]})
+    return out
 
 
 def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
@@ -163,7 +259,7 @@ def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
     from aerotrack.evaluation import evaluate
     from aerotrack.outputs import track_rows
     from aerotrack.parallel import (ParallelConfig, assemble, gather_segments, make_tasks,
-                                    plan_segments)
+                                    phase_period, plan_segments)
     from aerotrack.pipeline import run
 
     out = {}
@@ -174,7 +270,8 @@ def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
         dets[:, 1] = -1
         single = run(None, detections=dets, fps=fps, config=config)
         segs = plan_segments(1, frames, fps=fps, segment_s=frames / fps / 2,
-                             overlap_s=ParallelConfig().overlap(config), min_segments=2)
+                             overlap_s=ParallelConfig().overlap(config), min_segments=2,
+                             align=phase_period(config, fps))
         tasks = make_tasks(None, config=config, fps=fps, segments=segs, detections=dets)
         par, report = assemble(gather_segments(None, tasks), config=config, fps=fps)
         other = run(None, detections=dets, fps=fps, config=config, seed=1)
@@ -198,6 +295,9 @@ def main() -> None:
     ap.add_argument("--size", default="480x270")
     ap.add_argument("--fps", type=float, default=15.0)
     ap.add_argument("--gsd", type=float, default=0.3)
+    ap.add_argument("--scenario", default="default",
+                    help="aerotrack synth scenario (default, dense, ...); results of another "
+                         "scenario go to parallel-SCENARIO.json")
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--repeat", type=int, default=2,
                     help="Runs of each mode, interleaved; the fastest counts (a shared machine's "
@@ -216,8 +316,9 @@ def main() -> None:
     from aerotrack.evaluation import evaluate
 
     size = tuple(int(v) for v in a.size.lower().split("x"))
-    folder = WORK / f"parallel-synth-{a.frames}-{size[0]}x{size[1]}-{a.fps:g}"
-    info = make_video(folder, a.frames, size, a.fps)
+    tag = "" if a.scenario == "default" else f"-{a.scenario}"
+    folder = WORK / f"parallel-synth{tag}-{a.frames}-{size[0]}x{size[1]}-{a.fps:g}"
+    info = make_video(folder, a.frames, size, a.fps, a.scenario)
     gt = np.loadtxt(folder / "gt.txt", delimiter=",", ndmin=2)
     runs: dict[str, dict] = {}
     walls: dict[str, list[float]] = {}
@@ -240,7 +341,10 @@ def main() -> None:
     base = runs.get("single-1t") or next(iter(runs.values()))
     base_rows = np.asarray(base["rows"]).reshape(-1, 10)
     table = {}
+    joins = {}
     for mode, r in runs.items():
+        if r["join"].get("plan"):
+            joins[mode] = join_differences(base, r, a.fps)
         rows = np.asarray(r["rows"]).reshape(-1, 10)
         e = evaluate(gt, rows)
         ag = evaluate(base_rows, rows)
@@ -263,13 +367,21 @@ def main() -> None:
               f"{t['frames_per_s']:6.1f} "
               f"{t['HOTA']:6.3f} {t['IDF1']:6.3f} {t['agreement_HOTA']:7.3f} "
               f"{t['agreement_IDF1']:7.3f} {t['tracks']:6d} {t['join']['segments']}")
+    for mode, j in joins.items():
+        print(f"{mode}: per join (cut frame: tracks split / merged there, within 5 s) "
+              + "; ".join(f"{x['cut']}: {x['split']}/{x['merged']}" for x in j["joins"])
+              + " | mid-segment: " + "; ".join(f"{x['mid_frame']}: {x['split_at_mid']}/"
+                                               f"{x['merged_at_mid']}" for x in j["segments"])
+              + " | frames with other detections per segment: "
+              + ", ".join(str(x["frames_with_other_detections"]) for x in j["segments"]))
     assoc = association_parity() if a.association else {}
     payload = {"video": info, "cpu_count": os.cpu_count(), "repeat": a.repeat,
                "association_alone": assoc,
                "load_avg_1min_at_starts": [round(v, 2) for v in load], "runs": table,
+               "joins": joins,
                "note": "wall_vs_single_1t: wall time / single process limited to one thread; "
                        "Dask wall excludes cluster start-up (cluster_startup_s)"}
-    path = write_results("parallel", payload)
+    path = write_results("parallel" + tag, payload)
     print(f"wrote {path}")
 
 

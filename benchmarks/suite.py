@@ -128,10 +128,14 @@ def held_bytes(pipe) -> dict:
                 for kk, a in v.items():
                     if isinstance(a, np.ndarray):
                         per_field[f"{k}.{kk}"] = per_field.get(f"{k}.{kk}", 0) + a.nbytes
-    points = sum(len(t.points) for t in pipe.tracklets)
+    # finished tracklets: in memory, or spilled to disk (aerotrack.io.checkpoint.TrackletSpill)
+    # but for the few not written yet
+    spill = pipe.tracklets if hasattr(pipe.tracklets, "load") else None
+    held = spill._buffer if spill is not None else pipe.tracklets
+    points = sum(len(t.points) for t in held)
     # appearance rows kept in tracklet points (views of the detections' arrays when not copied)
     app = sum((p.hist.nbytes if p.hist is not None else 0) + (p.desc.nbytes if p.desc is not None
-              else 0) for t in pipe.tracklets for p in t.points)
+              else 0) for t in held for p in t.points)
     regs = sum(sum(v.nbytes for v in vars(r).values() if isinstance(v, np.ndarray))
                for r in pipe.registrations.values())
     return {"tracklet_appearance_mb": round(app / 2**20, 2),
@@ -139,7 +143,7 @@ def held_bytes(pipe) -> dict:
             "detections_array_mb": round(det_bytes / 2**20, 2),
             "detections_array_mb_by_field": {k: round(v / 2**20, 2) for k, v in per_field.items()},
             "registrations": len(pipe.registrations), "tracklets": len(pipe.tracklets),
-            "tracklet_points": points}
+            "tracklets_in_memory": len(held), "tracklet_points_in_memory": points}
 
 
 # -- children -------------------------------------------------------------------------------------

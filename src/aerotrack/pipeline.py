@@ -80,6 +80,10 @@ class Pipeline:
         External detections (MOT rows) per frame; they replace the built-in detector.
     metres_per_unit : float, optional
         Scale of world units without a map (``--gsd``).
+    spill : bool
+        Keep finished tracklets on disk until global linking (``checkpoint_dir/tracklets`` with a
+        checkpoint folder, else a temporary folder): memory then does not grow with the number of
+        tracklets. The tracks are the same either way.
     """
 
     def __init__(self, config: Config, fps: float, *, geomap: GeoMap | None = None,
@@ -88,8 +92,10 @@ class Pipeline:
                  metres_per_unit: float | None = None,
                  checkpoint_dir: Path | None = None, checkpoint_every: int = 300,
                  undistort: Callable[[Frame], Frame] | None = None,
-                 regions: list | None = None, min_speed_mps: float | None = None) -> None:
+                 regions: list | None = None, min_speed_mps: float | None = None,
+                 spill: bool = True) -> None:
         from .association import LocalAssociator
+        from .io.checkpoint import TrackletSpill
 
         self.config = config
         self.fps = float(fps)
@@ -103,7 +109,10 @@ class Pipeline:
                                           metres_per_unit=self.metres_per_unit, seed=seed)
         self.registrations: dict[int, Registration] = {}
         self.detections: list[Detections] = []
-        self.tracklets: list[Track] = []
+        # finished tracklets (on disk with ``spill``; a list again after finish_local)
+        self.tracklets: list[Track] | TrackletSpill = (
+            TrackletSpill(None if checkpoint_dir is None else Path(checkpoint_dir) / "tracklets")
+            if spill else [])
         self.timings = {"registration": 0.0, "detection": 0.0, "association": 0.0, "linking": 0.0}
         self.frame_size: tuple[int, int] | None = None
         self.n_frames = 0
@@ -288,15 +297,28 @@ class Pipeline:
         """Flush registration, detection and local association; return every tracklet (world
         coordinates) before global linking. ``self.registrations`` and ``self.detections`` are then
         complete. Used by segment-parallel processing (:mod:`aerotrack.parallel`), which links the
-        tracklets of all segments at once."""
+        tracklets of all segments at once.
+
+        This ends the stream: the stages' working state (the detector's window of frames, the
+        registrar's keyframe, the association window) is released before spilled tracklets are
+        read back, so that the end of a long run does not hold both.
+        """
+        from .io.checkpoint import TrackletSpill
+
         if self.detector is not None:
             t0 = time.perf_counter()
             rest = self.detector.flush()
             self.timings["detection"] += time.perf_counter() - t0
             self._associate(rest)
-        t0 = time.perf_counter()
-        self.tracklets.extend(_thin_appearance(t) for t in self.associator.flush())
-        self.timings["association"] += time.perf_counter() - t0
+        if self.associator is not None:
+            t0 = time.perf_counter()
+            self.tracklets.extend(_thin_appearance(t) for t in self.associator.flush())
+            self.timings["association"] += time.perf_counter() - t0
+        self.detector = self.associator = None
+        self.registrar = _Ended()
+        if isinstance(self.tracklets, TrackletSpill):
+            spill, self.tracklets = self.tracklets, self.tracklets.load()
+            spill.close()
         return self.tracklets
 
     def finish(self) -> Result:
@@ -320,6 +342,15 @@ class Pipeline:
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
                     frame_size=self.frame_size, registrations=self.registrations)
+
+
+class _Ended:
+    """Stands for the registrar after :meth:`Pipeline.finish_local`: the stream has ended."""
+
+    def step(self, *args, **kwargs):
+        from .errors import StageError
+
+        raise StageError("Pipeline.step after finish_local/finish: the stream has ended")
 
 
 def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit: float | None = None,

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..types import Detections, Registration
+from ..types import Detections, Registration, Track, TrackPoint
 from .output import atomic_write
 
 CHUNK_RE = re.compile(r"^chunk_(\d{6})\.npz$")
@@ -88,3 +88,175 @@ def load_chunks(folder: Path) -> tuple[dict[int, Registration], list[Detections]
                                        conf=z["det_conf"][sl], world=z["det_world"][sl],
                                        extra=extra, **opt))
     return regs, dets, len(files)
+
+
+# -- finished tracklets, spilled until global linking ---------------------------------------------
+_KINDS = ("observed", "bridged", "stationary", "predicted")
+
+
+_MAX_DIMS = 4
+
+
+def _shapes(arrays: list) -> np.ndarray:
+    """(N, 1 + _MAX_DIMS) rows ``[ndim, d0, d1, ...]`` of optional arrays (ndim -1 for None)."""
+    out = np.full((len(arrays), 1 + _MAX_DIMS), -1, dtype=np.int64)
+    for i, a in enumerate(arrays):
+        if a is not None:
+            s = np.shape(a)
+            if len(s) > _MAX_DIMS:
+                raise ValueError(f"tracklet point array of shape {s}: at most {_MAX_DIMS}-D "
+                                 "can be spilled")
+            out[i, 0] = len(s)
+            out[i, 1:1 + len(s)] = s
+    return out
+
+
+def pack_tracks(tracks: list[Track]) -> dict[str, np.ndarray]:
+    """Tracks as flat arrays (no objects, so ``np.savez`` needs no pickle); inverse of
+    :func:`unpack_tracks`.
+
+    Every field of every :class:`~aerotrack.types.TrackPoint` is kept exactly: positions as
+    float64, appearance arrays (``hist``, ``desc``) in their own dtype (float32 or float64, stored
+    as float64 and cast back: exact), None as an ndim of -1.
+    """
+    pts = [p for t in tracks for p in t.points]
+    n = len(pts)
+    kinds = [p.kind for p in pts]
+    extra_kinds = sorted(set(kinds) - set(_KINDS))
+    names = list(_KINDS) + extra_kinds
+    code = {k: i for i, k in enumerate(names)}
+    arrays: dict[str, np.ndarray] = {
+        "t_id": np.array([t.id for t in tracks], dtype=np.int64),
+        "t_count": np.array([len(t.points) for t in tracks], dtype=np.int64),
+        "kind_names": np.array(names, dtype="U32"),
+        "p_frame": np.array([p.frame for p in pts], dtype=np.int64),
+        "p_world": np.array([np.asarray(p.world, np.float64).reshape(2) for p in pts],
+                            dtype=np.float64).reshape(n, 2),
+        "p_conf": np.array([p.conf for p in pts], dtype=np.float64),
+        "p_kind": np.array([code[k] for k in kinds], dtype=np.int16),
+        "p_det": np.array([p.det_index for p in pts], dtype=np.int64),
+    }
+    for name in ("box", "size_world", "hist", "desc"):
+        vals = [getattr(p, name) for p in pts]
+        arrays[f"p_{name}_shape"] = _shapes(vals)
+        arrays[f"p_{name}_f32"] = np.array([v is not None and np.asarray(v).dtype == np.float32
+                                            for v in vals], dtype=bool)
+        flat = [np.asarray(v, np.float64).ravel() for v in vals if v is not None]
+        arrays[f"p_{name}"] = np.concatenate(flat) if flat else np.zeros(0)
+    return arrays
+
+
+def unpack_tracks(z) -> list[Track]:
+    """The tracks of :func:`pack_tracks` (``z``: its dict, or an open ``.npz``)."""
+    names = [str(k) for k in z["kind_names"]]
+    frame, world, conf = z["p_frame"], z["p_world"], z["p_conf"]
+    kind, det = z["p_kind"], z["p_det"]
+    opt = {}
+    for name in ("box", "size_world", "hist", "desc"):
+        shape, f32, flat = z[f"p_{name}_shape"], z[f"p_{name}_f32"], z[f"p_{name}"]
+        vals: list[np.ndarray | None] = []
+        pos = 0
+        for s, is32 in zip(shape, f32):
+            if s[0] < 0:
+                vals.append(None)
+                continue
+            shp = tuple(int(d) for d in s[1:1 + int(s[0])])
+            size = int(np.prod(shp))
+            v = flat[pos:pos + size].reshape(shp)
+            pos += size
+            vals.append(v.astype(np.float32) if is32 else v.copy())
+        opt[name] = vals
+    out, start = [], 0
+    for tid, count in zip(z["t_id"], z["t_count"]):
+        points = [TrackPoint(frame=int(frame[i]), box=opt["box"][i], world=world[i].copy(),
+                             conf=float(conf[i]), kind=names[int(kind[i])],
+                             det_index=int(det[i]), size_world=opt["size_world"][i],
+                             hist=opt["hist"][i], desc=opt["desc"][i])
+                  for i in range(start, start + int(count))]
+        start += int(count)
+        out.append(Track(int(tid), points))
+    return out
+
+
+class TrackletSpill:
+    """Finished tracklets on disk until global linking needs them (a long run's memory then does
+    not grow with the tracklets it found).
+
+    Tracklets are buffered and written ``chunk`` at a time as ``spill_NNNNNN.npz`` (no pickle) in
+    ``folder`` (a run's ``.partial/tracklets`` work area, or a temporary folder removed by
+    :meth:`close`); :meth:`load` gives every tracklet back, in the order added, exactly as it was.
+
+    Parameters
+    ----------
+    folder : path, optional
+        Work folder (emptied of earlier spill files); None makes a temporary one.
+    chunk : int
+        Tracklets per file.
+    """
+
+    def __init__(self, folder: Path | None = None, chunk: int = 64) -> None:
+        self.folder = None if folder is None else Path(folder)
+        self.chunk = max(1, int(chunk))
+        self._tmp = None
+        self._buffer: list[Track] = []
+        self._files: list[Path] = []
+        self._count = 0
+
+    def _folder(self) -> Path:
+        """The work folder, made (and emptied of an earlier run's spill files) on first use."""
+        if self._files:
+            return self.folder
+        if self.folder is None:
+            import tempfile
+
+            self._tmp = tempfile.TemporaryDirectory(prefix="aerotrack-spill-")
+            self.folder = Path(self._tmp.name)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        for p in self.folder.glob("spill_*.npz"):
+            p.unlink()
+        return self.folder
+
+    def __len__(self) -> int:
+        return self._count
+
+    def append(self, track: Track) -> None:
+        self._buffer.append(track)
+        self._count += 1
+        if len(self._buffer) >= self.chunk:
+            self.flush()
+
+    def extend(self, tracks) -> None:
+        for t in tracks:
+            self.append(t)
+
+    def flush(self) -> None:
+        """Write the buffered tracklets now."""
+        if not self._buffer:
+            return
+        path = self._folder() / f"spill_{len(self._files):06d}.npz"
+        with atomic_write(path, "wb") as fh:
+            np.savez(fh, **pack_tracks(self._buffer))
+        self._files.append(path)
+        self._buffer = []
+
+    def load(self) -> list[Track]:
+        """Every tracklet, in the order added."""
+        out: list[Track] = []
+        for p in self._files:
+            with np.load(p, allow_pickle=False) as z:
+                out.extend(unpack_tracks(z))
+        out.extend(self._buffer)
+        return out
+
+    def close(self) -> None:
+        """Delete the spill files and their folder when that is left empty."""
+        for p in self._files:
+            p.unlink(missing_ok=True)
+        if self._files and self.folder is not None and not any(self.folder.iterdir()):
+            self.folder.rmdir()
+        self._files = []
+        self._buffer = []
+        self._count = 0
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
