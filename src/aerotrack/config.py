@@ -531,14 +531,14 @@ class ContextConfig:
     kalman_accel_mps2: float = 3.0
     kalman_meas_std_m: float = 0.1
     kalman_vel_std_mps: float = 5.0
+    image_object_size_m: float = 4.5
+
     flow_radius_m: float = 3.0
     flow_heading_deg: float = 45.0
     flow_follow: bool = False
     flow_prior_weight: float = 5.0
     flow_step_s: float = 0.2
-    flow_velocity_std_mps: float = 1.0
-    image_object_size_m: float = 4.5
-
+    flow_velocity_std_mps: float = 2.0
 
 @dataclass(frozen=True)
 class Config:
