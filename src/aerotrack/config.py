@@ -471,12 +471,6 @@ class ContextConfig:
     group_noise_m : float
         ``context``: error of one co-mover's displacement as a prediction, metres (fused by
         inverse variance with the Kalman and path estimates).
-    min_speed_mps : float
-        ``context``: slower rows (standing objects) carry no heading and are no path predictors; a
-        slower target gets no path estimate (co-movers still apply).
-    path_sample_s : float
-        ``context``: other tracks' rows are sampled every this many seconds (speed vs density).
-    velocity_lag_s : float
     flow_radius_m : float
         ``context``: the learned road (the local flow of earlier objects). Their rows within this
         distance of the target (heading within ``flow_heading_deg``) give a target with a short
@@ -498,6 +492,12 @@ class ContextConfig:
         ``context``: least uncertainty of the flow's velocity used as a prior for the target's own
         (fused by their covariances: only a target with a short history takes the flow's speed).
         Raising it trusts the target's short history more.
+    min_speed_mps : float
+        ``context``: slower rows (standing objects) carry no heading and are no path predictors; a
+        slower target gets no path estimate (co-movers still apply).
+    path_sample_s : float
+        ``context``: other tracks' rows are sampled every this many seconds (speed vs density).
+    velocity_lag_s : float
         ``context``: a row's velocity is its backward difference over this many seconds.
     kalman_accel_mps2 : float
         Process noise of the constant-velocity Kalman filter (white acceleration), m/s^2.
@@ -525,6 +525,12 @@ class ContextConfig:
     group_radius_m: float = 20.0
     group_match_m: float = 0.3
     group_noise_m: float = 4.0
+    flow_radius_m: float = 3.0
+    flow_heading_deg: float = 45.0
+    flow_follow: bool = False
+    flow_prior_weight: float = 5.0
+    flow_step_s: float = 0.2
+    flow_velocity_std_mps: float = 2.0
     min_speed_mps: float = 0.3
     path_sample_s: float = 0.3
     velocity_lag_s: float = 0.5
@@ -533,12 +539,6 @@ class ContextConfig:
     kalman_vel_std_mps: float = 5.0
     image_object_size_m: float = 4.5
 
-    flow_radius_m: float = 3.0
-    flow_heading_deg: float = 45.0
-    flow_follow: bool = False
-    flow_prior_weight: float = 5.0
-    flow_step_s: float = 0.2
-    flow_velocity_std_mps: float = 2.0
 
 @dataclass(frozen=True)
 class Config:
