@@ -141,9 +141,12 @@ SYNTH_AT = {"1s": 30, "2s": 60, "4s": 120}
 MIN_GAP = 15  # frames: 0.5 s
 
 
-def synth_queries(scene: Path):
+def synth_queries(scene: Path, fragment: bool = False):
     """(table of visible true positions in metres, [(id, last_seen, kind, {frame: true xy})]) of a
-    generated scene: one query per gap of >= MIN_GAP hidden frames between two visible stretches."""
+    generated scene: one query per gap of >= MIN_GAP hidden frames between two visible stretches.
+
+    With ``fragment`` every visible stretch (split at gaps of >= MIN_GAP frames) gets its own id, as
+    tracklets do before linking: earlier vehicles' hidden stretches are then unknown."""
     from identity import (  # benchmarks/identity.py: the same gap definition
         gaps_of,
         load_states,
@@ -159,17 +162,29 @@ def synth_queries(scene: Path):
                 ids.append(tid)
                 frames.append(f)
                 xy.append((x * mpp[0], y * mpp[1]))
+    ids, frames = np.asarray(ids), np.asarray(frames)
+    qid = {}
+    if fragment:
+        piece = np.zeros(len(ids), np.int64)
+        for tid in np.unique(ids):
+            k = np.flatnonzero(ids == tid)
+            k = k[np.argsort(frames[k])]
+            cut = np.concatenate([[0], np.cumsum(np.diff(frames[k]) > MIN_GAP)])
+            piece[k] = cut
+            for f, c in zip(frames[k], cut):
+                qid[(int(tid), int(f))] = int(tid) * 1000 + int(c)
+        ids = ids * 1000 + piece
     table = TrackTable.from_arrays(ids, frames, xy)
     queries = []
     for tid, a, b, kind in gaps_of(states):
         truth = {a + n: np.array(states[tid][a + n][1:]) * mpp
                  for n in SYNTH_AT.values() if a + n < b and a + n in states[tid]}
         if truth:
-            queries.append((tid, a, kind, truth))
+            queries.append((qid.get((tid, a), tid), a, kind, truth))
     return table, queries
 
 
-def run_synth(specs, frames, methods, config):
+def run_synth(specs, frames, methods, config, fragment=False):
     """Errors {method: {kind: {"1s": [m...]}}} at 1/2/4 s into every gap, and seconds per query."""
     from identity import make_scene
 
@@ -181,7 +196,7 @@ def run_synth(specs, frames, methods, config):
     for spec in specs:
         scen, seed = spec.split(":")
         scene = make_scene(scen, int(seed), frames, False)
-        table, queries = synth_queries(scene)
+        table, queries = synth_queries(scene, fragment)
         counts[spec] = {k: sum(q[2] == k for q in queries) for k in ("occlusion", "exit")}
         nq += len(queries)
         h = max(SYNTH_AT.values())
@@ -197,9 +212,10 @@ def run_synth(specs, frames, methods, config):
     return per, {m: t / max(nq, 1) for m, t in timing.items()}, counts
 
 
-def synth_report(specs, frames, methods, config) -> dict:
-    per, timing, counts = run_synth(specs, frames, methods, config)
+def synth_report(specs, frames, methods, config, fragment=False) -> dict:
+    per, timing, counts = run_synth(specs, frames, methods, config, fragment)
     res = {"protocol": {"scenes": specs, "frames": frames, "fps": FPS, "min_gap_frames": MIN_GAP,
+                        "fragment": fragment,
                         "at": SYNTH_AT, "gaps": counts,
                         "source": "aerotrack.synth true positions of visible vehicles, metres"},
            "MPE_m": {}, "ratio_to_kalman": {}, "n": {}, "seconds_per_query": timing}
@@ -232,6 +248,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--synth", action="store_true", help="generated scenes instead of SDD")
     ap.add_argument("--synth-scenes", nargs="+", default=SYNTH_SCENES, help="scenario:seed ...")
     ap.add_argument("--synth-frames", type=int, default=900)
+    ap.add_argument("--fragment", action="store_true",
+                    help="--synth: one id per visible stretch (tracklets), stored as synth_fragmented")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "prediction.json"))
     args = ap.parse_args(argv)
     config = ContextConfig()
@@ -241,8 +259,9 @@ def main(argv=None) -> dict:
         old = {"sdd": old}
     if args.synth:
         methods = list(dict.fromkeys(["kalman", "constant-velocity", *args.methods]))
-        old["synth"] = synth_report(args.synth_scenes, args.synth_frames, methods, config)
-        old["synth"]["config"] = {k: getattr(config, k) for k in config.__dataclass_fields__}
+        key = "synth_fragmented" if args.fragment else "synth"
+        old[key] = synth_report(args.synth_scenes, args.synth_frames, methods, config, args.fragment)
+        old[key]["config"] = {k: getattr(config, k) for k in config.__dataclass_fields__}
     else:
         old["sdd"] = sdd_report(args, config)
     out.parent.mkdir(parents=True, exist_ok=True)
