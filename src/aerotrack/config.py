@@ -400,6 +400,12 @@ class LinkingConfig:
         A track's final prediction stops once its predicted position has been inside the frame
         this long (it should have been detected again: a lost or spurious track); outside the
         frame it runs to ``context.prediction_horizon_s``. Needs registrations (frames).
+    partial_size_ratio : float
+        A tracklet's end (start) points whose box's longer side is below this fraction of the
+        tracklet's typical size were partly hidden (an occluder, the image edge): their centre and
+        velocity are biased, so the end state is estimated without them. 0 keeps every point.
+    partial_trim_s : float
+        At most this much of each end is left out that way.
     """
 
     max_gap_s: float = 12.0
@@ -423,6 +429,8 @@ class LinkingConfig:
     turn_cost: float = 0.5
     in_view_horizon_s: float = 4.0
     min_track_s: float = 1.0
+    partial_size_ratio: float = 0.8
+    partial_trim_s: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -97,6 +97,7 @@ class GlobalLinker:
         self._pred: dict[int, np.ndarray] = {}
         self._table: TrackTable | None = None
         self._table_key: list[Track] | None = None
+        self._trimmed: list[tuple[np.ndarray, np.ndarray]] | None = None
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -138,8 +139,13 @@ class GlobalLinker:
         n = len(tl)
         self._pred = {}
         self._table = None  # built again for these tracklets by _forward when needed
+        self._trimmed = None
         F = max(2, int(round(self.ctx.history_s * self.fps)))
-        pos = [_positions(t) for t in tl]
+        raw = [_positions(t) for t in tl]
+        # end states from the fully visible part: a box shrinking into an occluder or the image
+        # edge (growing out of it) has a displaced centre and a wrong velocity
+        pos = [self._trim_partial(t, fr, xy) for t, (fr, xy) in zip(tl, raw)]
+        self._trimmed = pos
         ends, starts = [], []
         for fr, xy in pos:
             h = (fr >= fr[-1] - F)
@@ -149,11 +155,14 @@ class GlobalLinker:
             starts.append((p, -v))
         first = np.array([fr[0] for fr, _ in pos])
         last = np.array([fr[-1] for fr, _ in pos])
+        raw_first = np.array([fr[0] for fr, _ in raw])
+        raw_last = np.array([fr[-1] for fr, _ in raw])
         max_gap = int(round(c.max_gap_s * self.fps))
         cand: dict[int, list[int]] = {}
         for a in range(n):
             gaps = first - last[a]
-            for b in np.flatnonzero((gaps > 0) & (gaps <= max_gap)):
+            order = raw_first - raw_last[a]
+            for b in np.flatnonzero((order > 0) & (gaps <= max_gap)):
                 gap_s = gaps[b] / self.fps
                 d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
                 dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
@@ -169,6 +178,7 @@ class GlobalLinker:
         if not cand:
             return {}, C
         table = _table_of(pos)
+        self._table, self._table_key = table, tl
         preds = {}
         if c.weight_motion > 0 or c.predict_gaps:
             for a, bs in cand.items():
@@ -266,7 +276,7 @@ class GlobalLinker:
                     nxt = [p for p in tl[chain[k + 1]].points if p.kind != "predicted"][0]
                     gap = nxt.frame - last_obs.frame
                     if gap > 1:
-                        pr = self._forward(tl, i, gap)
+                        pr = self._forward(tl, i, gap, last_obs.frame)
                         # land on the re-acquired position: spread the final miss linearly
                         miss = np.asarray(nxt.world, float) - pr[gap - 1]
                         ramp = (np.arange(1, gap) / gap)[:, None]
@@ -274,7 +284,7 @@ class GlobalLinker:
                 else:
                     h = min(horizon, video_end - last_obs.frame)
                     if h > 0 and (tl[i].last - tl[chain[0]].first) >= min_len:
-                        pr = self._forward(tl, i, h)
+                        pr = self._forward(tl, i, h, last_obs.frame)
                         pr = pr[:self._tail_length(last_obs.frame, pr, registrations, frame_size)]
                         points.extend(_predicted(last_obs, pr))
             points.sort(key=lambda p: p.frame)
@@ -309,16 +319,52 @@ class GlobalLinker:
                     return k
         return len(pr)
 
-    def _forward(self, tl: list[Track], i: int, h: int) -> np.ndarray:
-        """Motion-context prediction of tracklet i for h frames after its last in-view point."""
+    def _forward(self, tl: list[Track], i: int, h: int, after: int) -> np.ndarray:
+        """Motion-context prediction of tracklet i for the h frames after frame ``after`` (its last
+        in-view point), made from the end of its fully visible part (:meth:`_trim_partial`)."""
+        if self._trimmed is None or self._table_key is not tl:
+            self._trimmed = [self._trim_partial(t, *_positions(t)) for t in tl]
+            self._table = None
+        fr, _ = self._trimmed[i]
+        off = int(after - fr[-1])
         pr = self._pred.get(i)
-        if pr is not None and len(pr) >= h:
-            return pr[:h]
-        if self._table is None or self._table_key is not tl:
-            self._table = _table_of([_positions(t) for t in tl])
-            self._table_key = tl
-        fr, _ = _positions(tl[i])
-        return self.predictor.predict(self._table, i, int(fr[-1]), h)
+        if pr is None or len(pr) < h + off:
+            if self._table is None or self._table_key is not tl:
+                self._table = _table_of(self._trimmed)
+                self._table_key = tl
+            pr = self.predictor.predict(self._table, i, int(fr[-1]), h + off)
+        return pr[off:off + h]
+
+    def _trim_partial(self, t: Track, fr: np.ndarray, xy: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """A tracklet's (frames, xy) without the ends where it was only partly visible.
+
+        A target sliding under an occluder or out of the image is detected as a shrinking box
+        whose centre lags behind the target's and whose velocity is too low (and the reverse as it
+        comes out); estimating the end state there sends the prediction astray. Points at either
+        end whose box's longer side (``size_world``) is under ``partial_size_ratio`` of the
+        tracklet's typical (90th percentile) size are left out of the end-state estimates and the
+        motion context, for at most ``partial_trim_s`` and keeping at least half the points. They
+        stay in the output track."""
+        c = self.config
+        n = len(fr)
+        if c.partial_size_ratio <= 0 or n < 4:
+            return fr, xy
+        size = {p.frame: max(p.size_world) for p in t.points
+                if p.kind == "observed" and p.size_world is not None
+                and np.all(np.isfinite(p.size_world))}
+        sz = np.array([size.get(int(f), np.nan) for f in fr])
+        if np.isfinite(sz).sum() < 4:
+            return fr, xy
+        small = sz < c.partial_size_ratio * np.nanpercentile(sz, 90)  # NaN: not small
+        keep = max(2, (n + 1) // 2)
+        span = c.partial_trim_s * self.fps
+        lo, hi = 0, n
+        while hi - lo > keep and small[hi - 1] and fr[-1] - fr[hi - 1] < span:
+            hi -= 1
+        while hi - lo > keep and small[lo] and fr[lo] - fr[0] < span:
+            lo += 1
+        return fr[lo:hi], xy[lo:hi]
 
 
 def estimate_scale(tracklets: list[Track], object_size_m: float) -> float:
