@@ -404,6 +404,51 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     )
 
 
+def _outline_ratio(small: np.ndarray, bg: np.ndarray, blob: Blob, mask: np.ndarray) -> float:
+    """:func:`ghost_score` of the pixels ``mask`` (in ``blob``'s box) of a model-resolution
+    frame ``small`` against its background ``bg``."""
+    x, y, bw, bh = blob.box
+    m = 3
+    x0, y0 = max(0, x - m), max(0, y - m)
+    x1, y1 = min(bg.shape[1], x + bw + m), min(bg.shape[0], y + bh + m)
+    gm = np.zeros((y1 - y0, x1 - x0), bool)
+    gm[y - y0:y - y0 + bh, x - x0:x - x0 + bw] = mask
+    return ghost_score(small[y0:y1, x0:x1], bg[y0:y1, x0:x1], gm)
+
+
+def protected_blobs(blobs: list[Blob], moved: list, stopped: np.ndarray) -> list[Blob]:
+    """The parts of this frame's detections kept out of the background (model pixels).
+
+    A vehicle that stands still (``stopped``) or whose past is unknown (``moved`` is None) is
+    kept out whole. Of a moving one only the pixels that changed over the stationary lag are:
+    those are the vehicle itself. The rest of its blob is road it uncovered, or the imprint
+    of a vehicle that left (a ghost, joined to the vehicle's blob); keeping those out too let
+    the imprint hold itself in the background, which grew boxes backwards into trails.
+
+    Parameters
+    ----------
+    blobs : list of Blob
+    moved : list of (ndarray (h_k, w_k) bool or None)
+        Per blob, pixels (in its box) that differ from the registered frame one lag earlier.
+    stopped : ndarray, shape (N,) bool
+
+    Returns
+    -------
+    list of Blob
+        Possibly fewer (a blob none of whose pixels changed is dropped).
+    """
+    out = []
+    k3 = np.ones((3, 3), np.uint8)
+    for b, mv, st in zip(blobs, moved, stopped):
+        if mv is None or st:
+            out.append(b)
+            continue
+        m = b.mask & (cv2.dilate(mv.astype(np.uint8), k3) > 0)
+        if m.any():
+            out.append(Blob(b.box, m))
+    return out
+
+
 def blob_polygons(blobs: list[Blob], grow: int = 1) -> list[np.ndarray]:
     """Convex hulls of blobs grown by ``grow`` pixels, as (P, 2) float polygons in the pixels
     the blobs were found in (the areas a frame's detections keep out of the background).
@@ -573,37 +618,80 @@ class MovingObjectDetector:
         gates = self._gates(Hc, p.frame.image.shape[:2])
         r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
         self.last_result = r
-        # Own detections are kept out of this frame's sample tightly; where vehicles were last
-        # seen is kept out of the not-yet-final samples with a wider margin, since a vehicle
-        # that has just stopped must not leak into them.
+        # Kept out of the background (hold_stopped): in this frame's own sample, each
+        # detection's pixels that changed over the lag; in the not-yet-final samples, with a
+        # wider margin, those of them where the vehicle will still be (see _ahead).
+        changed, moved = self._changed(p, r)
+        stationary = changed < 0.2
+        stopped = changed < self.config.protect_changed
         if c in self._samples and self.config.hold_stopped:
-            self._samples[c].holes = blob_polygons(r.model_blobs, grow=1)
+            self._samples[c].holes = blob_polygons(protected_blobs(r.model_blobs, moved, stopped),
+                                                   grow=1)
         for i, s in self._samples.items():
             if i <= c:
                 s.known = True
-        changed = self._changed(p, r)
-        stationary = changed < 0.2
-        # Every detection is protected, moving ones too: keeping only stationary ones out of the
-        # not-yet-final samples avoids trails behind fast vehicles but lets queues of slow
-        # vehicles leak into the median (measured: Santiago P 0.60 -> 0.54, R 0.78 -> 0.69).
-        self._last_fg = (c, Hc, blob_polygons(r.model_blobs, grow=2))
+        ahead = self._ahead(p, r, bg, moved)
+        self._last_fg = (c, Hc, blob_polygons(protected_blobs(r.model_blobs, ahead, stopped),
+                                              grow=2))
         self._last_final = c
         if self.keep_debug:
             self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
         return self._to_detections(p, r, stationary)
 
-    def _changed(self, p: _Pending, r: FrameResult) -> np.ndarray:
-        """Fraction of each detection's pixels that changed over ``stationary_lag_s`` (0 for a
-        vehicle standing still, near 1 for one that moved by more than its length; 0 when the
-        earlier frame did not see the whole blob)."""
+    def _ahead(self, p: _Pending, r: FrameResult, bg: np.ndarray, moved: list) -> list:
+        """Per detection, the pixels (in its model box) to keep out of the not-yet-final samples.
+
+        Pixels that changed over the lag (``moved``) but match the newest sample (the frame
+        ``stationary_lag_s`` or more ahead) are either a vehicle that is stopping there or the
+        imprint (ghost) of one that left, which its blob joins while it is near: the road then
+        looks the same now and ahead. The two differ in their outline: a vehicle's is an edge
+        of the frame, a ghost's an edge of the background only (:func:`ghost_score` below
+        ``ghost_part_ratio``). A ghost part is not kept out, so the samples ahead vote it back
+        to road; keeping it out made ghosts hold themselves and boxes trail backwards.
+        Without a sample ahead (causal mode, end of video) ``moved`` is returned as is.
+        """
+        _, fut = self._changed(p, r, future=True)
+        out = []
+        ratio = self.config.ghost_part_ratio
+        for b, mv, fm in zip(r.model_blobs, moved, fut):
+            if mv is None or fm is None or ratio <= 0:
+                out.append(mv)
+                continue
+            part = b.mask & mv & ~fm
+            if part.sum() < 4:
+                out.append(mv & fm)
+                continue
+            vehicle = _outline_ratio(p.small, bg, b, part) >= ratio
+            out.append(mv if vehicle else mv & fm)
+        return out
+
+    def _changed(self, p: _Pending, r: FrameResult,
+                 future: bool = False) -> tuple[np.ndarray, list]:
+        """Which of each detection's pixels changed over ``stationary_lag_s`` (with ``future``:
+        against the newest sample at least that far ahead).
+
+        Returns
+        -------
+        fraction : ndarray, shape (N,)
+            Fraction of the blob's pixels that changed: 0 for a vehicle standing still, near 1
+            for one that moved by more than its length; 0 when the earlier frame did not see
+            the whole blob.
+        moved : list of (ndarray (h_k, w_k) bool or None)
+            Per blob, in its model box: pixels that differ from the earlier frame (None where
+            unknown).
+        """
         n = len(r.boxes)
         out = np.zeros(n, np.float64)
+        moved: list = [None] * n
         if n == 0:
-            return out
+            return out, moved
         c = p.frame.index
-        past = [i for i in self._samples if i <= c - self.lag]
+        if future:
+            past = [i for i in self._samples if i >= c + self.lag][-1:]
+        else:
+            past = [i for i in self._samples if i <= c - self.lag]
         if not past:
-            return out
+            return out, moved
         s = self._samples[past[-1]]
         M = to_cv_homography(np.linalg.inv(p.reg.H) @ s.H, self.scale)
         sh, sw = s.small.shape[:2]
@@ -618,9 +706,10 @@ class MovingObjectDetector:
                                                                 [x, y + bh], [x + bw, y]], float))
             if not (np.all(back >= 0) and np.all(back[:, 0] < sw) and np.all(back[:, 1] < sh)):
                 continue  # the earlier frame did not see the whole blob
-            d = residual_image(p.small[y:y + bh, x:x + bw], seen, 1)[m]
-            out[k] = float(np.mean(d > r.threshold))
-        return out
+            d = residual_image(p.small[y:y + bh, x:x + bw], seen, 1) > r.threshold
+            out[k] = float(np.mean(d[m]))
+            moved[k] = d
+        return out, moved
 
     def _to_detections(self, p: _Pending, r: FrameResult, stationary: np.ndarray) -> Detections:
         n = len(r.boxes)
@@ -675,6 +764,7 @@ def _validate(c: DetectionConfig) -> None:
         ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),
+        ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
     ]
     for name, ok in checks:
         if not ok:
