@@ -20,7 +20,9 @@ every vehicle's TRUE position (``states.csv`` map_x, map_y scaled to metres per 
 where it is visible; for every gap (a run of >= 0.5 s occluded/outside between two visible stretches)
 the target is predicted from its last visible frame, and the error against its true position (known
 while hidden) is taken 1, 2 and 4 s into the gap when the gap is still running. Occlusions and exits
-are reported apart and together, as ratios to the Kalman filter.
+are reported apart and together, as ratios to the Kalman filter. The variant ``context+roads`` is
+the default method with the scene's road centre-lines (``roads.geojson`` written by ``aerotrack
+synth``, else the bundled file it comes from; :mod:`aerotrack.context.roads`), in the same metres.
 
 Run: /tmp/venv/bin/python benchmarks/prediction.py [--scenes deathCircle/video4 ...] [--stride 15]
      /tmp/venv/bin/python benchmarks/prediction.py --synth [--synth-scenes occlusion:1 exits:2 ...]
@@ -184,6 +186,30 @@ def synth_queries(scene: Path, fragment: bool = False):
     return table, queries
 
 
+ROAD_VARIANT = "context+roads"
+
+
+def scene_roads(scene: Path, config):
+    """The scene's road network in the benchmark's metres (map pixels x metres per pixel)."""
+    from aerotrack.context.roads import RoadNetwork, read_roads
+    from aerotrack.geo import GeoMap
+    from aerotrack.synth.world import ROADS
+
+    info = json.loads((scene / "scenario.json").read_text())
+    mpp = np.asarray(info["map_metres_per_pixel"], float)
+    geomap = GeoMap(scene / "map.tif")
+    path = scene / "roads.geojson"
+    net = read_roads(path if path.exists() else ROADS, geomap=geomap, snap_m=config.roads_snap_m)
+    return RoadNetwork([a * mpp for a in net.lines], 1.0, config.roads_snap_m,
+                       bounds=(0.0, 0.0, geomap.width * mpp[0], geomap.height * mpp[1]))
+
+
+def _predictor(m, config, roads=None):
+    if m == ROAD_VARIANT:
+        return get_predictor("context", config, FPS, metres_per_unit=None, roads=roads)
+    return get_predictor(m, config, FPS, metres_per_unit=None)
+
+
 def run_synth(specs, frames, methods, config, fragment=False):
     """Errors {method: {kind: {"1s": [m...]}}} at 1/2/4 s into every gap, and seconds per query."""
     from identity import make_scene
@@ -200,8 +226,9 @@ def run_synth(specs, frames, methods, config, fragment=False):
         counts[spec] = {k: sum(q[2] == k for q in queries) for k in ("occlusion", "exit")}
         nq += len(queries)
         h = max(SYNTH_AT.values())
+        roads = scene_roads(scene, config) if ROAD_VARIANT in methods else None
         for m in methods:
-            pred = get_predictor(m, config, FPS, metres_per_unit=None)
+            pred = _predictor(m, config, roads)
             t0 = time.perf_counter()
             out = [pred.predict(table, i, T, h) for i, T, _, _ in queries]
             timing[m] += time.perf_counter() - t0
@@ -258,7 +285,7 @@ def main(argv=None) -> dict:
     if old and "sdd" not in old and "synth" not in old:
         old = {"sdd": old}
     if args.synth:
-        methods = list(dict.fromkeys(["kalman", "constant-velocity", *args.methods]))
+        methods = list(dict.fromkeys(["kalman", "constant-velocity", *args.methods, ROAD_VARIANT]))
         key = "synth_fragmented" if args.fragment else "synth"
         old[key] = synth_report(args.synth_scenes, args.synth_frames, methods, config, args.fragment)
         old[key]["config"] = {k: getattr(config, k) for k in config.__dataclass_fields__}

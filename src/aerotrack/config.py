@@ -535,6 +535,28 @@ class ContextConfig:
     image_object_size_m : float
         ``aerotrack predict`` on image coordinates with no ``--gsd``: the median box's longer side
         is taken to be this many metres (a car), which sets the scale of the metre-based settings.
+    roads_snap_m : float
+        ``context`` with a road network (``--roads``): centre-line ends and crossings closer than
+        this become one junction (:class:`~aerotrack.context.roads.RoadNetwork`). Larger joins
+        roads digitised with gaps but may fuse close parallel carriageways.
+    road_snap_m : float
+        ``context`` with roads: a target further than this from every centre-line is off-road (the
+        prediction is then what it is without roads). Raise it for wide multi-lane roads.
+    road_heading_deg : float
+        ``context`` with roads: the target's heading must agree with the centre-line's (either
+        direction) within this angle to snap to it.
+    road_lane_m : float
+        ``context`` with roads: the target's lateral offset from the centre-line up to this is its
+        lane and is kept along the road (turns and U-turns included); any excess decays.
+    road_offset_tau_s : float
+        ``context`` with roads: time constant of the decay of the lateral offset beyond
+        ``road_lane_m`` (a target drifting back into its lane).
+    road_uturn_s : float
+        ``context`` with roads: time a U-turn at a dead end costs (slowing down, turning).
+    road_vote_radius_m : float
+        ``context`` with roads: at a junction, earlier objects that passed within this distance of
+        the target's approach (same heading) vote for the branch they took (the learned road);
+        without votes the straightest branch is taken. Larger finds more voters but mixes lanes.
     """
 
     history_s: float = 1.0
@@ -565,6 +587,13 @@ class ContextConfig:
     kalman_meas_std_m: float = 0.1
     kalman_vel_std_mps: float = 5.0
     image_object_size_m: float = 4.5
+    roads_snap_m: float = 5.0
+    road_snap_m: float = 6.0
+    road_heading_deg: float = 40.0
+    road_lane_m: float = 4.0
+    road_offset_tau_s: float = 1.0
+    road_uturn_s: float = 1.0
+    road_vote_radius_m: float = 4.0
 
 
 @dataclass(frozen=True)

@@ -248,18 +248,23 @@ class MotionPredictor:
         Frame rate (frames per second).
     metres_per_unit : float, optional
         World units -> metres; None means world units are metres.
+    roads : RoadNetwork, optional
+        Road centre-lines in the same world units (:mod:`aerotrack.context.roads`); used by the
+        ``context`` method (a target on a road drives along it), ignored by the others. Also
+        settable afterwards as the ``roads`` attribute.
     """
 
     name = "base"
 
     def __init__(self, config: ContextConfig | None = None, fps: float = 30.0,
-                 metres_per_unit: float | None = None) -> None:
+                 metres_per_unit: float | None = None, roads=None) -> None:
         self.config = config or ContextConfig()
         if not fps or fps <= 0:
             raise ConfigError(f"fps must be positive, got {fps}")
         self.fps = float(fps)
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
         self.window = max(2, int(round(self.config.history_s * self.fps)))
+        self.roads = roads
 
     def m(self, metres: float) -> float:
         """Metres -> world units."""
@@ -287,6 +292,33 @@ class MotionPredictor:
         if len(fr) == 0 or fr[-1] != last_seen:
             raise InputError(f"track {track_id} has no row at last_seen frame {last_seen}")
         return self._predict(table, track_id, fr, xy, int(last_seen), int(horizon))
+
+    def hypotheses(self, table: TrackTable, track_id: int, last_seen: int,
+                   horizon: int) -> list[np.ndarray]:
+        """Every place the target may be: :meth:`predict` first, then the other branches.
+
+        With a road network (``context`` method, target on a road) the other entries are the
+        routes through the junctions within reach that :meth:`predict` did not choose (a turn
+        instead of straight on, the other side of a fork; :func:`~aerotrack.context.roads.
+        road_prediction`). A linker can gate and score a re-appearing object on the nearest
+        entry at its first frame instead of on the chosen branch alone. Without roads, or off
+        the roads, the list holds the prediction only.
+
+        Returns
+        -------
+        list of ndarray, each (horizon, 2), world units, frames ``last_seen+1 .. +horizon``.
+        """
+        first = self.predict(table, track_id, last_seen, horizon)
+        if self.roads is None or self.name != "context":
+            return [first]
+        from .roads import road_prediction
+
+        fr, xy = _history(table, track_id, last_seen, self.window)
+        p0, v0, _ = kalman_state(fr, xy, self.fps, self.mpu, self.config)
+        rp = road_prediction(self.roads, p0, v0, int(horizon), self.fps, self.config,
+                             index=self.index_for(table), frame=int(last_seen),
+                             exclude_id=track_id)
+        return [first] if rp is None else [first, *rp.hypotheses[1:]]
 
     def _predict(self, table, track_id, fr, xy, T, h) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError
@@ -838,6 +870,12 @@ class ContextPredictor(MotionPredictor):
        after ``last_seen`` is observed while the target is hidden: a queue starting to move, a
        convoy turning. Variance: their spread + ``group_noise_m^2 / n``.
 
+    With a road network (``roads``), a target that snaps to a road (within ``road_snap_m``,
+    heading within ``road_heading_deg``) has estimate 1 driven along the road instead of on a
+    straight line (:func:`~aerotrack.context.roads.road_prediction`: its lane kept, at junctions
+    the branch earlier objects took else the straightest, U-turns at dead ends), with the same
+    variance; off the roads nothing changes.
+
     Where neither context estimate exists the prediction is the Kalman filter's, so the method is
     never worse than it by construction of the weights (up to their calibration). Raising
     ``path_noise_m`` / ``group_noise_m`` trusts the context less.
@@ -845,8 +883,8 @@ class ContextPredictor(MotionPredictor):
 
     name = "context"
 
-    def __init__(self, config=None, fps=30.0, metres_per_unit=None) -> None:
-        super().__init__(config, fps, metres_per_unit)
+    def __init__(self, config=None, fps=30.0, metres_per_unit=None, roads=None) -> None:
+        super().__init__(config, fps, metres_per_unit, roads)
         self._index_table: TrackTable | None = None  # held, so its id cannot be reused
         self._index: PathIndex | None = None
 
@@ -919,6 +957,14 @@ class ContextPredictor(MotionPredictor):
             step = max(1, int(round(c.flow_step_s * self.fps)))
             base = follow_flow(index, p0, v0, T, h, track_id, radius, cos_gate, vmin,
                                c.flow_prior_weight, step)
+        if self.roads is not None:
+            from .roads import road_prediction
+
+            rp = road_prediction(self.roads, p0, v0, h, self.fps, c,
+                                 index=None if table is None else self.index_for(table),
+                                 frame=T, exclude_id=track_id)
+            if rp is not None:
+                base = rp.positions
         t = k / self.fps
         var_kf = self.m(c.kalman_meas_std_m) ** 2 + (0.5 * self.m(c.kalman_accel_mps2) * t * t) ** 2
         estimates = [(base, var_kf)]
@@ -1037,12 +1083,13 @@ PREDICTION_METHODS: dict[str, type[MotionPredictor]] = {
 
 
 def get_predictor(name: str, config: ContextConfig | None = None, fps: float = 30.0,
-                  metres_per_unit: float | None = None) -> MotionPredictor:
-    """A predictor by registered name; an unknown name lists the valid ones."""
+                  metres_per_unit: float | None = None, roads=None) -> MotionPredictor:
+    """A predictor by registered name; an unknown name lists the valid ones. ``roads``: a
+    :class:`~aerotrack.context.roads.RoadNetwork` in the same world units (``context`` uses it)."""
     try:
         cls = PREDICTION_METHODS[name]
     except KeyError:
         raise ConfigError(
             f"unknown prediction method {name!r} (valid: {', '.join(PREDICTION_METHODS)})"
         ) from None
-    return cls(config, fps, metres_per_unit)
+    return cls(config, fps, metres_per_unit, roads)

@@ -1,0 +1,166 @@
+"""Road-network motion context (aerotrack.context.roads): known answers on small road graphs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from aerotrack.config import ContextConfig
+from aerotrack.context.motion import TrackTable, get_predictor
+from aerotrack.context.roads import RoadNetwork, read_roads, road_prediction
+from aerotrack.errors import InputError
+
+FPS = 30.0
+
+
+def straight_track(start, velocity, frames=31, track_id=1, first=1):
+    """A track moving at ``velocity`` m/s from ``start``: (ids, frames, xy)."""
+    f = np.arange(first, first + frames)
+    xy = np.asarray(start, float) + (f - f[-1])[:, None] / FPS * np.asarray(velocity, float)
+    return np.full(frames, track_id), f, xy
+
+
+def table_of(*tracks):
+    ids = np.concatenate([t[0] for t in tracks])
+    fr = np.concatenate([t[1] for t in tracks])
+    xy = np.vstack([t[2] for t in tracks])
+    return TrackTable.from_arrays(ids, fr, xy)
+
+
+def predict(table, roads, track_id=1, horizon=240, config=None):
+    pred = get_predictor("context", config or ContextConfig(), FPS, roads=roads)
+    fr, _ = table.track(track_id)
+    return pred.predict(table, track_id, int(fr[-1]), horizon)
+
+
+def test_target_heading_into_an_l_shaped_road_is_predicted_around_the_corner():
+    net = RoadNetwork([np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0]])], bounds=(-50, -50, 200, 200))
+    table = table_of(straight_track((50.0, 0.0), (10.0, 0.0)))  # 50 m before the corner at 10 m/s
+    p = predict(table, net)
+    for t, want in [(3.0, (80.0, 0.0)), (6.0, (100.0, 10.0)), (8.0, (100.0, 30.0))]:
+        k = int(round(t * FPS)) - 1
+        assert np.hypot(*(p[k] - want)) < 1.0, (t, p[k], want)
+    # the Kalman filter alone goes straight on past the corner
+    kal = get_predictor("kalman", ContextConfig(), FPS).predict(table, 1, 31, 240)
+    assert np.hypot(*(kal[-1] - (100.0, 30.0))) > 40
+
+
+def test_dead_end_gives_a_u_turn_keeping_the_lane_and_an_open_end_goes_straight_on():
+    line = np.array([[0.0, 0.0], [100.0, 0.0]])
+    c = ContextConfig()
+    # 1.5 m right of the centre-line when driving +x (right-hand normal (-t_y, t_x) = +y)
+    table = table_of(straight_track((60.0, 1.5), (10.0, 0.0)))
+    dead = RoadNetwork([line], bounds=(-50, -50, 200, 200))  # the end at x=100 is inside the map
+    p = predict(table, dead, horizon=240, config=c)
+    # 4 s to the end, road_uturn_s lost there, then back: at 8 s, 10 * (8 - 4 - 1) = 30 m back
+    assert np.hypot(*(p[int(8 * FPS) - 1] - (70.0, -1.5))) < 1.0, p[int(8 * FPS) - 1]
+    assert np.hypot(*(p[int(3 * FPS) - 1] - (90.0, 1.5))) < 1.0
+    open_end = RoadNetwork([line])  # the lines' own extent: the end is on the map's edge
+    q = predict(table, open_end, horizon=240, config=c)
+    assert np.hypot(*(q[int(8 * FPS) - 1] - (140.0, 1.5))) < 1.0
+
+
+def test_an_off_road_target_falls_back_to_the_kalman_prediction_exactly():
+    net = RoadNetwork([np.array([[0.0, 0.0], [100.0, 0.0]])], bounds=(-50, -50, 200, 200))
+    c = ContextConfig()
+    far = table_of(straight_track((50.0, 30.0), (10.0, 0.0)))  # 30 m from the road
+    across = table_of(straight_track((50.0, 2.0), (0.0, 10.0)))  # on it, but crossing it
+    for table in (far, across):
+        with_roads = predict(table, net, config=c)
+        without = predict(table, None, config=c)
+        kalman = get_predictor("kalman", c, FPS).predict(table, 1, 31, 240)
+        assert np.array_equal(with_roads, without)  # bit for bit what it is without roads
+        assert np.allclose(with_roads, kalman, rtol=0, atol=1e-9)  # (up to the fusion's rounding)
+    assert road_prediction(net, np.array([50.0, 30.0]), np.array([10 / FPS, 0.0]), 10, FPS, c) is None
+
+
+def cross_network():
+    # a 4-way crossing at (100, 0): west-east road and south-north road
+    return RoadNetwork([np.array([[0.0, 0.0], [200.0, 0.0]]), np.array([[100.0, -100.0], [100.0, 100.0]])],
+                       bounds=(-50, -150, 250, 150))
+
+
+def test_at_a_junction_the_learned_road_beats_the_straightest_branch():
+    net = cross_network()
+    assert len(net.nodes) == 5 and len(net.adjacency[int(np.argmin(np.hypot(*(net.nodes - (100, 0)).T)))]) == 4
+    target = straight_track((60.0, 0.0), (10.0, 0.0), first=600)
+    # without earlier objects: straight on
+    p = predict(table_of(target), net, horizon=180)
+    assert np.hypot(*(p[-1] - (120.0, 0.0))) < 1.0
+    # an earlier car came the same way and turned left (to -y) at the crossing
+    f = np.arange(1, 301)
+    s = 10.0 * (f - 1) / FPS  # 10 m/s from x = 20
+    xy = np.where((s < 80)[:, None], np.column_stack([20 + s, 0 * s]),
+                  np.column_stack([np.full_like(s, 100.0), -(s - 80)]))
+    earlier = (np.full(len(f), 2), f, xy)
+    table = table_of(target, earlier)
+    q = predict(table, net, horizon=180)
+    assert np.hypot(*(q[-1] - (100.0, -20.0))) < 1.5, q[-1]
+    # the linker's view: both branches (and the third) are hypotheses, the chosen one first
+    pred = get_predictor("context", ContextConfig(), FPS, roads=net)
+    hyps = pred.hypotheses(table, 1, int(target[1][-1]), 180)
+    ends = np.array([h[-1] for h in hyps])
+    assert np.array_equal(hyps[0], q)
+    for want in [(100.0, -20.0), (120.0, 0.0), (100.0, 20.0)]:
+        assert np.hypot(*(ends - want).T).min() < 1.5, want
+
+
+def test_a_road_ending_near_another_becomes_a_t_junction():
+    net = RoadNetwork([np.array([[0.0, 0.0], [200.0, 0.0]]), np.array([[100.0, 3.0], [100.0, 100.0]])],
+                      snap_m=5.0, bounds=(-50, -50, 250, 150))
+    deg = sorted(len(a) for a in net.adjacency)
+    assert deg == [1, 1, 1, 3]
+    node = net.nodes[[len(a) for a in net.adjacency].index(3)]
+    assert np.allclose(node, (100.0, 0.0))  # on the through road
+
+
+def test_geojson_in_lonlat_onto_a_map_in_another_crs(tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    from pyproj import Transformer
+    from rasterio.transform import from_origin
+
+    from aerotrack.geo import GeoMap
+
+    # a 2 m/pixel map in UTM 11N, top-left at (660000, 4002000)
+    tif = tmp_path / "map.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=200, height=150, count=1, dtype="uint8",
+                       crs="EPSG:32611", transform=from_origin(660000, 4002000, 2.0, 2.0)) as ds:
+        ds.write(np.zeros((1, 150, 200), np.uint8))
+    geomap = GeoMap(tif)
+    want_px = np.array([[10.0, 20.0], [190.0, 20.0], [190.0, 140.0]])
+    utm = np.column_stack([660000 + 2 * want_px[:, 0], 4002000 - 2 * want_px[:, 1]])
+    lon, lat = Transformer.from_crs("EPSG:32611", "EPSG:4326", always_xy=True).transform(*utm.T)
+    feats = [{"type": "Feature", "properties": {},
+              "geometry": {"type": "MultiLineString", "coordinates": [list(zip(lon, lat))]}}]
+    path = tmp_path / "roads.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    net = read_roads(path, geomap=geomap)
+    assert len(net.lines) == 1
+    assert np.abs(net.lines[0] - want_px).max() < 1e-3
+    assert net.mpu == pytest.approx(2.0, rel=0.01)
+    # the same lines in Web Mercator with a legacy crs member
+    x, y = Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True).transform(lon, lat)
+    path.write_text(json.dumps({"type": "FeatureCollection",
+                                "crs": {"type": "name", "properties": {"name": "EPSG:3857"}},
+                                "features": [{"type": "Feature", "properties": {}, "geometry": {
+                                    "type": "LineString", "coordinates": list(zip(x, y))}}]}))
+    assert np.abs(read_roads(path, geomap=geomap).lines[0] - want_px).max() < 1e-3
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("not json", "cannot read as GeoJSON"),
+    ('{"type": "FeatureCollection", "features": []}', "no LineString"),
+    ('{"type": "LineString", "coordinates": [[0, 0], [1, 1]], "crs": '
+     '{"type": "name", "properties": {"name": "EPSG:999999"}}}', "unknown crs"),
+])
+def test_bad_road_files_raise_one_line_input_errors(tmp_path, text, fragment):
+    path = tmp_path / "bad.geojson"
+    path.write_text(text)
+    with pytest.raises(InputError) as exc:
+        read_roads(path, crs="EPSG:3857")
+    assert fragment in str(exc.value) and str(path) in str(exc.value)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(InputError, match="file not found"):
+        read_roads(tmp_path / "missing.geojson")
