@@ -96,6 +96,42 @@ def test_plan_partitions_frames_and_cuts_mid_overlap(n, stride, min_segments):
         assert len(segs) == 1  # too short to split
 
 
+@pytest.mark.parametrize("stride,align", [(1, 3), (2, 7), (3, 1)])
+def test_plan_starts_segments_on_the_phase_grid(stride, align):
+    segs = plan_segments(5, 2000, fps=10.0, stride=stride, segment_s=30.0, overlap_s=4.5,
+                         min_segments=2, align=align)
+    assert len(segs) >= 3
+    plain = plan_segments(5, 2000, fps=10.0, stride=stride, segment_s=30.0, overlap_s=4.5,
+                          min_segments=2)
+    for s, p in zip(segs, plain):
+        assert (s.start - 5) % (align * stride) == 0
+        assert p.start - align * stride < s.start <= p.start  # reads at most align-1 more
+        assert (s.stop, s.own_start, s.own_stop) == (p.stop, p.own_start, p.own_stop)
+
+
+def test_phase_period_follows_the_detector_sampling():
+    from dataclasses import replace
+
+    from aerotrack.parallel import phase_period
+
+    config = Config()
+    det = replace(config.detection, sample_every_s=0.2, update_every_s=0.3)
+    config = replace(config, detection=det)
+    assert phase_period(config, 10.0) == 6  # samples every 2 frames, background every 3
+    assert phase_period(config, 10.0, stride=2) == 2  # every grid frame; background every 4
+    assert phase_period(config, 10.0, stride=3) == 2  # samples every 6 frames; background every 3
+
+
+def test_later_segments_hold_stopped_vehicles_after_half_their_warm_up():
+    segs = plan_segments(1, 300, fps=10.0, segment_s=10.0, overlap_s=6.0, min_segments=3)
+    tasks = make_tasks(None, config=Config(), fps=10.0, segments=segs)
+    assert tasks[0].hold_from is None
+    for t in tasks[1:]:
+        assert t.hold_from == t.segment.start + round((t.segment.own_start - t.segment.start) / 2)
+    tasks = make_tasks(None, config=Config(), fps=10.0, segments=segs, hold_after_s=0.0)
+    assert [t.hold_from for t in tasks[1:]] == [s.start for s in segs[1:]]
+
+
 def test_overlap_defaults_to_the_stage_windows_and_refuses_less():
     config = Config()
     assert ParallelConfig().overlap(config) == 2 * (config.detection.window_s

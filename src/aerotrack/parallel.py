@@ -34,25 +34,29 @@ are chained into map pixels as above. Their drift is therefore not corrected aga
 (``refined`` registrations only occur in segment 0); for long flights over a map the single
 process is more accurate.
 
-Differences from the single process (generated 900-frame video at 15 frames/s, 2 segments, the
-same code in every run; see ``benchmarks/parallel.py``). Frames before the first cut are identical.
-After it results differ, for reasons that are not the join itself (which stitched every tracklet
-crossing the cut):
+Differences from the single process (generated 900-frame videos at 15 frames/s, 2 segments, the
+same code in every run; ``benchmarks/parallel.py`` measures them per join). Frames before the first
+cut are identical. After it, a segment differs from the single process only where some stage's
+state at the segment's first frame matters:
 
-* the detector settles only 4-6 s after a segment's first frame (more than half its background
-  window), hence the default overlap of ``2 * (detection.window_s + association.window_s)``; with
-  half of that, detections just after the cut differed and the run lost 0.014 HOTA / 0.022 IDF1;
-* the MCMC of local association restarts its random stream at the segment's first frame. The
-  single process itself moves by that much with another seed: seeds 1 and 2 changed HOTA by
-  -0.007 / +0.002 and IDF1 by -0.022 / -0.008 on the same video;
-* segment k's world is its own first frame, chained to world 0 (0.05-0.1 px RMS), so the
-  background is resampled with another sub-pixel phase and a few borderline blobs change;
-* the detector keeps vehicles that stopped for up to ``detection.max_hold_s``: a segment does not
-  know about a vehicle that stopped before its first frame (seen on an ``aerotrack synth`` scene
-  with stops: extra detections 6-7 s after the cut).
+* periodic choices counted from a stage's first frame: the detector's background samples and
+  background rebuilds (every 0.2 s). Segments therefore start on the detector's phase grid
+  (:func:`phase_period`); off it, 66 of the 450 frames after the cut had other detections, on it
+  8-10. Local association cuts its window and seeds its MCMC at absolute frame numbers, so it
+  needs no alignment (before it did, the random stream restarting at each segment's start moved
+  HOTA/IDF1 by as much as another seed does: up to 0.02 IDF1);
+* the detector's held stopped vehicles (``detection.hold_stopped``): a segment does not know
+  about a vehicle that stopped before its first frame, and, worse, holding from its very first
+  frame freezes what a one-sided background window detects then (a vehicle still in the median)
+  for up to ``detection.max_hold_s``. Segments hold only after half their warm-up
+  (:attr:`ParallelConfig.hold_after_s`): on the tests' 200-frame scene a segment start 5 frames
+  earlier otherwise changed the detections of all 100 frames it owned (HOTA -0.055);
+* segment k's world is its own first frame, chained to world 0 (0.03-0.05 px RMS), and its
+  registration chain has other keyframes, so the background is resampled with another sub-pixel
+  phase and a few borderline blobs change (the remaining 8-10 frames, spread over the segment).
 
-With the default overlap (9 s) the two-segment run scored HOTA +0.004 and IDF1 -0.000 relative to
-the single process.
+Joins themselves (tracklets crossing a cut are stitched when they coincide in the overlap) split
+or merged no track on the benchmark videos; see ``benchmarks/results/parallel.json``.
 """
 
 from __future__ import annotations
@@ -210,26 +214,23 @@ def plan_segments(first: int, last: int, *, fps: float, stride: int = 1, segment
 
 
 def phase_period(config: Config, fps: float, stride: int = 1) -> int:
-    """Grid frames after which the stages' periodic choices repeat, counted from their first frame.
+    """Grid frames after which the detector's periodic choices repeat, counted from its first frame.
 
-    Three choices are made on a period counted from a stage's first frame: the detector keeps a
-    background sample every ``detection.sample_every_s`` and rebuilds the background every
-    ``detection.update_every_s``, and local association freezes the oldest frames of its window in
-    batches of a third of ``association.window_s``. A segment that starts reading a multiple of
-    this period after the video's first frame makes the same choices on the same frames as one
-    process does (measured on a generated 900-frame video at 15 frames/s: a start off this grid
-    changed the detections of 66 of the 450 frames after the cut, far from it as well).
-    The rules are those of ``detection.MovingObjectDetector`` and
-    ``association.LocalAssociator`` (frames there, grid frames here).
+    The detector keeps a background sample every ``detection.sample_every_s`` and rebuilds the
+    background every ``detection.update_every_s``, both counted from the first frame it sees. A
+    segment that starts reading a multiple of this period after the video's first frame makes the
+    same choices on the same frames as one process does (measured on a generated 900-frame video
+    at 15 frames/s: a start off this grid changed the detections of 66 of the 450 frames after the
+    cut, far from it as well; on it, 8). The rules are ``detection.MovingObjectDetector``'s (frames
+    there, grid frames here). Local association needs nothing: it cuts its window and seeds its
+    sampler at absolute frame numbers.
     """
     s = max(1, int(stride))
     det = config.detection
     every = max(1, int(round(det.sample_every_s * fps)))
     update = max(1, int(round(det.update_every_s * fps)))
-    window = max(2, int(round(config.association.window_s * fps)))
-    batch = max(1, window // 3)
     period = 1
-    for frames in (every, -(-update // s) * s, batch):
+    for frames in (every, -(-update // s) * s):
         grid = frames // math.gcd(frames, s)  # grid frames in which `frames` frames recur
         period = period * grid // math.gcd(period, grid)
     return period
