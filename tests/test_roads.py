@@ -40,7 +40,7 @@ def test_target_heading_into_an_l_shaped_road_is_predicted_around_the_corner():
     table = table_of(straight_track((50.0, 0.0), (10.0, 0.0)))  # 50 m before the corner at 10 m/s
     p = predict(table, net)
     for t, want in [(3.0, (80.0, 0.0)), (6.0, (100.0, 10.0)), (8.0, (100.0, 30.0))]:
-        k = int(round(t * FPS)) - 1
+        k = round(t * FPS) - 1
         assert np.hypot(*(p[k] - want)) < 1.0, (t, p[k], want)
     # the Kalman filter alone goes straight on past the corner
     kal = get_predictor("kalman", ContextConfig(), FPS).predict(table, 1, 31, 240)
@@ -152,8 +152,8 @@ def test_geojson_in_lonlat_onto_a_map_in_another_crs(tmp_path):
 @pytest.mark.parametrize("text, fragment", [
     ("not json", "cannot read as GeoJSON"),
     ('{"type": "FeatureCollection", "features": []}', "no LineString"),
-    ('{"type": "LineString", "coordinates": [[0, 0], [1, 1]], "crs": '
-     '{"type": "name", "properties": {"name": "EPSG:999999"}}}', "unknown crs"),
+    (('{"type": "LineString", "coordinates": [[0, 0], [1, 1]], "crs": '
+      '{"type": "name", "properties": {"name": "EPSG:999999"}}}'), "unknown crs"),
 ])
 def test_bad_road_files_raise_one_line_input_errors(tmp_path, text, fragment):
     path = tmp_path / "bad.geojson"
@@ -164,3 +164,91 @@ def test_bad_road_files_raise_one_line_input_errors(tmp_path, text, fragment):
     assert "\n" not in str(exc.value)
     with pytest.raises(InputError, match="file not found"):
         read_roads(tmp_path / "missing.geojson")
+
+
+# -- command line -----------------------------------------------------------------------------------
+def run_cli(capsys, *argv) -> tuple[int, str]:
+    from aerotrack.cli.main import main
+
+    capsys.readouterr()
+    try:
+        main([str(a) for a in argv])
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err
+
+
+def l_road_files(tmp_path):
+    """An L-shaped road in lon/lat and a target's track in UTM 11N metres heading into it."""
+    from pyproj import Transformer
+
+    x0, y0 = 660000.0, 4000000.0
+    corner = np.array([[x0, y0], [x0 + 100, y0], [x0 + 100, y0 + 100]])
+    lon, lat = Transformer.from_crs("EPSG:32611", "EPSG:4326", always_xy=True).transform(*corner.T)
+    roads = tmp_path / "roads.geojson"
+    roads.write_text(json.dumps({"type": "Feature", "properties": {}, "geometry": {
+        "type": "LineString", "coordinates": list(zip(lon, lat))}}))
+    _, f, xy = straight_track((x0 + 50, y0), (10.0, 0.0))
+    tracks = tmp_path / "tracks.csv"
+    tracks.write_text("".join(f"{a},1,{b[0]:.3f},{b[1]:.3f},4,2,1,{b[0]:.3f},{b[1]:.3f},-1\n"
+                              for a, b in zip(f, xy)))
+    queries = tmp_path / "q.csv"
+    queries.write_text(f"id,last_seen,horizon\n1,{f[-1]},240\n")
+    return roads, tracks, queries, (x0 + 100, y0 + 30)
+
+
+def test_predict_command_follows_the_roads(tmp_path, capsys):
+    roads, tracks, queries, want = l_road_files(tmp_path)
+    out = tmp_path / "p.csv"
+    code, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out, "--space", "map",
+                        "--roads", roads, "--crs", "EPSG:32611")
+    assert code == 0, err
+    last = np.array([float(v) for v in out.read_text().splitlines()[-1].split(",")[3:5]])
+    assert np.hypot(*(last - want)) < 1.0, last
+
+
+def test_bad_roads_options_exit_2_with_one_line_naming_the_file(tmp_path, capsys):
+    roads, tracks, queries, _ = l_road_files(tmp_path)
+    bad = tmp_path / "bad.geojson"
+    bad.write_text('{"type": "FeatureCollection", "features": [{"type": "Feature", "geometry": '
+                   '{"type": "Point", "coordinates": [0, 0]}}]}')
+    out = tmp_path / "p.csv"
+    cases = [
+        (("predict", tracks, "--queries", queries, "--out", out, "--space", "map", "--roads", bad,
+          "--crs", "EPSG:32611"), [str(bad), "no LineString"]),
+        (("predict", tracks, "--queries", queries, "--out", out, "--space", "map", "--roads",
+          tmp_path / "missing.geojson", "--crs", "EPSG:32611"), ["missing.geojson", "not found"]),
+        (("predict", tracks, "--queries", queries, "--out", out, "--space", "map", "--roads", roads),
+         [str(roads), "--crs"]),
+        (("predict", tracks, "--queries", queries, "--out", out, "--roads", roads), ["--space map"]),
+        (("track", "--detections", tracks, "--out", tmp_path / "run", "--roads", roads),
+         [str(roads), "needs --map"]),
+    ]
+    for argv, fragments in cases:
+        code, err = run_cli(capsys, *argv)
+        assert code == 2, (argv, err)
+        assert "Traceback" not in err
+        lines = [ln for ln in err.splitlines() if ln.strip() and "WARNING" not in ln and "INFO" not in ln]
+        assert len(lines) == 1 and lines[0].startswith(("aerotrack: error:", "Error:")), err
+        for frag in fragments:
+            assert frag in err, (frag, err)
+    assert not out.exists()
+
+
+def test_synth_writes_the_roads_its_vehicles_drive(tmp_path):
+    from aerotrack.geo import GeoMap
+    from aerotrack.synth import render_to
+
+    render_to(tmp_path / "scene", seed=1, frames=3, size=(160, 120))
+    scene = tmp_path / "scene"
+    net = read_roads(scene / "roads.geojson", geomap=GeoMap(scene / "map.tif"))
+    assert len(net.lines) == 9
+    rows = [ln.split(",") for ln in (scene / "states.csv").read_text().splitlines()[1:]]
+    px = np.array([[float(r[3]), float(r[4])] for r in rows])
+    # every vehicle drives within its lane (<= 2 m) of a centre-line
+    mpp = net.mpu
+    from aerotrack.context.motion import polyline_distance
+
+    d = np.min([polyline_distance(px, e.pts) for e in net.edges], axis=0)
+    assert d.max() * mpp < 2.5

@@ -93,13 +93,14 @@ class Pipeline:
                  checkpoint_dir: Path | None = None, checkpoint_every: int = 300,
                  undistort: Callable[[Frame], Frame] | None = None,
                  regions: list | None = None, min_speed_mps: float | None = None,
-                 spill: bool = True) -> None:
+                 spill: bool = True, roads=None) -> None:
         from .association import LocalAssociator
         from .io.checkpoint import TrackletSpill
 
         self.config = config
         self.fps = float(fps)
         self.geomap = geomap
+        self.roads = roads  # RoadNetwork in world units (map pixels), for the motion context
         self.metres_per_unit = geomap.metres_per_pixel if geomap is not None else metres_per_unit
         self.external = detections
         self.registrar = None
@@ -341,7 +342,7 @@ class Pipeline:
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
-                    frame_size=self.frame_size, registrations=self.registrations)
+                    frame_size=self.frame_size, registrations=self.registrations, roads=self.roads)
 
 
 class _Ended:
@@ -355,11 +356,13 @@ class _Ended:
 
 def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit: float | None = None,
          frame_size: tuple[int, int] | None = None,
-         registrations: dict[int, Registration] | None = None) -> list[Track]:
+         registrations: dict[int, Registration] | None = None, roads=None) -> list[Track]:
     """Global linking of tracklets (world coordinates) into tracks numbered 1..N.
 
     The step after local association, shared by :class:`Pipeline` and segment-parallel runs
     (:mod:`aerotrack.parallel`); without the linking stage the tracklets are the tracks.
+    ``roads``: a :class:`~aerotrack.context.roads.RoadNetwork` in world units for the motion
+    context.
     """
     try:
         from .association.linking import GlobalLinker
@@ -367,6 +370,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
         log.warning("global linking unavailable; tracklets are reported as tracks")
         return _renumber(tracklets)
     linker = GlobalLinker(config.linking, config.context, fps, metres_per_unit=metres_per_unit)
+    if roads is not None:
+        linker.predictor.roads = roads
     tracks = linker.link(tracklets, frame_size=frame_size, registrations=registrations or None)
     return _renumber(tracks)
 
@@ -426,7 +431,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         progress: Callable[[int], None] | None = None, start: int = 1, stop: int | None = None,
         stride: int = 1, checkpoint_dir: Path | None = None, resume: bool = False,
         checkpoint_every: int = 300, undistort: Callable[[Frame], Frame] | None = None,
-        regions: list | None = None, min_speed_mps: float | None = None) -> Result:
+        regions: list | None = None, min_speed_mps: float | None = None, roads=None) -> Result:
     """Track a whole video (pull API).
 
     Parameters
@@ -448,6 +453,9 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         Detections outside an include region or inside an ignore region are dropped.
     min_speed_mps : float, optional
         Tracks that never move faster than this are dropped (parked vehicles).
+    roads : aerotrack.context.roads.RoadNetwork, optional
+        Road centre-lines in map pixels (``read_roads(path, geomap=geomap)``): the motion
+        context predicts unobserved vehicles along them.
 
     Examples
     --------
@@ -465,7 +473,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     pipe = Pipeline(config, fps, geomap=geomap, H_init=H_init, seed=seed, detections=per_frame,
                     metres_per_unit=metres_per_unit, checkpoint_dir=checkpoint_dir,
                     checkpoint_every=checkpoint_every, undistort=undistort, regions=regions,
-                    min_speed_mps=min_speed_mps)
+                    min_speed_mps=min_speed_mps, roads=roads)
     if resume and checkpoint_dir is not None:
         restart = pipe.restore()
         if restart > start:
@@ -498,7 +506,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
 def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                geomap: GeoMap | None = None, seed: int = 0, metres_per_unit: float | None = None,
                frame_size: tuple[int, int] | None = None, regions: list | None = None,
-               min_speed_mps: float | None = None) -> Result:
+               min_speed_mps: float | None = None, roads=None) -> Result:
     """Association and linking alone, on the registrations and detections cached by an earlier
     run (its ``stages/`` folder): changing association parameters does not redo registration and
     detection."""
@@ -507,7 +515,8 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
     config = config or Config()
     regs, dets, _ = load_chunks(stages)
     pipe = Pipeline(config, fps, geomap=geomap, seed=seed, detections={},
-                    metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps)
+                    metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps,
+                    roads=roads)
     pipe.registrations.update(regs)
     pipe.frame_size = frame_size
     frames = sorted({*regs, *(d.frame for d in dets)})

@@ -30,9 +30,16 @@ log = logging.getLogger(__name__)
 @click.option("--gsd", type=float, default=None,
               help="Metres per coordinate unit. Default: metres (or lon/lat degrees) for --space "
                    "map; for image, the median box's long side is taken as context.image_object_size_m.")
+@click.option("--roads", "roads", type=click.Path(dir_okay=False), default=None,
+              help="Road centre-lines (GeoJSON LineStrings, any CRS) for --space map: the context "
+                   "method predicts targets on a road along it.")
+@click.option("--crs", "crs", default=None,
+              help="With --roads: CRS of the tracks' x,y columns (default EPSG:4326 when they "
+                   "look like lon/lat degrees).")
 @config_option
 @set_option
-def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, overrides):
+def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, overrides,
+                    roads=None, crs=None):
     """Predict the positions of targets after they were last seen (motion context).
 
     The prediction at frame f uses only the target's rows up to last_seen and the other tracks'
@@ -52,5 +59,5 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
         raise InputError(f"--gsd must be positive, got {gsd}")
     config = load_config(config_path, overrides).context
     n = run_predict(tracks, queries, out, method=method or config.method, fps=fps, space=space,
-                    config=config, metres_per_unit=gsd)
+                    config=config, metres_per_unit=gsd, roads=roads, crs=crs)
     log.info("wrote %d predicted positions to %s", n, out)

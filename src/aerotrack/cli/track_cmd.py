@@ -190,6 +190,9 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
 @click.option("--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
               help="Region whose detections are ignored (same formats as --roi).")
+@click.option("--roads", "roads_path", type=click.Path(path_type=Path), default=None,
+              help="Road centre-lines (GeoJSON LineStrings, any CRS; needs --map): unobserved "
+                   "vehicles are predicted along the roads.")
 @click.option("--min-speed", "min_speed", type=float, default=None,
               help="Drop tracks never faster than this many m/s (parked vehicles).")
 @click.option("--out-crs", "out_crs", default=None,
@@ -212,7 +215,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_path, gsd, fps,
                   seed, config_path, overrides, telemetry_path, intrinsics_path, roi_paths,
                   ignore_paths, min_speed, out_crs, frame_range, stride, overwrite, resume,
-                  workers, scheduler, from_dir=None):
+                  workers, scheduler, from_dir=None, roads_path=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -236,13 +239,16 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     config = load_config(config_path, overrides)
     if from_dir is not None:
         return _track_from_cache(ctx, from_dir, out_dir, config, map_path, seed, gsd, fps,
-                                 min_speed, out_crs, overwrite)
+                                 min_speed, out_crs, overwrite, roads_path=roads_path)
     start, stop = parse_frame_range(frame_range)
     if min_speed is not None and not min_speed >= 0:
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
         intrinsics_path)
+    roads = load_roads(roads_path, geomap, config)
+    if roads is not None and (workers is not None or scheduler is not None):
+        raise InputError("--roads does not work with --workers/--scheduler yet")
     regions = []
     if roi_paths or ignore_paths:
         from ..geo.roi import read_region
@@ -278,7 +284,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                      detections=dets, metres_per_unit=None if geomap else gsd, progress=progress,
                      checkpoint_dir=out.partial, resume=resume, start=start, stop=stop,
                      stride=stride, undistort=undistort, regions=regions,
-                     min_speed_mps=min_speed)
+                     min_speed_mps=min_speed, **({"roads": roads} if roads is not None else {}))
     finally:
         restore_sigint()
         close()
@@ -286,6 +292,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "input": str(input_path) if input_path else None,
         "detections": str(detections_path) if detections_path else None,
         "map": str(map_path) if map_path else None,
+        "roads": str(roads_path) if roads_path else None,
         "seed": seed,
         "wall_time_s": round(time.perf_counter() - t0, 3),
         **notes,
@@ -300,8 +307,20 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s)", err=True)
 
 
+def load_roads(roads_path, geomap, config):
+    """``--roads``: the road network on the map (world = map pixels), or None."""
+    if roads_path is None:
+        return None
+    from ..context.roads import read_roads
+    from ..errors import InputError
+
+    if geomap is None:
+        raise InputError(f"--roads {roads_path}: needs --map (the roads are placed on the map)")
+    return read_roads(roads_path, geomap=geomap, snap_m=config.context.roads_snap_m)
+
+
 def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed, gsd, fps,
-                      min_speed, out_crs, overwrite) -> None:
+                      min_speed, out_crs, overwrite, roads_path=None) -> None:
     """``track --from DIR``: association and linking on DIR/stages."""
     import json
 
@@ -329,7 +348,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     t0 = time.perf_counter()
     result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
                         metres_per_unit=mpu, frame_size=tuple(prev["frame_size"])
-                        if prev.get("frame_size") else None, min_speed_mps=min_speed)
+                        if prev.get("frame_size") else None, min_speed_mps=min_speed,
+                        roads=load_roads(roads_path, geomap, config))
     info = {"input": prev.get("input"), "detections": prev.get("detections"),
             "map": str(map_path) if map_path else None, "seed": seed, "from": str(from_dir),
             "wall_time_s": round(time.perf_counter() - t0, 3)}

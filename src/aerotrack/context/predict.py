@@ -110,15 +110,16 @@ def scale_of(rows: np.ndarray, space: str, config: ContextConfig) -> float:
 
 
 def predict_queries(table: TrackTable, queries: list[Query], method: str, config: ContextConfig,
-                    fps: float, metres_per_unit: float | None) -> list[np.ndarray]:
-    """One (horizon, 2) array of predicted positions per query, in the table's units.
+                    fps: float, metres_per_unit: float | None, roads=None) -> list[np.ndarray]:
+    """One (horizon, 2) array of predicted positions per query, in the table's units (``roads``:
+    a :class:`~aerotrack.context.roads.RoadNetwork` in the same units, used by ``context``).
 
     Raises
     ------
     InputError
         A query names an unknown id, or a ``last_seen`` that is not one of the track's frames.
     """
-    pred = get_predictor(method, config, fps, metres_per_unit)
+    pred = get_predictor(method, config, fps, metres_per_unit, roads=roads)
     known = set(table.track_ids().tolist())
     out = []
     for n, q in enumerate(queries):
@@ -142,14 +143,32 @@ def format_predictions(queries: list[Query], preds: list[np.ndarray]) -> str:
 
 def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, method: str = "context",
                 fps: float = 30.0, space: str = "image", config: ContextConfig | None = None,
-                metres_per_unit: float | None = None) -> int:
-    """Read the inputs, predict every query, write ``out`` atomically; returns the row count."""
+                metres_per_unit: float | None = None, roads: str | Path | None = None,
+                crs: str | None = None) -> int:
+    """Read the inputs, predict every query, write ``out`` atomically; returns the row count.
+
+    ``roads``: a GeoJSON of road centre-lines (``--space map`` only), reprojected to ``crs``, the
+    CRS of the tracks' x, y columns (default: lon/lat when they look like degrees).
+    """
     config = config or ContextConfig()
     get_predictor(method, config, fps)  # fail on a bad method before reading anything
+    if roads is not None and space != "map":
+        raise InputError(f"--roads {roads}: needs --space map (the roads are in map coordinates)")
     rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False)
     table = tracks_table(rows, space, name=str(tracks))
     qs = read_queries(queries)
     mpu = metres_per_unit or scale_of(rows, space, config)
-    preds = predict_queries(table, qs, method, config, fps, mpu)
+    network = None
+    if roads is not None:
+        from .roads import RoadNetwork, read_roads
+
+        if crs is None:
+            if scale_of(rows, "map", config) == 1.0:
+                raise InputError(f"--roads {roads}: give --crs, the CRS of the tracks' x,y columns")
+            crs = "EPSG:4326"
+        network = read_roads(roads, crs=crs, snap_m=config.roads_snap_m)
+        if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
+            network = RoadNetwork(network.lines, mpu, config.roads_snap_m)
+    preds = predict_queries(table, qs, method, config, fps, mpu, roads=network)
     atomic_write_text(out, format_predictions(qs, preds))
     return sum(q.horizon for q in qs)

@@ -23,6 +23,7 @@ metres to it. Frames are video frames; speeds are world units per frame.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass, field
@@ -312,7 +313,7 @@ class RoadNetwork:
                 if seq and seq[-1][1] == n:
                     continue
                 seq.append((s, n))
-            for (s0, n0), (s1, n1) in zip(seq[:-1], seq[1:]):
+            for (s0, n0), (s1, n1) in itertools.pairwise(seq):
                 if s1 - s0 <= 1e-9:
                     continue
                 inside = (cums[i] > s0) & (cums[i] < s1)
@@ -482,7 +483,7 @@ def _branch_votes(net: RoadNetwork, index, node: int, u_in: np.ndarray, cands, f
         if t in seen:
             continue
         seen.add(t)
-        lo, hi = index.rows_of(t)
+        _, hi = index.rows_of(t)
         after = np.arange(r + 1, hi)
         after = after[index.frames[after] <= frame]
         if len(after) == 0:

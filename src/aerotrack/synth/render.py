@@ -16,6 +16,7 @@ from ..errors import OutputError
 from ..io.mot import format_mot_rows
 from ..io.output import OutputDir, atomic_write_text
 from .scene import Scenario
+from .world import ROADS
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,7 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     position, box, heading, speed), ``homographies.csv`` (true frame -> map pixels), ``map.tif``,
     ``map_init.txt`` (frame-1 homography), ``map_init_gcps.csv`` and ``map_init_lonlat.csv``
     (control points), ``occluders.csv`` (bounding boxes), ``occluders.geojson`` (outlines in map
-    pixels) and ``scenario.json``.
+    pixels), ``roads.geojson`` (the road centre-lines, lon/lat) and ``scenario.json``.
     """
     if not isinstance(out, OutputDir):
         out = OutputDir(out)
@@ -90,6 +91,8 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
         f"{o['kind']},{o['x0']:.1f},{o['y0']:.1f},{o['x1']:.1f},{o['y1']:.1f}\n"
         for o in world.occluders))
     atomic_write_text(out.file("occluders.geojson"), _occluders_geojson(world))
+    # the road centre-lines the vehicles drive (lon/lat), for `track --roads` / `predict --roads`
+    atomic_write_text(out.file("roads.geojson"), ROADS.read_text(encoding="utf-8"))
     info = {
         "seed": seed, "scenario": scenario, "frames": frames, "fps": fps, "size": list(size),
         "map_metres_per_pixel": [world.mx, world.my], "camera_gsd_m": sc.camera.gsd0,
