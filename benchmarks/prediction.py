@@ -187,6 +187,9 @@ def synth_queries(scene: Path, fragment: bool = False):
 
 
 ROAD_VARIANT = "context+roads"
+#: Not a predictor: the road hypothesis nearest the truth (MotionPredictor.hypotheses), what a
+#: linker gating on the nearest branch can reach.
+ROAD_ORACLE = "roads nearest branch (oracle)"
 
 
 def scene_roads(scene: Path, config):
@@ -215,7 +218,8 @@ def run_synth(specs, frames, methods, config, fragment=False):
     from identity import make_scene
 
     warm_up(config)
-    per = {m: {k: {s: [] for s in SYNTH_AT} for k in ("occlusion", "exit")} for m in methods}
+    extra = [ROAD_ORACLE] if ROAD_VARIANT in methods else []
+    per = {m: {k: {s: [] for s in SYNTH_AT} for k in ("occlusion", "exit")} for m in [*methods, *extra]}
     timing = {m: 0.0 for m in methods}
     counts: dict[str, dict[str, int]] = {}
     nq = 0
@@ -236,6 +240,12 @@ def run_synth(specs, frames, methods, config, fragment=False):
                 for s, n in SYNTH_AT.items():
                     if T + n in truth:
                         per[m][kind][s].append(float(np.hypot(*(p[n - 1] - truth[T + n]))))
+                if m == ROAD_VARIANT:
+                    hyps = pred.hypotheses(table, i, T, h)
+                    for s, n in SYNTH_AT.items():
+                        if T + n in truth:
+                            per[ROAD_ORACLE][kind][s].append(
+                                min(float(np.hypot(*(q[n - 1] - truth[T + n]))) for q in hyps))
     return per, {m: t / max(nq, 1) for m, t in timing.items()}, counts
 
 
@@ -248,7 +258,7 @@ def synth_report(specs, frames, methods, config, fragment=False) -> dict:
            "MPE_m": {}, "ratio_to_kalman": {}, "n": {}, "seconds_per_query": timing}
     print(f"generated scenes {specs}: gaps {counts}")
     print(f"{'method':<18} {'gaps':<10} " + " ".join(f"{k:>16}" for k in SYNTH_AT))
-    for m in methods:
+    for m in per:
         res["MPE_m"][m], res["ratio_to_kalman"][m] = {}, {}
         for kind in ("occlusion", "exit", "all"):
             kinds = ("occlusion", "exit") if kind == "all" else (kind,)
