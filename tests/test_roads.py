@@ -236,12 +236,18 @@ def test_bad_roads_options_exit_2_with_one_line_naming_the_file(tmp_path, capsys
     assert not out.exists()
 
 
-def test_synth_writes_the_roads_its_vehicles_drive(tmp_path):
-    from aerotrack.geo import GeoMap
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
     from aerotrack.synth import render_to
 
-    render_to(tmp_path / "scene", seed=1, frames=3, size=(160, 120))
-    scene = tmp_path / "scene"
+    out = tmp_path_factory.mktemp("roads") / "scene"
+    render_to(out, seed=1, frames=30, size=(320, 240))
+    return out
+
+
+def test_synth_writes_the_roads_its_vehicles_drive(scene):
+    from aerotrack.geo import GeoMap
+
     net = read_roads(scene / "roads.geojson", geomap=GeoMap(scene / "map.tif"))
     assert len(net.lines) == 9
     rows = [ln.split(",") for ln in (scene / "states.csv").read_text().splitlines()[1:]]
@@ -252,3 +258,12 @@ def test_synth_writes_the_roads_its_vehicles_drive(tmp_path):
 
     d = np.min([polyline_distance(px, e.pts) for e in net.edges], axis=0)
     assert d.max() * mpp < 2.5
+
+
+def test_track_command_takes_roads_on_the_map(scene, tmp_path, capsys):
+    out = tmp_path / "run"
+    code, err = run_cli(capsys, "track", "--detections", scene / "gt.txt", "--map", scene / "map.tif",
+                        "--map-init", scene / "map_init.txt", "--roads", scene / "roads.geojson",
+                        "--out", out)
+    assert code == 0, err
+    assert json.loads((out / "summary.json").read_text())["roads"] == str(scene / "roads.geojson")
