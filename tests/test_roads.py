@@ -154,6 +154,9 @@ def test_geojson_in_lonlat_onto_a_map_in_another_crs(tmp_path):
     ('{"type": "FeatureCollection", "features": []}', "no LineString"),
     (('{"type": "LineString", "coordinates": [[0, 0], [1, 1]], "crs": '
       '{"type": "name", "properties": {"name": "EPSG:999999"}}}'), "unknown crs"),
+    ('{"type": "LineString", "coordinates": [[0, 0], [1, 1]], "crs": "EPSG:4326"}', "malformed crs"),
+    ('{"type": "LineString", "coordinates": [[0, 0], ["a", 1]]}', "malformed coordinates"),
+    ('[1, 2]', "not a GeoJSON object"),
 ])
 def test_bad_road_files_raise_one_line_input_errors(tmp_path, text, fragment):
     path = tmp_path / "bad.geojson"

@@ -47,7 +47,11 @@ def _crs_of(doc: dict, label: str):
     from pyproj import CRS
     from pyproj.exceptions import CRSError
 
-    name = ((doc.get("crs") or {}).get("properties") or {}).get("name")
+    member = doc.get("crs")
+    props = member.get("properties") if isinstance(member, dict) else None
+    name = props.get("name") if isinstance(props, dict) else None
+    if member is not None and not isinstance(name, str):
+        raise InputError(f"{label}: malformed crs member (expected properties.name)")
     if not name:
         return CRS.from_epsg(4326)
     try:
