@@ -299,10 +299,10 @@ class MotionPredictor:
 
         With a road network (``context`` method, target on a road) the other entries are the
         routes through the junctions within reach that :meth:`predict` did not choose (a turn
-        instead of straight on, the other side of a fork; :func:`~aerotrack.context.roads.
-        road_prediction`). A linker can gate and score a re-appearing object on the nearest
-        entry at its first frame instead of on the chosen branch alone. Without roads, or off
-        the roads, the list holds the prediction only.
+        instead of straight on, the other side of a fork; see
+        :func:`~aerotrack.context.roads.road_prediction`). A linker can gate and score a
+        re-appearing object on the nearest entry at its first frame instead of on the chosen
+        branch alone. Without roads, or off the roads, the list holds the prediction only.
 
         Returns
         -------
