@@ -72,9 +72,13 @@ def frame_corners(width: int, height: int) -> np.ndarray:
     return np.array([[0, 0], [width, 0], [width, height], [0, height]], dtype=np.float64)
 
 
+#: Index of the next corner of a quadrilateral (np.roll(-1) without its overhead).
+_NEXT = np.array([1, 2, 3, 0])
+
+
 def _signed_area(q: np.ndarray) -> float:
     x, y = q[:, 0], q[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * float(np.dot(x, y[_NEXT]) - np.dot(x[_NEXT], y))
 
 
 def check_homography(H: np.ndarray | None, width: int, height: int, *,
@@ -105,13 +109,15 @@ def check_homography(H: np.ndarray | None, width: int, height: int, *,
         return Failure("degenerate homography (not finite)")
     H = H / H[2, 2]
     c = frame_corners(width, height)
-    w = c @ H[2, :2] + H[2, 2]
+    hom = c @ H[:, :2].T + H[:, 2]  # (4, 3) homogeneous images of the corners
+    w = hom[:, 2]
     if np.any(w <= 1e-6):
         return Failure("degenerate homography (horizon crosses the frame)")
-    q = apply_homography(H, c)
+    q = hom[:, :2] / w[:, None]
     # convexity and orientation: every consecutive edge pair turns the same way as the original
-    e = np.roll(q, -1, axis=0) - q
-    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    e = q[_NEXT] - q
+    en = e[_NEXT]
+    cross = e[:, 0] * en[:, 1] - e[:, 1] * en[:, 0]
     if np.any(cross <= 0):
         return Failure("degenerate homography (corner flip or fold)")
     ratio = _signed_area(q) / float(width * height)
