@@ -49,7 +49,8 @@ class RegistrationConfig:
     polish : bool
         After the first estimate, warp the previous frame by it and re-track the inliers (sub-pixel
         residual motion, no zoom or rotation left): removes the bias optical flow has under zoom,
-        which chaining turns into drift, for about a third more time.
+        which chaining turns into drift. Done on the frames that become keyframes or start a map
+        refinement (the only ones chained into later frames), so it costs little.
     keyframe_s : float
         Frames are registered against a keyframe at most this old (0: against the previous frame).
         Longer keyframes chain fewer homographies (less drift) but track over larger motions and

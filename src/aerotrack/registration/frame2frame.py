@@ -23,8 +23,10 @@ ESTIMATORS = {"ransac": cv2.RANSAC, "magsac": cv2.USAC_MAGSAC}
 #: Feature trackers by name (``RegistrationConfig.method``).
 METHODS = ("lk", "orb")
 
-# first pass: large motions, moderate precision (the polish pass below refines it)
-_LK_PARAMS = dict(winSize=(15, 15), maxLevel=3,
+# first pass: large motions, moderate precision (the polish pass below refines it). An 11 px
+# window instead of 15 halves its cost with the same frame-to-frame error after the polish
+# (generated scenes, 640x480 and 1280x720: 0.015 / 0.026 px either way).
+_LK_PARAMS = dict(winSize=(11, 11), maxLevel=3,
                   criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 # after warping by a first estimate the residual motion is sub-pixel: no pyramid, tight convergence
 # (a loose stopping rule stops short of the optimum on the same side every frame: a bias)
@@ -63,13 +65,13 @@ class EstimateStats:
 def to_gray(image: np.ndarray, scale: float = 1.0) -> np.ndarray:
     """Grey uint8 image downscaled by ``scale`` (linear interpolation), from BGR or grey input."""
     img = image
+    if img.ndim == 3:  # grey first: one channel to resize (a third less time, +-1 grey level)
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     if scale != 1.0:
         h, w = img.shape[:2]
         size = (max(1, round(w * scale)), max(1, round(h * scale)))
         interp = cv2.INTER_AREA if scale < 0.5 else cv2.INTER_LINEAR
         img = cv2.resize(img, size, interpolation=interp)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     return img
 
 
@@ -196,6 +198,23 @@ def _polish(prev_gray: np.ndarray, gray: np.ndarray, H: np.ndarray, p0: np.ndarr
         return Failure("polish: optical flow failed")
     ok = st.ravel() == 1
     return _fit(q0[ok], c1[ok].reshape(-1, 2), gray.shape, **fit)
+
+
+def polish_estimate(prev_gray: np.ndarray, gray: np.ndarray,
+                    estimate: tuple[np.ndarray, EstimateStats], *, ransac_threshold: float = 1.0,
+                    estimator: str = "ransac", min_inliers: int = 20,
+                    min_inlier_ratio: float = 0.25, max_scale_change: float = 1.5,
+                    max_condition: float = 4.0) -> tuple[np.ndarray, EstimateStats]:
+    """The polish pass of :func:`estimate_homography` (``polish=True``) applied afterwards to an
+    unpolished ``lk`` estimate: its inliers re-tracked after warping ``prev_gray`` by it.
+
+    Returns the polished estimate, or ``estimate`` unchanged when the polish fails.
+    """
+    fit = dict(threshold=ransac_threshold, estimator=estimator, min_inliers=min_inliers,
+               min_inlier_ratio=min_inlier_ratio, max_scale_change=max_scale_change,
+               max_condition=max_condition)
+    better = _polish(prev_gray, gray, estimate[0], estimate[1].source, fit)
+    return _as_first_pass(better, estimate[1]) if better else estimate
 
 
 def _as_first_pass(polished: tuple[np.ndarray, EstimateStats], first: EstimateStats
