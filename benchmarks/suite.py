@@ -465,7 +465,10 @@ def main(argv: list[str] | None = None) -> None:
             mem["previous_stream"] = {k: results["memory"][k] for k in ("fps", "runs")}
         elif a.update and "memory" in results:
             old = results["memory"]
+            for k in set(old["runs"]) - set(mem["runs"]):  # kept, but measured by an earlier run
+                old["runs"][k]["from_earlier_suite_run"] = True
             old["runs"].update(mem["runs"])
+            old.update({k: mem[k] for k in ("60s_at_30fps", "generator_only_1min") if k in mem})
             old["runs"] = dict(sorted(old["runs"].items(), key=lambda kv: float(kv[0])))
             ok = [r for r in old["runs"].values() if "peak_rss_mb" in r]
             if len(ok) >= 2:
