@@ -175,3 +175,18 @@ def test_tracks_are_identical_with_and_without_spilling(tmp_path):
     assert any(p.hist is not None for t in out[True].tracks for p in t.points)
     assert len(out[True].tracks) >= 3
     assert _points(out[True].tracks) == _points(out[False].tracks)
+
+
+def test_a_resumed_run_drops_the_spill_files_of_the_interrupted_one(tmp_path):
+    from aerotrack.io.checkpoint import TrackletSpill
+    from aerotrack.types import Track, TrackPoint
+
+    folder = tmp_path / ".partial" / "tracklets"
+    first = TrackletSpill(folder, chunk=1)
+    first.append(Track(1, [TrackPoint(1, np.zeros(4), np.zeros(2), 1.0)]))
+    assert len(list(folder.glob("spill_*.npz"))) == 1  # interrupted here: never closed
+    again = TrackletSpill(folder, chunk=8)
+    again.append(Track(2, [TrackPoint(3, np.ones(4), np.ones(2), 0.5)]))
+    assert [t.id for t in again.load()] == [2]
+    again.close()
+    assert not folder.exists()

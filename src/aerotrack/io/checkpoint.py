@@ -201,19 +201,18 @@ class TrackletSpill:
         self._buffer: list[Track] = []
         self._files: list[Path] = []
         self._count = 0
+        if self.folder is not None and self.folder.is_dir():  # an interrupted run's
+            for p in self.folder.glob("spill_*.npz"):
+                p.unlink()
 
     def _folder(self) -> Path:
-        """The work folder, made (and emptied of an earlier run's spill files) on first use."""
-        if self._files:
-            return self.folder
+        """The work folder, made on first use."""
         if self.folder is None:
             import tempfile
 
             self._tmp = tempfile.TemporaryDirectory(prefix="aerotrack-spill-")
             self.folder = Path(self._tmp.name)
         self.folder.mkdir(parents=True, exist_ok=True)
-        for p in self.folder.glob("spill_*.npz"):
-            p.unlink()
         return self.folder
 
     def __len__(self) -> int:
@@ -252,7 +251,8 @@ class TrackletSpill:
         """Delete the spill files and their folder when that is left empty."""
         for p in self._files:
             p.unlink(missing_ok=True)
-        if self._files and self.folder is not None and not any(self.folder.iterdir()):
+        if (self._tmp is None and self.folder is not None and self.folder.is_dir()
+                and not any(self.folder.iterdir())):
             self.folder.rmdir()
         self._files = []
         self._buffer = []
