@@ -174,3 +174,21 @@ def test_bad_scenario_is_one_line_error(tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "bogus" in err and "default" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("name,seed", [("default", 2), ("exits", 1)])
+def test_vehicles_move_continuously(name, seed):
+    """No vehicle jumps: between frames it moves at most about its speed (plus the swing of a
+    turn), through sharp bends of the road centre-lines, junctions and U-turns at dead ends."""
+    sc = Scenario(seed=seed, frames=900, size=(64, 48), name=name)
+    last: dict[int, tuple[np.ndarray, float]] = {}
+    worst = 0.0
+    for _, _, truth in sc.frames():
+        for t in truth:
+            xy = sc.world.to_metric(t["map"])
+            if t["id"] in last:
+                prev, speed = last[t["id"]]
+                step = float(np.hypot(*(xy - prev))) * sc.fps
+                worst = max(worst, step - max(speed, t["speed"]))
+            last[t["id"]] = (xy, t["speed"])
+    assert worst < 8.0, f"a vehicle moved {worst:.1f} m/s faster than its speed between frames"

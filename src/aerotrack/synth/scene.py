@@ -41,6 +41,7 @@ COLOURS = np.array([  # BGR body colours, weighted towards the common white/grey
 ], dtype=np.float64)
 COLOUR_P = np.array([0.2, 0.12, 0.14, 0.1, 0.12, 0.08, 0.07, 0.07, 0.03, 0.04, 0.03])
 SUN = np.array([0.9, 0.7])  # shadow offset on the ground, metres (sun in the north-west)
+MAX_SWITCH_OFFSET_M = 5.0  # a junction switch further than this from the new lane is not taken
 
 
 @dataclass
@@ -266,8 +267,6 @@ class Scenario:
         r = self.world.roads[v.road]
         p, tan = r.at(v.s)
         d = tan * v.direction
-        right = np.array([-d[1], d[0]])
-        lane = p + right * (1.8 if r.lanes > 1 else 1.4)
         target = math.atan2(d[1], d[0])
         if init or v.heading is None:
             v.heading = target
@@ -275,8 +274,17 @@ class Scenario:
             diff = (target - v.heading + math.pi) % (2 * math.pi) - math.pi
             step = math.radians(150) * dt
             v.heading += float(np.clip(diff, -step, step))
-            v.offset *= math.exp(-dt / 0.6)
-        v.pos = lane + v.offset
+            # the offset from the lane (after a junction or a U-turn) fades in about 0.6 s, at
+            # a lateral speed of at most half the vehicle's speed + 0.5 m/s
+            shrink = float(np.hypot(*v.offset)) * (1.0 - math.exp(-dt / 0.6))
+            cap = (0.5 * v.speed + 0.5) * dt
+            if shrink > 0:
+                v.offset = v.offset * (1.0 - min(shrink, cap) / float(np.hypot(*v.offset)))
+        # the lane is to the right of where the vehicle heads (not of the centre-line's tangent),
+        # so a sharp bend of the centre-line or a U-turn swings the vehicle round instead of
+        # moving it across the road in one frame
+        right = np.array([-math.sin(v.heading), math.cos(v.heading)])
+        v.pos = p + right * (1.8 if r.lanes > 1 else 1.4) + v.offset
 
     def _advance(self, t: float, dt: float) -> None:
         world, roads = self.world, self.world.roads
@@ -291,6 +299,11 @@ class Scenario:
                     limit = min(limit, max(0.0, (gap - 3.0) / 1.1))
             if t < v.stop_until:
                 limit = 0.0
+            # brake for the end of the road (a junction or a dead end: U-turn) so speed stays
+            # continuous: at most 3 m/s^2 down to a walking-pace turn
+            r = roads[v.road]
+            to_end = r.length - v.s if v.direction > 0 else v.s
+            limit = min(limit, 3.0 + math.sqrt(2.0 * 3.0 * max(to_end, 0.0)))
             acc = 2.5 if limit > v.speed else -4.0
             v.speed = float(np.clip(v.speed + acc * dt, min(limit, v.speed), max(limit, v.speed)))
             s_prev = v.s
@@ -313,12 +326,19 @@ class Scenario:
                     dirs = [d for d in (1, -1) if room[d] > 15]
                     if dirs:
                         old = v.pos.copy()
+                        keep = (v.road, v.s, v.direction, v.last_junction, v.offset.copy())
                         v.road, v.s = j.b, j.sb
                         v.direction = int(v.route.choice(dirs))
                         v.last_junction = (j.a, round(j.sa), j.sb)
                         self._place(v, 0.0, init=False)
                         v.offset = old - (v.pos - v.offset)
                         switched = True
+                        if np.hypot(*v.offset) > MAX_SWITCH_OFFSET_M:
+                            # the new road's lane is too far from where the vehicle is (a
+                            # junction matched near a road's end): stay on this road
+                            v.road, v.s, v.direction, v.last_junction, v.offset = keep
+                            v.pos = old
+                            switched = False
                 if v.route.random() < self.settings["stop_prob"] * 0.3:
                     v.stop_until = t + v.route.uniform(2.0, 6.0)
                 break
@@ -326,7 +346,7 @@ class Scenario:
             if not switched and (v.s <= 0 or v.s >= r.length):  # dead end: U-turn
                 v.s = float(np.clip(v.s, 0.0, r.length))
                 v.direction *= -1
-                v.speed *= 0.3
+                v.speed = min(v.speed, 3.0)
                 v.last_junction = ()
             self._place(v, dt)
 
