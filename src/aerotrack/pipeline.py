@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,23 @@ from .geo import GeoMap
 from .types import Detections, Frame, Registration, Track, apply_homography
 
 log = logging.getLogger(__name__)
+
+
+@contextmanager
+def opencv_threads(n: int | None) -> Iterator[None]:
+    """Run the block with ``n`` OpenCV worker threads (``cv2.setNumThreads``), then restore the
+    previous setting; ``None`` changes nothing."""
+    if n is None:
+        yield
+        return
+    import cv2
+
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
 
 
 @dataclass
@@ -84,6 +102,13 @@ class Pipeline:
         Keep finished tracklets on disk until global linking (``checkpoint_dir/tracklets`` with a
         checkpoint folder, else a temporary folder): memory then does not grow with the number of
         tracklets. The tracks are the same either way.
+    opencv_threads : int or None
+        OpenCV worker threads while the pipeline works on a frame (set for each step and restored
+        after it); None leaves OpenCV's own setting. One by default: the stages call OpenCV on
+        many small images, where its thread pool costs more than it brings. Measured on the
+        2-core machine with other work running (load 4-5): full pipeline 1.4-1.6x faster in wall
+        time at 640x480, 0.9-1.35x at 1280x720, within 7 % at 1920x1080 and 4000x3000, and
+        5-15 % less CPU.
     """
 
     def __init__(self, config: Config, fps: float, *, geomap: GeoMap | None = None,
@@ -93,7 +118,7 @@ class Pipeline:
                  checkpoint_dir: Path | None = None, checkpoint_every: int = 300,
                  undistort: Callable[[Frame], Frame] | None = None,
                  regions: list | None = None, min_speed_mps: float | None = None,
-                 spill: bool = True, roads=None) -> None:
+                 spill: bool = True, roads=None, opencv_threads: int | None = 1) -> None:
         from .association import LocalAssociator
         from .io.checkpoint import TrackletSpill
 
@@ -132,6 +157,7 @@ class Pipeline:
         self.undistort = undistort
         self.regions = list(regions or [])
         self.min_speed_mps = min_speed_mps
+        self.opencv_threads = opencv_threads
 
     # -- stages -----------------------------------------------------------------------------------
     def _ensure_stages(self, frame: Frame) -> None:
@@ -163,6 +189,10 @@ class Pipeline:
 
     def step(self, frame: Frame) -> None:
         """Process one frame (frames must come in increasing order)."""
+        with opencv_threads(self.opencv_threads):
+            self._step(frame)
+
+    def _step(self, frame: Frame) -> None:
         if self.undistort is not None:
             frame = self.undistort(frame)
         self._ensure_stages(frame)
@@ -308,7 +338,8 @@ class Pipeline:
 
         if self.detector is not None:
             t0 = time.perf_counter()
-            rest = self.detector.flush()
+            with opencv_threads(self.opencv_threads):
+                rest = self.detector.flush()
             self.timings["detection"] += time.perf_counter() - t0
             self._associate(rest)
         if self.associator is not None:
