@@ -116,8 +116,11 @@ def test_phase_period_follows_the_detector_sampling():
 
     config = Config()
     det = replace(config.detection, sample_every_s=0.2, update_every_s=0.3)
-    config = replace(config, detection=det)
+    config = replace(config, detection=det,
+                     registration=replace(config.registration, keyframe_s=0.2))
     assert phase_period(config, 10.0) == 6  # samples every 2 frames, background every 3
+    slow_keys = replace(config, registration=replace(config.registration, keyframe_s=0.5))
+    assert phase_period(slow_keys, 10.0) == 30  # and a keyframe every 5
     assert phase_period(config, 10.0, stride=2) == 2  # every grid frame; background every 4
     assert phase_period(config, 10.0, stride=3) == 2  # samples every 6 frames; background every 3
 

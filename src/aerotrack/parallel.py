@@ -214,7 +214,7 @@ def plan_segments(first: int, last: int, *, fps: float, stride: int = 1, segment
 
 
 def phase_period(config: Config, fps: float, stride: int = 1) -> int:
-    """Grid frames after which the detector's periodic choices repeat, counted from its first frame.
+    """Grid frames after which the stages' periodic choices repeat, counted from their first frame.
 
     The detector keeps a background sample every ``detection.sample_every_s`` and rebuilds the
     background every ``detection.update_every_s``, both counted from the first frame it sees. A
@@ -229,8 +229,11 @@ def phase_period(config: Config, fps: float, stride: int = 1) -> int:
     det = config.detection
     every = max(1, int(round(det.sample_every_s * fps)))
     update = max(1, int(round(det.update_every_s * fps)))
+    # the registrar takes a keyframe every ``registration.keyframe_s`` (also earlier when too few
+    # features are left, which this cannot foresee); its frames are the ones polished
+    key = max(1, math.ceil(config.registration.keyframe_s * fps - 1e-6))
     period = 1
-    for frames in (every, -(-update // s) * s):
+    for frames in (every, -(-update // s) * s, -(-key // s) * s):
         grid = frames // math.gcd(frames, s)  # grid frames in which `frames` frames recur
         period = period * grid // math.gcd(period, grid)
     return period
