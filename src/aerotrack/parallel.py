@@ -40,9 +40,11 @@ cut are identical. After it, a segment differs from the single process only wher
 state at the segment's first frame matters:
 
 * periodic choices counted from a stage's first frame: the detector's background samples and
-  background rebuilds (every 0.2 s). Segments therefore start on the detector's phase grid
-  (:func:`phase_period`); off it, 66 of the 450 frames after the cut had other detections, on it
-  8-10. Local association cuts its window and seeds its MCMC at absolute frame numbers, so it
+  background rebuilds (every 0.2 s), the registrar's keyframes (every 0.5 s; the frames it
+  polishes). Segments therefore start on their common phase grid (:func:`phase_period`): off the
+  detector's, 66 of the 450 frames after the cut had other detections, on it 8-10; on a 1800-frame
+  480x270 video, aligning the keyframes too took the 2-segment run from HOTA -0.010 / IDF1 -0.031
+  to +0.001 / -0.003. Local association cuts its window and seeds its MCMC at absolute frame numbers, so it
   needs no alignment (before it did, the random stream restarting at each segment's start moved
   HOTA/IDF1 by as much as another seed does: up to 0.02 IDF1);
 * the detector's held stopped vehicles (``detection.hold_stopped``): a segment does not know
@@ -51,12 +53,14 @@ state at the segment's first frame matters:
   for up to ``detection.max_hold_s``. Segments hold only after half their warm-up
   (:attr:`ParallelConfig.hold_after_s`): on the tests' 200-frame scene a segment start 5 frames
   earlier otherwise changed the detections of all 100 frames it owned (HOTA -0.055);
-* segment k's world is its own first frame, chained to world 0 (0.03-0.05 px RMS), and its
-  registration chain has other keyframes, so the background is resampled with another sub-pixel
-  phase and a few borderline blobs change (the remaining 8-10 frames, spread over the segment).
+* segment k's world is its own first frame, chained to world 0 (0.03-0.05 px RMS), and the
+  keyframes the registrar takes early (features lost) are not on the grid, so the background is
+  resampled with another sub-pixel phase and borderline blobs change (the remaining 10 of 450,
+  62 of 900 frames, spread over the segment, not gathered after the cut).
 
 Joins themselves (tracklets crossing a cut are stitched when they coincide in the overlap) split
-or merged no track on the benchmark videos; see ``benchmarks/results/parallel.json``.
+or merged at most one track per join on the benchmark videos; see
+``benchmarks/results/parallel*.json`` (``joins``).
 """
 
 from __future__ import annotations
