@@ -327,3 +327,29 @@ def test_partly_hidden_ends_are_left_out_of_the_end_state():
     # the partly visible points stay in the output track
     tracks = linker.build_tracks(tl, links)
     assert sum(p.kind == "observed" for p in tracks[0].points) == 120 + 119
+
+
+def test_end_noise_known_answer():
+    from aerotrack.association.linking import end_noise
+
+    fr = np.arange(31)
+    line = np.column_stack([2.0 * fr, -1.0 * fr]).astype(float)
+    assert end_noise(fr, line, mpu=0.5, fps=30.0) == pytest.approx((0.0, 0.0), abs=1e-9)
+    rng = np.random.default_rng(0)
+    jitter = rng.normal(0.0, 0.4, line.shape)  # world units; 0.2 m at mpu 0.5
+    s_m, s_v = end_noise(fr, line + jitter, mpu=0.5, fps=30.0)
+    assert s_m == pytest.approx(0.2, rel=0.2)
+    # standard error of a slope over 31 frames, in m/s
+    assert s_v == pytest.approx(s_m / np.sqrt(((fr - fr.mean()) ** 2).sum()) * 30.0)
+    assert end_noise(fr[:2], line[:2], mpu=0.5, fps=30.0) == (0.0, 0.0)
+
+
+def test_jittery_ends_widen_the_motion_gate():
+    from aerotrack.config import LinkingConfig
+    from aerotrack.context.reacquire import motion_cost
+
+    c = LinkingConfig()
+    sharp = motion_cost(3.0, 1.0, c, 1.0)
+    noisy = motion_cost(3.0, 1.0, c, 1.0, noise_m=1.5, noise_mps=1.0)
+    assert noisy < sharp
+    assert motion_cost(3.0, 1.0, c, 1.0, noise_m=0.0, noise_mps=0.0) == sharp

@@ -420,6 +420,11 @@ class LinkingConfig:
         velocity are biased, so the end state is estimated without them. 0 keeps every point.
     partial_trim_s : float
         At most this much of each end is left out that way.
+    end_noise_scale : float
+        The motion sigmas are widened by each tracklet's own end-state uncertainty: the scatter of
+        its positions about a straight line over ``history_s`` (metres) and the resulting velocity
+        uncertainty, times this factor. Detector boxes jitter far more than ground truth, and a
+        prediction from a short, jittery tracklet should not veto a link. 0 turns it off.
     """
 
     max_gap_s: float = 12.0
@@ -443,6 +448,7 @@ class LinkingConfig:
     turn_cost: float = 0.5
     in_view_horizon_s: float = 4.0
     min_track_s: float = 1.0
+    end_noise_scale: float = 1.0
     partial_size_ratio: float = 0.8
     partial_trim_s: float = 1.0
 

@@ -146,13 +146,15 @@ class GlobalLinker:
         # edge (growing out of it) has a displaced centre and a wrong velocity
         pos = [self._trim_partial(t, fr, xy) for t, (fr, xy) in zip(tl, raw)]
         self._trimmed = pos
-        ends, starts = [], []
+        ends, starts, self._noise = [], [], []
         for fr, xy in pos:
             h = (fr >= fr[-1] - F)
             ends.append(kalman_start(fr[h], xy[h], self.fps, self.mpu, self.ctx))
             s = (fr <= fr[0] + F)
             p, v = kalman_start(-fr[s][::-1], xy[s][::-1], self.fps, self.mpu, self.ctx)
             starts.append((p, -v))
+            self._noise.append((end_noise(fr[h], xy[h], self.mpu, self.fps),
+                                end_noise(fr[s], xy[s], self.mpu, self.fps)))
         first = np.array([fr[0] for fr, _ in pos])
         last = np.array([fr[-1] for fr, _ in pos])
         raw_first = np.array([fr[0] for fr, _ in raw])
@@ -197,7 +199,7 @@ class GlobalLinker:
                 m = float("nan")
                 if a in preds:
                     m = self._motion(preds[a][:gap], pos[a][1][-1], pos[b][1][0], ends[a],
-                                     starts[b], gap)
+                                     starts[b], gap, self._noise[a][0], self._noise[b][1])
                 ap = float("nan")
                 if c.weight_appearance > 0 and a in app.intra:
                     s = track_histograms(tl[b], max_obs=5)
@@ -217,7 +219,7 @@ class GlobalLinker:
         return _assign(C, c.max_cost), C
 
     def _motion(self, pred: np.ndarray, a_end: np.ndarray, b_start: np.ndarray, end_state,
-                start_state, gap: int) -> float:
+                start_state, gap: int, noise_a=(0.0, 0.0), noise_b=(0.0, 0.0)) -> float:
         """Motion cost of linking a (ending at ``a_end``, predicted ``pred`` (gap, 2) world) to b
         (starting at ``b_start`` ``gap`` frames later), :func:`~aerotrack.context.reacquire.motion_cost`.
 
@@ -246,7 +248,12 @@ class GlobalLinker:
             turn = (max(0.0, chord - reach), abs(sb - sa), reach, dv)
         log.debug("motion: d %.2f/%.2f m lag %.1f/%.1f m dv %.2f m/s turn %s", d_f, d_b, lag_f,
                   lag_b, dv, turn)
-        return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn)
+        k = c.end_noise_scale
+        noise_m = k * float(np.sqrt(noise_a[0] ** 2 + noise_b[0] ** 2
+                                    + (0.5 * (noise_a[1] + noise_b[1]) * gap_s) ** 2))
+        noise_mps = k * float(np.hypot(noise_a[1], noise_b[1]))
+        return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn,
+                           noise_m, noise_mps)
 
     # -- output -----------------------------------------------------------------------------------
 
@@ -365,6 +372,38 @@ class GlobalLinker:
         while hi - lo > keep and small[lo] and fr[lo] - fr[0] < span:
             lo += 1
         return fr[lo:hi], xy[lo:hi]
+
+
+def end_noise(fr: np.ndarray, xy: np.ndarray, mpu: float, fps: float) -> tuple[float, float]:
+    """Uncertainty of a tracklet end's state from its own scatter.
+
+    Parameters
+    ----------
+    fr : ndarray, shape (n,)
+        Frames of the end window.
+    xy : ndarray, shape (n, 2)
+        Positions, world units.
+
+    Returns
+    -------
+    sigma_m, sigma_mps : float
+        Standard deviation of the positions about their least-squares straight line (metres, per
+        axis, with n - 2 degrees of freedom) and the resulting standard error of the fitted
+        velocity (m/s). With fewer than 3 points the scatter is unknown: (0, 0), the configured
+        sigmas alone.
+    """
+    n = len(fr)
+    if n < 3:
+        return 0.0, 0.0
+    t = (fr - fr.mean()).astype(float)
+    stt = float(t @ t)
+    if stt <= 0:
+        return 0.0, 0.0
+    x = xy - xy.mean(axis=0)
+    slope = (t @ x) / stt
+    r = x - np.outer(t, slope)
+    sigma = float(np.sqrt((r ** 2).sum() / (2 * (n - 2)))) * mpu
+    return sigma, sigma / np.sqrt(stt) * fps
 
 
 def estimate_scale(tracklets: list[Track], object_size_m: float) -> float:

@@ -45,7 +45,8 @@ class Cues:
 
 def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
                 speed_change_mps: float = 0.0, lag_m: float = 0.0,
-                turn: tuple[float, ...] | None = None) -> float:
+                turn: tuple[float, ...] | None = None, noise_m: float = 0.0,
+                noise_mps: float = 0.0) -> float:
     """Motion cost of a candidate link: the cheaper of two hypotheses.
 
     * **along the prediction**: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2 + 0.5 (lag / sigma_l)^2``
@@ -79,11 +80,14 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
     turn : tuple of float, optional
         Manoeuvre hypothesis ``(excess_m, speed_change_mps[, reach_m[, velocity_change_mps]])``
         (missing terms count 0).
+    noise_m, noise_mps : float
+        The two tracklets' own end-state uncertainty (position, metres, including the velocity
+        uncertainty carried over the gap; velocity, m/s), added in quadrature to the sigmas.
     """
     g = max(gap_s, 0.0)
-    sp = config.motion_sigma_m + config.motion_sigma_growth_mps * g
-    sv = config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * g
-    sl = config.motion_sigma_m + config.lag_sigma_growth_mps * g
+    sp = math.hypot(config.motion_sigma_m + config.motion_sigma_growth_mps * g, noise_m)
+    sv = math.hypot(config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * g, noise_mps)
+    sl = math.hypot(config.motion_sigma_m + config.lag_sigma_growth_mps * g, noise_m)
     straight = 0.5 * (distance_m / sp) ** 2 + 0.5 * (speed_change_mps / sv) ** 2 \
         + 0.5 * (lag_m / sl) ** 2
     if turn is None:
