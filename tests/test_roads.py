@@ -270,3 +270,23 @@ def test_track_command_takes_roads_on_the_map(scene, tmp_path, capsys):
                         "--out", out)
     assert code == 0, err
     assert json.loads((out / "summary.json").read_text())["roads"] == str(scene / "roads.geojson")
+
+
+def test_track_with_roads_on_dask_matches_the_single_process(tmp_path, capsys):
+    """--roads reaches linking in a segment-parallel run: its predictions are the single
+    process's, and differ from those without roads (so the roads were used)."""
+    pytest.importorskip("distributed")
+    from aerotrack.synth import render_to
+
+    scene = tmp_path / "scene"
+    render_to(scene, seed=1, frames=150, size=(320, 240), scenario="exits")
+    args = ["track", "--detections", scene / "gt.txt", "--map", scene / "map.tif",
+            "--map-init", scene / "map_init.txt"]
+    roads = ["--roads", scene / "roads.geojson"]
+    for name, extra in (("one", roads), ("dask", [*roads, "--workers", "1"]), ("plain", [])):
+        code, err = run_cli(capsys, *args, *extra, "--out", tmp_path / name)
+        assert code == 0, err
+    read = lambda run, f: (tmp_path / run / f).read_text()  # noqa: E731
+    assert read("dask", "tracks.csv") == read("one", "tracks.csv")
+    assert read("dask", "predicted.csv") == read("one", "predicted.csv")
+    assert read("plain", "predicted.csv") != read("one", "predicted.csv")

@@ -767,10 +767,12 @@ def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
 def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, geomap=None,
              metres_per_unit: float | None = None, stride: int = 1,
              parallel: ParallelConfig | None = None, regions: Sequence | None = None,
-             min_speed_mps: float | None = None) -> tuple[Result, JoinReport]:
+             min_speed_mps: float | None = None, roads=None) -> tuple[Result, JoinReport]:
     """Join segment results and link all tracklets once: the :class:`~aerotrack.pipeline.Result`
     a single process would return (``timings`` sum the segments' stage times, plus ``join``), and
-    the join's :class:`JoinReport`."""
+    the join's :class:`JoinReport`. ``roads``: a road network for the motion context, as in
+    :func:`aerotrack.pipeline.link` (linking runs here, in the client, so it is never shipped to
+    the workers)."""
     import time
 
     parallel = parallel or ParallelConfig()
@@ -786,7 +788,7 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     frame_size = next((r.frame_size for r in results if r.frame_size), None)
     mpu = geomap.metres_per_pixel if geomap is not None else metres_per_unit
     tracks = link(tracklets, config, fps, metres_per_unit=mpu, frame_size=frame_size,
-                  registrations=regs)
+                  registrations=regs, roads=roads)
     if min_speed_mps:
         from .geo.roi import filter_min_speed
         from .pipeline import _renumber
@@ -862,7 +864,8 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                  resume: bool = False, parallel: ParallelConfig | None = None,
                  retries: int = 2, with_report: bool = False,
                  undistort: Callable | None = None, regions: list | None = None,
-                 min_speed_mps: float | None = None, checkpoint_every: int | None = None):
+                 min_speed_mps: float | None = None, checkpoint_every: int | None = None,
+                 roads=None):
     """:func:`aerotrack.pipeline.run` with segments on a Dask cluster.
 
     Same parameters and result as :func:`~aerotrack.pipeline.run`, plus ``client`` (a
@@ -896,7 +899,7 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                               resume=resume, progress=progress)
     result, report = assemble(results, config=config, fps=fps, geomap=geomap,
                               metres_per_unit=metres_per_unit, stride=stride, parallel=parallel,
-                              regions=regions, min_speed_mps=min_speed_mps)
+                              regions=regions, min_speed_mps=min_speed_mps, roads=roads)
     return (result, report) if with_report else result
 
 

@@ -247,8 +247,6 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
         intrinsics_path)
     roads = load_roads(roads_path, geomap, config)
-    if roads is not None and (workers is not None or scheduler is not None):
-        raise InputError("--roads does not work with --workers/--scheduler yet")
     regions = []
     if roi_paths or ignore_paths:
         from ..geo.roi import read_region
