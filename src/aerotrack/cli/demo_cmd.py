@@ -26,7 +26,8 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
 
     \b
     Writes:
-      OUT/scene/    the rendered video frames, gt.txt, map.tif, map_init.txt, true homographies
+      OUT/scene/    the rendered video frames, gt.txt, map.tif, map_init.txt, roads.geojson,
+                    true homographies
       OUT/run/      tracks.csv, predicted.csv, registration.csv, tracks.geojson, summary.json,
                     overlay.webm, map.png, spacetime.png, report.html
 
@@ -50,9 +51,11 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
 
     say(f"rendering a {frames}-frame scene over the bundled Las Vegas tile -> {scene}")
     ctx.invoke(synth_command, out_dir=scene, seed=seed, frames=frames, scenario="default")
-    say("tracking it: registration to the map, detection, local and global association")
+    say("tracking it: registration to the map, detection, local and global association "
+        "(unobserved vehicles predicted along the roads)")
     ctx.invoke(track_command, input_path=scene / "frames", out_dir=run_dir,
-               map_path=scene / "map.tif", map_init_path=scene / "map_init.txt", seed=seed)
+               map_path=scene / "map.tif", map_init_path=scene / "map_init.txt", seed=seed,
+               roads_path=scene / "roads.geojson")
     gt = read_mot(scene / "gt.txt", strict=False)
     pred = read_mot(run_dir / "tracks.csv")
     scores = evaluate(gt, pred)
