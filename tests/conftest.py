@@ -17,3 +17,17 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not beside the checkout")
     return SHARED_DATA
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    """Run the ``aerotrack`` CLI in-process: (exit code, stdout, stderr). Arguments may be paths."""
+    from aerotrack.cli.main import main
+
+    capsys.readouterr()
+    try:
+        main([str(a) for a in argv])
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err

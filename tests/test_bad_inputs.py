@@ -13,22 +13,11 @@ import cv2
 import numpy as np
 import pytest
 import rasterio
+from conftest import run_cli
 from rasterio.transform import from_origin
-
-from aerotrack.cli.main import main
 
 RESULT_FILES = ("tracks.csv", "predicted.csv", "detections.csv", "summary.json")
 
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    capsys.readouterr()
-    try:
-        main([str(a) for a in argv])
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def expect_error(capsys, fragments, *argv, out_dir: Path | None = None):

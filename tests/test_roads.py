@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from aerotrack.config import ContextConfig
 from aerotrack.context.motion import TrackTable, get_predictor
@@ -170,18 +171,6 @@ def test_bad_road_files_raise_one_line_input_errors(tmp_path, text, fragment):
 
 
 # -- command line -----------------------------------------------------------------------------------
-def run_cli(capsys, *argv) -> tuple[int, str]:
-    from aerotrack.cli.main import main
-
-    capsys.readouterr()
-    try:
-        main([str(a) for a in argv])
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    return code, capsys.readouterr().err
-
-
 def l_road_files(tmp_path):
     """An L-shaped road in lon/lat and a target's track in UTM 11N metres heading into it."""
     from pyproj import Transformer
@@ -204,7 +193,7 @@ def l_road_files(tmp_path):
 def test_predict_command_follows_the_roads(tmp_path, capsys):
     roads, tracks, queries, want = l_road_files(tmp_path)
     out = tmp_path / "p.csv"
-    code, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out, "--space", "map",
+    code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out, "--space", "map",
                         "--roads", roads, "--crs", "EPSG:32611")
     assert code == 0, err
     last = np.array([float(v) for v in out.read_text().splitlines()[-1].split(",")[3:5]])
@@ -229,7 +218,7 @@ def test_bad_roads_options_exit_2_with_one_line_naming_the_file(tmp_path, capsys
          [str(roads), "needs --map"]),
     ]
     for argv, fragments in cases:
-        code, err = run_cli(capsys, *argv)
+        code, _, err = run_cli(capsys, *argv)
         assert code == 2, (argv, err)
         assert "Traceback" not in err
         lines = [ln for ln in err.splitlines() if ln.strip() and "WARNING" not in ln and "INFO" not in ln]
@@ -265,7 +254,7 @@ def test_synth_writes_the_roads_its_vehicles_drive(scene):
 
 def test_track_command_takes_roads_on_the_map(scene, tmp_path, capsys):
     out = tmp_path / "run"
-    code, err = run_cli(capsys, "track", "--detections", scene / "gt.txt", "--map", scene / "map.tif",
+    code, _, err = run_cli(capsys, "track", "--detections", scene / "gt.txt", "--map", scene / "map.tif",
                         "--map-init", scene / "map_init.txt", "--roads", scene / "roads.geojson",
                         "--out", out)
     assert code == 0, err
@@ -284,7 +273,7 @@ def test_track_with_roads_on_dask_matches_the_single_process(tmp_path, capsys):
             "--map-init", scene / "map_init.txt"]
     roads = ["--roads", scene / "roads.geojson"]
     for name, extra in (("one", roads), ("dask", [*roads, "--workers", "1"]), ("plain", [])):
-        code, err = run_cli(capsys, *args, *extra, "--out", tmp_path / name)
+        code, _, err = run_cli(capsys, *args, *extra, "--out", tmp_path / name)
         assert code == 0, err
     read = lambda run, f: (tmp_path / run / f).read_text()  # noqa: E731
     assert read("dask", "tracks.csv") == read("one", "tracks.csv")
