@@ -42,7 +42,7 @@ in which one of its boxes overlaps the truck at IoU >= 0.3; the best ID's fracti
 Run: /tmp/venv/bin/python benchmarks/identity.py [--scenes occlusion:0 exits:1 ...] [--frames 900]
      [--modes gt-dets full] [--truck4 | --truck4-run DIR] [--set linking.KEY=VALUE ...]
 Writes benchmarks/results/identity.json. Scenes and tracklets are cached in /tmp/aerotrack_identity
-(``--fresh`` rebuilds them).
+or ``--cache DIR`` (``--fresh`` rebuilds them).
 """
 
 from __future__ import annotations
@@ -418,11 +418,15 @@ def run_truck4(overrides: list[str], run_dir: Path | None) -> dict:
 
 
 def main(argv=None) -> None:
+    global CACHE
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="+", default=DEFAULT_SCENES, help="scenario:seed ...")
     ap.add_argument("--frames", type=int, default=900)
     ap.add_argument("--modes", nargs="+", default=["gt-dets", "full"])
     ap.add_argument("--fresh", action="store_true", help="rebuild cached scenes and tracklets")
+    ap.add_argument("--cache", type=Path, default=CACHE,
+                    help=f"folder for the generated scenes, tracklets and truck4 run (default {CACHE}; "
+                         "use your own when several people run the benchmark at once)")
     ap.add_argument("--set", dest="overrides", action="append", default=[],
                     help="SECTION.KEY=VALUE config override (repeatable), as in aerotrack track")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "identity.json")
@@ -432,6 +436,7 @@ def main(argv=None) -> None:
     ap.add_argument("--truck4-run", type=Path, default=None,
                     help="score this existing run folder (tracks.csv) instead of tracking again")
     args = ap.parse_args(argv)
+    CACHE = args.cache
     CACHE.mkdir(parents=True, exist_ok=True)
     config = load_config(None, args.overrides)
     results = {}

@@ -353,3 +353,81 @@ def test_jittery_ends_widen_the_motion_gate():
     noisy = motion_cost(3.0, 1.0, c, 1.0, noise_m=1.5, noise_mps=1.0)
     assert noisy < sharp
     assert motion_cost(3.0, 1.0, c, 1.0, noise_m=0.0, noise_mps=0.0) == sharp
+
+
+# -- split tracklets: second views of one vehicle ------------------------------------------------
+
+def _box_track(frames, xy_of, size, colour, rng, kind="observed"):
+    """Points at ``xy_of(f)`` (world = frame pixels here) with a ``size`` (w, h) box centred there."""
+    out = []
+    for f in frames:
+        w = np.asarray(xy_of(f), float) + rng.normal(0, 0.05, 2)
+        out.append(TrackPoint(f, np.array([w[0] - size[0] / 2, w[1] - size[1] / 2, *size]), w, 1.0,
+                              kind=kind, hist=_hist(rng, colour), size_world=np.asarray(size, float)))
+    return out
+
+
+def test_a_partial_fragment_beside_the_whole_vehicle_is_merged_not_a_second_identity():
+    """Target 1 (5 x 2 m box) is seen whole for 300 frames; for frames 100-160 local association
+    also kept a tracklet on its front half (a split blob). Target 2 drives alongside in the next
+    lane (3.5 m away: boxes do not touch). Two tracks: 1 with one point per frame, its own whole
+    boxes where both were seen, and 2 untouched."""
+    rng = np.random.default_rng(5)
+    red, blue = [0.7, 0.1, 0.1, 0.1], [0.1, 0.1, 0.1, 0.7]
+    whole = Track(0, _box_track(range(1, 301), lambda f: (10 * f / FPS, 0.0), (5.0, 2.0), red, rng))
+    part = Track(0, _box_track(range(100, 161), lambda f: (10 * f / FPS + 1.2, 0.0), (2.4, 2.0), red,
+                               rng))
+    other = Track(0, _box_track(range(1, 301), lambda f: (10 * f / FPS, 3.5), (5.0, 2.0), blue, rng))
+    tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0).link(
+        [whole, part, other])
+    assert len(tracks) == 2
+    for t in tracks:
+        frames = [p.frame for p in t.points if p.kind == "observed"]
+        assert frames == list(range(1, 301))
+        assert all(p.box[2] == 5.0 for p in t.points)  # the whole vehicle's box wins
+    # turned off (duplicate_overlap 1), the fragment is a third identity
+    off = GlobalLinker(LinkingConfig(duplicate_overlap=1.0), ContextConfig(), FPS,
+                       metres_per_unit=1.0).link([whole, part, other])
+    assert len(off) == 3
+
+
+def test_a_tracklet_that_takes_over_while_both_are_seen_continues_the_identity():
+    """Local association loses the whole box of target 1 at frame 150 while a tracklet on the
+    same vehicle started at frame 141 (boxes overlapping for 10 frames): a hand-over, not a gap.
+    A look-alike that starts 6 m ahead at frame 151 must not take the identity."""
+    rng = np.random.default_rng(6)
+    grey = [0.25, 0.25, 0.25, 0.25]
+    a = Track(0, _box_track(range(1, 151), lambda f: (10 * f / FPS, 0.0), (5.0, 2.0), grey, rng))
+    b = Track(0, _box_track(range(141, 301), lambda f: (10 * f / FPS + 0.8, 0.0), (4.0, 2.0), grey,
+                            rng))
+    c = Track(0, _box_track(range(151, 301), lambda f: (10 * f / FPS + 6.0, 0.0), (5.0, 2.0), grey,
+                            rng))
+    linker = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0)
+    tracks = linker.link([a, b, c])
+    assert len(tracks) == 2
+    first = min(tracks, key=lambda t: t.first)
+    assert first.first == 1 and first.last == 300
+    frames = [p.frame for p in first.points]
+    assert frames == list(range(1, 301))  # one point per frame through the hand-over
+    # the whole box (a's) is kept where both were seen, b's after
+    assert all(p.box[2] == 5.0 for p in first.points if p.frame <= 150)
+    assert all(p.box[2] == 4.0 for p in first.points if p.frame > 150)
+    assert len(GlobalLinker(LinkingConfig(duplicate_overlap=1.0), ContextConfig(), FPS,
+                            metres_per_unit=1.0).link([a, b, c])) == 3
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_appearance_verification_ignores_the_targets_own_earlier_tracklets(seed):
+    """Ali et al.'s verification compares a re-detected object with the *other* unobserved
+    targets. A tracklet that ended before this one began may be this very target seen earlier:
+    it looks the same, and verifying against it fails at random. Only candidates seen at the same
+    time as the target are certainly others: the true link is verified (appearance cost 0)."""
+    red = [0.7, 0.1, 0.1, 0.1]
+    paths = {1: _line([0, 0], [10, 0], 400)}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(91, 121), (211, 241)]}, {1: red}, seed=seed)
+    assert len(tl) == 3
+    linker = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0)
+    links, _ = linker.solve(tl)
+    assert links == {0: 1, 1: 2}
+    assert linker.last_costs[(1, 2)][1].appearance == 0.0
+    assert linker.last_costs[(0, 1)][1].appearance == 0.0

@@ -425,6 +425,18 @@ class LinkingConfig:
         its positions about a straight line over ``history_s`` (metres) and the resulting velocity
         uncertainty, times this factor. Detector boxes jitter far more than ground truth, and a
         prediction from a short, jittery tracklet should not veto a link. 0 turns it off.
+    duplicate_overlap : float
+        Two tracklets that coexist in time on the same object (a split blob: a partial fragment
+        beside the whole vehicle, a second tracklet through a turn) overlap by at least this mean
+        fraction of the smaller box (intersection over the smaller area, frame pixels) in their
+        common frames. A tracklet lying within another's time span that way is merged into it; one
+        that starts during it and outlives it may continue it (a hand-over link). Lower merges
+        vehicles driving side by side; 1 turns both off.
+    handover_max_s : float
+        Longest time overlap of a hand-over link, seconds.
+    handover_cost : float
+        Link cost of a hand-over at the ``duplicate_overlap`` threshold, falling linearly to 0
+        for boxes that overlap entirely.
     """
 
     max_gap_s: float = 12.0
@@ -451,6 +463,9 @@ class LinkingConfig:
     end_noise_scale: float = 1.0
     partial_size_ratio: float = 0.8
     partial_trim_s: float = 1.0
+    duplicate_overlap: float = 0.5
+    handover_max_s: float = 2.0
+    handover_cost: float = 1.0
 
 
 @dataclass(frozen=True)

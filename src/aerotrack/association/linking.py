@@ -28,6 +28,7 @@ across occlusions and exits from the view:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -125,6 +126,7 @@ class GlobalLinker:
         tl = [t for t in tracklets if len(_positions(t)[0])]
         if not tl:
             return []
+        tl = merge_duplicates(tl, self.config.duplicate_overlap)
         if not self.metres_per_unit:
             self.mpu = estimate_scale(tl, self.ctx.image_object_size_m)
             self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
@@ -177,8 +179,13 @@ class GlobalLinker:
                     cand.setdefault(a, []).append(int(b))
         C = np.full((n, n), np.inf)
         self.last_costs = {}
+        handovers = handover_pairs(tl, c.duplicate_overlap, int(round(c.handover_max_s * self.fps)))
+        for (a, b), ov in handovers.items():
+            cost = c.handover_cost * (1.0 - ov) / max(1e-9, 1.0 - c.duplicate_overlap)
+            self.last_costs[(a, b)] = (cost, Cues())
+            C[a, b] = cost
         if not cand:
-            return {}, C
+            return _assign(C, c.max_cost), C
         table = _table_of(pos)
         self._table, self._table_key = table, tl
         preds = {}
@@ -193,6 +200,12 @@ class GlobalLinker:
         for a, bs in cand.items():
             for b in bs:
                 preds_of.setdefault(b, []).append(a)
+        span = [(int(t.first), int(t.last)) for t in tl]
+
+        def distinct(o: int, a: int) -> bool:
+            # another target for certain: seen at the same time as a, and not a split of it
+            return o != a and span[o][0] <= span[a][1] and span[a][0] <= span[o][1] \
+                and (o, a) not in handovers and (a, o) not in handovers
         for a, bs in cand.items():
             for b in bs:
                 gap = int(first[b] - last[a])
@@ -205,7 +218,8 @@ class GlobalLinker:
                     s = track_histograms(tl[b], max_obs=5)
                     if s.size and s.shape[1] == app.X[a].shape[1]:
                         z2 = app.intra_distance(s, a)
-                        ok = app.verify(s, a, [o for o in preds_of[b] if o in app.X])
+                        ok = app.verify(s, a, [o for o in preds_of[b]
+                                               if o in app.X and distinct(o, a)])
                         ap = appearance_cost(z2, ok)
                 de = float("nan")
                 if desc[a] is not None and desc[b] is not None:
@@ -294,7 +308,7 @@ class GlobalLinker:
                         pr = self._forward(tl, i, h, last_obs.frame)
                         pr = pr[:self._tail_length(last_obs.frame, pr, registrations, frame_size)]
                         points.extend(_predicted(last_obs, pr))
-            points.sort(key=lambda p: p.frame)
+            points = _one_per_frame(points)
             if (tl[chain[-1]].last - tl[chain[0]].first) < self.config.min_track_s * self.fps:
                 continue  # a short unlinked blip: a false alarm or a split blob
             out.append(Track(id=0, points=points))
@@ -372,6 +386,166 @@ class GlobalLinker:
         while hi - lo > keep and small[lo] and fr[lo] - fr[0] < span:
             lo += 1
         return fr[lo:hi], xy[lo:hi]
+
+
+def _box_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection over the smaller area of boxes ``a`` (n, 4) and ``b`` (n, 4) row by row,
+    ``x, y, w, h`` frame pixels; 0 where either box is degenerate or NaN."""
+    iw = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2]) - np.maximum(a[:, 0], b[:, 0])
+    ih = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3]) - np.maximum(a[:, 1], b[:, 1])
+    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    small = np.minimum(a[:, 2] * a[:, 3], b[:, 2] * b[:, 3])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = inter / small
+    return np.where(np.isfinite(r) & (small > 0), r, 0.0)
+
+
+def _boxes(t: Track) -> dict[int, np.ndarray]:
+    """{frame: box (4,)} of a tracklet's in-view points with a finite box (the first per frame)."""
+    out: dict[int, np.ndarray] = {}
+    for p in t.points:
+        if p.kind in _IN_VIEW and p.box is not None and p.frame not in out:
+            b = np.asarray(p.box, dtype=np.float64).reshape(4)
+            if np.all(np.isfinite(b)):
+                out[p.frame] = b
+    return out
+
+
+def coexisting_overlaps(tracklets: list[Track]) -> dict[tuple[int, int], tuple[float, int]]:
+    """For every pair of tracklets with in-view boxes in common frames, (i < j): (mean overlap of
+    the smaller box over those frames, number of common frames); see :func:`_box_overlap`."""
+    by_frame: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for i, t in enumerate(tracklets):
+        for f, b in _boxes(t).items():
+            by_frame.setdefault(f, []).append((i, b))
+    common: dict[tuple[int, int], int] = {}
+    acc: dict[tuple[int, int], float] = {}
+    for rows in by_frame.values():
+        if len(rows) < 2:
+            continue
+        idx = np.array([r[0] for r in rows])
+        B = np.array([r[1] for r in rows])
+        ii, jj = np.triu_indices(len(rows), 1)
+        ov = _box_overlap(B[ii], B[jj])
+        lo, hi = np.minimum(idx[ii], idx[jj]), np.maximum(idx[ii], idx[jj])
+        for a, b, o in zip(lo.tolist(), hi.tolist(), ov.tolist()):
+            common[(a, b)] = common.get((a, b), 0) + 1
+            if o > 0:
+                acc[(a, b)] = acc.get((a, b), 0.0) + o
+    return {k: (s / common[k], common[k]) for k, s in acc.items()}
+
+
+def merge_duplicates(tracklets: list[Track], min_overlap: float) -> list[Track]:
+    """Merge tracklets that are a second view of another, longer tracklet's object.
+
+    Local association sometimes keeps two tracklets on one vehicle for a while: a partial blob
+    beside the whole one, or a second tracklet through a turn while the first is bridged across
+    it. Neither can be *linked* (they coexist), and the shorter one becomes a spurious identity
+    that also competes for the object's later tracklets. A tracklet whose in-view frames all lie
+    within a longer one's span, and whose box overlaps that one's by at least ``min_overlap`` of
+    the smaller box on average over its frames (a frame where they do not touch counts 0), is
+    merged into it: in each frame the better point is kept (:func:`_one_per_frame`); the merged
+    points carry no appearance (``hist``, ``desc``), so the host's appearance models stay its own.
+
+    Parameters
+    ----------
+    tracklets : list of Track
+        Frame-pixel boxes on the in-view points.
+    min_overlap : float
+        Mean intersection over the smaller area; >= 1 disables merging.
+
+    Returns
+    -------
+    list of Track
+        The tracklets left, in input order, merged ones with new point lists (inputs untouched).
+    """
+    if min_overlap >= 1.0 or len(tracklets) < 2:
+        return tracklets
+    ov = coexisting_overlaps(tracklets)
+    if not ov:
+        return tracklets
+    frames = [set(_boxes(t)) for t in tracklets]
+    host: dict[int, tuple[float, int]] = {}
+    for (i, j), (m, n) in ov.items():
+        for small, big in ((i, j), (j, i)):
+            ts, tb = tracklets[small], tracklets[big]
+            nf = len(frames[small])
+            if not nf or not (tb.first <= ts.first and ts.last <= tb.last) or \
+                    (tb.last - tb.first, big) <= (ts.last - ts.first, small):
+                continue
+            score = m * n / nf  # frames of the small one without the big one count 0
+            if score >= min_overlap and score > host.get(small, (-1.0, -1))[0]:
+                host[small] = (score, big)
+    if not host:
+        return tracklets
+
+    def root(i: int) -> int:
+        while i in host:
+            i = host[i][1]
+        return i
+
+    extra: dict[int, list[TrackPoint]] = {}
+    for i in sorted(host):
+        # a second view of the object is mostly a partial one: its position and box may fill the
+        # host's frames, its appearance would blur the host's appearance models
+        extra.setdefault(root(i), []).extend(
+            dataclasses.replace(p, hist=None, desc=None) for p in tracklets[i].points)
+    out = []
+    for i, t in enumerate(tracklets):
+        if i in host:
+            continue
+        if i in extra:
+            t = Track(id=t.id, points=_one_per_frame(list(t.points) + extra[i]))
+        out.append(t)
+    log.debug("linking: %d duplicate tracklets merged into the tracklets they lie on", len(host))
+    return out
+
+
+def handover_pairs(tracklets: list[Track], min_overlap: float, max_overlap_frames: int
+                   ) -> dict[tuple[int, int], float]:
+    """Pairs (a, b) where b takes over a's object while both are seen: b starts during a, after
+    a's first frame, and ends after a's last; they coexist for at most ``max_overlap_frames``
+    and their boxes overlap by at least ``min_overlap`` of the smaller on average over a's frames
+    from b's start (:func:`merge_duplicates`). Returns {(a, b): mean overlap}."""
+    out: dict[tuple[int, int], float] = {}
+    if min_overlap >= 1.0:
+        return out
+    for (i, j), (m, n) in coexisting_overlaps(tracklets).items():
+        for a, b in ((i, j), (j, i)):
+            ta, tb = tracklets[a], tracklets[b]
+            if not (ta.first < tb.first <= ta.last < tb.last):
+                continue
+            span = [f for f in _boxes(ta) if f >= tb.first]
+            if not span or ta.last - tb.first + 1 > max_overlap_frames:
+                continue
+            score = m * n / len(span)
+            if score >= min_overlap:
+                out[(a, b)] = score
+    return out
+
+
+_KIND_RANK = {"observed": 3, "bridged": 2, "stationary": 2, "predicted": 0}
+
+
+def _one_per_frame(points: list[TrackPoint]) -> list[TrackPoint]:
+    """Points sorted by frame, one per frame: an observation before an interpolated point before
+    a prediction, and of two observations the larger box (a partial blob is smaller than the
+    whole vehicle)."""
+    best: dict[int, TrackPoint] = {}
+    for p in points:
+        q = best.get(p.frame)
+        if q is None or _point_rank(p) > _point_rank(q):
+            best[p.frame] = p
+    return [best[f] for f in sorted(best)]
+
+
+def _point_rank(p: TrackPoint) -> tuple[int, float]:
+    area = 0.0
+    if p.box is not None:
+        b = np.asarray(p.box, dtype=np.float64).reshape(4)
+        if np.all(np.isfinite(b)):
+            area = float(b[2] * b[3])
+    return _KIND_RANK.get(p.kind, 1), area
 
 
 def end_noise(fr: np.ndarray, xy: np.ndarray, mpu: float, fps: float) -> tuple[float, float]:
