@@ -21,18 +21,22 @@ RESULT_FILES = ("tracks.csv", "predicted.csv", "detections.csv", "summary.json")
 
 
 def expect_error(capsys, fragments, *argv, out_dir: Path | None = None):
+    """Exit 2 with exactly one error line naming the problem; with ``out_dir``, nothing written
+    there (a folder the run created is gone again, so the same command works once fixed)."""
+    existed = out_dir is not None and out_dir.exists()
     code, out, err = run_cli(capsys, *argv)
     assert code == 2, f"exit {code}: {err}"
     assert "Traceback" not in err
     lines = [ln for ln in err.splitlines() if ln.strip() and "WARNING" not in ln and "INFO" not in ln]
-    assert lines, err
-    message = lines[-1]
-    assert message.startswith(("aerotrack: error:", "Error:")), err
+    assert len(lines) == 1, err
+    assert lines[0].startswith("aerotrack: error:"), err
     for f in fragments:
         assert f in err, f"{f!r} not in {err!r}"
     if out_dir is not None:
         for name in RESULT_FILES:
             assert not (out_dir / name).exists(), f"half-written {name}"
+        if not existed:
+            assert not out_dir.exists(), f"left behind: {sorted(out_dir.rglob('*'))}"
     return err
 
 
@@ -371,3 +375,183 @@ def test_mosaic_missing_input(tmp_path, capsys):
 def test_batch_missing_folder(tmp_path, capsys):
     code, _, err = run_cli(capsys, "batch", tmp_path / "nope", "--out", tmp_path / "o")
     assert code == 2 and "Traceback" not in err and "nope" in err
+
+
+# -- every option value, the CLI audit --------------------------------------------------------------
+@pytest.mark.parametrize("argv,frag", [
+    (["--seed", "abc"], "--seed"),
+    (["--seed", "-1"], "--seed"),
+    (["--stride", "0"], "--stride"),
+    (["--workers", "0"], "--workers"),
+    (["--fps", "fast"], "--fps"),
+    (["--no-such-option"], "--no-such-option"),
+])
+def test_track_bad_option_value_is_one_line(tmp_path, capsys, dets, argv, frag):
+    """click's own usage errors also give one line naming the option (not click's 4-line usage)."""
+    expect_error(capsys, [frag, "aerotrack track --help"], "track", "--detections", dets, "--out",
+                 tmp_path / "o", *argv, out_dir=tmp_path / "o")
+
+
+def test_missing_required_option_is_one_line(tmp_path, capsys, dets):
+    expect_error(capsys, ["--out"], "track", "--detections", dets)
+
+
+@pytest.mark.parametrize("setting", ["detection.window_s=-1", "association.max_speed_mps=-40",
+                                     "registration.min_inliers=-5"])
+def test_track_negative_config_value(tmp_path, capsys, dets, setting):
+    expect_error(capsys, [setting.split("=")[0], ">= 0"], "track", "--detections", dets, "--out",
+                 tmp_path / "o", "--set", setting, out_dir=tmp_path / "o")
+
+
+@pytest.mark.parametrize("setting,frag", [
+    ("registration.method=magic", "registration.method"),
+    ("context.method=magic", "context.method"),
+])
+def test_track_bad_config_choice_leaves_nothing(tmp_path, capsys, video, setting, frag):
+    """A config value a stage rejects once the run has started: no folder is left behind, so the
+    same command works once the value is fixed."""
+    out = tmp_path / "o"
+    expect_error(capsys, [frag, "magic"], "track", video, "--out", out, "--set", setting,
+                 out_dir=out)
+    code, _, err = run_cli(capsys, "track", video, "--out", out)
+    assert code == 0, err
+
+
+def test_track_bad_input_in_existing_empty_folder_keeps_it_empty(tmp_path, capsys):
+    d = write_frames(tmp_path / "f", [textured(), textured(), textured(h=100)])
+    out = tmp_path / "o"
+    out.mkdir()
+    expect_error(capsys, ["0003.png"], "track", d, "--out", out, out_dir=out)
+    assert out.is_dir() and not any(out.iterdir())
+
+
+@pytest.mark.parametrize("row,frag", [
+    ("100000000,-1,10,10,8,4,0.9", "not times"),     # a timestamp, not a frame number
+    ("1,-1,1e300,10,8,4,0.9", "beyond any image"),
+    ("1,-1,10,10,8,4e9,0.9", "beyond any image"),
+    ("1,-1,-2e8,10,8,4,0.9", "beyond any image"),
+])
+def test_track_implausible_detections(tmp_path, capsys, row, frag):
+    """Rows no video can have are refused at once (a timestamp used as a frame number made the run
+    step through every empty frame up to it)."""
+    from aerotrack.cli.track_cmd import check_detections
+    from aerotrack.errors import InputError
+    from aerotrack.io.mot import read_mot
+
+    p = tmp_path / "d.txt"
+    p.write_text("1,-1,10,10,8,4,0.9\n" + row + "\n")
+    with pytest.raises(InputError, match="row 2"):
+        check_detections(read_mot(p, strict=True), p)
+    if not row.startswith("100000000"):  # the CLI path (the frame case would hang before the fix)
+        expect_error(capsys, ["--detections", "row 2", frag], "track", "--detections", p, "--out",
+                     tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_track_detections_after_the_video_warn(tmp_path, capsys, video):
+    p = tmp_path / "d.txt"
+    p.write_text("1,-1,10,10,8,4,0.9\n500,-1,10,10,8,4,0.9\n")
+    code, _, err = run_cli(capsys, "track", video, "--detections", p, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert "after the input's last frame 6" in err
+
+
+@pytest.mark.parametrize("option", ["--map-init", "--roads"])
+def test_track_folder_instead_of_file(tmp_path, capsys, video, option):
+    m = write_map(tmp_path / "m.tif")
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 10\n0 1 10\n0 0 1\n")
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    args = {"--map-init": ["--map-init", folder], "--roads": ["--map-init", h, "--roads", folder]}
+    expect_error(capsys, [option, "is a folder"], "track", video, "--map", m, *args[option],
+                 "--out", tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_track_intrinsics_folder(tmp_path, capsys, video):
+    expect_error(capsys, ["--intrinsics", "is a folder"], "track", video, "--intrinsics",
+                 tmp_path, "--out", tmp_path / "o", out_dir=tmp_path / "o")
+
+
+@pytest.mark.parametrize("argv,frag", [
+    (["--fps", "nan"], "--fps"),
+    (["--gsd", "nan"], "--gsd"),
+    (["--gsd", "-1"], "--gsd"),
+    (["--crs", "EPSG:32611"], "--roads"),
+])
+def test_predict_bad_numbers(tmp_path, capsys, tracks_file, argv, frag):
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,10,5\n")
+    expect_error(capsys, [frag], "predict", tracks_file, "--queries", q, "--out",
+                 tmp_path / "p.csv", *argv)
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_synth_negative_seed(tmp_path, capsys):
+    expect_error(capsys, ["--seed"], "synth", "--out", tmp_path / "s", "--frames", "2", "--seed",
+                 "-1", out_dir=tmp_path / "s")
+
+
+def test_eval_frames_without_ground_truth(tmp_path, capsys, dets):
+    gt = tmp_path / "gt.txt"
+    gt.write_text("1,1,10,10,8,4,1\n2,1,12,10,8,4,1\n")
+    expect_error(capsys, ["--frames", "ends at frame 2"], "eval", "--gt", gt, "--pred", dets,
+                 "--frames", "50:60")
+
+
+@pytest.fixture
+def run_dir(tmp_path, capsys, video):
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "run")
+    assert code == 0, err
+    return tmp_path / "run"
+
+
+@pytest.mark.parametrize("argv,frag", [
+    (["--trail-s", "nan"], "--trail-s"),
+    (["--start", "50"], "--start"),
+])
+def test_render_bad_numbers(tmp_path, capsys, video, run_dir, argv, frag):
+    out = tmp_path / "overlay.webm"
+    expect_error(capsys, [frag], "render", video, run_dir, "--out", out, "--no-pictures", *argv)
+    assert not out.exists()
+
+
+def test_report_bad_video_width(tmp_path, capsys, run_dir):
+    expect_error(capsys, ["--video-width"], "report", run_dir, "--video-width", "-5")
+    assert not (run_dir / "report.html").exists()
+
+
+def test_outputs_readable_like_any_new_file(tmp_path, capsys, dets):
+    """Results are not private to the user (mkstemp's 0600): another account can score them."""
+    import os
+
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", tmp_path / "o")
+    assert code == 0, err
+    mask = os.umask(0)
+    os.umask(mask)
+    for name in ("tracks.csv", "summary.json", "config.toml"):
+        assert (tmp_path / "o" / name).stat().st_mode & 0o777 == 0o666 & ~mask, name
+
+
+def test_signals_are_held_off_while_results_are_written():
+    """Ctrl-C between frames stops after the frame; while the final files are written it waits."""
+    import os
+    import signal
+
+    from aerotrack.cli.common import Interrupted
+    from aerotrack.cli.track_cmd import GracefulStop
+
+    seen = []
+    with GracefulStop() as stop:
+        progress = stop.wrap(seen.append)
+        progress(1)
+        os.kill(os.getpid(), signal.SIGINT)  # first Ctrl-C: only a flag
+        with pytest.raises(Interrupted) as info:
+            progress(2)
+        assert info.value.signum == signal.SIGINT and ".partial" in info.value.note
+    with GracefulStop() as stop:
+        stop.writing()
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)  # not even a second signal cuts the writing short
+        assert stop.stop_signal == signal.SIGTERM
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    assert seen == [1, 2]

@@ -1,5 +1,6 @@
 """The CLI frame: help, version, and one-line errors with exit code 2 for bad input."""
 
+import json
 import subprocess
 import sys
 
@@ -81,3 +82,57 @@ def test_bad_fps(tmp_path):
     d.write_text("1,-1,1,1,5,5,1\n")
     assert_one_line_error(run("track", "--detections", d, "--out", tmp_path / "o", "--fps", "-3"),
                           "--fps")
+
+
+def moving_detections(path, n_frames, n_targets=6):
+    rows = [f"{f},-1,{20 + k * 90 + (f * 0.7) % 400:.2f},{30 + k * 60},12,6,0.9"
+            for f in range(1, n_frames + 1) for k in range(n_targets)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_text_file_as_video_is_one_line(tmp_path):
+    """FFmpeg's own complaint ("moov atom not found") is not printed beside ours."""
+    v = tmp_path / "notes.mp4"
+    v.write_text("not a video\n" * 50)
+    res = run("track", v, "--out", tmp_path / "o")
+    assert_one_line_error(res, "notes.mp4")
+    assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_progress_only_on_a_terminal_or_with_verbose(tmp_path):
+    d = moving_detections(tmp_path / "d.txt", 40)
+    res = run("track", "--detections", d, "--out", tmp_path / "a")  # stderr is a pipe here
+    assert res.returncode == 0, res.stderr
+    assert "frames (" not in res.stderr and "aerotrack: 40 frames" in res.stderr
+    res = run("-v", "track", "--detections", d, "--out", tmp_path / "b")
+    assert res.returncode == 0 and "track: 40/40 frames (" in res.stderr, res.stderr
+
+
+def test_sigterm_stops_like_ctrl_c_and_resume_finishes(tmp_path):
+    import signal
+    import time
+
+    d = moving_detections(tmp_path / "d.txt", 500)
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "aerotrack", "-v", "track", "--detections",
+                             str(d), "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    line = ""
+    while time.time() < deadline and "frames (" not in line:  # the first progress line: 10%
+        line = proc.stderr.readline()
+        if not line and proc.poll() is not None:
+            break
+    if proc.poll() is not None:
+        pytest.skip("the run finished before it could be stopped")
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "Traceback" not in err and "--resume" in err
+    assert sorted(p.name for p in out.iterdir()) == [".partial"]  # nothing that looks complete
+    assert not list(out.rglob("*.tmp"))
+    res = run("-q", "track", "--detections", d, "--out", out, "--resume")
+    assert res.returncode == 0, res.stderr
+    assert json.loads((out / "summary.json").read_text())["frames"] == 500
+    assert not (out / ".partial").exists()

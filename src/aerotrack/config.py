@@ -651,6 +651,8 @@ def _coerce(section: str, key: str, value: Any, typ: Any) -> Any:
             raise ConfigError(f"config {where}: expected an integer, got {value!r}") from None
         if not f.is_integer():
             raise ConfigError(f"config {where}: expected an integer, got {value!r}")
+        if f < 0:  # every count, time, distance, ratio and weight here is >= 0 (0 disables)
+            raise ConfigError(f"config {where}: must be >= 0, got {value!r}")
         return int(f)
     if typ is float:
         if isinstance(value, bool):
@@ -661,6 +663,8 @@ def _coerce(section: str, key: str, value: Any, typ: Any) -> Any:
             raise ConfigError(f"config {where}: expected a number, got {value!r}") from None
         if not math.isfinite(f):
             raise ConfigError(f"config {where}: expected a finite number, got {value!r}")
+        if f < 0:  # every time, distance, ratio and weight here is >= 0 (0 disables)
+            raise ConfigError(f"config {where}: must be >= 0, got {value!r}")
         return f
     if typ is str:
         if not isinstance(value, str):

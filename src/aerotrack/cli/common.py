@@ -2,15 +2,118 @@
 
 from __future__ import annotations
 
+import logging
+import math
+import shutil
+import sys
+import time
+from pathlib import Path
+
 import click
+
+log = logging.getLogger("aerotrack")
 
 fps_option = click.option(
     "--fps", type=float, default=None,
-    help="Frame rate. Defaults to the video's rate, and to 30 for image folders and detections files.",
+    help="Frame rate. Defaults to the video's rate, and to 30 for image folders.",
 )
-seed_option = click.option("--seed", type=int, default=0, show_default=True,
+seed_option = click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
                            help="Random seed: the same input, config and seed give the same tracks.")
 config_option = click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
                              help="TOML file with per-stage parameters (see config.toml of any run).")
 set_option = click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
                           help="Override one config parameter (repeatable).")
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM, turned into an exception at a safe point of a run.
+
+    ``signum`` sets the exit code (128 + signum); ``note`` completes the line
+    ``aerotrack: interrupted`` (what was kept and how to continue).
+    """
+
+    def __init__(self, signum: int = 2, note: str = "") -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
+        self.note = note
+
+
+def root_flags(ctx: click.Context | None) -> tuple[bool, int]:
+    """(quiet, verbose) from the command group's ``-q`` / ``-v`` options."""
+    obj = (ctx.find_root().obj if ctx is not None else None) or {}
+    return bool(obj.get("quiet", False)), int(obj.get("verbose", 0))
+
+
+def make_progress(total: int | None, label: str, quiet: bool, verbose: int = 0):
+    """A progress callback ``update(n_done)`` and a ``close()``.
+
+    On a terminal: a tqdm bar on stderr (gone when done). Not on a terminal (a pipe, a log file):
+    nothing, unless ``-v`` asks for a log line every tenth of the run. ``-q``: nothing at all.
+    """
+    if quiet:
+        return (lambda n: None), (lambda: None)
+    if sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=label, unit="frame", file=sys.stderr, leave=False)
+        state = {"n": 0}
+
+        def update(n: int) -> None:
+            bar.update(n - state["n"])
+            state["n"] = n
+
+        return update, bar.close
+    if verbose < 1:
+        return (lambda n: None), (lambda: None)
+    step = max(1, (total or 1000) // 10)
+    t0 = time.perf_counter()
+
+    def log_line(n: int) -> None:
+        if n % step == 0:
+            rate = n / max(time.perf_counter() - t0, 1e-9)
+            of = f"/{total}" if total else ""
+            log.info("%s: %d%s frames (%.1f frames/s)", label, n, of, rate)
+
+    return log_line, (lambda: None)
+
+
+def check_positive(value: float | None, option: str, what: str = "a positive number") -> None:
+    """Refuse zero, negative, NaN and infinite values of a numeric option."""
+    from ..errors import InputError
+
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise InputError(f"{option} {value}: must be {what}")
+
+
+class CleanupOnBadInput:
+    """Context manager: if bad input is found after an output folder was made, leave no trace.
+
+    Some input errors only show once work has started (a config value a stage rejects, an image of
+    another size half way through a folder). Then the folder's ``.partial/`` (and the folder
+    itself, when this run created it) are removed, so the same command works once the input is
+    fixed instead of being refused as "already holds results". Interruptions and other failures
+    keep ``.partial/`` for ``--resume``; a ``--resume`` run never deletes what it resumes from.
+    With ``always`` (commands that cannot resume) any failure or interruption cleans up.
+    """
+
+    def __init__(self, out_dir: Path, resume: bool = False, always: bool = False) -> None:
+        self.path = Path(out_dir)
+        self.resume = resume
+        self.always = always
+        self.existed = self.path.exists()
+
+    def __enter__(self) -> CleanupOnBadInput:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        from ..errors import InputError
+        from ..io.output import PARTIAL
+
+        if exc_type is None or self.resume:
+            return False
+        if not (self.always or issubclass(exc_type, InputError)):
+            return False
+        shutil.rmtree(self.path / PARTIAL, ignore_errors=True)
+        if not self.existed and self.path.is_dir() and not any(self.path.iterdir()):
+            self.path.rmdir()
+        return False

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import click
 
-from .common import config_option, fps_option, set_option
+from .common import (CleanupOnBadInput, config_option, fps_option, make_progress, root_flags,
+                     set_option)
 
 log = logging.getLogger("aerotrack")
 
@@ -26,7 +27,8 @@ log = logging.getLogger("aerotrack")
 @click.option("--debug-video", is_flag=True,
               help="Also write debug.mp4: each frame with its boxes beside the residual image.")
 @click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
-def detect_command(input_path, out_dir, fps, config_path, overrides, stabilised, debug_video,
+@click.pass_context
+def detect_command(ctx, input_path, out_dir, fps, config_path, overrides, stabilised, debug_video,
                    overwrite):
     """Detect moving vehicles (Yu & Medioni section 3) and write DIR/detections.csv.
 
@@ -40,18 +42,26 @@ def detect_command(input_path, out_dir, fps, config_path, overrides, stabilised,
       aerotrack detect clip.mp4 --out det/ --debug-video
       aerotrack detect frames/ --out det/ --fps 10 --set detection.window_s=2
     """
-    import numpy as np
-
-    from ..config import dumps_config, load_config
-    from ..detection import MovingObjectDetector
+    from ..config import load_config
     from ..io import open_source
-    from ..io.mot import write_mot
     from ..io.output import OutputDir
-    from ..types import Registration
 
     config = load_config(config_path, overrides)
     source = open_source(input_path, fps)
+    cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
+    with cleanup:
+        _detect(ctx, source, out, config, stabilised, debug_video)
+
+
+def _detect(ctx, source, out, config, stabilised: bool, debug_video: bool) -> None:
+    import numpy as np
+
+    from ..config import dumps_config
+    from ..detection import MovingObjectDetector
+    from ..io.mot import write_mot
+    from ..types import Registration
+
     detector = MovingObjectDetector(config.detection, source.fps)
     detector.keep_debug = debug_video
     registrar = None
@@ -75,12 +85,16 @@ def detect_command(input_path, out_dir, fps, config_path, overrides, stabilised,
                 writer = _write_debug(writer, debug_tmp, source.fps, *item)
             detector.debug_frames.clear()
 
-    for frame in source:
-        reg = registrar.step(frame) if registrar is not None else Registration(frame.index, np.eye(3))
-        consume(detector.step(frame, reg))
-        n += 1
-        if n % 100 == 0:
-            log.info("detect: %d frames (%.1f frames/s)", n, n / (time.perf_counter() - t0))
+    progress, close = make_progress(source.count, "detect", *root_flags(ctx))
+    try:
+        for frame in source:
+            reg = (registrar.step(frame) if registrar is not None
+                   else Registration(frame.index, np.eye(3)))
+            consume(detector.step(frame, reg))
+            n += 1
+            progress(n)
+    finally:
+        close()
     consume(detector.flush())
     write_mot(out.file("detections.csv"), np.asarray(rows, np.float64).reshape(-1, 10))
     out.write_text("config.toml", dumps_config(config))

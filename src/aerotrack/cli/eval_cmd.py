@@ -186,6 +186,11 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
             click.echo(f"aerotrack: --fix-gt {g}: {fix.describe()}", err=True)
         ignore = read_mot(ign, option="--ignore", strict=False) if ign is not None else None
         seqs[name] = (gt, pred, ignore)
+    if window is not None and not any(((g[:, 0] >= window[0]) & (g[:, 0] <= window[1])).any()
+                                      for g, _, _ in seqs.values()):
+        last = max(int(g[:, 0].max()) for g, _, _ in seqs.values())
+        raise InputError(f"--frames {frames}: no ground-truth rows in these frames (the ground "
+                         f"truth ends at frame {last})")
     res = evaluate_sequences(seqs, iou_threshold=iou_threshold,
                              frames={n: window for n in seqs} if window else None)
     single = len(seqs) == 1

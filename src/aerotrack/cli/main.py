@@ -1,14 +1,16 @@
 """``aerotrack``: the command group, logging set-up and the one-line error contract.
 
 Every deliberate error (:class:`~aerotrack.errors.AerotrackError`) becomes one line on stderr and
-exit code 2; click's own usage errors also exit with 2. Commands live one per module in this package
-and are registered in ``COMMANDS``.
+exit code 2; click's own usage errors (a mistyped option value, a missing option) become one line
+with exit code 2 too. Ctrl-C or SIGTERM exits with 128 + the signal number. Commands live one per
+module in this package and are registered in ``COMMANDS``.
 """
 
 from __future__ import annotations
 
 import importlib
 import logging
+import os
 import sys
 
 import click
@@ -35,6 +37,9 @@ log = logging.getLogger("aerotrack")
 
 def configure_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
+    if verbose < 2:  # FFmpeg and OpenCV print to stderr themselves; our own message says it once
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("aerotrack: %(levelname)s: %(message)s"))
     root = logging.getLogger("aerotrack")
@@ -47,7 +52,9 @@ def configure_logging(verbose: int, quiet: bool) -> None:
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
 @click.version_option(__version__, "--version", prog_name="aerotrack")
-@click.option("-v", "--verbose", count=True, help="More messages (-vv for debug).")
+@click.option("-v", "--verbose", count=True,
+              help="More messages: progress lines also when stderr is not a terminal; -vv for "
+                   "debug messages, FFmpeg's and OpenCV's included.")
 @click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
@@ -84,10 +91,17 @@ def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the CLI, mapping aerotrack errors to exit code 2."""
     try:
         cli.main(args=argv, prog_name="aerotrack", standalone_mode=False)
-    except (click.exceptions.Abort, KeyboardInterrupt):
-        click.echo("aerotrack: interrupted; finished work is kept in the output folder's "
-                   ".partial/ (continue with --resume)", err=True)
-        sys.exit(130)
+    except (click.exceptions.Abort, KeyboardInterrupt) as exc:
+        # click turns KeyboardInterrupt into Abort; the cause says which signal and what was kept
+        cause = exc.__cause__ if isinstance(exc, click.exceptions.Abort) else exc
+        click.echo(f"aerotrack: interrupted{getattr(cause, 'note', '')}", err=True)
+        sys.exit(128 + int(getattr(cause, "signum", 2)))
+    except click.exceptions.UsageError as exc:
+        # a bad option or argument: one line naming it, like every other bad input
+        where = exc.ctx.command_path if exc.ctx is not None else "aerotrack"
+        message = " ".join(exc.format_message().split())
+        click.echo(f"aerotrack: error: {message} (see '{where} --help')", err=True)
+        sys.exit(exc.exit_code)
     except click.exceptions.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import config_option, fps_option, set_option
+from .common import config_option, fps_option, make_progress, root_flags, set_option
 
 log = logging.getLogger("aerotrack")
 
@@ -29,7 +29,8 @@ log = logging.getLogger("aerotrack")
               help="Also write the per-frame homographies as registration.csv here.")
 @config_option
 @set_option
-def mosaic_command(input_path, out_path, map_path, map_init_path, fps, stride, max_side, reg_csv,
+@click.pass_context
+def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stride, max_side, reg_csv,
                    config_path, overrides):
     """Register every frame of INPUT (video or image folder) and paint them into one picture.
 
@@ -64,10 +65,13 @@ def mosaic_command(input_path, out_path, map_path, map_init_path, fps, stride, m
         H_init = read_map_init(map_init_path, geomap)
     registrar = FrameRegistrar(config.registration, source.fps, geomap, H_init)
     regs = []
-    for frame in source:
-        regs.append(registrar.step(frame))
-        if len(regs) % 100 == 0:
-            log.info("mosaic: registered %d frames", len(regs))
+    progress, close = make_progress(source.count, "mosaic", *root_flags(ctx))
+    try:
+        for frame in source:
+            regs.append(registrar.step(frame))
+            progress(len(regs))
+    finally:
+        close()
     if not regs:
         raise InputError(f"{input_path}: no frames")
     log.info("mosaic: registration %s", registrar.summary()["status_counts"])

@@ -9,7 +9,7 @@ import click
 from ..config import load_config
 from ..context.motion import PREDICTION_METHODS
 from ..context.predict import run_predict
-from .common import config_option, set_option
+from .common import check_positive, config_option, set_option
 
 log = logging.getLogger(__name__)
 
@@ -53,10 +53,10 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
     """
     from ..errors import InputError
 
-    if fps <= 0:
-        raise InputError(f"--fps must be positive, got {fps}")
-    if gsd is not None and gsd <= 0:
-        raise InputError(f"--gsd must be positive, got {gsd}")
+    check_positive(fps, "--fps")
+    check_positive(gsd, "--gsd")
+    if crs is not None and roads is None:
+        raise InputError(f"--crs {crs}: only used with --roads (the CRS of the tracks' x,y columns)")
     config = load_config(config_path, overrides).context
     n = run_predict(tracks, queries, out, method=method or config.method, fps=fps, space=space,
                     config=config, metres_per_unit=gsd, roads=roads, crs=crs)

@@ -7,15 +7,9 @@ from pathlib import Path
 
 import click
 
+from .common import make_progress, root_flags
+
 log = logging.getLogger(__name__)
-
-
-def _progress(total: int | None, label: str, quiet: bool):
-    try:
-        from .track_cmd import make_progress
-    except ImportError:  # pragma: no cover - track command not installed
-        return (lambda n: None), (lambda: None)
-    return make_progress(total, label, quiet)
 
 
 def write_pictures(results, geomap, input_path) -> list[Path]:
@@ -76,16 +70,20 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     results = RunResults.load(run_dir)
     if start < 1 or (stop is not None and stop < start):
         raise InputError(f"--start {start} --stop {stop}: need 1 <= start <= stop")
+    if not (trail_s >= 0 and trail_s < float("inf")):
+        raise InputError(f"--trail-s {trail_s}: must be a number of seconds >= 0")
     if max_width is not None and max_width < 16:
         raise InputError(f"--max-width {max_width}: too small")
     style = OverlayStyle(trail_s=trail_s, max_width=max_width)
     out = Path(out_path) if out_path else results.path / "overlay.webm"
     source = open_source(input_path, results.fps)  # fail fast on a bad input
-    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    quiet, verbose = root_flags(ctx)
     n = source.count
+    if n and start > n:
+        raise InputError(f"--start {start}: after the last frame of {input_path} ({n})")
     total = (min(stop, n) if stop and n else stop or n)
     total = total - start + 1 if total else None
-    progress, close = _progress(total, "render", quiet)
+    progress, close = make_progress(total, "render", quiet, verbose)
     try:
         render_overlay(input_path, results, out, style=style, start=start, stop=stop, progress=progress)
     finally:

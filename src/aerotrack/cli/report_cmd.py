@@ -39,6 +39,8 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     from ..viz.results import RunResults
 
     results = RunResults.load(run_dir)
+    if video_width < 16:
+        raise InputError(f"--video-width {video_width}: must be at least 16 pixels")
     if gt_path is not None and not Path(gt_path).is_file():
         raise InputError(f"--gt {gt_path}: file not found")
     if input_path is not None and not Path(input_path).exists():

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .track_cmd import make_progress
+from .common import CleanupOnBadInput, make_progress, root_flags
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -25,7 +25,7 @@ def parse_size(text: str) -> tuple[int, int]:
 @click.command("synth")
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder (new or empty; see --overwrite).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Scene seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Scene seed.")
 @click.option("--frames", type=int, default=900, show_default=True, help="Number of frames.")
 @click.option("--scenario", default="default", show_default=True,
               help="default, static, occlusion, exits, convoy or dense.")
@@ -58,14 +58,16 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrit
 
     size = parse_size(size_text)
     Scenario.validate(frames=frames, size=size, fps=fps, name=scenario)
+    cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
-    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
-    progress, close = make_progress(frames, "synth", quiet)
-    try:
-        info = render_to(out, seed=seed, frames=frames, size=size, fps=fps, scenario=scenario,
-                         progress=progress)
-    finally:
-        close()
+    quiet, verbose = root_flags(ctx)
+    progress, close = make_progress(frames, "synth", quiet, verbose)
+    with cleanup:
+        try:
+            info = render_to(out, seed=seed, frames=frames, size=size, fps=fps,
+                             scenario=scenario, progress=progress)
+        finally:
+            close()
     if not quiet:
         click.echo(f"aerotrack: rendered {frames} frames of scenario {scenario!r} "
                    f"({info['vehicles']} vehicles, {info['gt_rows']} visible boxes) -> {out.path}",

@@ -3,73 +3,80 @@
 from __future__ import annotations
 
 import logging
-import sys
 import time
 from pathlib import Path
 
 import click
 
-from .common import config_option, fps_option, seed_option, set_option
+from .common import (CleanupOnBadInput, Interrupted, check_positive, config_option, fps_option,
+                     make_progress, root_flags, seed_option, set_option)
 
 log = logging.getLogger("aerotrack")
 
 
-def make_progress(total: int | None, label: str, quiet: bool):
-    """A progress callback: a tqdm bar on a terminal, plain log lines otherwise."""
-    if quiet:
-        return (lambda n: None), (lambda: None)
-    if sys.stderr.isatty():
-        from tqdm import tqdm
+class GracefulStop:
+    """Ctrl-C and SIGTERM stop a run between two frames, where finished work can be checkpointed.
 
-        bar = tqdm(total=total, desc=label, unit="frame", file=sys.stderr, leave=False)
-        state = {"n": 0}
-
-        def update(n: int) -> None:
-            bar.update(n - state["n"])
-            state["n"] = n
-
-        return update, bar.close
-    step = max(1, (total or 1000) // 10)
-    t0 = time.perf_counter()
-
-    def log_line(n: int) -> None:
-        if n % step == 0:
-            rate = n / max(time.perf_counter() - t0, 1e-9)
-            of = f"/{total}" if total else ""
-            log.info("%s: %d%s frames (%.1f frames/s)", label, n, of, rate)
-
-    return log_line, (lambda: None)
-
-
-def stop_between_frames(progress):
-    """Make Ctrl-C stop the run between two frames, where finished work can be checkpointed.
-
-    A SIGINT arriving inside compiled code (numba, OpenCV) can surface as another exception; so the
-    first Ctrl-C only sets a flag that the per-frame progress callback turns into a
-    KeyboardInterrupt at a safe point. A second Ctrl-C interrupts at once. Returns the wrapped
-    callback and a function restoring the previous handler.
+    A signal arriving inside compiled code (numba, OpenCV) can surface as another exception; so
+    the first Ctrl-C (or SIGTERM) only sets a flag that the per-frame progress callback turns into
+    :class:`~aerotrack.cli.common.Interrupted` at a safe point; the pipeline then checkpoints into
+    ``.partial/``. A second signal interrupts at once. While the final files are written
+    (:meth:`writing`), signals are held off until every file is in place, so an interrupted run
+    leaves either the complete set of results or none. Handlers are only installed from the main
+    thread and are restored on exit.
     """
-    import signal
-    import threading
 
-    if threading.current_thread() is not threading.main_thread():
-        return progress, (lambda: None)
-    state = {"stop": False}
+    NOTE = ("; finished work is kept in the output folder's .partial/ "
+            "(continue with --resume)")
 
-    def handler(signum, frame):
-        if state["stop"]:
-            raise KeyboardInterrupt
-        state["stop"] = True
+    def __init__(self) -> None:
+        self.stop_signal: int | None = None
+        self.phase = "frames"
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> GracefulStop:
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+        return False
+
+    def _handler(self, signum, frame) -> None:
+        if self.phase == "writing":
+            if self.stop_signal is None:
+                log.warning("interrupt: writing the results; stopping once every file is in place")
+            self.stop_signal = signum
+            return
+        if self.stop_signal is not None:
+            raise Interrupted(signum, self.NOTE)
+        self.stop_signal = signum
         log.warning("interrupt: stopping after this frame (Ctrl-C again to stop at once)")
 
-    previous = signal.signal(signal.SIGINT, handler)
+    def wrap(self, progress):
+        """The progress callback, raising :class:`Interrupted` after the frame a signal came in."""
 
-    def wrapped(n: int) -> None:
-        progress(n)
-        if state["stop"]:
-            raise KeyboardInterrupt
+        def wrapped(n: int) -> None:
+            progress(n)
+            if self.stop_signal is not None:
+                raise Interrupted(self.stop_signal, self.NOTE)
 
-    return wrapped, (lambda: signal.signal(signal.SIGINT, previous))
+        return wrapped
+
+    def writing(self) -> None:
+        """From now on hold signals off: the run is complete and its files are being written."""
+        if self.stop_signal is not None:
+            log.warning("interrupt came after the last frame: writing the complete results")
+        self.phase = "writing"
 
 
 def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
@@ -90,18 +97,14 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
         raise InputError("give either --map-init or --telemetry, not both")
     if telemetry_path is not None and input_path is None:
         raise InputError("--telemetry needs INPUT frames to lock on to the map")
-    if gsd is not None and not (gsd > 0):
-        raise InputError(f"--gsd {gsd}: must be a positive number of metres per pixel")
+    check_positive(gsd, "--gsd", "a positive number of metres per pixel")
     if fps is not None and not (fps > 0 and fps < 1e4):
         raise InputError(f"--fps {fps}: must be a positive number")
     source = open_source(input_path, fps) if input_path is not None else None
     dets = None
     if detections_path is not None:
         dets = read_mot(detections_path, option="--detections", strict=True)
-        bad = (dets[:, 4] <= 0) | (dets[:, 5] <= 0)
-        if bad.any():
-            raise InputError(f"--detections {detections_path}: row {int(bad.argmax()) + 1} has a "
-                             "zero-size box")
+        check_detections(dets, detections_path, source)
     undistort = None
     if intrinsics_path is not None:
         from ..geo.lens import Undistorter, read_intrinsics
@@ -126,6 +129,49 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
         if source is not None:
             _check_overlap(source.size, H_init, geomap, init_label)
     return source, dets, geomap, H_init, undistort, notes
+
+
+#: Frame numbers and coordinates beyond these are not from a video: 10^7 frames is 46 hours at
+#: 60 frames/s (timestamps in milliseconds would pass for frame numbers and make the run step
+#: through billions of empty frames); 10^8 is beyond any image, and beyond the metres of any
+#: projected CRS (boxes in UTM metres are accepted).
+MAX_FRAME = 10_000_000
+MAX_COORD = 1e8
+
+
+def check_detections(dets, path, source=None) -> None:
+    """Refuse ``--detections`` rows no video can have; warn about rows after the video's end.
+
+    ``dets`` is the (N, >= 7) array of :func:`~aerotrack.io.mot.read_mot` (1-based frames, frame
+    pixels); its rows are the file's data rows in order, so messages name them by row number.
+    """
+    import numpy as np
+
+    from ..errors import InputError
+
+    label = f"--detections {path}"
+    if not len(dets):
+        return
+    bad = (dets[:, 4] <= 0) | (dets[:, 5] <= 0)
+    if bad.any():
+        raise InputError(f"{label}: row {int(bad.argmax()) + 1} has a zero-size box")
+    bad = dets[:, 0] > MAX_FRAME
+    if bad.any():
+        r = int(bad.argmax())
+        raise InputError(f"{label}: row {r + 1} has frame {dets[r, 0]:.0f}, beyond any video "
+                         f"(more than {MAX_FRAME}); frames must be 1-based frame numbers, not times")
+    bad = (np.abs(dets[:, 2:4]) > MAX_COORD).any(axis=1) | (dets[:, 4:6] > MAX_COORD).any(axis=1)
+    if bad.any():
+        r = int(bad.argmax())
+        raise InputError(f"{label}: row {r + 1} has a box beyond any image (a coordinate or size "
+                         f"over {MAX_COORD:.0e})")
+    count = getattr(source, "count", None) if source is not None else None
+    if count:
+        late = dets[:, 0] > count
+        if late.any():
+            log.warning("%s: %d rows are after the input's last frame %d and are ignored "
+                        "(first: row %d, frame %d)", label, int(late.sum()), count,
+                        int(late.argmax()) + 1, int(dets[late.argmax(), 0]))
 
 
 def _check_overlap(size, H_init, geomap, map_init_path) -> None:
@@ -241,7 +287,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         return _track_from_cache(ctx, from_dir, out_dir, config, map_path, seed, gsd, fps,
                                  min_speed, out_crs, overwrite, roads_path=roads_path)
     start, stop = parse_frame_range(frame_range)
-    if min_speed is not None and not min_speed >= 0:
+    if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
@@ -263,12 +309,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                 raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
         except CRSError:
             raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
+    cleanup = CleanupOnBadInput(out_dir, resume=resume)  # before the folder is made
     out = OutputDir(out_dir, overwrite=overwrite, resume=resume)
-    quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
+    quiet, verbose = root_flags(ctx)
     total = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     if total:
         total = len(range(start, min(stop or total, total) + 1, stride))
-    progress, close = make_progress(total, "track", quiet)
+    progress, close = make_progress(total, "track", quiet, verbose)
     t0 = time.perf_counter()
     if workers is not None or scheduler is not None:  # segments on Dask (aerotrack.parallel)
         from functools import partial
@@ -276,28 +323,29 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         from ..parallel import run_on_dask
 
         run = partial(run_on_dask, workers=workers, scheduler=scheduler)
-    progress, restore_sigint = stop_between_frames(progress)
-    try:
-        result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
-                     detections=dets, metres_per_unit=None if geomap else gsd, progress=progress,
-                     checkpoint_dir=out.partial, resume=resume, start=start, stop=stop,
-                     stride=stride, undistort=undistort, regions=regions,
-                     min_speed_mps=min_speed, **({"roads": roads} if roads is not None else {}))
-    finally:
-        restore_sigint()
-        close()
-    info = {
-        "input": str(input_path) if input_path else None,
-        "detections": str(detections_path) if detections_path else None,
-        "map": str(map_path) if map_path else None,
-        "roads": str(roads_path) if roads_path else None,
-        "seed": seed,
-        "wall_time_s": round(time.perf_counter() - t0, 3),
-        **notes,
-    }
-    summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
-                            out_crs=out_crs)
-    out.finish(keep_as="stages")
+    with cleanup, GracefulStop() as stopper:
+        try:
+            result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
+                         detections=dets, metres_per_unit=None if geomap else gsd,
+                         progress=stopper.wrap(progress), checkpoint_dir=out.partial,
+                         resume=resume, start=start, stop=stop, stride=stride,
+                         undistort=undistort, regions=regions, min_speed_mps=min_speed,
+                         **({"roads": roads} if roads is not None else {}))
+        finally:
+            close()
+        stopper.writing()
+        info = {
+            "input": str(input_path) if input_path else None,
+            "detections": str(detections_path) if detections_path else None,
+            "map": str(map_path) if map_path else None,
+            "roads": str(roads_path) if roads_path else None,
+            "seed": seed,
+            "wall_time_s": round(time.perf_counter() - t0, 3),
+            **notes,
+        }
+        summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
+                                out_crs=out_crs)
+        out.finish(keep_as="stages")
     c = summary["counts"]
     if not quiet:
         click.echo(
@@ -328,6 +376,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     from ..outputs import write_outputs
     from ..pipeline import run_cached
 
+    check_positive(fps, "--fps")
+    check_positive(gsd, "--gsd", "a positive number of metres per pixel")
     stages = Path(from_dir) / "stages"
     summary_path = Path(from_dir) / "summary.json"
     if not stages.is_dir() or not summary_path.is_file():
@@ -341,13 +391,14 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     geomap = GeoMap(map_path) if map_path else None
     fps = fps or prev.get("fps") or 30.0
     mpu = None if geomap else (gsd or prev.get("metres_per_unit"))
+    roads = load_roads(roads_path, geomap, config)
     same = Path(out_dir).resolve() == Path(from_dir).resolve()
     out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
     t0 = time.perf_counter()
     result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
                         metres_per_unit=mpu, frame_size=tuple(prev["frame_size"])
                         if prev.get("frame_size") else None, min_speed_mps=min_speed,
-                        roads=load_roads(roads_path, geomap, config))
+                        roads=roads)
     info = {"input": prev.get("input"), "detections": prev.get("detections"),
             "map": str(map_path) if map_path else None, "seed": seed, "from": str(from_dir),
             "wall_time_s": round(time.perf_counter() - t0, 3)}
@@ -358,7 +409,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
 
         shutil.copytree(stages, out.path / "stages", dirs_exist_ok=True)
     out.finish()
-    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    quiet, _ = root_flags(ctx)
     if not quiet:
         click.echo(f"aerotrack: association and linking on cached stages of {from_dir}: "
                    f"{summary['counts']['tracks']} tracks -> {out.path}/tracks.csv", err=True)

@@ -1090,6 +1090,7 @@ def get_predictor(name: str, config: ContextConfig | None = None, fps: float = 3
         cls = PREDICTION_METHODS[name]
     except KeyError:
         raise ConfigError(
-            f"unknown prediction method {name!r} (valid: {', '.join(PREDICTION_METHODS)})"
+            f"config context.method: unknown prediction method {name!r} "
+            f"(valid: {', '.join(PREDICTION_METHODS)})"
         ) from None
     return cls(config, fps, metres_per_unit, roads)

@@ -116,6 +116,8 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
 
     p = Path(path)
     label = f"{option} {p}"
+    if p.is_dir():
+        raise InputError(f"{label}: is a folder, expected a GeoJSON file")
     if not p.is_file():
         raise InputError(f"{label}: file not found")
     try:

@@ -54,7 +54,7 @@ def _check_fps(fps: float | None, label: str) -> float | None:
     if fps is None:
         return None
     if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-        raise InputError(f"--fps {fps}: must be a positive number (got for {label})")
+        raise InputError(f"--fps {fps}: must be a positive number (for {label})")
     return float(fps)
 
 

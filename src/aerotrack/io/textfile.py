@@ -16,6 +16,8 @@ def read_text(path: str | Path, label: str) -> str:
         The file is missing, unreadable or not UTF-8.
     """
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{label}: is a folder, expected a file")
     if not p.is_file():
         raise InputError(f"{label}: file not found")
     try:
