@@ -203,6 +203,10 @@ class DetectionConfig:
         Largest saturation change of a shadow pixel (S in [0, 1]).
     shadow_tau_h : float
         Largest hue change of a shadow pixel, degrees.
+    shadow_min_core : float
+        Shadow-like pixels are removed from a blob only when at least this fraction of it is
+        left (a cast shadow lies beside the vehicle that casts it); otherwise the blob is a dark
+        vehicle, which passes the pixel test like a shadow, and is kept whole. 0: pixel test only.
     hold_stopped : bool
         Keep the background from absorbing a vehicle after it was detected: pixels under recent
         detections are left out of the window median, and where every sample is left out the
@@ -260,6 +264,7 @@ class DetectionConfig:
     shadow_beta: float = 0.9
     shadow_tau_s: float = 0.15
     shadow_tau_h: float = 50.0
+    shadow_min_core: float = 0.4
     hold_stopped: bool = True
     max_hold_s: float = 120.0
     stationary_lag_s: float = 1.0

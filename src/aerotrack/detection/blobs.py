@@ -65,9 +65,9 @@ def close(mask: np.ndarray, radius: float) -> np.ndarray:
 
 
 def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
-                     min_area: float) -> list[Blob]:
-    """Connected components of ``low`` (after a 3x3 opening and a closing) that contain a pixel of
-    ``high``.
+                     min_area: float, attach_gap: float | None = None) -> list[Blob]:
+    """Connected components of ``low`` (after a 2x2 opening and a closing) that contain a pixel of
+    ``high``, each with the unseeded components within ``attach_gap`` pixels of it.
 
     Parameters
     ----------
@@ -76,7 +76,12 @@ def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
     close_radius : float
         Closing radius in pixels: joins fragments of one vehicle; too large merges neighbours.
     min_area : float
-        Smallest component area in pixels.
+        Smallest blob area in pixels (with its attached parts).
+    attach_gap : float, optional
+        A component without a seed pixel joins the seeded component whose pixels are nearest,
+        when at most this many background pixels lie between them (default ``2 close_radius + 1``, the gap the closing
+        leaves open); 0 drops every unseeded component (plain hysteresis). Larger keeps more of
+        low-contrast vehicles but can attach a neighbour's faint parts.
     """
     m = (np.asarray(low) > 0).astype(np.uint8)
     m = open2(m)
@@ -87,13 +92,53 @@ def hysteresis_blobs(low: np.ndarray, high: np.ndarray, *, close_radius: float,
         return []
     seeded = np.zeros(n, bool)
     seeded[np.unique(labels[(np.asarray(high) > 0) & (m > 0)])] = True
+    seeded[0] = False
+    if attach_gap is None:
+        attach_gap = 2.0 * close_radius + 1.0
+    owner = np.arange(n)
+    if attach_gap >= 1.0 and seeded.any() and not seeded[1:].all():
+        owner = _attach_unseeded(labels, stats, seeded, attach_gap)
     out = []
-    for k in range(1, n):
-        x, y, w, h, area = (int(v) for v in stats[k])
-        if not seeded[k] or area < min_area:
+    for k in np.flatnonzero(seeded):
+        parts = np.flatnonzero(owner == k)
+        x0 = int(stats[parts, cv2.CC_STAT_LEFT].min())
+        y0 = int(stats[parts, cv2.CC_STAT_TOP].min())
+        x1 = int((stats[parts, cv2.CC_STAT_LEFT] + stats[parts, cv2.CC_STAT_WIDTH]).max())
+        y1 = int((stats[parts, cv2.CC_STAT_TOP] + stats[parts, cv2.CC_STAT_HEIGHT]).max())
+        area = int(stats[parts, cv2.CC_STAT_AREA].sum())
+        if area < min_area:
             continue
-        out.append(Blob((x, y, w, h), labels[y:y + h, x:x + w] == k, area))
+        crop = labels[y0:y1, x0:x1]
+        mask = crop == k if len(parts) == 1 else np.isin(crop, parts)
+        out.append(Blob((x0, y0, x1 - x0, y1 - y0), mask, area))
     return out
+
+
+def _attach_unseeded(labels: np.ndarray, stats: np.ndarray, seeded: np.ndarray,
+                     gap: float) -> np.ndarray:
+    """Owner label of every component: itself for a seeded one; for an unseeded one the seeded
+    component nearest to it when at most ``gap`` background pixels lie between them (itself,
+    i.e. dropped, if none).
+
+    A vehicle whose residual barely passes the threshold (dark on dark asphalt) breaks into
+    parts of which only one holds a seed pixel; the others are kept as part of it instead of
+    being dropped with the noise, which left boxes covering half a vehicle."""
+    n = len(stats)
+    owner = np.arange(n)
+    seed_mask = np.isin(labels, np.flatnonzero(seeded)).astype(np.uint8)
+    # Distance of every pixel to the nearest seeded pixel, and which seeded pixel that is.
+    dist, near = cv2.distanceTransformWithLabels(1 - seed_mask, cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(near.max()) + 1, np.int32)
+    lut[near[seed_mask > 0]] = labels[seed_mask > 0]
+    for k in np.flatnonzero(~seeded[1:]) + 1:
+        x, y, w, h = (int(v) for v in stats[k, :4])
+        sub = labels[y:y + h, x:x + w] == k
+        d = dist[y:y + h, x:x + w][sub]
+        i = int(np.argmin(d))
+        if d[i] <= gap + 1.0:  # at most ``gap`` background pixels in between
+            owner[k] = lut[near[y:y + h, x:x + w][sub][i]]
+    return owner
 
 
 def split_blob(blob: Blob, *, min_area: float, max_radius: int) -> list[Blob]:
@@ -226,3 +271,4 @@ def merge_blobs(a: Blob, b: Blob) -> Blob:
         bx, by, bw, bh = bl.box
         m[by - y0:by - y0 + bh, bx - x0:bx - x0 + bw] |= bl.mask
     return Blob((x0, y0, x1 - x0, y1 - y0), m)
+

@@ -46,3 +46,51 @@ def shadow_mask(image_bgr: np.ndarray, background_bgr: np.ndarray, *, alpha: flo
     # Hue is undefined for grey pixels: do not let it veto a shadow on grey asphalt.
     grey = (hi[..., 1] < 40) & (hb[..., 1] < 40)
     return (ratio >= alpha) & (ratio <= beta) & (ds <= tau_s) & ((dh <= tau_h) | grey)
+
+
+def remove_shadows(fg: np.ndarray, image_bgr: np.ndarray, background_bgr: np.ndarray, *,
+                   alpha: float = 0.4, beta: float = 0.9, tau_s: float = 0.15, tau_h: float = 50.0,
+                   min_core: float = 0.4) -> np.ndarray:
+    """Foreground without cast shadows, decided per connected region.
+
+    Prati et al.'s test is per pixel, and a dark grey vehicle on lighter grey asphalt passes it
+    exactly as a shadow does (the road darkened, hue and saturation unchanged): removing every
+    shadow-like pixel erased dark vehicles whole (on the generated scenes, 2/3 of the missed
+    vehicles). A moving cast shadow, however, is cast by a vehicle beside it, and in a nadir
+    view it is smaller than the vehicle. So in each 8-connected region of ``fg`` the
+    shadow-like pixels are removed only when what is left (the *core*) is at least ``min_core``
+    of the region; otherwise the region is taken to be a dark vehicle (with its own shadow,
+    which widens its box slightly) and kept whole. This region rule is ours, not Prati et al.'s.
+    Removing the shadow before the blobs are formed also parts two vehicles joined only by the
+    shadow of one of them.
+
+    Parameters
+    ----------
+    fg : ndarray, shape (h, w) bool
+        Foreground pixels.
+    image_bgr, background_bgr : ndarray, shape (h, w, 3) uint8
+        Frame and background, same pixels as ``fg``.
+    alpha, beta, tau_s, tau_h : float
+        As in :func:`shadow_mask`.
+    min_core : float
+        Smallest fraction of a region that must remain for its shadow to be removed. Raising it
+        keeps more dark vehicles but leaves more vehicles with long shadows unseparated; 0 is
+        Prati et al.'s pixel test alone.
+
+    Returns
+    -------
+    ndarray, shape (h, w) bool
+    """
+    fg = np.asarray(fg, bool)
+    if not fg.any():
+        return fg
+    shadow = fg & shadow_mask(image_bgr, background_bgr, alpha=alpha, beta=beta, tau_s=tau_s,
+                              tau_h=tau_h)
+    if min_core <= 0:
+        return fg & ~shadow
+    n, labels = cv2.connectedComponents(fg.astype(np.uint8), connectivity=8)
+    total = np.bincount(labels.ravel(), minlength=n)
+    shaded = np.bincount(labels[shadow], minlength=n)
+    remove = (total - shaded) >= min_core * total
+    remove[0] = False
+    return fg & ~(shadow & remove[labels])

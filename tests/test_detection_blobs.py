@@ -1,0 +1,82 @@
+"""Residual -> blobs: hysteresis with attached parts, and the region rule of shadow removal."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aerotrack.detection.blobs import hysteresis_blobs
+from aerotrack.detection.shadows import remove_shadows, shadow_mask
+
+ROAD = (70, 72, 74)  # grey asphalt, BGR
+
+
+def scene(vehicle_bgr: tuple, shadow: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 40x60 road background, a frame with a 10x20 vehicle at (10, 15) and optionally its cast
+    shadow (the road at half brightness) in the 4 rows below it; the changed pixels as fg."""
+    rng = np.random.default_rng(0)
+    bg = np.clip(np.array(ROAD, float) + rng.normal(0, 2, (40, 60, 3)), 0, 255).astype(np.uint8)
+    img = bg.copy()
+    if shadow:
+        img[20:24, 17:37] = (bg[20:24, 17:37] * 0.5).astype(np.uint8)
+    img[10:20, 15:35] = vehicle_bgr
+    fg = np.zeros((40, 60), bool)
+    fg[10:20, 15:35] = True
+    if shadow:
+        fg[20:24, 17:37] = True
+    return img, bg, fg
+
+
+def test_bright_vehicle_loses_its_shadow():
+    img, bg, fg = scene((200, 205, 210), shadow=True)
+    out = remove_shadows(fg, img, bg)
+    assert out[10:20, 15:35].all()
+    assert not out[20:24].any()
+
+
+def test_dark_vehicle_is_kept_whole():
+    # A dark grey vehicle darkens the road by ~0.65 without changing hue or saturation:
+    # every one of its pixels passes Prati et al.'s test, yet it is no shadow.
+    img, bg, fg = scene((45, 47, 48), shadow=False)
+    assert shadow_mask(img, bg)[fg].mean() > 0.95
+    out = remove_shadows(fg, img, bg)
+    assert (out == fg).all()
+    # The pixel test alone (min_core 0) erases it.
+    assert not remove_shadows(fg, img, bg, min_core=0.0).any()
+
+
+def test_shadow_rule_is_per_region():
+    # A bright vehicle with a shadow and, apart, a dark vehicle: each region decides alone.
+    img, bg, fg = scene((200, 205, 210), shadow=True)
+    img[28:36, 42:56] = (45, 47, 48)
+    fg[28:36, 42:56] = True
+    out = remove_shadows(fg, img, bg)
+    assert not out[20:24].any()
+    assert out[28:36, 42:56].all()
+
+
+def two_part_vehicle() -> tuple[np.ndarray, np.ndarray]:
+    """Low mask of a vehicle broken by a 3-pixel gap, only its left part holding a seed pixel."""
+    low = np.zeros((30, 40), np.uint8)
+    low[10:16, 5:14] = 1
+    low[10:16, 17:26] = 1
+    high = np.zeros_like(low)
+    high[12, 8] = 1
+    return low, high
+
+
+def test_unseeded_part_near_a_seeded_one_is_attached():
+    low, high = two_part_vehicle()
+    blobs = hysteresis_blobs(low, high, close_radius=1.0, min_area=4)
+    assert len(blobs) == 1
+    assert blobs[0].box == (5, 10, 21, 6)
+    assert blobs[0].area == 2 * 6 * 9
+
+
+def test_plain_hysteresis_and_far_parts_drop_unseeded():
+    low, high = two_part_vehicle()
+    blobs = hysteresis_blobs(low, high, close_radius=1.0, min_area=4, attach_gap=0.0)
+    assert [b.box for b in blobs] == [(5, 10, 9, 6)]
+    # An unseeded region far from any seeded one is noise.
+    low[25:29, 34:39] = 1
+    blobs = hysteresis_blobs(low, high, close_radius=1.0, min_area=4)
+    assert [b.box for b in blobs] == [(5, 10, 21, 6)]
