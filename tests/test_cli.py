@@ -136,3 +136,9 @@ def test_sigterm_stops_like_ctrl_c_and_resume_finishes(tmp_path):
     assert res.returncode == 0, res.stderr
     assert json.loads((out / "summary.json").read_text())["frames"] == 500
     assert not (out / ".partial").exists()
+
+
+def test_bare_command_shows_the_help():
+    res = run()
+    assert "Usage: aerotrack" in res.stdout + res.stderr and "track" in res.stdout + res.stderr
+    assert "Traceback" not in res.stderr

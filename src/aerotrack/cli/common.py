@@ -17,6 +17,11 @@ fps_option = click.option(
     "--fps", type=float, default=None,
     help="Frame rate. Defaults to the video's rate, and to 30 for image folders.",
 )
+track_fps_option = click.option(
+    "--fps", type=float, default=None,
+    help="Frame rate. Defaults to the video's rate, and to 30 for image folders and detections "
+         "files.",
+)
 seed_option = click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
                            help="Random seed: the same input, config and seed give the same tracks.")
 config_option = click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,

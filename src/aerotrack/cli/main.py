@@ -96,6 +96,9 @@ def main(argv: list[str] | None = None) -> None:
         cause = exc.__cause__ if isinstance(exc, click.exceptions.Abort) else exc
         click.echo(f"aerotrack: interrupted{getattr(cause, 'note', '')}", err=True)
         sys.exit(128 + int(getattr(cause, "signum", 2)))
+    except getattr(click.exceptions, "NoArgsIsHelpError", ()) as exc:  # bare `aerotrack`: the help
+        exc.show()
+        sys.exit(exc.exit_code)
     except click.exceptions.UsageError as exc:
         # a bad option or argument: one line naming it, like every other bad input
         where = exc.ctx.command_path if exc.ctx is not None else "aerotrack"

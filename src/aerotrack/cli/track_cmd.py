@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from .common import (CleanupOnBadInput, Interrupted, check_positive, config_option, fps_option,
-                     make_progress, root_flags, seed_option, set_option)
+from .common import (CleanupOnBadInput, Interrupted, check_positive, config_option, make_progress,
+                     root_flags, seed_option, set_option, track_fps_option)
 
 log = logging.getLogger("aerotrack")
 
@@ -224,7 +224,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
 @click.option("--gsd", type=float, default=None,
               help="Metres per frame pixel when no map is given (speeds and gates become metric).")
-@fps_option
+@track_fps_option
 @seed_option
 @config_option
 @set_option
