@@ -348,10 +348,73 @@ def synth(results: dict, quick: bool) -> None:
               f"(IoU 0.3); precision {q['precision_iou0.5']:.3f}; {q['targets']} targets")
     print(f"  pooled: recall {r['recall_iou0.5']:.3f} (IoU 0.5), {r['recall_iou0.3']:.3f} (IoU 0.3); "
           f"precision {r['precision_iou0.5']:.3f}")
+    for key, title in (("misses", "missed targets"), ("missed_tags", "of which (tags overlap)"),
+                       ("false_detections", "false detections")):
+        pooled_counts: dict[str, int] = {}
+        for q in per_seed.values():
+            for k, v in q[key].items():
+                pooled_counts[k] = pooled_counts.get(k, 0) + int(v)
+        r[key] = pooled_counts
+        print(f"  {title}: " + ", ".join(f"{k} {v}" for k, v in
+                                          sorted(pooled_counts.items(), key=lambda kv: -kv[1])))
+
+
+def _cover(d: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Intersection of box ``d`` with each of ``boxes`` (x, y, w, h) over the area of each of
+    ``boxes`` and over the area of ``d``."""
+    x0 = np.maximum(d[0], boxes[:, 0])
+    y0 = np.maximum(d[1], boxes[:, 1])
+    x1 = np.minimum(d[0] + d[2], boxes[:, 0] + boxes[:, 2])
+    y1 = np.minimum(d[1] + d[3], boxes[:, 1] + boxes[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    return inter / np.maximum(boxes[:, 2] * boxes[:, 3], 1e-9), inter / max(d[2] * d[3], 1e-9)
+
+
+def classify_miss(v: dict, boxes: np.ndarray, seen: list[dict]) -> str:
+    """Why the target ``v`` was missed at IoU 0.5: ``nothing detected`` (no box with IoU >=
+    0.05), ``merged with a neighbour`` (its best box covers > 30 % of another vehicle),
+    ``box too big`` / ``box too small`` (area ratio > 1.6 / < 0.6), else ``box shifted``; with
+    `` (IoU >= 0.3)`` when the best box reaches 0.3. ``seen``: every vehicle in the view."""
+    io = iou_matrix(boxes, v["box"][None])[:, 0] if len(boxes) else np.zeros(0)
+    if not len(io) or io.max() < 0.05:
+        return "nothing detected"
+    d = boxes[int(np.argmax(io))]
+    others = np.array([u["box"] for u in seen if u["id"] != v["id"]]).reshape(-1, 4)
+    ratio = d[2] * d[3] / max(v["box"][2] * v["box"][3], 1e-9)
+    if len(others) and _cover(d, others)[0].max() > 0.3:
+        kind = "merged with a neighbour"
+    elif ratio > 1.6:
+        kind = "box too big"
+    elif ratio < 0.6:
+        kind = "box too small (fragment)"
+    else:
+        kind = "box shifted"
+    return kind + (" (IoU >= 0.3)" if io.max() >= 0.3 else "")
+
+
+def classify_false(d: np.ndarray, seen: list[dict]) -> str:
+    """What an unmatched box ``d`` is: ``merged pair`` (covers > 30 % of two vehicles),
+    ``fragment of a vehicle`` (> 60 % of it inside one), ``partial or too big`` (IoU >= 0.1
+    with one), ``beside a vehicle`` (touches one: shadow or trail), ``no vehicle`` (ghost or
+    noise)."""
+    if not seen:
+        return "no vehicle (ghost, noise)"
+    boxes = np.array([u["box"] for u in seen])
+    cov_v, cov_d = _cover(d, boxes)
+    if (cov_v > 0.3).sum() >= 2:
+        return "merged pair"
+    if cov_d.max() > 0.6:
+        return "fragment of a vehicle"
+    if iou_matrix(d[None], boxes).max() >= 0.1:
+        return "partial or too big"
+    if cov_d.max() > 0:
+        return "beside a vehicle (shadow, trail)"
+    return "no vehicle (ghost, noise)"
 
 
 def _synth_one(sc, n: int) -> dict:
-    """Detect on one generated scene; counts and scores (see :func:`synth`)."""
+    """Detect on one generated scene; counts, scores and the causes of misses and false
+    detections (see :func:`synth`, :func:`classify_miss`, :func:`classify_false`)."""
     mpp = float(np.sqrt(sc.world.mx * sc.world.my))
     det = MovingObjectDetector(DetectionConfig(), 30.0, metres_per_unit=mpp)
     truths, out = {}, []
@@ -363,6 +426,10 @@ def _synth_one(sc, n: int) -> dict:
     run_fps = n / (time.process_time() - t0)
     tp = n_target = n_det = 0
     tp3 = 0
+    misses: dict[str, int] = {}
+    falses: dict[str, int] = {}
+    tags = {"dark (mean colour < 70)": 0, "slow (< 3 m/s)": 0, "within 6 m of an occluder": 0}
+    dark = {v.id: float(np.mean(v.colour)) < 70 for v in sc.vehicles}
     for d in out:
         truth = truths[d.frame]
         target = [v for v in truth if v["state"] == "visible" and v["speed"] > 1.0
@@ -371,6 +438,7 @@ def _synth_one(sc, n: int) -> dict:
         n_target += len(target)
         boxes = d.boxes
         used = np.zeros(len(boxes), bool)
+        found = np.zeros(len(target), bool)
         if len(target) and len(boxes):
             io = iou_matrix(boxes, np.array([v["box"] for v in target]))
             r, c = linear_sum_assignment(-io)
@@ -378,15 +446,27 @@ def _synth_one(sc, n: int) -> dict:
             tp += int(ok.sum())
             tp3 += int((io[r, c] >= 0.3).sum())
             used[r[ok]] = True
+            found[c[ok]] = True
         if len(other) and len(boxes):
             io = iou_matrix(boxes, np.array([v["box"] for v in other]))
             neutral = (io.max(axis=1) >= 0.3) & ~used
         else:
             neutral = np.zeros(len(boxes), bool)
         n_det += int(len(boxes) - neutral.sum())
+        seen = [v for v in truth if v["state"] != "outside"]
+        for v in (v for v, f in zip(target, found) if not f):
+            kind = classify_miss(v, boxes, seen)
+            misses[kind] = misses.get(kind, 0) + 1
+            tags["dark (mean colour < 70)"] += int(dark[v["id"]])
+            tags["slow (< 3 m/s)"] += int(v["speed"] < 3.0)
+            tags["within 6 m of an occluder"] += int(v["occ_dist_m"] < 6.0)
+        for b in boxes[~used & ~neutral]:
+            kind = classify_false(b, seen)
+            falses[kind] = falses.get(kind, 0) + 1
     return {"targets": n_target, "detections": n_det, "tp": tp, "tp3": tp3,
             "recall_iou0.5": tp / max(n_target, 1), "precision_iou0.5": tp / max(n_det, 1),
-            "recall_iou0.3": tp3 / max(n_target, 1), "cpu_fps_640x480": run_fps}
+            "recall_iou0.3": tp3 / max(n_target, 1), "cpu_fps_640x480": run_fps,
+            "misses": misses, "missed_tags": tags, "false_detections": falses}
 
 
 def main(argv=None) -> None:
