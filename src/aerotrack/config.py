@@ -624,6 +624,77 @@ class ContextConfig:
 
 
 @dataclass(frozen=True)
+class FinishConfig:
+    """What ``tracks.csv`` reports for each final track (:mod:`aerotrack.association.finish`).
+
+    Applied after global linking: each track's in-view positions are smoothed offline, its box
+    is rebuilt from one robust vehicle size, and tracks that never move are dropped.
+
+    Attributes
+    ----------
+    enabled : bool
+        False reports the tracks exactly as linking made them (detection boxes).
+    smooth : bool
+        Replace each in-view point's ground point by the Rauch-Tung-Striebel smoothed state of the
+        constant-velocity Kalman filter (:mod:`aerotrack.kalman`), world coordinates.
+    accel_std_mps2 : float
+        Smoother's white-noise acceleration. Lower smooths jitter harder but cuts corners on turns
+        and lags on braking.
+    pos_std_m, pos_frac : float
+        Smoother's observation noise: metres, plus a fraction of the box size.
+    outlier_chi2 : float
+        Observations whose squared Mahalanobis residual (2 dof) against the smoothed path exceeds
+        this are down-weighted (their noise scaled by residual / threshold) and the track
+        smoothed again: partial, merged and shifted blobs pull the path less. Lower rejects more.
+    robust_iters : int
+        Re-weighting passes.
+    size_mode : str
+        ``oriented``: one vehicle length and width per track (a quantile of per-observation
+        estimates), drawn as the box of the footprint at the smoothed heading through each
+        frame's homography (turns and camera rotation change the box, the vehicle does not);
+        ``window``: per axis, a quantile of the frame boxes (normalised by the local image scale)
+        within ``size_window_s``; ``detection``: each point keeps its own box size;
+        ``auto``: ``oriented`` when frames are registered (headings mean something on the
+        ground), else ``window``.
+    size_quantile : float
+        Quantile of the per-observation sizes. Above 0.5 leans towards full views of the vehicle
+        (partial blobs are smaller); too high takes merged blobs.
+    size_window_s : float
+        ``window`` mode: width of the time window.
+    min_heading_speed_mps : float
+        Headings are taken from the smoothed velocity where the speed exceeds this, else carried
+        from the nearest such point.
+    default_aspect : float
+        Width / length of a vehicle when a track never shows it (always diagonal to the axes).
+    edge_margin_px : float
+        An observed box within this many pixels of the frame border is partly outside the frame:
+        it gives no size, and its centre is rebuilt from its inner edges and the track's size.
+    clip_to_frame : bool
+        Clip reported boxes to the frame.
+    static_extent_m : float
+        Tracks whose smoothed ground points all lie within a box of this diagonal (metres) never
+        moved: a parked vehicle, a road marking, a registration artefact, not a target. 0 keeps
+        them. A vehicle that waits and then drives has a long extent and is kept.
+    """
+
+    enabled: bool = True
+    smooth: bool = True
+    accel_std_mps2: float = 2.0
+    pos_std_m: float = 0.3
+    pos_frac: float = 0.05
+    outlier_chi2: float = 9.0
+    robust_iters: int = 2
+    size_mode: str = "window"
+    size_quantile: float = 0.5
+    size_window_s: float = 1.0
+    min_heading_speed_mps: float = 1.0
+    default_aspect: float = 0.45
+    edge_margin_px: float = 1.0
+    clip_to_frame: bool = False
+    static_extent_m: float = 4.0
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole pipeline's configuration, one section per stage."""
 
@@ -632,6 +703,7 @@ class Config:
     association: AssociationConfig = field(default_factory=AssociationConfig)
     linking: LinkingConfig = field(default_factory=LinkingConfig)
     context: ContextConfig = field(default_factory=ContextConfig)
+    finish: FinishConfig = field(default_factory=FinishConfig)
 
 
 def _section_types() -> dict[str, type]:

@@ -362,8 +362,12 @@ class Pipeline:
         if self.min_speed_mps:
             from .geo.roi import filter_min_speed
 
-            tracks = _renumber(filter_min_speed(tracks, self.min_speed_mps, self.fps,
-                                                self.metres_per_unit))
+            mpu = self.metres_per_unit
+            if not mpu and tracks:  # no map or --gsd: the scale linking estimated, not pixels/s
+                from .association.linking import estimate_scale
+
+                mpu = estimate_scale(tracks, self.config.context.image_object_size_m)
+            tracks = _renumber(filter_min_speed(tracks, self.min_speed_mps, self.fps, mpu))
         self.timings["linking"] += time.perf_counter() - t0
         return Result(tracks=tracks, registrations=self.registrations, detections=self.detections,
                       fps=self.fps, frame_size=self.frame_size,
@@ -404,6 +408,10 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     if roads is not None:
         linker.predictor.roads = roads
     tracks = linker.link(tracklets, frame_size=frame_size, registrations=registrations or None)
+    from .association.finish import finish_tracks  # smoothed boxes, static tracks out
+
+    tracks = finish_tracks(tracks, config.finish, fps, metres_per_unit=metres_per_unit or linker.mpu,
+                           registrations=registrations or None, frame_size=frame_size)
     return _renumber(tracks)
 
 

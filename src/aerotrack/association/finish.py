@@ -1,0 +1,480 @@
+"""What ``tracks.csv`` reports for each final track: smoothed ground points, one vehicle size per
+track, and no tracks that never moved.
+
+Local association reports each observed point with its detection's box. Detector boxes of 15-40 px
+vehicles jitter by a pixel or two, are often partial (a vehicle half absorbed by the background,
+cut by an occluder or the frame border), sometimes merged with a neighbour or a shadow; at that
+size one pixel already costs a lot of HOTA. After global linking the whole track is known, so
+:class:`TrackFinisher` rebuilds each in-view point (kinds ``observed``, ``bridged``,
+``stationary``; ``predicted`` points are left alone):
+
+1. **Smoothing** (:func:`rts_smooth`): the constant-velocity Kalman filter of
+   :mod:`aerotrack.kalman` (Yu & Medioni eqs. 6-8) run forward over every frame of each run of
+   in-view points (missed frames are predicted), then the Rauch-Tung-Striebel backward pass, in
+   world coordinates. Robust (:func:`robust_smooth`): observations far from the smoothed path
+   (squared Mahalanobis residual above ``outlier_chi2``) get their noise scaled up and the run is
+   smoothed again.
+2. **One size per vehicle** (:func:`oriented_size`): a vehicle's length and width on the ground do
+   not change; its image box does (heading, camera rotation and zoom). Each observation's box
+   gives an estimate of the length through the local Jacobian of that frame's world -> frame
+   homography at the smoothed heading; a quantile (above the median: partial blobs are smaller)
+   of them is the track's length, the width from the median aspect of observations that show it.
+   Each point's box is then the bounding box, in that frame's pixels, of the footprint centred on
+   the smoothed ground point at the smoothed heading - which is how a box of an oriented vehicle
+   is drawn. Without registered frames (image coordinates of a moving camera) headings mean
+   little, and the size is instead a quantile of the scale-normalised boxes over a time window
+   (:func:`window_sizes`).
+3. **Frame border**: a box touching the border is clipped by it; it gives no size and its centre
+   is rebuilt from its inner edges and the track's size before the final smoothing. Reported
+   boxes are clipped to the frame.
+4. **Static tracks** (:func:`is_static`): a track whose smoothed ground points stay within a box
+   of ``static_extent_m`` diagonal never moved (a parked vehicle, a median blob, a registration
+   artefact) and is dropped. A vehicle that waits and then drives is kept whole.
+
+Coordinates: ``TrackPoint.world`` in world units (map pixels or reference pixels),
+``TrackPoint.box`` in the pixels of the point's own frame; ``Registration.H`` maps frame pixels to
+world. Without registrations the world is the frame (association alone on external detections).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from ..config import FinishConfig
+from ..errors import ConfigError
+from ..kalman import ConstantVelocityKF, measurement_noise, predict, process_noise, transition, update
+from ..types import Registration, Track, apply_homography
+
+__all__ = ["TrackFinisher", "finish_tracks", "rts_smooth", "robust_smooth", "oriented_size",
+           "window_sizes", "is_static", "SIZE_MODES"]
+
+log = logging.getLogger(__name__)
+
+IN_VIEW = ("observed", "bridged", "stationary")
+MEASURED = ("observed", "stationary")
+SIZE_MODES = ("auto", "oriented", "window", "detection")
+
+
+# -- smoothing -------------------------------------------------------------------------------------
+
+def rts_smooth(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray, kf: ConstantVelocityKF
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Rauch-Tung-Striebel smoothing of the constant-velocity model over one run of frames.
+
+    Parameters
+    ----------
+    times : ndarray (N,)
+        Seconds, increasing (every frame of the run, observed or not).
+    zs : ndarray (N, 4)
+        Observations ``(x, y, w, h)``, world units; rows with a NaN are not observed (predicted
+        through). The first row must be observed.
+    Rs : ndarray (N, 4, 4)
+        Observation noise of each row (world units squared).
+    kf : ConstantVelocityKF
+        Process noise (``accel_std``, ``size_std``) and the initial velocity spread.
+
+    Returns
+    -------
+    xs : ndarray (N, 6)
+        Smoothed states ``(x, y, w, h, vx, vy)``, world units and world units per second.
+    Ps : ndarray (N, 6, 6)
+        Smoothed covariances.
+    """
+    n = len(times)
+    xf = np.zeros((n, 6))
+    Pf = np.zeros((n, 6, 6))
+    xp = np.zeros((n, 6))
+    Pp = np.zeros((n, 6, 6))
+    x, P = kf.initiate(zs[0])
+    P[:4, :4] = Rs[0]
+    xf[0], Pf[0], xp[0], Pp[0] = x, P, x, P
+    As = np.zeros((n, 6, 6))
+    for i in range(1, n):
+        dt = float(times[i] - times[i - 1])
+        As[i] = transition(dt)
+        x, P = predict(x, P, As[i], process_noise(abs(dt), kf.accel_std, kf.size_std))
+        xp[i], Pp[i] = x, P
+        if np.all(np.isfinite(zs[i])):
+            x, P, _, _ = update(x, P, zs[i], Rs[i])
+        xf[i], Pf[i] = x, P
+    xs, Ps = xf.copy(), Pf.copy()
+    for i in range(n - 2, -1, -1):
+        # C = P_f A^T P_p^-1 (the smoother gain), solved rather than inverted
+        C = np.linalg.solve(Pp[i + 1].T, (Pf[i] @ As[i + 1].T).T).T
+        xs[i] = xf[i] + C @ (xs[i + 1] - xp[i + 1])
+        Ps[i] = Pf[i] + C @ (Ps[i + 1] - Pp[i + 1]) @ C.T
+    return xs, Ps
+
+
+def robust_smooth(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray, kf: ConstantVelocityKF,
+                  outlier_chi2: float, iters: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`rts_smooth` with iteratively re-weighted observations.
+
+    After each pass, an observation whose squared Mahalanobis distance (position only, 2 dof)
+    to the smoothed state, under its noise plus the state's covariance, exceeds ``outlier_chi2``
+    has its noise multiplied by ``d2 / outlier_chi2`` (a Huber-like weight), and the run is
+    smoothed again. Returns the last pass's states (N, 6) and the weights (N,) (1 = full weight).
+    """
+    w = np.ones(len(times))
+    xs, Ps = rts_smooth(times, zs, Rs, kf)
+    seen = np.all(np.isfinite(zs), axis=1)
+    for _ in range(max(0, int(iters))):
+        e = zs[:, :2] - xs[:, :2]
+        S = Rs[:, :2, :2] + Ps[:, :2, :2]
+        d2 = np.full(len(times), 0.0)
+        idx = np.flatnonzero(seen)
+        if len(idx):
+            d2[idx] = np.einsum("ni,nij,nj->n", e[idx], np.linalg.inv(S[idx]), e[idx])
+        new = np.where(d2 > outlier_chi2, d2 / outlier_chi2, 1.0)
+        if np.allclose(new, w):
+            break
+        w = new
+        xs, Ps = rts_smooth(times, zs, Rs * w[:, None, None], kf)
+    return xs, w
+
+
+# -- geometry -------------------------------------------------------------------------------------
+
+def _jacobian(Hinv: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(2, 2) Jacobian of world -> frame pixels (``Hinv``) at world point ``c`` (2,)."""
+    h = Hinv @ np.array([c[0], c[1], 1.0])
+    J = (Hinv[:2, :2] * h[2] - np.outer(h[:2], Hinv[2, :2])) / (h[2] * h[2])
+    return J
+
+
+def footprint_box(Hinv: np.ndarray, centre: np.ndarray, heading: float, length: float,
+                  width: float) -> np.ndarray:
+    """Frame-pixel box ``(left, top, w, h)`` of a ``length x width`` rectangle (world units)
+    centred on world point ``centre`` at ``heading`` (radians, world axes), through ``Hinv``
+    (world -> frame pixels)."""
+    f = np.array([math.cos(heading), math.sin(heading)]) * length / 2
+    r = np.array([-math.sin(heading), math.cos(heading)]) * width / 2
+    corners = centre + np.array([f + r, f - r, -f - r, -f + r])
+    px = apply_homography(Hinv, corners)
+    lo, hi = px.min(axis=0), px.max(axis=0)
+    return np.array([lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1]])
+
+
+def oriented_size(boxes: np.ndarray, jacobians: np.ndarray, headings: np.ndarray,
+                  quantile: float, default_aspect: float) -> tuple[float, float]:
+    """A vehicle's (length, width) in world units from its frame-pixel boxes.
+
+    The box of a ``L x W`` rectangle at heading theta seen through a local Jacobian J has half
+    extents ``|a| L / 2 + |b| W / 2`` per axis, with ``a = J f``, ``b = J r`` (f, r the heading's
+    forward and right unit vectors). Each observation where the 2x2 system is well conditioned
+    (heading not near a diagonal of the image) gives the aspect ``W / L``; their median is the
+    track's aspect (``default_aspect`` if none). With it, the sum of both box sides of every
+    observation gives one length estimate; the track's length is their ``quantile``.
+
+    Parameters
+    ----------
+    boxes : ndarray (N, 4)
+        Observed boxes, frame pixels (only their sizes are used).
+    jacobians : ndarray (N, 2, 2)
+        World -> frame Jacobians at the observations.
+    headings : ndarray (N,)
+        Headings, radians in world axes.
+    """
+    f = np.stack([np.cos(headings), np.sin(headings)], axis=1)
+    r = np.stack([-np.sin(headings), np.cos(headings)], axis=1)
+    a = np.abs(np.einsum("nij,nj->ni", jacobians, f))  # (N, 2) |J f| per image axis
+    b = np.abs(np.einsum("nij,nj->ni", jacobians, r))
+    wh = boxes[:, 2:4]
+    det = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    norm = np.hypot(a[:, 0], a[:, 1]) * np.hypot(b[:, 0], b[:, 1])
+    good = np.abs(det) > 0.5 * norm
+    aspect = default_aspect
+    if good.any():
+        L = (wh[good, 0] * b[good, 1] - wh[good, 1] * b[good, 0]) / det[good]
+        W = (a[good, 0] * wh[good, 1] - a[good, 1] * wh[good, 0]) / det[good]
+        ok = (L > 0) & (W > 0)
+        if ok.any():
+            aspect = float(np.clip(np.median(W[ok] / L[ok]), 0.2, 1.0))
+    Ls = (wh[:, 0] + wh[:, 1]) / (a.sum(axis=1) + aspect * b.sum(axis=1))
+    length = float(np.quantile(Ls, quantile))
+    return length, aspect * length
+
+
+def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window_s: float,
+                 quantile: float) -> np.ndarray:
+    """Per-point size (N, 2): the ``quantile`` of the valid ``sizes`` (N, 2) within
+    ``window_s / 2`` seconds of each point (the whole track's if none is that close)."""
+    out = np.full(sizes.shape, np.nan)
+    tv, sv = times[valid], sizes[valid]
+    if not len(tv):
+        return out
+    whole = np.quantile(sv, quantile, axis=0)
+    lo = np.searchsorted(tv, times - window_s / 2, side="left")
+    hi = np.searchsorted(tv, times + window_s / 2, side="right")
+    for i, (a, b) in enumerate(zip(lo, hi)):
+        out[i] = np.quantile(sv[a:b], quantile, axis=0) if b > a else whole
+    return out
+
+
+def is_static(world: np.ndarray, metres_per_unit: float, extent_m: float) -> bool:
+    """True when the world points (N, 2) fit in a box of diagonal ``extent_m`` metres."""
+    if extent_m <= 0 or not len(world):
+        return False
+    ext = np.ptp(np.asarray(world, dtype=np.float64), axis=0)
+    return float(np.hypot(*ext)) * metres_per_unit < extent_m
+
+
+def _headings(vel: np.ndarray, min_speed: float) -> np.ndarray:
+    """Heading (radians) of each velocity (N, 2); where slower than ``min_speed`` (world units/s)
+    the nearest faster point's heading (NaN when none is)."""
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    fast = np.flatnonzero(speed >= min_speed)
+    out = np.full(len(vel), np.nan)
+    if not len(fast):
+        return out
+    h = np.arctan2(vel[fast, 1], vel[fast, 0])
+    pos = np.searchsorted(fast, np.arange(len(vel)))
+    left = fast[np.clip(pos - 1, 0, len(fast) - 1)]
+    right = fast[np.clip(pos, 0, len(fast) - 1)]
+    i = np.arange(len(vel))
+    pick = np.where(np.abs(i - left) <= np.abs(right - i), np.clip(pos - 1, 0, len(fast) - 1),
+                    np.clip(pos, 0, len(fast) - 1))
+    return h[pick]
+
+
+# -- the stage ------------------------------------------------------------------------------------
+
+class TrackFinisher:
+    """Rebuilds the in-view points of final tracks (see the module docstring).
+
+    Parameters
+    ----------
+    config : FinishConfig
+    fps : float
+    metres_per_unit : float, optional
+        Metres per world unit; without it the scale is estimated as global linking does
+        (the median observed object's longer side is ``object_size_m``).
+    object_size_m : float
+        See ``metres_per_unit``.
+    """
+
+    def __init__(self, config: FinishConfig | None = None, fps: float = 30.0, *,
+                 metres_per_unit: float | None = None, object_size_m: float = 4.5) -> None:
+        self.config = config or FinishConfig()
+        if self.config.size_mode not in SIZE_MODES:
+            raise ConfigError(f"config finish.size_mode: unknown {self.config.size_mode!r} "
+                              f"(valid: {', '.join(SIZE_MODES)})")
+        if not 0.0 <= self.config.size_quantile <= 1.0:
+            raise ConfigError(f"config finish.size_quantile: {self.config.size_quantile} "
+                              "must be in [0, 1]")
+        self.fps = float(fps)
+        self.metres_per_unit = metres_per_unit
+        self.object_size_m = object_size_m
+
+    def finish(self, tracks: list[Track], registrations: dict[int, Registration] | None = None,
+               frame_size: tuple[int, int] | None = None) -> list[Track]:
+        """The tracks with their in-view points rebuilt (in place) and static tracks left out.
+
+        Parameters
+        ----------
+        tracks : list of Track
+            Final tracks (world coordinates, boxes in frame pixels).
+        registrations : dict frame -> Registration, optional
+            Frame pixels -> world of every frame; None: the world is the frame.
+        frame_size : (W, H), optional
+            Boxes are clipped to it (``clip_to_frame``) and the border test uses it.
+        """
+        c = self.config
+        if not c.enabled or not tracks:
+            return list(tracks)
+        mpu = self.metres_per_unit
+        if not mpu:
+            from .linking import estimate_scale
+
+            mpu = estimate_scale(tracks, self.object_size_m)
+        mode = c.size_mode
+        if mode == "auto":
+            mode = "oriented" if registrations else "window"
+        out = []
+        for t in tracks:
+            try:
+                keep = self._finish_track(t, registrations or None, frame_size, mpu, mode)
+            except np.linalg.LinAlgError:  # a degenerate run: report it as linking made it
+                log.debug("finish: track %d left as is (singular smoother)", t.id)
+                keep = True
+            if keep:
+                out.append(t)
+        return out
+
+    # -- one track --------------------------------------------------------------------------------
+    def _finish_track(self, t: Track, regs, frame_size, mpu: float, mode: str) -> bool:
+        c = self.config
+        pts = [p for p in t.points if p.kind in IN_VIEW and p.box is not None]
+        if regs is not None:
+            pts = [p for p in pts if p.frame in regs]
+        if len(pts) < 2:
+            return True
+        pts.sort(key=lambda p: p.frame)
+        n = len(pts)
+        frames = np.array([p.frame for p in pts])
+        times = (frames - 1) / self.fps
+        boxes = np.array([np.asarray(p.box, dtype=np.float64) for p in pts])
+        measured = np.array([p.kind in MEASURED for p in pts]) & np.all(np.isfinite(boxes), axis=1)
+        if measured.sum() < 2:
+            return True
+        Hinv = np.array([np.eye(3) if regs is None else np.linalg.inv(regs[p.frame].H) for p in pts])
+        world = np.array([np.asarray(p.world, dtype=np.float64) for p in pts])
+        edge = self._at_border(boxes, frame_size) & measured
+        # kalman.process_noise holds the acceleration constant over each step (discrete white
+        # noise): over one-frame steps the velocity then wanders by accel_std / sqrt(fps) in a
+        # second. Scaled so that accel_std_mps2 is the velocity's spread after 1 s at any fps.
+        kf = ConstantVelocityKF(accel_std=c.accel_std_mps2 * math.sqrt(self.fps) / mpu,
+                                size_std=0.3 / mpu, vel_std=20.0 / mpu)
+        sizes = self._world_sizes(pts, boxes, Hinv, world)
+        # one smoothing pass on the raw ground points gives headings and the size
+        xs = self._smooth(times, frames, world, sizes, measured, kf, mpu)
+        if not c.smooth:  # the smoothed velocity still gives the headings
+            xs[:, :2] = world
+        # only a registered world is the ground: in the image of a moving camera a vehicle
+        # driving along with it stands still
+        if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
+            return False
+        J = np.array([_jacobian(Hinv[i], xs[i, :2]) for i in range(n)])
+        full = measured & ~edge
+        # one size per run of consecutive in-view frames (a tracklet): a wrong link between two
+        # vehicles must not give one of them the other's size
+        new = np.zeros((n, 4))
+        cuts = np.flatnonzero(np.diff(frames) > 1) + 1
+        for run in np.split(np.arange(n), cuts):
+            new[run] = self._run_boxes(run, mode, xs, boxes, J, Hinv, times, full, mpu)
+        if c.smooth and edge.any():
+            # a border-clipped box: its inner edges are right; rebuild its centre with the full
+            # size, and smooth again with the rebuilt centres
+            world2 = world.copy()
+            for i in np.flatnonzero(edge):
+                cx, cy = self._unclipped_centre(boxes[i], new[i], frame_size)
+                world2[i] = apply_homography(np.linalg.inv(Hinv[i]), np.array([[cx, cy]]))[0]
+            xs2 = self._smooth(times, frames, world2, sizes, measured, kf, mpu)
+            shift = [apply_homography(Hinv[i], xs2[i:i + 1, :2])[0]
+                     - apply_homography(Hinv[i], xs[i:i + 1, :2])[0] for i in range(n)]
+            new[:, :2] += np.array(shift)
+            xs = xs2
+        if c.clip_to_frame and frame_size is not None:
+            new = _clip(new, frame_size)
+        for i, p in enumerate(pts):
+            if new[i, 2] > 0 and new[i, 3] > 0 and np.all(np.isfinite(new[i])):
+                p.box = new[i]
+                p.world = xs[i, :2].copy()
+        return True
+
+    def _run_boxes(self, run, mode, xs, boxes, J, Hinv, times, full, mpu) -> np.ndarray:
+        """(len(run), 4) frame-pixel boxes of one run of consecutive frames (see ``size_mode``)."""
+        c = self.config
+        if mode == "oriented":
+            head = _headings(xs[run, 4:6], c.min_heading_speed_mps / mpu)
+            ok = full[run]
+            if np.all(np.isfinite(head)) and ok.any():
+                L, W = oriented_size(boxes[run][ok], J[run][ok], head[ok], c.size_quantile,
+                                     c.default_aspect)
+                return np.array([footprint_box(Hinv[i], xs[i, :2], h, L, W)
+                                 for i, h in zip(run, head)])
+            mode = "window"  # never seen moving: no heading, keep the frame axes
+        if mode == "window":
+            scale = np.sqrt(np.abs(np.linalg.det(J[run])))
+            norm = boxes[run, 2:4] / scale[:, None]
+            wh = window_sizes(times[run], norm, full[run], c.size_window_s, c.size_quantile)
+            wh = np.where(np.isfinite(wh), wh, norm) * scale[:, None]
+        else:
+            wh = boxes[run, 2:4]
+        return np.array([self._centred(Hinv[i], xs[i, :2], wh[k]) for k, i in enumerate(run)])
+
+    def _smooth(self, times, frames, world, sizes, measured, kf, mpu) -> np.ndarray:
+        """Robust RTS over each run of consecutive frames; (N, 6) states (unsmoothed rows copied
+        for runs with fewer than two measurements)."""
+        c = self.config
+        n = len(times)
+        xs = np.column_stack([world, sizes, np.zeros((n, 2))])
+        cuts = np.flatnonzero(np.diff(frames) > 1) + 1
+        for run in np.split(np.arange(n), cuts):
+            m = measured[run]
+            if m.sum() < 2:
+                continue
+            first, last = run[np.flatnonzero(m)[0]], run[np.flatnonzero(m)[-1]] + 1
+            r = np.arange(first, last)
+            # every frame of the run, observed or not (frames are consecutive inside a run)
+            zs = np.column_stack([world[r], sizes[r]])
+            zs[~measured[r]] = np.nan
+            Rs = np.array([measurement_noise(np.nan_to_num(sizes[i]), c.pos_std_m / mpu, c.pos_frac,
+                                             0.3 / mpu, 0.1) for i in r])
+            x_r, _ = robust_smooth(times[r], zs, Rs, kf, c.outlier_chi2, c.robust_iters)
+            xs[r] = x_r
+            # points of the run outside the measured span (bridged ends) keep constant velocity
+            for i in run[run < first]:
+                xs[i] = x_r[0]
+                xs[i, :2] = x_r[0, :2] + x_r[0, 4:6] * (times[i] - times[first])
+            for i in run[run >= last]:
+                xs[i] = x_r[-1]
+                xs[i, :2] = x_r[-1, :2] + x_r[-1, 4:6] * (times[i] - times[last - 1])
+        return xs
+
+    @staticmethod
+    def _world_sizes(pts, boxes, Hinv, world) -> np.ndarray:
+        """(N, 2) sizes in world units (``size_world``, else the box through the homography)."""
+        out = np.zeros((len(pts), 2))
+        for i, p in enumerate(pts):
+            if p.size_world is not None and np.all(np.isfinite(p.size_world)):
+                out[i] = np.abs(p.size_world)
+            elif np.all(np.isfinite(boxes[i])):
+                J = _jacobian(Hinv[i], world[i])
+                s = math.sqrt(abs(np.linalg.det(J))) or 1.0
+                out[i] = boxes[i, 2:4] / s
+        return out
+
+    def _at_border(self, boxes: np.ndarray, frame_size) -> np.ndarray:
+        if frame_size is None:
+            return np.zeros(len(boxes), bool)
+        m = self.config.edge_margin_px
+        W, H = frame_size
+        with np.errstate(invalid="ignore"):
+            return ((boxes[:, 0] <= m) | (boxes[:, 1] <= m) | (boxes[:, 0] + boxes[:, 2] >= W - m)
+                    | (boxes[:, 1] + boxes[:, 3] >= H - m))
+
+    def _unclipped_centre(self, box, full, frame_size) -> tuple[float, float]:
+        """Centre of a ``full``-sized box aligned with the inner edges of border-clipped ``box``."""
+        m = self.config.edge_margin_px
+        W, H = frame_size
+        cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
+        left, right = box[0] <= m, box[0] + box[2] >= W - m
+        top, bottom = box[1] <= m, box[1] + box[3] >= H - m
+        if left and not right:
+            cx = box[0] + box[2] - full[2] / 2
+        elif right and not left:
+            cx = box[0] + full[2] / 2
+        if top and not bottom:
+            cy = box[1] + box[3] - full[3] / 2
+        elif bottom and not top:
+            cy = box[1] + full[3] / 2
+        return cx, cy
+
+    @staticmethod
+    def _centred(Hinv, centre, wh) -> np.ndarray:
+        c = apply_homography(Hinv, np.asarray(centre)[None])[0]
+        return np.array([c[0] - wh[0] / 2, c[1] - wh[1] / 2, wh[0], wh[1]])
+
+
+def _clip(boxes: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
+    W, H = frame_size
+    x0 = np.clip(boxes[:, 0], 0, W)
+    y0 = np.clip(boxes[:, 1], 0, H)
+    x1 = np.clip(boxes[:, 0] + boxes[:, 2], 0, W)
+    y1 = np.clip(boxes[:, 1] + boxes[:, 3], 0, H)
+    return np.column_stack([x0, y0, x1 - x0, y1 - y0])
+
+
+def finish_tracks(tracks: list[Track], config: FinishConfig | None = None, fps: float = 30.0, *,
+                  metres_per_unit: float | None = None,
+                  registrations: dict[int, Registration] | None = None,
+                  frame_size: tuple[int, int] | None = None,
+                  object_size_m: float = 4.5) -> list[Track]:
+    """:meth:`TrackFinisher.finish` in one call."""
+    return TrackFinisher(config, fps, metres_per_unit=metres_per_unit,
+                         object_size_m=object_size_m).finish(tracks, registrations, frame_size)
+

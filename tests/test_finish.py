@@ -1,0 +1,242 @@
+"""Finishing of final tracks (aerotrack.association.finish): smoothing, one size per vehicle,
+border handling and static-track rejection, on tracks with a known truth."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from aerotrack.association.finish import (
+    TrackFinisher,
+    finish_tracks,
+    footprint_box,
+    is_static,
+    oriented_size,
+    robust_smooth,
+    rts_smooth,
+)
+from aerotrack.config import Config, FinishConfig, load_config
+from aerotrack.errors import ConfigError
+from aerotrack.kalman import ConstantVelocityKF, measurement_noise
+from aerotrack.pipeline import link
+from aerotrack.types import Registration, Track, TrackPoint, apply_homography
+
+FPS = 30.0
+MPU = 0.1  # metres per world unit
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    x0 = np.maximum(a[:, 0], b[:, 0])
+    y0 = np.maximum(a[:, 1], b[:, 1])
+    x1 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
+    y1 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    return inter / (a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter)
+
+
+def _homography(k: int) -> np.ndarray:
+    """Frame k pixels -> world: a slowly rotating, zooming, drifting camera."""
+    a = math.radians(20 + 0.1 * k)
+    s = 1.0 + 0.001 * k
+    return np.array([[s * math.cos(a), -s * math.sin(a), 100 + 0.5 * k],
+                     [s * math.sin(a), s * math.cos(a), 50 - 0.3 * k],
+                     [0, 0, 1.0]])
+
+
+def _vehicle(n: int = 120, length_m: float = 4.5, width_m: float = 2.0, seed: int = 0,
+             partial: float = 0.25, jitter_px: float = 1.0, wait: int = 0):
+    """A vehicle turning through 90 degrees seen by the camera above; observed boxes are the true
+    footprint boxes with jitter and a share of partial (shrunk, shifted) boxes.
+
+    Returns (track, registrations, true boxes (n, 4))."""
+    rng = np.random.default_rng(seed)
+    L, W = length_m / MPU, width_m / MPU
+    regs, pts, truth = {}, [], []
+    pos, speed = np.array([300.0, 300.0]), 10.0 / MPU / FPS  # 10 m/s in world units per frame
+    for k in range(1, n + 1):
+        heading = math.radians(min(90.0, max(0.0, (k - 40) * 1.5)))
+        if k > wait:
+            pos = pos + speed * np.array([math.cos(heading), math.sin(heading)])
+        H = _homography(k)
+        regs[k] = Registration(index=k, H=H)
+        true = footprint_box(np.linalg.inv(H), pos, heading, L, W)
+        box = true.copy()
+        box[:2] += rng.normal(0, jitter_px, 2)
+        if rng.random() < partial:  # half absorbed: one end missing
+            cut = rng.uniform(0.2, 0.45)
+            box[2] *= 1 - cut
+            if rng.random() < 0.5:
+                box[0] += true[2] * cut
+        centre = box[:2] + box[2:] / 2
+        world = apply_homography(H, centre[None])[0]
+        pts.append(TrackPoint(frame=k, box=box, world=world, conf=1.0, kind="observed"))
+        truth.append(true)
+    return Track(id=1, points=pts), regs, np.array(truth)
+
+
+def _boxes(track: Track) -> np.ndarray:
+    return np.array([p.box for p in track.points])
+
+
+def test_rts_recovers_constant_velocity_line():
+    rng = np.random.default_rng(1)
+    t = np.arange(60) / FPS
+    true = np.column_stack([100 + 50 * t, 20 - 30 * t])
+    z = np.column_stack([true + rng.normal(0, 2.0, true.shape), np.full((60, 2), 20.0)])
+    kf = ConstantVelocityKF(accel_std=5.0, size_std=1.0, vel_std=100.0)
+    R = np.array([measurement_noise(np.array([20.0, 20.0]), 2.0, 0.0, 1.0, 0.0)] * 60)
+    xs, _ = rts_smooth(t, z, R, kf)
+    raw = np.sqrt(np.mean((z[:, :2] - true) ** 2))
+    smooth = np.sqrt(np.mean((xs[:, :2] - true) ** 2))
+    assert smooth < 0.5 * raw
+    assert np.allclose(xs[:, 4:6].mean(axis=0), [50, -30], atol=3)
+
+
+def test_rts_predicts_through_missing_observations():
+    t = np.arange(30) / FPS
+    true = np.column_stack([10 * np.arange(30), np.zeros(30)])
+    z = np.column_stack([true, np.full((30, 2), 5.0)])
+    z[10:20] = np.nan
+    R = np.array([np.eye(4) * 0.01] * 30)
+    xs, _ = rts_smooth(t, z, R, ConstantVelocityKF(accel_std=1.0, vel_std=500.0))
+    assert np.abs(xs[10:20, 0] - true[10:20, 0]).max() < 1.0
+
+
+def test_robust_smooth_downweights_an_outlier():
+    t = np.arange(40) / FPS
+    true = np.column_stack([np.arange(40) * 3.0, np.zeros(40)])
+    z = np.column_stack([true, np.full((40, 2), 10.0)])
+    z[20, :2] += [0, 30]  # a merged blob pulls one centre 30 units off
+    R = np.array([np.eye(4)] * 40)
+    kf = ConstantVelocityKF(accel_std=30.0, vel_std=200.0)
+    plain, _ = rts_smooth(t, z, R, kf)
+    robust, w = robust_smooth(t, z, R, kf, outlier_chi2=9.0, iters=3)
+    assert w[20] > 10 and np.all(w[np.arange(40) != 20] < 2)
+    assert abs(robust[20, 1]) < 0.3 * abs(plain[20, 1])
+
+
+def test_oriented_size_recovers_length_and_width():
+    rng = np.random.default_rng(2)
+    n = 50
+    heads = rng.uniform(0, 2 * np.pi, n)
+    Js = np.array([[[2 * math.cos(a), -2 * math.sin(a)], [2 * math.sin(a), 2 * math.cos(a)]]
+                   for a in rng.uniform(0, 1, n)])
+    boxes = np.array([footprint_box(np.vstack([np.hstack([J, [[0], [0]]]), [0, 0, 1]]),
+                                    np.zeros(2), h, 45.0, 20.0) for J, h in zip(Js, heads)])
+    L, W = oriented_size(boxes, Js, heads, 0.5, 0.45)
+    assert L == pytest.approx(45.0, rel=0.01) and W == pytest.approx(20.0, rel=0.02)
+    shrunk = boxes.copy()
+    shrunk[: n // 3, 2:] *= 0.7  # a third partial
+    L2, _ = oriented_size(shrunk, Js, heads, 0.6, 0.45)
+    assert L2 == pytest.approx(45.0, rel=0.05)
+
+
+def test_finisher_improves_boxes_of_a_turning_vehicle_under_a_rotating_camera():
+    track, regs, truth = _vehicle()
+    before = _iou(_boxes(track), truth).mean()
+    out = finish_tracks([track], FinishConfig(size_mode="oriented", size_quantile=0.6), FPS,
+                        metres_per_unit=MPU, registrations=regs, frame_size=(4000, 4000))
+    after = _iou(_boxes(out[0]), truth).mean()
+    assert before < 0.9 and after > before + 0.06
+    assert after > 0.92
+
+
+def test_each_piece_helps_alone():
+    track, regs, truth = _vehicle(seed=3)
+    base = _iou(_boxes(track), truth).mean()
+    scores = {}
+    for name, fields in {"smooth": {"size_mode": "detection"},
+                         "size": {"smooth": False, "size_mode": "oriented", "size_quantile": 0.6},
+                         "window": {"size_mode": "window"}}.items():
+        t = Track(id=1, points=[dataclasses.replace(p) for p in track.points])
+        cfg = dataclasses.replace(FinishConfig(), **fields)
+        (t,) = finish_tracks([t], cfg, FPS, metres_per_unit=MPU, registrations=regs)
+        scores[name] = _iou(_boxes(t), truth).mean()
+    assert scores["size"] > base + 0.005
+    assert scores["smooth"] > base + 0.02
+    assert scores["window"] > scores["smooth"]
+
+
+def test_disabled_leaves_tracks_alone():
+    track, regs, _ = _vehicle()
+    boxes = _boxes(track).copy()
+    out = finish_tracks([track], FinishConfig(enabled=False), FPS, registrations=regs)
+    assert np.array_equal(_boxes(out[0]), boxes)
+
+
+def _parked(seed: int = 0, n: int = 90, jitter_m: float = 0.5) -> Track:
+    rng = np.random.default_rng(seed)
+    pts = []
+    for k in range(1, n + 1):
+        c = np.array([500.0, 500.0]) + rng.normal(0, jitter_m / MPU, 2)
+        pts.append(TrackPoint(frame=k, box=np.array([c[0] - 22, c[1] - 10, 45, 20]), world=c,
+                              conf=1.0, kind="observed"))
+    return Track(id=2, points=pts)
+
+
+def test_static_tracks_are_dropped_and_waiting_vehicles_kept():
+    identity = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 200)}
+    waiting, _, _ = _vehicle(n=150, wait=90, partial=0.0)  # stands 3 s, then drives 2 m/s... away
+    for p in waiting.points:  # in the identity world of these registrations
+        p.world = p.box[:2] + p.box[2:] / 2
+    cfg = FinishConfig(static_extent_m=4.0)
+    out = finish_tracks([_parked(), waiting], cfg, FPS, metres_per_unit=MPU,
+                        registrations=identity)
+    assert [t.id for t in out] == [1]
+    # without registrations the world is the image of a camera that may follow the vehicle
+    out = finish_tracks([_parked()], cfg, FPS, metres_per_unit=MPU)
+    assert len(out) == 1
+    assert not is_static(np.array([[0, 0], [50, 0]]), MPU, 4.0)
+    assert is_static(np.array([[0, 0], [30, 0]]), MPU, 4.0)
+
+
+def test_border_boxes_are_rebuilt_and_clipped():
+    # a vehicle driving out through the right edge of a 640-px-wide frame (identity camera)
+    regs = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 61)}
+    L, W = 45.0, 20.0
+    pts, truth = [], []
+    for k in range(1, 61):
+        cx = 500 + 3.0 * k
+        true = np.array([cx - L / 2, 300 - W / 2, L, W])
+        x0, x1 = true[0], min(true[0] + L, 640.0)
+        box = np.array([x0, true[1], x1 - x0, W])
+        if box[2] <= 0:
+            break
+        pts.append(TrackPoint(frame=k, box=box, world=box[:2] + box[2:] / 2, conf=1.0))
+        clipped = true.copy()
+        clipped[2] = x1 - x0
+        truth.append(clipped)
+    track = Track(id=1, points=pts)
+    raw_world = np.array([p.world for p in pts])
+    (out,) = finish_tracks([track], FinishConfig(clip_to_frame=True), FPS, metres_per_unit=MPU,
+                           registrations=regs,
+                           frame_size=(640, 480))
+    boxes = _boxes(out)
+    assert np.all(boxes[:, 0] + boxes[:, 2] <= 640 + 1e-9)
+    assert _iou(boxes, np.array(truth)).min() > 0.9
+    # ground points of the clipped boxes moved back towards the true centres
+    world = np.array([p.world for p in out.points])
+    true_x = 500 + 3.0 * np.arange(1, len(pts) + 1)
+    assert np.abs(world[:, 0] - true_x).mean() < 0.3 * np.abs(raw_world[:, 0] - true_x).mean()
+
+
+def test_bad_size_mode_is_a_config_error():
+    with pytest.raises(ConfigError, match="size_mode"):
+        TrackFinisher(FinishConfig(size_mode="nope"))
+    cfg = load_config(None, ["finish.size_quantile=0.7"])
+    assert cfg.finish.size_quantile == 0.7
+
+
+def test_pipeline_link_finishes_tracks():
+    track, regs, truth = _vehicle(seed=4)
+    on = link([Track(id=1, points=[dataclasses.replace(p) for p in track.points])], Config(), FPS,
+              metres_per_unit=MPU, registrations=regs, frame_size=(4000, 4000))
+    off_cfg = load_config(None, ["finish.enabled=false"])
+    off = link([track], off_cfg, FPS, metres_per_unit=MPU, registrations=regs,
+               frame_size=(4000, 4000))
+    obs_on = np.array([p.box for p in on[0].points if p.kind != "predicted"])
+    obs_off = np.array([p.box for p in off[0].points if p.kind != "predicted"])
+    assert _iou(obs_on, truth).mean() > _iou(obs_off, truth).mean() + 0.05
