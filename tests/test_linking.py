@@ -431,3 +431,26 @@ def test_appearance_verification_ignores_the_targets_own_earlier_tracklets(seed)
     assert links == {0: 1, 1: 2}
     assert linker.last_costs[(1, 2)][1].appearance == 0.0
     assert linker.last_costs[(0, 1)][1].appearance == 0.0
+
+
+def test_descriptor_cost_is_truncated_so_one_odd_tracklet_cannot_veto_its_own_vehicle():
+    from aerotrack.context.reacquire import descriptor_cost
+
+    assert descriptor_cost(0.4, 0.1, 3.0) == pytest.approx(0.5)
+    assert descriptor_cost(120.0, 2.0, 3.0) == 3.0
+    assert descriptor_cost(120.0, 2.0) == pytest.approx(122.0)
+    # a target whose middle tracklet's blobs were merged with a shadow (its ring colours far off)
+    # is still one track: motion and appearance context agree, the descriptor alone disagrees
+    red = [0.7, 0.1, 0.1, 0.1]
+    paths = {1: _line([0, 0], [10, 0], 300)}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(91, 111)]}, {1: red}, with_desc=True)
+    rng = np.random.default_rng(1)
+    for p in tl[1].points:
+        p.desc[:, :, 1:4] *= 0.2  # dark
+        p.desc[:, :, 4:7] *= 0.04
+        p.desc[:, :, 1:4] += rng.normal(0, 1, (6, 8, 3))
+    linker = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0)
+    assert len(linker.link(tl)) == 1
+    assert linker.last_costs[(0, 1)][1].descriptor == 3.0
+    assert len(GlobalLinker(LinkingConfig(descriptor_max=1e9), ContextConfig(), FPS,
+                            metres_per_unit=1.0).link(tl)) == 2

@@ -442,6 +442,11 @@ class LinkingConfig:
     handover_cost : float
         Link cost of a hand-over at the ``duplicate_overlap`` threshold, falling linearly to 0
         for boxes that overlap entirely.
+    descriptor_max : float
+        The tracklet-descriptor cost (KL distances, Yu & Medioni eqs. 13-14) is truncated here
+        (:func:`aerotrack.context.reacquire.descriptor_cost`): partial and merged blobs make it
+        unbounded for a vehicle's own tracklets. Lower lets the descriptor decide less (0: off);
+        a large value (1e9) is the paper's untruncated distance.
     """
 
     max_gap_s: float = 12.0
@@ -471,6 +476,7 @@ class LinkingConfig:
     duplicate_overlap: float = 0.5
     handover_max_s: float = 2.0
     handover_cost: float = 1.0
+    descriptor_max: float = 3.0
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ from ..context.appearance import (
     track_histograms,
 )
 from ..context.motion import TrackTable, get_predictor, kalman_start
-from ..context.reacquire import Cues, appearance_cost, link_cost, motion_cost
+from ..context.reacquire import Cues, appearance_cost, descriptor_cost, link_cost, motion_cost
 from ..errors import ConfigError
 from ..types import Track, TrackPoint
 
@@ -223,7 +223,8 @@ class GlobalLinker:
                         ap = appearance_cost(z2, ok)
                 de = float("nan")
                 if desc[a] is not None and desc[b] is not None:
-                    de = kl_color(desc[a], desc[b]) + kl_edge(desc[a], desc[b])
+                    de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
+                                         c.descriptor_max)
                 cues = Cues(m, ap, de)
                 cost = link_cost(cues, c)
                 self.last_costs[(a, b)] = (cost, cues)

