@@ -24,7 +24,7 @@ def expect_error(capsys, fragments, *argv, out_dir: Path | None = None):
     """Exit 2 with exactly one error line naming the problem; with ``out_dir``, nothing written
     there (a folder the run created is gone again, so the same command works once fixed)."""
     existed = out_dir is not None and out_dir.exists()
-    code, out, err = run_cli(capsys, *argv)
+    code, _, err = run_cli(capsys, *argv)
     assert code == 2, f"exit {code}: {err}"
     assert "Traceback" not in err
     lines = [ln for ln in err.splitlines() if ln.strip() and "WARNING" not in ln and "INFO" not in ln]
@@ -555,3 +555,39 @@ def test_signals_are_held_off_while_results_are_written():
         assert stop.stop_signal == signal.SIGTERM
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
     assert seen == [1, 2]
+
+
+@pytest.mark.parametrize("command", ["track", "detect", "synth", "demo"])
+def test_overwrite_refuses_a_folder_with_foreign_files(tmp_path, capsys, dets, video, command):
+    """``--out ~ --overwrite`` by mistake must not empty a home folder (demo overwrites by
+    default)."""
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("precious")
+    argv = {"track": ["track", "--detections", dets, "--overwrite"],
+            "detect": ["detect", video, "--overwrite"],
+            "synth": ["synth", "--frames", "2", "--overwrite"],
+            "demo": ["demo"]}[command]
+    expect_error(capsys, ["notes.txt", "--overwrite"], *argv, "--out", home)
+    assert sorted(p.name for p in home.iterdir()) == ["notes.txt"]
+
+
+def test_resume_refuses_checkpoints_of_another_run(tmp_path, capsys, dets):
+    out = tmp_path / "o"
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out, "--seed", "1")
+    assert code == 0, err
+    # make it look interrupted: the checkpoints (with run.json) back in .partial, no results
+    (out / "stages").rename(out / ".partial")
+    for p in out.iterdir():
+        if p.is_file():
+            p.unlink()
+    assert (out / ".partial" / "run.json").is_file()
+    expect_error(capsys, ["--resume", "--seed"], "track", "--detections", dets, "--out", out,
+                 "--resume", "--seed", "2")
+    expect_error(capsys, ["--resume", "config"], "track", "--detections", dets, "--out", out,
+                 "--resume", "--seed", "1", "--set", "association.window_s=2")
+    assert list((out / ".partial").glob("chunk_*.npz"))  # kept for the right command
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out, "--resume",
+                           "--seed", "1")
+    assert code == 0, err
+    assert (out / "tracks.csv").is_file() and not (out / ".partial").exists()

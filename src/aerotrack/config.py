@@ -140,6 +140,11 @@ class DetectionConfig:
         False: the window is centred on the frame (detections are final half a window later, the
         paper's method). True: the window ends at the frame (delay 0, for live use); a vehicle
         that waits is absorbed twice as fast, which ``hold_stopped`` compensates.
+    full_window_at_ends : bool
+        With a centred window, the frames of the first (last) half window of a video or
+        registration segment use the whole window shifted inside it instead of the half that
+        exists: a vehicle waiting at the start then covers a share of a full window and is not
+        absorbed. Costs the first frames a delay of a whole window instead of half of one.
     sample_every_s : float
         Spacing of the frames kept as background samples (the paper uses every frame). Wider is
         faster and lighter (the median network grows as n log^2 n) but a slow vehicle covers a
@@ -237,6 +242,7 @@ class DetectionConfig:
 
     window_s: float = 3.0
     causal: bool = False
+    full_window_at_ends: bool = True
     sample_every_s: float = 0.2
     update_every_s: float = 0.2
     model_scale: float = 0.5

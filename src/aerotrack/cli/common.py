@@ -8,6 +8,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Self
 
 import click
 
@@ -107,7 +108,7 @@ class CleanupOnBadInput:
         self.always = always
         self.existed = self.path.exists()
 
-    def __enter__(self) -> CleanupOnBadInput:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -122,3 +123,36 @@ class CleanupOnBadInput:
         if not self.existed and self.path.is_dir() and not any(self.path.iterdir()):
             self.path.rmdir()
         return False
+
+
+def check_overwrite(out_dir, overwrite: bool) -> None:
+    """``--overwrite`` replaces aerotrack results only: a folder holding anything else (a home
+    folder given as --out by mistake) is refused rather than emptied."""
+    from ..errors import OutputError
+
+    p = Path(out_dir)
+    if not overwrite or not p.is_dir():
+        return
+    foreign = sorted(e.name for e in p.iterdir() if not is_aerotrack_output(e.name))
+    if foreign:
+        raise OutputError(f"--out {p}: holds files aerotrack did not write (e.g. {foreign[0]!r}); "
+                          "--overwrite only replaces aerotrack results")
+
+
+#: Top-level names any aerotrack command writes into an output folder.
+OUTPUT_NAMES = {
+    "tracks.csv", "predicted.csv", "detections.csv", "registration.csv", "tracks.geojson",
+    "config.toml", "summary.json", "observations.csv", "observations.gpkg",
+    "observations.parquet", "stages", ".partial", "overlay.webm", "overlay.mp4", "map.png",
+    "spacetime.png", "registration.png", "report.html", "debug.mp4",
+    # synth
+    "frames", "gt.txt", "states.csv", "homographies.csv", "map.tif", "map_init.txt",
+    "map_init_gcps.csv", "map_init_lonlat.csv", "occluders.csv", "occluders.geojson",
+    "roads.geojson", "scenario.json",
+    # demo
+    "scene", "run",
+}
+
+
+def is_aerotrack_output(name: str) -> bool:
+    return name in OUTPUT_NAMES or (name.startswith(".") and name.endswith(".tmp"))

@@ -38,11 +38,13 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
     from ..evaluation import evaluate
     from ..io.mot import read_mot
     from ..io.output import OutputDir
+    from .common import check_overwrite
     from .report_cmd import report_command
     from .synth_cmd import synth_command
     from .track_cmd import track_command
 
     t0 = time.perf_counter()
+    check_overwrite(out_dir, overwrite)
     root = OutputDir(out_dir, overwrite=overwrite)
     scene, run_dir = root.path / "scene", root.path / "run"
     root.finish()

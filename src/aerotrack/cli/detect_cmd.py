@@ -8,8 +8,15 @@ from pathlib import Path
 
 import click
 
-from .common import (CleanupOnBadInput, config_option, fps_option, make_progress, root_flags,
-                     set_option)
+from .common import (
+    CleanupOnBadInput,
+    check_overwrite,
+    config_option,
+    fps_option,
+    make_progress,
+    root_flags,
+    set_option,
+)
 
 log = logging.getLogger("aerotrack")
 
@@ -48,6 +55,7 @@ def detect_command(ctx, input_path, out_dir, fps, config_path, overrides, stabil
 
     config = load_config(config_path, overrides)
     source = open_source(input_path, fps)
+    check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
     with cleanup:

@@ -10,7 +10,12 @@ import click
 import numpy as np
 
 from ..errors import InputError
-from ..evaluation import METRIC_KEYS, evaluate_sequences, fix_ground_truth, read_zero_based_mot
+from ..evaluation import (
+    METRIC_KEYS,
+    evaluate_sequences,
+    fix_ground_truth,
+    read_zero_based_mot,
+)
 from ..io.mot import read_mot
 
 log = logging.getLogger(__name__)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .common import CleanupOnBadInput, make_progress, root_flags
+from .common import CleanupOnBadInput, check_overwrite, make_progress, root_flags
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -58,6 +58,7 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrit
 
     size = parse_size(size_text)
     Scenario.validate(frames=frames, size=size, fps=fps, name=scenario)
+    check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
     quiet, verbose = root_flags(ctx)

@@ -5,11 +5,22 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from typing import Self
 
 import click
 
-from .common import (CleanupOnBadInput, Interrupted, check_positive, config_option, make_progress,
-                     root_flags, seed_option, set_option, track_fps_option)
+from .common import (
+    CleanupOnBadInput,
+    Interrupted,
+    check_overwrite,
+    check_positive,
+    config_option,
+    make_progress,
+    root_flags,
+    seed_option,
+    set_option,
+    track_fps_option,
+)
 
 log = logging.getLogger("aerotrack")
 
@@ -34,7 +45,7 @@ class GracefulStop:
         self.phase = "frames"
         self._previous: dict[int, object] = {}
 
-    def __enter__(self) -> GracefulStop:
+    def __enter__(self) -> Self:
         import signal
         import threading
 
@@ -250,8 +261,12 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @click.option("--from", "from_dir", type=click.Path(path_type=Path), default=None,
               help="Reuse the registrations and detections cached by an earlier run in this folder "
                    "(its stages/): only association and linking run again.")
-@click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
-@click.option("--resume", is_flag=True, help="Continue an interrupted run in --out.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace the results already in --out (a folder holding other files is "
+                   "refused, not emptied).")
+@click.option("--resume", is_flag=True,
+              help="Continue an interrupted run in --out from its .partial/ (give the same "
+                   "inputs and options).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Split the video into overlapping segments processed by N local worker "
                    "processes (Dask; pip install aerotrack[dask]). Default: one process.")
@@ -275,12 +290,11 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
       aerotrack track --detections yolo.txt --out run/          # association alone
       aerotrack track flight.mp4 --detections yolo.txt --out run/ --seed 3
     """
-    from ..config import load_config
+    from ..config import dumps_config, load_config
+    from ..errors import InputError
     from ..io.output import OutputDir
     from ..outputs import write_outputs
     from ..pipeline import run
-
-    from ..errors import InputError
 
     config = load_config(config_path, overrides)
     if from_dir is not None:
@@ -309,8 +323,22 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                 raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
         except CRSError:
             raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
+    def where(path):
+        return str(Path(path).resolve()) if path is not None else None
+
+    manifest = {
+        "input": where(input_path), "detections": where(detections_path), "map": where(map_path),
+        "map_init": where(map_init_path), "telemetry": where(telemetry_path),
+        "intrinsics": where(intrinsics_path), "roi": [where(r) for r in roi_paths],
+        "ignore_region": [where(r) for r in ignore_paths], "roads": where(roads_path),
+        "fps": fps, "gsd": gsd, "seed": seed, "frames": [start, stop], "stride": stride,
+        "min_speed": min_speed, "config": dumps_config(config),
+    }
+    check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, resume=resume)  # before the folder is made
     out = OutputDir(out_dir, overwrite=overwrite, resume=resume)
+    with cleanup:
+        resume_manifest(out.partial, manifest, resume)
     quiet, verbose = root_flags(ctx)
     total = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     if total:
@@ -351,6 +379,39 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         click.echo(
             f"aerotrack: {result.frames} frames, {c['detections']} detections, {c['tracks']} tracks "
             f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s)", err=True)
+
+
+MANIFEST = "run.json"
+
+
+def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
+    """Record what a run was started with in ``.partial/run.json``; on ``--resume`` refuse to
+    continue checkpoints made from other inputs, settings or seed (they would be mixed silently).
+
+    ``manifest`` holds JSON values only (resolved paths, numbers, the config as TOML text).
+    """
+    import json
+
+    from ..errors import InputError
+    from ..io.output import atomic_write_text
+
+    path = Path(partial) / MANIFEST
+    if resume and path.is_file():
+        try:
+            before = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            before = None
+        if isinstance(before, dict):
+            now = json.loads(json.dumps(manifest))  # tuples -> lists, as read back
+            changed = [k for k in now if k in before and before[k] != now[k]]
+            if changed:
+                label = {"input": "INPUT", "config": "config (--config/--set)"}
+                names = ", ".join(label.get(k, "--" + k.replace("_", "-")) for k in changed)
+                raise InputError(f"--resume {path.parent.parent}: the interrupted run was started "
+                                 f"with another {names}; give the same inputs and options, or "
+                                 "use --overwrite to start again")
+            return
+    atomic_write_text(path, json.dumps(manifest, indent=1) + "\n")
 
 
 def load_roads(roads_path, geomap, config):
