@@ -192,13 +192,33 @@ def window_background(
     -----
     Samples are warped bilinearly. Nearest-neighbour is a third cheaper and scored the same on
     moving vehicles, but let the edges of a stopped vehicle leak past the detection masks into
-    the median, so that it was absorbed (tests/test_detection.py). Validity is rasterised from polygons (the warped frame outline minus the warped detection
-    boxes) instead of warping masks: one image warp per sample instead of two.
+    the median, so that it was absorbed (tests/test_detection.py). Validity is rasterised from
+    polygons (the warped frame outline minus the warped detection boxes) instead of warping
+    masks: one image warp per sample instead of two.
+    """
+    warped = warp_samples(samples, to_ref, holes, size, ref_holes, ref_holes_for)
+    return subset_median(warped, range(len(warped)), size, copy=False)
+
+
+def warp_samples(
+    samples: Sequence[np.ndarray],
+    to_ref: Sequence[np.ndarray],
+    holes: Sequence[np.ndarray | None],
+    size: tuple[int, int],
+    ref_holes: np.ndarray | None = None,
+    ref_holes_for: Sequence[bool] | None = None,
+) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """The samples of :func:`window_background` warped into the reference frame, with their
+    validity; several window medians (:func:`subset_median`) can then share the warps.
+
+    Returns
+    -------
+    list of (image, valid)
+        ``image`` (H, W, 3) uint8 in reference pixels; ``valid`` (H, W) uint8, 1 where the
+        sample saw the pixel and it is not under a hole.
     """
     w, h = size
-    warped = []
-    count = np.zeros((h, w), np.uint8)
-    parity = np.zeros((h, w), np.uint8)  # per pixel: next pad is 0 (0) or 255 (255)
+    out = []
     for k, (img, M) in enumerate(zip(samples, to_ref)):
         sh, sw = img.shape[:2]
         wimg = warp(img, M, (w, h))
@@ -211,13 +231,34 @@ def window_background(
         if ref_holes is not None and len(ref_holes) and (ref_holes_for is None or ref_holes_for[k]):
             polys.extend(ref_holes)
         _fill(valid, polys, 0)
+        out.append((wimg, valid))
+    return out
+
+
+def subset_median(warped: Sequence[tuple[np.ndarray, np.ndarray]], which: Sequence[int],
+                  size: tuple[int, int], copy: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Median background and valid count (see :func:`window_background`) of the warped samples
+    ``warped[k]`` for ``k`` in ``which``; ``copy`` False pads the images of ``warped`` in place
+    (when they are not used again).
+
+    An invalid value is replaced alternately (per pixel) by 0 and 255: equal numbers of the two
+    extremes leave the median of the valid values unchanged (at most one rank off).
+    """
+    w, h = size
+    count = np.zeros((h, w), np.uint8)
+    parity = np.zeros((h, w), np.uint8)  # per pixel: next pad is 0 (0) or 255 (255)
+    images = []
+    for k in which:
+        wimg, valid = warped[k]
         invalid = cv2.compare(valid, 0, cv2.CMP_EQ)
         if cv2.countNonZero(invalid):
+            if copy:
+                wimg = wimg.copy()
             # Pads alternate per pixel, so every pixel gets as many 0s as 255s (+-1).
             cv2.copyTo(cv2.merge([parity, parity, parity]), invalid, wimg)
             parity = cv2.bitwise_xor(parity, invalid)
         count = cv2.add(count, valid)
-        warped.append(wimg)
-    if not warped:
+        images.append(wimg)
+    if not images:
         return np.zeros((h, w, 3), np.uint8), count
-    return stack_median(warped), count
+    return stack_median(images), count

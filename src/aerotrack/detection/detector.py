@@ -24,7 +24,7 @@ from ..config import DetectionConfig
 from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
-from .background import to_cv_homography, warp, warp_polygons, window_background
+from .background import subset_median, to_cv_homography, warp, warp_polygons, warp_samples
 from .blobs import (
     Blob,
     close,
@@ -65,6 +65,8 @@ class _Background:
     bg: np.ndarray  # (h, w, 3) uint8 in that frame's model pixels
     testable: np.ndarray  # (h, w) uint8 255 where the background can be trusted
     held_since: np.ndarray  # (h, w) float32 time since which the pixel is held, +inf if not
+    hold_bg: np.ndarray  # (h, w, 3) uint8: what a pixel that becomes held keeps (often ``bg``)
+    cut: np.ndarray | None = None  # (h, w, 3) centred-window background when ``bg``'s was shifted
 
 
 @dataclass
@@ -448,6 +450,38 @@ def protected_blobs(blobs: list[Blob], moved: list, stopped: np.ndarray) -> list
     return out
 
 
+def choose_hold(small: np.ndarray, a: np.ndarray, b: np.ndarray, blobs: list[Blob]) -> np.ndarray:
+    """Per pixel, the one of two background candidates a pixel that becomes held should keep.
+
+    Under this frame's detections (model pixels of ``blobs``) the frame shows a vehicle, so the
+    candidate that differs more from it is the road under the vehicle; elsewhere the frame shows
+    the road, so the candidate closer to it is kept (the other holds some vehicle that passed).
+
+    Parameters
+    ----------
+    small : ndarray, shape (h, w, 3) uint8
+        The frame at model resolution.
+    a, b : ndarray, shape (h, w, 3) uint8
+        Candidate backgrounds in the same pixels.
+    blobs : list of Blob
+
+    Returns
+    -------
+    ndarray, shape (h, w, 3) uint8
+    """
+    fg = np.zeros(small.shape[:2], np.uint8)
+    for bl in blobs:
+        x, y, bw, bh = bl.box
+        fg[y:y + bh, x:x + bw] |= bl.mask.astype(np.uint8)
+    da, db = residual_image(small, a), residual_image(small, b)
+    # under a detection: b differs more; elsewhere: b is closer to the frame
+    take_b = cv2.bitwise_or(cv2.bitwise_and(cv2.compare(db, da, cv2.CMP_GT), fg * 255),
+                            cv2.bitwise_and(cv2.compare(db, da, cv2.CMP_LT), (1 - fg) * 255))
+    out = a.copy()
+    cv2.copyTo(b, take_b, out)
+    return out
+
+
 def blob_polygons(blobs: list[Blob], grow: int = 1) -> list[np.ndarray]:
     """Convex hulls of blobs grown by ``grow`` pixels, as (P, 2) float polygons in the pixels
     the blobs were found in (the areas a frame's detections keep out of the background).
@@ -483,7 +517,8 @@ class MovingObjectDetector:
     -----
     ``step`` returns the detections of the frames that became final: with a centred window
     (the paper's) frame ``c`` is final once frame ``c + w`` has arrived, ``w`` being half the
-    window; with ``config.causal`` every frame is final at once. Memory is bounded by the
+    window (with ``config.full_window_at_ends``, the first ``w`` frames of a segment wait for
+    frame ``2w`` after its first); with ``config.causal`` every frame is final at once. Memory is bounded by the
     window: ``w`` full frames and ``window_s / sample_every_s`` downscaled samples.
     """
 
@@ -507,6 +542,9 @@ class MovingObjectDetector:
         self._last_fg: tuple[int, np.ndarray, np.ndarray] | None = None  # index, H, polygons
         self._last_final = 0
         self._first: int | None = None
+        self._start: int | None = None  # first frame of the current window segment
+        self._newest: int | None = None  # newest frame stepped
+        self._ending = False  # inside flush(): no frame comes after the newest
         self.last_result: FrameResult | None = None
         #: When True, ``debug_frames`` collects ``(index, image, residual, boxes, stationary)``
         #: of every finalised frame (the caller drains it).
@@ -528,16 +566,25 @@ class MovingObjectDetector:
             self._samples.clear()
             self._bg = None
             self._last_fg = None
+            self._start = frame.index
         if self._first is None:
             self._first = frame.index
+        if self._start is None:
+            self._start = frame.index
+        self._newest = frame.index
         Hm = np.asarray(registration.H, dtype=np.float64)
         # A frame whose homography is only carried forward (not measured) would smear the
         # background if it voted; it is still tested against its neighbours.
         if (frame.index - self._first) % self.every == 0 and registration.status not in UNMEASURED:
             self._samples[frame.index] = _Sample(frame.index, small, Hm)
         self._pending.append(_Pending(frame, registration, small))
+        # With a full window at the ends, the first frames wait for the whole window (2w frames
+        # after the segment's first) instead of w: their window is shifted forward, not cut.
+        ready = (not self.config.full_window_at_ends
+                 or frame.index - self._start >= 2 * self.half)
         while self._pending and (self.config.causal
-                                 or self._pending[0].frame.index + self.half <= frame.index):
+                                 or (ready and self._pending[0].frame.index + self.half
+                                     <= frame.index)):
             out.append(self._finalise(self._pending.popleft()))
         self._drop_old()
         return out
@@ -545,8 +592,12 @@ class MovingObjectDetector:
     def flush(self) -> list[Detections]:
         """Finalise every frame still waiting for its window (end of video)."""
         out = []
-        while self._pending:
-            out.append(self._finalise(self._pending.popleft()))
+        self._ending = True
+        try:
+            while self._pending:
+                out.append(self._finalise(self._pending.popleft()))
+        finally:
+            self._ending = False
         self._drop_old()
         return out
 
@@ -564,9 +615,23 @@ class MovingObjectDetector:
                          c.min_width_px)
 
     def _window(self, c: int) -> tuple[int, int]:
+        """Frames ``[lo, hi]`` whose samples build frame ``c``'s background.
+
+        Centred on ``c`` (the paper's), or ending at ``c`` in causal mode. With
+        ``full_window_at_ends`` a centred window that would reach before the segment's first
+        frame or after its last is shifted inside rather than cut: a vehicle that waits during
+        the first (last) ``w`` frames then covers a share of a whole window, not of half of one,
+        and is not absorbed.
+        """
         if self.config.causal:
             return c - 2 * self.half, c
-        return c - self.half, c + self.half
+        lo, hi = c - self.half, c + self.half
+        if self.config.full_window_at_ends and self._start is not None:
+            if lo < self._start:
+                lo, hi = self._start, self._start + 2 * self.half
+            elif self._ending and self._newest is not None and hi > self._newest:
+                lo, hi = max(self._start, self._newest - 2 * self.half), self._newest
+        return lo, hi
 
     def _background(self, p: _Pending) -> tuple[np.ndarray, np.ndarray]:
         """Background and testable mask (255 = trusted) of a frame at model resolution."""
@@ -582,21 +647,22 @@ class MovingObjectDetector:
             return bg, testable
 
         lo, hi = self._window(c)
-        chosen = [s for i, s in self._samples.items() if lo <= i <= hi]
-        to_ref = [to_cv_homography(Hc_inv @ s.H, self.scale) for s in chosen]
-        holes = [s.holes for s in chosen]
-        ref_holes = None
-        if self.config.hold_stopped and self._last_fg is not None:
-            _, fH, fpolys = self._last_fg
-            ref_holes = warp_polygons(fpolys, to_cv_homography(Hc_inv @ fH, self.scale))
-        bg, count = window_background([s.small for s in chosen], to_ref, holes, (w, h),
-                                      ref_holes, [not s.known for s in chosen])
-        weak = count < min(self.config.min_valid_samples, max(1, len(chosen)))
+        windows = [(lo, hi)]
+        if lo > c - self.half and not self.config.causal:
+            # A window shifted forward at the start of a segment holds more of the future than
+            # the centred one: a vehicle that stops within it leaks into it. What is held later
+            # is chosen per pixel from the two once this frame's detections are known
+            # (choose_hold). (At the end of a segment the choice changed nothing measurable.)
+            windows.append((c - self.half, c + self.half))
+        meds = self._medians(windows, Hc_inv, (w, h))
+        bg, count, n = meds[0]
+        cut = meds[1][0] if len(meds) > 1 else None
+        weak = count < min(self.config.min_valid_samples, max(1, n))
         testable = np.where(weak, 0, 255).astype(np.uint8)
         held_since = np.full((h, w), np.inf, np.float32)
         if prev is not None and self.config.hold_stopped:
             M = to_cv_homography(Hc_inv @ prev.H, self.scale)
-            pbg = warp(prev.bg, M, (w, h), replicate=True)
+            pbg = warp(prev.hold_bg, M, (w, h), replicate=True)
             ptest = warp(prev.testable, M, (w, h), nearest=True) > 0
             psince = warp(prev.held_since, M, (w, h), nearest=True, border=np.inf)
             hold = weak & ptest
@@ -605,10 +671,38 @@ class MovingObjectDetector:
                 release = hold & (t - since > self.config.max_hold_s)
                 hold &= ~release
                 bg[hold] = pbg[hold]
+                if cut is not None:
+                    cut[hold] = pbg[hold]
                 testable[hold] = 255
                 held_since[hold] = since[hold]
-        self._bg = _Background(c, Hc, bg, testable, held_since)
+        self._bg = _Background(c, Hc, bg, testable, held_since, bg, cut)
         return bg, testable
+
+    def _medians(self, windows: list[tuple[int, int]], Hc_inv: np.ndarray,
+                 size: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray, int]]:
+        """Window medians of the samples of frames ``[lo, hi]`` for each window, in the model
+        pixels of the frame whose inverse homography is ``Hc_inv``, sharing the sample warps.
+
+        Returns
+        -------
+        list of (background, valid count, number of samples)
+        """
+        lo_all, hi_all = min(w[0] for w in windows), max(w[1] for w in windows)
+        idx = [i for i in self._samples if lo_all <= i <= hi_all]
+        chosen = [self._samples[i] for i in idx]
+        to_ref = [to_cv_homography(Hc_inv @ s.H, self.scale) for s in chosen]
+        ref_holes = None
+        if self.config.hold_stopped and self._last_fg is not None:
+            _, fH, fpolys = self._last_fg
+            ref_holes = warp_polygons(fpolys, to_cv_homography(Hc_inv @ fH, self.scale))
+        warped = warp_samples([s.small for s in chosen], to_ref, [s.holes for s in chosen],
+                              size, ref_holes, [not s.known for s in chosen])
+        out = []
+        for j, (lo, hi) in enumerate(windows):
+            which = [k for k, i in enumerate(idx) if lo <= i <= hi]
+            bg, count = subset_median(warped, which, size, copy=j < len(windows) - 1)
+            out.append((bg, count, len(which)))
+        return out
 
     def _finalise(self, p: _Pending) -> Detections:
         c = p.frame.index
@@ -617,19 +711,21 @@ class MovingObjectDetector:
         gates = self._gates(Hc, p.frame.image.shape[:2])
         r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
         self.last_result = r
+        if self._bg is not None and self._bg.index == c and self._bg.cut is not None:
+            self._bg.hold_bg = choose_hold(p.small, self._bg.bg, self._bg.cut, r.model_blobs)
         # Kept out of the background (hold_stopped): in this frame's own sample, each
         # detection's pixels that changed over the lag; in the not-yet-final samples, with a
         # wider margin, those of them where the vehicle will still be (see _ahead).
         changed, moved = self._changed(p, r)
         stationary = changed < 0.2
         stopped = changed < self.config.protect_changed
+        ahead = self._ahead(p, r, bg, moved)
         if c in self._samples and self.config.hold_stopped:
             self._samples[c].holes = blob_polygons(protected_blobs(r.model_blobs, moved, stopped),
                                                    grow=1)
         for i, s in self._samples.items():
             if i <= c:
                 s.known = True
-        ahead = self._ahead(p, r, bg, moved)
         self._last_fg = (c, Hc, blob_polygons(protected_blobs(r.model_blobs, ahead, stopped),
                                               grow=2))
         self._last_final = c
@@ -745,6 +841,8 @@ class MovingObjectDetector:
         else:
             c = self._last_final + 1
         keep_from = min(self._window(c)[0], c - self.lag - self.every)
+        if self.config.full_window_at_ends and self._newest is not None:
+            keep_from = min(keep_from, self._newest - 2 * self.half)  # for flush's shifted window
         for i in [i for i in self._samples if i < keep_from]:
             del self._samples[i]
 
