@@ -251,7 +251,7 @@ def test_track_config_wrong_type(tmp_path, capsys, dets):
                  tmp_path / "o", "--config", c)
 
 
-@pytest.mark.parametrize("rng", ["5:2", "a:b", "0:3", "7"])
+@pytest.mark.parametrize("rng", ["5:2", "a:b", "0:3", "7", "3:", "3:9"])
 def test_track_bad_frame_range(tmp_path, capsys, dets, rng):
     expect_error(capsys, ["--frames"], "track", "--detections", dets, "--out", tmp_path / "o",
                  "--frames", rng)

@@ -323,6 +323,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                 raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
         except CRSError:
             raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
+    last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
+    if frame_range is not None and last and start > last:
+        raise InputError(f"--frames {frame_range}: starts after the input's last frame ({last})")
+
     def where(path):
         return str(Path(path).resolve()) if path is not None else None
 
@@ -340,7 +344,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     with cleanup:
         resume_manifest(out.partial, manifest, resume)
     quiet, verbose = root_flags(ctx)
-    total = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
+    total = last
     if total:
         total = len(range(start, min(stop or total, total) + 1, stride))
     progress, close = make_progress(total, "track", quiet, verbose)
