@@ -8,7 +8,8 @@ process:
 * ``single-1t``: the single process with OpenCV/OpenMP/BLAS/numba limited to one thread (the
   baseline of the speed ratios);
 * ``dask-1``, ``dask-2``: ``aerotrack.parallel`` on a LocalCluster of 1 and 2 worker processes, one
-  thread each, at least one segment per worker.
+  thread each, at least one segment per worker (``dask-2-sym``, on request: the earlier symmetric
+  overlap).
 
 Wall time counts reading, every stage, the join and linking; for Dask it excludes starting the
 cluster (reported apart). HOTA/IDF1 are against the generator's ground truth, and "agreement" is
@@ -41,6 +42,9 @@ from common import REPO, WORK, write_results
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "NUMEXPR_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 MODES = ("single", "single-1t", "dask-1", "dask-2")
+#: Extra modes (``--modes``): ``dask-2-sym`` is dask-2 with the earlier symmetric overlap (4.5 s
+#: each side of the cut instead of a 4.5 s lead and a 3.5 s tail), to measure what the tail costs.
+SYMMETRIC = {"overlap_s": 9.0, "tail_s": 4.5}
 TILE = REPO / "src/aerotrack/synth/data/vegas_tile.tif"
 
 
@@ -131,16 +135,18 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path) -> None
     src = open_source(frames, fps)
     startup = 0.0
     if mode.startswith("dask"):
-        from aerotrack.parallel import dask_client, run_parallel
+        from aerotrack.parallel import ParallelConfig, dask_client, run_parallel
 
         workers = int(mode.split("-")[1])
+        parallel = ParallelConfig(min_segments=workers,
+                                  **(SYMMETRIC if mode.endswith("-sym") else {}))
         t0 = time.perf_counter()
         with dask_client(workers=workers) as client:
             client.wait_for_workers(workers)
             startup = time.perf_counter() - t0
             t0 = time.perf_counter()
             result, report = run_parallel(src, client=client, metres_per_unit=gsd,
-                                          with_report=True)
+                                          with_report=True, parallel=parallel)
             wall = time.perf_counter() - t0
         join = {"segments": len(report.world_rms) + 1, "world_rms": report.world_rms,
                 "stitched": report.stitched, "cut": report.cut,
@@ -270,7 +276,8 @@ def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
         dets[:, 1] = -1
         single = run(None, detections=dets, fps=fps, config=config)
         segs = plan_segments(1, frames, fps=fps, segment_s=frames / fps / 2,
-                             overlap_s=ParallelConfig().overlap(config), min_segments=2,
+                             overlap_s=ParallelConfig().overlap(config),
+                             tail_s=ParallelConfig().tail(config), min_segments=2,
                              align=phase_period(config, fps))
         tasks = make_tasks(None, config=config, fps=fps, segments=segs, detections=dets)
         par, report = assemble(gather_segments(None, tasks), config=config, fps=fps)
@@ -325,7 +332,9 @@ def main() -> None:
     runs: dict[str, dict] = {}
     walls: dict[str, list[float]] = {}
     load = []
+    per_rep: list[dict[str, float]] = []
     for rep in range(a.repeat):
+        per_rep.append({})
         for mode in a.modes.split(","):
             out = folder / f"run-{mode}.json"
             env = dict(os.environ)
@@ -337,6 +346,7 @@ def main() -> None:
             subprocess.run(cmd, check=True, env=env)
             r = json.loads(out.read_text())
             walls.setdefault(mode, []).append(r["wall_s"])
+            per_rep[-1][mode] = r["wall_s"]
             if mode not in runs or r["wall_s"] < runs[mode]["wall_s"]:
                 runs[mode] = r
             print(f"{mode} (run {rep + 1}): {r['wall_s']:.1f} s", file=sys.stderr)
@@ -350,23 +360,39 @@ def main() -> None:
         rows = np.asarray(r["rows"]).reshape(-1, 10)
         e = evaluate(gt, rows)
         ag = evaluate(base_rows, rows)
+        paired = [p[mode] / p["single-1t"] for p in per_rep if "single-1t" in p and mode in p]
+        paired_default = [p[mode] / p["single"] for p in per_rep if "single" in p and mode in p]
         table[mode] = {
             "wall_s": round(r["wall_s"], 2), "cluster_startup_s": round(r["startup_s"], 2),
             "wall_s_all_runs": [round(w, 2) for w in walls[mode]],
             "wall_vs_single_1t": round(r["wall_s"] / base["wall_s"], 3),
+            "wall_vs_single": round(r["wall_s"] / runs["single"]["wall_s"], 3)
+            if "single" in runs else None,
+            # each repetition's ratio (runs of one repetition are close in time, so they share
+            # the machine's load more than the fastest runs of each mode do)
+            "wall_vs_single_1t_per_rep": [round(x, 3) for x in paired],
+            "wall_vs_single_1t_median": round(float(np.median(paired)), 3) if paired else None,
+            "wall_vs_single_median": round(float(np.median(paired_default)), 3)
+            if paired_default else None,
             "frames_per_s": round(a.frames / r["wall_s"], 2),
             "HOTA": round(e["HOTA"], 4), "IDF1": round(e["IDF1"], 4),
             "agreement_HOTA": round(ag["HOTA"], 4), "agreement_IDF1": round(ag["IDF1"], 4),
             "tracks": int(len(np.unique(rows[:, 1]))) if len(rows) else 0,
             "join": r["join"], "stage_s": {k: round(v, 2) for k, v in r["timings"].items()},
         }
-    head = (f"{'mode':10} {'wall s':>8} {'x 1t':>6} {'fr/s':>6} {'HOTA':>6} {'IDF1':>6} "
-            f"{'agrHOTA':>7} {'agrIDF1':>7} {'tracks':>6} segs")
-    print(f"video: {a.frames} frames {size[0]}x{size[1]} at {a.fps:g} fps ({info['generator']})")
+    head = (f"{'mode':10} {'wall s':>8} {'x 1t':>6} {'x 1t med':>8} {'x def':>6} {'fr/s':>6} "
+            f"{'HOTA':>6} {'IDF1':>6} {'agrHOTA':>7} {'agrIDF1':>7} {'tracks':>6} segs")
+    print(f"video: {a.frames} frames {size[0]}x{size[1]} at {a.fps:g} fps ({info['generator']}); "
+          f"1-min load average at run starts {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} "
+          "cores; x 1t: fastest run / fastest single-1t, x 1t med: median over repetitions of "
+          "run / single-1t of the same repetition, x def: fastest / fastest single")
     print(head)
     for mode, t in table.items():
+        med = t["wall_vs_single_1t_median"]
+        vdef = t["wall_vs_single"]
         print(f"{mode:10} {t['wall_s']:8.1f} {t['wall_vs_single_1t']:6.3f} "
-              f"{t['frames_per_s']:6.1f} "
+              f"{med if med is not None else float('nan'):8.3f} "
+              f"{vdef if vdef is not None else float('nan'):6.3f} {t['frames_per_s']:6.1f} "
               f"{t['HOTA']:6.3f} {t['IDF1']:6.3f} {t['agreement_HOTA']:7.3f} "
               f"{t['agreement_IDF1']:7.3f} {t['tracks']:6d} {t['join']['segments']}")
     for mode, j in joins.items():

@@ -4,6 +4,7 @@ cluster (worker processes on loopback) against the single process."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import sys
@@ -96,17 +97,34 @@ def test_plan_partitions_frames_and_cuts_mid_overlap(n, stride, min_segments):
         assert len(segs) == 1  # too short to split
 
 
-@pytest.mark.parametrize("stride,align", [(1, 3), (2, 7), (3, 1)])
+@pytest.mark.parametrize("stride,align", [(1, 3), (2, 7), (3, 1), (1, 24)])
 def test_plan_starts_segments_on_the_phase_grid(stride, align):
     segs = plan_segments(5, 2000, fps=10.0, stride=stride, segment_s=30.0, overlap_s=4.5,
                          min_segments=2, align=align)
     assert len(segs) >= 3
-    plain = plan_segments(5, 2000, fps=10.0, stride=stride, segment_s=30.0, overlap_s=4.5,
-                          min_segments=2)
-    for s, p in zip(segs, plain):
-        assert (s.start - 5) % (align * stride) == 0
-        assert p.start - align * stride < s.start <= p.start  # reads at most align-1 more
-        assert (s.stop, s.own_start, s.own_stop) == (p.stop, p.own_start, p.own_stop)
+    lead, tail = (len(range(0, 45, stride)) - len(range(0, 23, stride)), len(range(0, 23, stride)))
+    for a, b in zip(segs, segs[1:]):
+        assert (b.start - 5) % (align * stride) == 0
+        assert b.own_start - b.start == lead * stride  # on the grid without reading more
+        assert a.stop - a.own_stop == tail * stride
+
+
+@pytest.mark.parametrize("n,align", [(1800, 24), (1800, 1), (5000, 7), (700, 24)])
+def test_plan_balances_the_frames_each_segment_reads(n, align):
+    """The first and last segments lack a lead or a tail: they own more, so that every worker
+    reads about as many frames (within the phase grid's step), and the tail is what was asked."""
+    segs = plan_segments(1, n, fps=15.0, segment_s=20.0, overlap_s=8.0, tail_s=3.5,
+                         min_segments=2, align=align)
+    assert len(segs) >= 2
+    reads = [s.stop - s.start + 1 for s in segs]
+    assert max(reads) - min(reads) <= align + 1
+    owned = [s.own_stop - s.own_start + 1 for s in segs]
+    if len(segs) > 2:
+        assert owned[0] > owned[1] and owned[-1] > owned[1]
+    for a, b in zip(segs, segs[1:]):
+        assert a.stop - a.own_stop == 53  # ceil(3.5 s * 15)
+        assert b.own_start - b.start == 120 - 53  # the rest of ceil(8 s * 15)
+        assert (b.start - 1) % align == 0
 
 
 def test_phase_period_follows_the_detector_sampling():
@@ -137,10 +155,17 @@ def test_later_segments_hold_stopped_vehicles_after_half_their_warm_up():
 
 def test_overlap_defaults_to_the_stage_windows_and_refuses_less():
     config = Config()
-    assert ParallelConfig().overlap(config) == 2 * (config.detection.window_s
-                                                    + config.association.window_s)
+    det, assoc = config.detection.window_s, config.association.window_s
+    tail = det / 2 + 4 / 3 * assoc  # the last owned frame's background and final association
+    assert ParallelConfig().tail(config) == pytest.approx(tail)
+    assert ParallelConfig().overlap(config) == pytest.approx(det + assoc + tail)
     with pytest.raises(InputError, match="overlap_s"):
         ParallelConfig(overlap_s=config.detection.window_s / 2).overlap(config)
+    with pytest.raises(InputError, match="tail_s"):
+        ParallelConfig(overlap_s=det, tail_s=det + 1).overlap(config)
+    segs = ParallelConfig(min_segments=2).plan(1, 1800, config, 15.0)
+    assert len(segs) == 2
+    assert segs[0].stop - segs[0].own_stop == math.ceil(tail * 15)
 
 
 # -- the join (known answers) ---------------------------------------------------------------------
@@ -223,7 +248,7 @@ def test_segments_on_a_cluster_match_the_single_process(scene, client, tmp_path)
                                checkpoint_dir=tmp_path, progress=done.append)
     assert done[-1] == 200 and done == sorted(done)
     # finished segments were saved: resuming runs nothing (no client needed)
-    segs = plan_segments(1, 200, fps=FPS, segment_s=10.0, overlap_s=9.0, min_segments=2)
+    segs = ParallelConfig(segment_s=10.0, min_segments=2).plan(1, 200, Config(), FPS)
     assert len(segs) == 2
     tasks = make_tasks(folder, config=Config(), fps=FPS, segments=segs, metres_per_unit=0.3)
     again = gather_segments(None, tasks, checkpoint_dir=tmp_path, resume=True)

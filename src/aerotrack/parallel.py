@@ -93,6 +93,11 @@ THREAD_ENV = {
     "NUMBA_NUM_THREADS": "1",
 }
 
+#: Dask settings of local-cluster workers: no statistical profiler. It samples the task thread's
+#: stack every 10 ms from another thread, which then takes the GIL from a task that releases it
+#: in every OpenCV/numpy call; it only feeds the dashboard, which local clusters do not start.
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+
 GOOD_STATUS = ("ok", "refined")
 
 
@@ -107,14 +112,24 @@ class ParallelConfig:
         spread better over many workers but repeat the overlap more often (each segment reads
         ``overlap_s`` more than it owns).
     overlap_s : float or None
-        Frames read by both neighbours, in seconds; None uses
-        ``2 * (detection.window_s + association.window_s)``: at the cut (the middle of the
-        overlap) each side has then run a whole background window and a whole association window.
-        Half of that would already give a centred background window at the cut, but the detector
-        settles more slowly after its first frame (measured on a generated 15 frames/s video:
-        detections still differ from the single process's 4-6 s after a segment's start, and a
-        4.5 s overlap cost 0.014 HOTA / 0.022 IDF1 where 9 s cost +0.004 / -0.000). Less than
-        ``detection.window_s`` is refused.
+        Frames read by both neighbours, in seconds: the *lead* (frames before the cut, read by
+        the later segment to warm up) plus the *tail* (frames after the cut, read by the earlier
+        segment so that the frames it owns are final). None: lead
+        ``detection.window_s + association.window_s`` plus the tail below. The lead is the
+        warm-up: the detector settles more slowly after its first frame than its centred window
+        alone suggests (held vehicles, background holes; measured on a generated 15 frames/s
+        video: detections still differ from the single process's 4-6 s after a segment's start,
+        and a 2.25 s lead cost 0.014 HOTA / 0.022 IDF1 where 4.5 s cost +0.004 / -0.000). Less
+        than ``detection.window_s`` is refused.
+    tail_s : float or None
+        Frames read past the cut by the earlier segment, seconds (part of ``overlap_s``). None:
+        what the windows need for the owned frames to be decided as in one run,
+        ``detection.window_s / 2`` (the centred background window of the last owned frame) plus
+        ``4/3 * association.window_s`` (an observation becomes final once the association window,
+        which slides in batches of a third of itself, has passed it). Frames read beyond that
+        only serve the stitching, which needs ``min_common`` frames. A longer tail costs time
+        and changes nothing the segment owns; a shorter one leaves the last owned frames'
+        association undecided when the segment ends (decided on a partial window).
     min_segments : int
         At least this many segments when the video is long enough (use the number of workers).
     match_px : float
@@ -137,20 +152,42 @@ class ParallelConfig:
 
     segment_s: float = 60.0
     overlap_s: float | None = None
+    tail_s: float | None = None
     min_segments: int = 1
     match_px: float = 3.0
     min_common: int = 2
     hold_after_s: float | None = None
 
+    def tail(self, config: Config) -> float:
+        """The tail in seconds, resolved against the stage windows of ``config``."""
+        if self.tail_s is not None:
+            if self.tail_s < 0:
+                raise ConfigError(f"tail_s {self.tail_s}: must not be negative")
+            return float(self.tail_s)
+        return config.detection.window_s / 2.0 + 4.0 / 3.0 * config.association.window_s
+
     def overlap(self, config: Config) -> float:
-        """The overlap in seconds, resolved against the stage windows of ``config``."""
+        """The overlap (lead + tail) in seconds, resolved against the stage windows of
+        ``config``."""
         need = config.detection.window_s
         if self.overlap_s is None:
-            return 2.0 * (config.detection.window_s + config.association.window_s)
+            return config.detection.window_s + config.association.window_s + self.tail(config)
         if self.overlap_s < need:
             raise ConfigError(f"overlap_s {self.overlap_s}: must be at least detection.window_s "
                               f"({need} s)")
+        if self.tail_s is not None and self.tail_s > self.overlap_s:
+            raise ConfigError(f"tail_s {self.tail_s}: must not exceed overlap_s "
+                              f"({self.overlap_s} s)")
         return float(self.overlap_s)
+
+    def plan(self, first: int, last: int, config: Config, fps: float, stride: int = 1
+             ) -> list[Segment]:
+        """:func:`plan_segments` with these settings and the phase grid of ``config``."""
+        overlap = self.overlap(config)
+        return plan_segments(first, last, fps=fps, stride=stride, segment_s=self.segment_s,
+                             overlap_s=overlap, tail_s=min(self.tail(config), overlap),
+                             min_segments=self.min_segments,
+                             align=phase_period(config, fps, stride))
 
 
 @dataclass(frozen=True)
@@ -178,17 +215,23 @@ class Segment:
 
 
 def plan_segments(first: int, last: int, *, fps: float, stride: int = 1, segment_s: float = 60.0,
-                  overlap_s: float = 4.5, min_segments: int = 1, align: int = 1) -> list[Segment]:
+                  overlap_s: float = 4.5, min_segments: int = 1, align: int = 1,
+                  tail_s: float | None = None) -> list[Segment]:
     """Cut frames ``first, first+stride, ..., <= last`` into overlapping segments.
 
-    Cuts are evenly spaced; segment ``k`` owns the frames between its two cuts and reads
-    ``ceil(overlap/2)`` more grid frames on each side, so neighbours share at least ``overlap_s``
-    and the cut is the middle of their overlap. A segment owns more than one overlap, so every frame
+    Segment ``k`` owns the frames between its two cuts, reads ``tail_s`` more after its last
+    cut (default: half the overlap) and ``overlap_s - tail_s`` more before its first, so
+    neighbours share at least ``overlap_s``. A segment owns more than one overlap, so every frame
     is read by at most two segments; a video too short for two such segments is one segment.
 
     ``align`` (grid frames, see :func:`phase_period`): each segment starts reading a multiple of
-    ``align`` grid frames after ``first`` (earlier than the half overlap asks, by less than
-    ``align``), so that the stages' periodic choices fall on the same frames as in one run.
+    ``align`` grid frames after ``first``, so that the stages' periodic choices fall on the same
+    frames as in one run.
+
+    Cuts balance the frames each segment *reads* (owned frames plus its lead and tail, which the
+    first and last segments lack), so that workers finish together: each cut is the one on the
+    phase grid (``lead`` frames after a multiple of ``align``) nearest to the balanced position,
+    so segments differ by less than ``align`` frames read and none reads more than its lead.
 
     Returns
     -------
@@ -202,16 +245,30 @@ def plan_segments(first: int, last: int, *, fps: float, stride: int = 1, segment
     n = (last - first) // stride + 1 if last >= first else 0
     if n <= 0:
         return []
-    half = max(1, math.ceil(overlap_s * fps / stride / 2))
-    per = max(1, round(segment_s * fps / stride))
-    k_max = max(1, n // (2 * half + 1))
+    grid = fps / stride
+    tail_s = overlap_s / 2 if tail_s is None else min(max(0.0, tail_s), overlap_s)
+    tail = max(1, math.ceil(tail_s * grid - 1e-9))
+    lead = max(1, math.ceil(overlap_s * grid - 1e-9) - tail)
+    align = max(1, int(align))
+    per = max(1, round(segment_s * grid))
+    k_max = max(1, n // (lead + tail + 1))
     k = min(max(min_segments, math.ceil(n / per)), k_max)
-    cuts = [round(j * n / k) for j in range(k + 1)]
+    # frames each segment reads outside its owned range; every cut but the first is placed so
+    # that the segment after it starts on the phase grid with exactly ``lead`` frames before it
+    extra = [(tail if j < k - 1 else 0) + (lead if j else 0) for j in range(k)]
+    reads = (n + sum(extra)) / k
+    cuts = [0]
+    for j in range(1, k):
+        target = j * reads - sum(extra[:j])
+        snapped = lead + round((target - lead) / align) * align
+        cuts.append(min(n - 1, max(cuts[-1] + 1, snapped)))
+    cuts.append(n)
     out = []
     for j in range(k):
         own0, own1 = cuts[j], cuts[j + 1] - 1
-        r0, r1 = max(0, own0 - half), min(n - 1, own1 + half)
-        r0 -= r0 % max(1, int(align))
+        r0 = max(0, own0 - lead) if j else 0
+        r1 = min(n - 1, own1 + tail)
+        r0 -= r0 % align
         out.append(Segment(j, first + r0 * stride, first + r1 * stride,
                            first + own0 * stride, first + own1 * stride))
     return out
@@ -625,11 +682,14 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         return
     if workers is None or workers < 1:
         raise InputError(f"--workers {workers}: must be at least 1")
-    cluster = distributed.LocalCluster(
-        n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-        dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR,
-        # no dashboard; the scheduler's HTTP endpoints on a free loopback port, not 8787
-        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    import dask
+
+    with dask.config.set(WORKER_CONFIG):  # read by each worker's nanny when it is created
+        cluster = distributed.LocalCluster(
+            n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
+            dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR,
+            # no dashboard; the scheduler's HTTP endpoints on a free loopback port, not 8787
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     try:
         client = distributed.Client(cluster)
         try:
@@ -718,14 +778,25 @@ def _segment_file(folder: Path, task: SegmentTask) -> Path:
                      f"{h.hexdigest()[:12]}.pkl")
 
 
+def _import_linking() -> None:
+    """Import what global linking needs (about 1 s: scipy.spatial, the contexts), so that the
+    client does it while the workers run the segments, not after the last one."""
+    try:
+        from .association import linking  # noqa: F401
+    except ImportError:  # linking unavailable: link() says so when it runs
+        pass
+
+
 def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
                     checkpoint_dir: Path | None = None, resume: bool = False,
-                    progress: Callable[[int], None] | None = None) -> list[SegmentResult]:
+                    progress: Callable[[int], None] | None = None,
+                    while_waiting: Callable[[], None] | None = None) -> list[SegmentResult]:
     """Run tasks on the cluster (``client``; None runs them here, in turn) and collect their
     results in segment order.
 
     With ``checkpoint_dir`` each finished segment is saved there (atomically) as it arrives, and
-    with ``resume`` segments already saved are not run again.
+    with ``resume`` segments already saved are not run again. ``while_waiting`` is called once
+    after the tasks are submitted to the cluster (client-side work that can overlap them).
     """
     from .io.output import atomic_write_bytes
 
@@ -751,6 +822,8 @@ def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
         else:
             distributed = _distributed()
             futures = submit_tasks(client, todo, retries=retries)
+            if while_waiting is not None:
+                while_waiting()
             finished = (fut.result() for fut in distributed.as_completed(futures))
         for res in finished:
             done[res.segment.index] = res
@@ -881,10 +954,7 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
         fps = source.fps if source is not None else 30.0
     parallel = parallel or ParallelConfig(min_segments=n_workers(client))
     first, last = frame_range(source, detections, start, stop, stride)
-    segments = plan_segments(first, last, fps=fps, stride=stride, segment_s=parallel.segment_s,
-                             overlap_s=parallel.overlap(config),
-                             min_segments=parallel.min_segments,
-                             align=phase_period(config, fps, stride))
+    segments = parallel.plan(first, last, config, fps, stride)
     if not segments:
         raise InputError(f"no frames between {start} and {stop}")
     log.info("%d segments of about %d frames on %d workers", len(segments),
@@ -896,7 +966,7 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                        detections=detections, undistort=undistort, regions=regions,
                        hold_after_s=parallel.hold_after_s)
     results = gather_segments(client, tasks, retries=retries, checkpoint_dir=checkpoint_dir,
-                              resume=resume, progress=progress)
+                              resume=resume, progress=progress, while_waiting=_import_linking)
     result, report = assemble(results, config=config, fps=fps, geomap=geomap,
                               metres_per_unit=metres_per_unit, stride=stride, parallel=parallel,
                               regions=regions, min_speed_mps=min_speed_mps, roads=roads)
@@ -1007,10 +1077,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 continue
             try:
                 first, last = frame_range(src, None, 1, None, stride)
-                segs = plan_segments(first, last, fps=src.fps, stride=stride,
-                                     segment_s=per.segment_s, overlap_s=per.overlap(config),
-                                     min_segments=per.min_segments,
-                                     align=phase_period(config, src.fps, stride))
+                segs = per.plan(first, last, config, src.fps, stride)
                 tasks = make_tasks(src.path, config=config, fps=src.fps, segments=segs,
                                    stride=stride, seed=seed, metres_per_unit=metres_per_unit,
                                    hold_after_s=per.hold_after_s)
