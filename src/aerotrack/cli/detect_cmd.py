@@ -45,7 +45,7 @@ def detect_command(ctx, input_path, out_dir, fps, config_path, overrides, stabil
     repeats the run.
 
     \b
-    Example:
+    Examples:
       aerotrack detect clip.mp4 --out det/ --debug-video
       aerotrack detect frames/ --out det/ --fps 10 --set detection.window_s=2
     """

@@ -37,6 +37,11 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     With --map and --map-init the frames are painted onto the map in map pixels (registration
     refined against the map); without a map, onto frame 1's plane. Outlines: first frame green,
     last red.
+
+    \b
+    Examples:
+      aerotrack mosaic flight.mp4 --out mosaic.jpg
+      aerotrack mosaic frames/ --out geo.png --map ortho.tif --map-init h.txt --stride 5
     """
     import cv2
 
