@@ -591,3 +591,15 @@ def test_resume_refuses_checkpoints_of_another_run(tmp_path, capsys, dets):
                            "--seed", "1")
     assert code == 0, err
     assert (out / "tracks.csv").is_file() and not (out / ".partial").exists()
+
+
+def test_track_video_cut_mid_stream_warns_and_completes(tmp_path, capsys):
+    """Documented degraded result: the frames before the cut are tracked, with a warning."""
+    v = write_video(tmp_path / "clip.avi", [textured(shift=(0, i)) for i in range(9)])
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(v.read_bytes()[: v.stat().st_size * 2 // 3])
+    code, _, err = run_cli(capsys, "track", cut, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert "cut.avi: decoding stopped after frame" in err
+    frames = json.loads((tmp_path / "o" / "summary.json").read_text())["frames"]
+    assert 1 <= frames < 9

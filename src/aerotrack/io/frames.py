@@ -6,6 +6,7 @@ of names. Never more than one frame is held in memory by a source.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from pathlib import Path
@@ -87,6 +88,11 @@ class VideoSource(FrameSource):
             while True:
                 ok = cap.grab()
                 if not ok:
+                    expected = min(stop or self.count or 0, self.count or 0)
+                    if index < expected - max(2, expected // 100):  # counts are estimates
+                        logging.getLogger(__name__).warning(
+                            "%s: decoding stopped after frame %d of the %d its header announces "
+                            "(truncated or corrupt video?)", self.path, index, self.count)
                     return
                 index += 1
                 if stop is not None and index > stop:
