@@ -46,7 +46,8 @@ VARIANTS = {
 
 
 def aerotrack(*args: str) -> subprocess.CompletedProcess:
-    r = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True,
+                       check=False)
     if r.returncode != 0:
         sys.exit(f"aerotrack {' '.join(args[:2])}: {r.stderr.strip().splitlines()[-1:]}")
     return r

@@ -10,7 +10,9 @@ occlusions.
 The steps, each a plain function usable without Dask:
 
 1. :func:`plan_segments`: cut the frame range into ``K`` segments; segment ``k`` *owns* the frames
-   between two cuts and *reads* half an overlap more on each side;
+   between two cuts and *reads* a lead before (its warm-up) and a tail after them (what the
+   windows need for its last owned frames to be decided as in one run; see
+   :class:`ParallelConfig`), with cuts placed so that every segment reads about as many frames;
 2. :func:`run_segment` (on a worker): :class:`~aerotrack.pipeline.Pipeline` over the frames the
    segment reads, up to :meth:`~aerotrack.pipeline.Pipeline.finish_local`. Without a map a segment's
    world is its own first frame's pixels;
