@@ -120,8 +120,9 @@ def descriptor_cost(d_color: float, d_edge: float, cap: float = math.inf) -> flo
     the rest of its own vehicle, which outweighs every other cue and vetoes the link. Past a few
     units the distance only says "looks different", so it is truncated there: the cue then
     behaves like a likelihood with an outlier floor (a robust mixture). Measured on generated
-    scenes with aerotrack's detector (benchmarks/identity.py): IDF1 0.670 -> 0.682 and exits
-    re-acquired 3/7 -> 4/7 at cap 3; unchanged with ground-truth detections, UAVDT and Santiago.
+    scenes with aerotrack's detector (benchmarks/identity.py, three detector versions' tracklets):
+    exits re-acquired 3/7 -> 4/7 with each, IDF1 -0.008 to +0.012; unchanged with ground-truth
+    detections and UAVDT, Santiago IDF1 -0.002.
     """
     d = d_color + d_edge
     return min(d, cap) if math.isfinite(d) else d
