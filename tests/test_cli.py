@@ -142,3 +142,34 @@ def test_bare_command_shows_the_help():
     res = run()
     assert "Usage: aerotrack" in res.stdout + res.stderr and "track" in res.stdout + res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_sigterm_during_detect_leaves_nothing(tmp_path):
+    """Commands without --resume clean up after an interruption: the same command works again."""
+    import signal
+    import time
+
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.integers(0, 255, (200, 900, 3), dtype=np.uint8), (0, 0), 2)
+    video = tmp_path / "v.avi"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (240, 180))
+    for i in range(1500):
+        vw.write(np.ascontiguousarray(base[10:190, (i // 3) % 600:(i // 3) % 600 + 240]))
+    vw.release()
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "aerotrack", "detect", str(video), "--out",
+                             str(out)], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not (out / ".partial").exists() and proc.poll() is None:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    if proc.poll() is not None:
+        pytest.skip("detect finished before it could be stopped")
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "Traceback" not in err and "interrupted" in err
+    assert not out.exists()

@@ -89,6 +89,17 @@ _register()
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the CLI, mapping aerotrack errors to exit code 2."""
+    import signal
+    import threading
+
+    from .common import Interrupted
+
+    def terminate(signum, frame):  # SIGTERM unwinds like Ctrl-C: commands clean up after them
+        raise Interrupted(signum)
+
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, terminate)
     try:
         cli.main(args=argv, prog_name="aerotrack", standalone_mode=False)
     except (click.exceptions.Abort, KeyboardInterrupt) as exc:
@@ -116,6 +127,9 @@ def main(argv: list[str] | None = None) -> None:
     except MemoryError:
         click.echo("aerotrack: error: out of memory", err=True)
         sys.exit(2)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover
