@@ -409,7 +409,7 @@ def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
             now = json.loads(json.dumps(manifest))  # tuples -> lists, as read back
             changed = [k for k in now if k in before and before[k] != now[k]]
             if changed:
-                label = {"input": "INPUT", "config": "config (--config/--set)"}
+                label = {"input": "INPUT", "config": "config (--config, --set or defaults)"}
                 names = ", ".join(label.get(k, "--" + k.replace("_", "-")) for k in changed)
                 raise InputError(f"--resume {path.parent.parent}: the interrupted run was started "
                                  f"with another {names}; give the same inputs and options, or "
