@@ -34,8 +34,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from common import SANTIAGO_DIR, UAVDT_DIR, UAVDT_SEQS, WORK, require_data, write_results
+from common import (
+    SANTIAGO_DIR,
+    UAVDT_DIR,
+    UAVDT_SEQS,
+    WORK,
+    require_data,
+    write_results,
+)
 
 from aerotrack.association.finish import finish_tracks
 from aerotrack.config import Config, load_config

@@ -17,6 +17,7 @@ from aerotrack.association.finish import (
     oriented_size,
     robust_smooth,
     rts_smooth,
+    window_sizes,
 )
 from aerotrack.config import Config, FinishConfig, load_config
 from aerotrack.errors import ConfigError
@@ -240,3 +241,16 @@ def test_pipeline_link_finishes_tracks():
     obs_on = np.array([p.box for p in on[0].points if p.kind != "predicted"])
     obs_off = np.array([p.box for p in off[0].points if p.kind != "predicted"])
     assert _iou(obs_on, truth).mean() > _iou(obs_off, truth).mean() + 0.05
+
+
+def test_window_sizes_match_numpy_quantiles():
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.uniform(0, 10, 200))
+    s = rng.uniform(1, 5, (200, 2))
+    valid = rng.random(200) > 0.3
+    out = window_sizes(t, s, valid, 1.0, 0.6)
+    tv, sv = t[valid], s[valid]
+    for i in range(0, 200, 7):
+        near = np.abs(tv - t[i]) <= 0.5
+        ref = np.quantile(sv[near] if near.any() else sv, 0.6, axis=0)
+        assert np.allclose(out[i], ref)

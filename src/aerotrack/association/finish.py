@@ -42,14 +42,31 @@ import logging
 import math
 
 import numpy as np
+from numba import njit
 
 from ..config import FinishConfig
 from ..errors import ConfigError
-from ..kalman import ConstantVelocityKF, measurement_noise, predict, process_noise, transition, update
+from ..kalman import (
+    ConstantVelocityKF,
+    cholesky_solve,
+    initiate_nb,
+    predict_nb,
+    process_noise_nb,
+    transition_nb,
+    update_nb,
+)
 from ..types import Registration, Track, apply_homography
 
-__all__ = ["TrackFinisher", "finish_tracks", "rts_smooth", "robust_smooth", "oriented_size",
-           "window_sizes", "is_static", "SIZE_MODES"]
+__all__ = [
+    "SIZE_MODES",
+    "TrackFinisher",
+    "finish_tracks",
+    "is_static",
+    "oriented_size",
+    "robust_smooth",
+    "rts_smooth",
+    "window_sizes",
+]
 
 log = logging.getLogger(__name__)
 
@@ -83,27 +100,40 @@ def rts_smooth(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray, kf: ConstantVe
     Ps : ndarray (N, 6, 6)
         Smoothed covariances.
     """
-    n = len(times)
+    return _rts_kernel(np.ascontiguousarray(times, dtype=np.float64),
+                       np.ascontiguousarray(zs, dtype=np.float64),
+                       np.ascontiguousarray(Rs, dtype=np.float64),
+                       float(kf.accel_std), float(kf.size_std), float(kf.vel_std))
+
+
+@njit(cache=True)
+def _rts_kernel(times, zs, Rs, accel_std, size_std, vel_std):
+    """Compiled forward filter (kalman.py's functions) and backward RTS pass of
+    :func:`rts_smooth`."""
+    n = times.shape[0]
     xf = np.zeros((n, 6))
     Pf = np.zeros((n, 6, 6))
     xp = np.zeros((n, 6))
     Pp = np.zeros((n, 6, 6))
-    x, P = kf.initiate(zs[0])
-    P[:4, :4] = Rs[0]
-    xf[0], Pf[0], xp[0], Pp[0] = x, P, x, P
     As = np.zeros((n, 6, 6))
+    x, P = initiate_nb(zs[0], Rs[0], vel_std)
+    xf[0], Pf[0], xp[0], Pp[0] = x, P, x, P
     for i in range(1, n):
-        dt = float(times[i] - times[i - 1])
-        As[i] = transition(dt)
-        x, P = predict(x, P, As[i], process_noise(abs(dt), kf.accel_std, kf.size_std))
+        dt = times[i] - times[i - 1]
+        As[i] = transition_nb(dt)
+        x, P = predict_nb(x, P, As[i], process_noise_nb(abs(dt), accel_std, size_std))
         xp[i], Pp[i] = x, P
         if np.all(np.isfinite(zs[i])):
-            x, P, _, _ = update(x, P, zs[i], Rs[i])
+            x, P, _, _ = update_nb(x, P, zs[i], Rs[i])
         xf[i], Pf[i] = x, P
-    xs, Ps = xf.copy(), Pf.copy()
+    xs = xf.copy()
+    Ps = Pf.copy()
     for i in range(n - 2, -1, -1):
-        # C = P_f A^T P_p^-1 (the smoother gain), solved rather than inverted
-        C = np.linalg.solve(Pp[i + 1].T, (Pf[i] @ As[i + 1].T).T).T
+        # smoother gain C = P_f A^T P_p^-1, as the transpose of P_p^-1 (A P_f) (P_p symmetric)
+        X, logdet = cholesky_solve(Pp[i + 1], As[i + 1] @ Pf[i])
+        if not np.isfinite(logdet):
+            continue  # keep the filtered state
+        C = X.T
         xs[i] = xf[i] + C @ (xs[i + 1] - xp[i + 1])
         Ps[i] = Pf[i] + C @ (Ps[i + 1] - Pp[i + 1]) @ C.T
     return xs, Ps
@@ -138,11 +168,43 @@ def robust_smooth(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray, kf: Constan
 
 # -- geometry -------------------------------------------------------------------------------------
 
+def _noise(sizes: np.ndarray, pos_std: float, pos_frac: float, size_std: float, size_frac: float
+           ) -> np.ndarray:
+    """(N, 4, 4) diagonal observation noise for (N, 2) sizes, as
+    :func:`aerotrack.kalman.measurement_noise` row by row."""
+    s = np.abs(sizes)
+    R = np.zeros((len(s), 4, 4))
+    for i in range(2):
+        R[:, i, i] = pos_std ** 2 + (pos_frac * s[:, i]) ** 2
+        R[:, i + 2, i + 2] = size_std ** 2 + (size_frac * s[:, i]) ** 2
+    return R
+
+
 def _jacobian(Hinv: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """(2, 2) Jacobian of world -> frame pixels (``Hinv``) at world point ``c`` (2,)."""
-    h = Hinv @ np.array([c[0], c[1], 1.0])
-    J = (Hinv[:2, :2] * h[2] - np.outer(h[:2], Hinv[2, :2])) / (h[2] * h[2])
-    return J
+    """Jacobians (N, 2, 2) of world -> frame pixels (``Hinv`` (N, 3, 3)) at world points ``c``
+    (N, 2); a single (3, 3) and (2,) give one (2, 2)."""
+    if Hinv.ndim == 2:
+        return _jacobian(Hinv[None], np.asarray(c)[None])[0]
+    h = np.einsum("nij,nj->ni", Hinv, np.column_stack([c, np.ones(len(c))]))
+    w = h[:, 2][:, None, None]
+    return (Hinv[:, :2, :2] * w - h[:, :2, None] * Hinv[:, 2, None, :2]) / (w * w)
+
+
+def _project(Hinv: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Points (N, K, 2) through per-row homographies ``Hinv`` (N, 3, 3) -> (N, K, 2)."""
+    h = np.einsum("nij,nkj->nki", Hinv, np.concatenate([pts, np.ones(pts.shape[:2] + (1,))], 2))
+    return h[..., :2] / h[..., 2:3]
+
+
+def _footprints(Hinv: np.ndarray, centre: np.ndarray, heading: np.ndarray, length: float,
+                width: float) -> np.ndarray:
+    """:func:`footprint_box` for N frames at once: (N, 4) boxes."""
+    f = np.stack([np.cos(heading), np.sin(heading)], 1) * length / 2
+    r = np.stack([-np.sin(heading), np.cos(heading)], 1) * width / 2
+    corners = centre[:, None, :] + np.stack([f + r, f - r, -f - r, -f + r], 1)
+    px = _project(Hinv, corners)
+    lo, hi = px.min(axis=1), px.max(axis=1)
+    return np.column_stack([lo, hi - lo])
 
 
 def footprint_box(Hinv: np.ndarray, centre: np.ndarray, heading: float, length: float,
@@ -206,11 +268,23 @@ def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window
     tv, sv = times[valid], sizes[valid]
     if not len(tv):
         return out
-    whole = np.quantile(sv, quantile, axis=0)
     lo = np.searchsorted(tv, times - window_s / 2, side="left")
     hi = np.searchsorted(tv, times + window_s / 2, side="right")
-    for i, (a, b) in enumerate(zip(lo, hi)):
-        out[i] = np.quantile(sv[a:b], quantile, axis=0) if b > a else whole
+    m = hi - lo  # valid sizes in each window
+    k = max(int(m.max()), 1)
+    idx = lo[:, None] + np.arange(k)[None]
+    inside = idx < hi[:, None]
+    win = np.where(inside[:, :, None], sv[np.minimum(idx, len(sv) - 1)], np.inf)
+    win = np.sort(win, axis=1)  # (N, k, 2), the window's values first
+    # linear interpolation between order statistics, as numpy's default quantile
+    pos = quantile * np.maximum(m - 1, 0)
+    a = np.floor(pos).astype(int)
+    b = np.minimum(a + 1, np.maximum(m - 1, 0))
+    frac = (pos - a)[:, None]
+    rows = np.arange(len(times))
+    some = m > 0
+    out[some] = win[rows[some], a[some]] * (1 - frac[some]) + win[rows[some], b[some]] * frac[some]
+    out[~some] = np.quantile(sv, quantile, axis=0)
     return out
 
 
@@ -320,7 +394,8 @@ class TrackFinisher:
         measured = np.array([p.kind in MEASURED for p in pts]) & np.all(np.isfinite(boxes), axis=1)
         if measured.sum() < 2:
             return True
-        Hinv = np.array([np.eye(3) if regs is None else np.linalg.inv(regs[p.frame].H) for p in pts])
+        Hinv = np.tile(np.eye(3), (n, 1, 1)) if regs is None else \
+            np.linalg.inv(np.array([regs[p.frame].H for p in pts], dtype=np.float64))
         world = np.array([np.asarray(p.world, dtype=np.float64) for p in pts])
         edge = self._at_border(boxes, frame_size) & measured
         # kalman.process_noise holds the acceleration constant over each step (discrete white
@@ -337,7 +412,7 @@ class TrackFinisher:
         # driving along with it stands still
         if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
             return False
-        J = np.array([_jacobian(Hinv[i], xs[i, :2]) for i in range(n)])
+        J = _jacobian(Hinv, xs[:, :2])
         full = measured & ~edge
         # one size per run of consecutive in-view frames (a tracklet): a wrong link between two
         # vehicles must not give one of them the other's size
@@ -353,16 +428,14 @@ class TrackFinisher:
                 cx, cy = self._unclipped_centre(boxes[i], new[i], frame_size)
                 world2[i] = apply_homography(np.linalg.inv(Hinv[i]), np.array([[cx, cy]]))[0]
             xs2 = self._smooth(times, frames, world2, sizes, measured, kf, mpu)
-            shift = [apply_homography(Hinv[i], xs2[i:i + 1, :2])[0]
-                     - apply_homography(Hinv[i], xs[i:i + 1, :2])[0] for i in range(n)]
-            new[:, :2] += np.array(shift)
+            new[:, :2] += (_project(Hinv, xs2[:, None, :2]) - _project(Hinv, xs[:, None, :2]))[:, 0]
             xs = xs2
         if c.clip_to_frame and frame_size is not None:
             new = _clip(new, frame_size)
-        for i, p in enumerate(pts):
-            if new[i, 2] > 0 and new[i, 3] > 0 and np.all(np.isfinite(new[i])):
-                p.box = new[i]
-                p.world = xs[i, :2].copy()
+        good = (new[:, 2] > 0) & (new[:, 3] > 0) & np.all(np.isfinite(new), axis=1)
+        for i in np.flatnonzero(good):
+            pts[i].box = new[i]
+            pts[i].world = xs[i, :2].copy()
         return True
 
     def _run_boxes(self, run, mode, xs, boxes, J, Hinv, times, full, mpu) -> np.ndarray:
@@ -374,8 +447,7 @@ class TrackFinisher:
             if np.all(np.isfinite(head)) and ok.any():
                 L, W = oriented_size(boxes[run][ok], J[run][ok], head[ok], c.size_quantile,
                                      c.default_aspect)
-                return np.array([footprint_box(Hinv[i], xs[i, :2], h, L, W)
-                                 for i, h in zip(run, head)])
+                return _footprints(Hinv[run], xs[run, :2], head, L, W)
             mode = "window"  # never seen moving: no heading, keep the frame axes
         if mode == "window":
             scale = np.sqrt(np.abs(np.linalg.det(J[run])))
@@ -384,7 +456,8 @@ class TrackFinisher:
             wh = np.where(np.isfinite(wh), wh, norm) * scale[:, None]
         else:
             wh = boxes[run, 2:4]
-        return np.array([self._centred(Hinv[i], xs[i, :2], wh[k]) for k, i in enumerate(run)])
+        c_px = _project(Hinv[run], xs[run, None, :2])[:, 0]
+        return np.column_stack([c_px - wh / 2, wh])
 
     def _smooth(self, times, frames, world, sizes, measured, kf, mpu) -> np.ndarray:
         """Robust RTS over each run of consecutive frames; (N, 6) states (unsmoothed rows copied
@@ -402,8 +475,7 @@ class TrackFinisher:
             # every frame of the run, observed or not (frames are consecutive inside a run)
             zs = np.column_stack([world[r], sizes[r]])
             zs[~measured[r]] = np.nan
-            Rs = np.array([measurement_noise(np.nan_to_num(sizes[i]), c.pos_std_m / mpu, c.pos_frac,
-                                             0.3 / mpu, 0.1) for i in r])
+            Rs = _noise(np.nan_to_num(sizes[r]), c.pos_std_m / mpu, c.pos_frac, 0.3 / mpu, 0.1)
             x_r, _ = robust_smooth(times[r], zs, Rs, kf, c.outlier_chi2, c.robust_iters)
             xs[r] = x_r
             # points of the run outside the measured span (bridged ends) keep constant velocity
@@ -418,15 +490,14 @@ class TrackFinisher:
     @staticmethod
     def _world_sizes(pts, boxes, Hinv, world) -> np.ndarray:
         """(N, 2) sizes in world units (``size_world``, else the box through the homography)."""
-        out = np.zeros((len(pts), 2))
-        for i, p in enumerate(pts):
-            if p.size_world is not None and np.all(np.isfinite(p.size_world)):
-                out[i] = np.abs(p.size_world)
-            elif np.all(np.isfinite(boxes[i])):
-                J = _jacobian(Hinv[i], world[i])
-                s = math.sqrt(abs(np.linalg.det(J))) or 1.0
-                out[i] = boxes[i, 2:4] / s
-        return out
+        nan2 = np.full(2, np.nan)
+        out = np.abs(np.array([nan2 if p.size_world is None else p.size_world for p in pts],
+                              dtype=np.float64).reshape(-1, 2))
+        missing = ~np.all(np.isfinite(out), axis=1)
+        if missing.any():
+            scale = np.sqrt(np.abs(np.linalg.det(_jacobian(Hinv[missing], world[missing]))))
+            out[missing] = boxes[missing, 2:4] / np.where(scale > 0, scale, 1.0)[:, None]
+        return np.nan_to_num(out)
 
     def _at_border(self, boxes: np.ndarray, frame_size) -> np.ndarray:
         if frame_size is None:
@@ -453,11 +524,6 @@ class TrackFinisher:
         elif bottom and not top:
             cy = box[1] + full[3] / 2
         return cx, cy
-
-    @staticmethod
-    def _centred(Hinv, centre, wh) -> np.ndarray:
-        c = apply_homography(Hinv, np.asarray(centre)[None])[0]
-        return np.array([c[0] - wh[0] / 2, c[1] - wh[1] / 2, wh[0], wh[1]])
 
 
 def _clip(boxes: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
