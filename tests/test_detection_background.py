@@ -11,7 +11,7 @@ from aerotrack.config import DetectionConfig
 from aerotrack.detection import MovingObjectDetector
 from aerotrack.detection.background import subset_median, warp_samples, window_background
 from aerotrack.detection.blobs import Blob
-from aerotrack.detection.detector import choose_hold
+from aerotrack.detection.detector import choose_hold, drop_ghost_parts
 from aerotrack.types import Frame, Registration
 
 FPS = 10.0
@@ -146,3 +146,22 @@ def test_choose_hold_keeps_the_road_under_a_vehicle_and_beside_it():
     assert np.all(out == road)
     # symmetric in the candidates
     assert np.all(choose_hold(frame, b, a, [Blob((2, 2, 6, 4), mask)]) == road)
+
+
+def test_drop_ghost_parts_clears_the_imprint_and_keeps_a_vehicle_other_absorbed():
+    rng = np.random.default_rng(5)
+    road = np.clip(100 + rng.normal(0, 2, (30, 60, 3)), 0, 255).astype(np.uint8)
+    frame, bg, other = road.copy(), road.copy(), road.copy()
+    frame[10:20, 5:25] = (40, 40, 200)  # a vehicle passing, not in either background
+    bg[10:20, 25:45] = (40, 200, 40)  # the imprint of one that will stop here (shifted window)
+    mask = np.zeros((10, 40), bool)
+    mask[:] = True  # one blob joins the two
+    b, = drop_ghost_parts(frame, bg, other, [Blob((5, 10, 40, 10), mask)], 15.0, 1.5)
+    assert b.mask[:, :18].all() and not b.mask[:, 22:].any()
+    # a vehicle standing here now that ``other`` absorbed: kept whole
+    frame2, bg2, other2 = road.copy(), road.copy(), road.copy()
+    frame2[10:20, 25:45] = (40, 200, 40)
+    other2[10:20, 25:45] = (40, 200, 40)
+    mask2 = np.ones((10, 20), bool)
+    b2, = drop_ghost_parts(frame2, bg2, other2, [Blob((25, 10, 20, 10), mask2)], 15.0, 1.5)
+    assert b2.mask.all()

@@ -450,6 +450,40 @@ def protected_blobs(blobs: list[Blob], moved: list, stopped: np.ndarray) -> list
     return out
 
 
+def drop_ghost_parts(small: np.ndarray, bg: np.ndarray, other: np.ndarray, blobs: list[Blob],
+                     threshold: float, ratio: float) -> list[Blob]:
+    """Blobs without their parts that match a second background and look like a ghost.
+
+    A blob part (model pixels) where the frame matches ``other`` (residual at most
+    ``threshold``) but not ``bg`` is either a vehicle ``other`` absorbed or the imprint in ``bg``
+    of a vehicle that is not here now. The outline tells them apart (:func:`ghost_score` of
+    the part against ``bg`` below ``ratio``: a ghost). Blobs keep their boxes; ghost pixels are
+    cleared from their masks.
+
+    Parameters
+    ----------
+    small : ndarray, shape (h, w, 3) uint8
+    bg, other : ndarray, shape (h, w, 3) uint8
+        The background the blobs were found against and a second one, same pixels.
+    blobs : list of Blob
+    threshold : float
+        Residual threshold, grey levels.
+    ratio : float
+        Outline ratio under which a part is a ghost; 0 keeps every part.
+    """
+    if ratio <= 0:
+        return list(blobs)
+    out = []
+    for b in blobs:
+        x, y, bw, bh = b.box
+        same = residual_image(small[y:y + bh, x:x + bw], other[y:y + bh, x:x + bw], 1) <= threshold
+        part = b.mask & same
+        if part.sum() >= 4 and _outline_ratio(small, bg, b, part) < ratio:
+            b = Blob(b.box, b.mask & ~part)
+        out.append(b)
+    return out
+
+
 def choose_hold(small: np.ndarray, a: np.ndarray, b: np.ndarray, blobs: list[Blob]) -> np.ndarray:
     """Per pixel, the one of two background candidates a pixel that becomes held should keep.
 
@@ -711,8 +745,19 @@ class MovingObjectDetector:
         gates = self._gates(Hc, p.frame.image.shape[:2])
         r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
         self.last_result = r
-        if self._bg is not None and self._bg.index == c and self._bg.cut is not None:
-            self._bg.hold_bg = choose_hold(p.small, self._bg.bg, self._bg.cut, r.model_blobs)
+        blobs = r.model_blobs
+        if self._bg is not None and self._bg.cut is not None and len(blobs):
+            # A window shifted forward holds vehicles that will stop here later: where the frame
+            # shows the road they leave a ghost that joins the blob of a vehicle passing by.
+            # Such parts are not kept out of the background (nor held as a vehicle).
+            cut = self._bg.cut
+            if self._bg.index != c:
+                M = to_cv_homography(np.linalg.inv(Hc) @ self._bg.H, self.scale)
+                cut = warp(cut, M, (p.small.shape[1], p.small.shape[0]), replicate=True)
+            blobs = drop_ghost_parts(p.small, bg, cut, blobs, r.threshold,
+                                     self.config.ghost_part_ratio)
+            if self._bg.index == c:
+                self._bg.hold_bg = choose_hold(p.small, self._bg.bg, self._bg.cut, blobs)
         # Kept out of the background (hold_stopped): in this frame's own sample, each
         # detection's pixels that changed over the lag; in the not-yet-final samples, with a
         # wider margin, those of them where the vehicle will still be (see _ahead).
@@ -721,13 +766,12 @@ class MovingObjectDetector:
         stopped = changed < self.config.protect_changed
         ahead = self._ahead(p, r, bg, moved)
         if c in self._samples and self.config.hold_stopped:
-            self._samples[c].holes = blob_polygons(protected_blobs(r.model_blobs, moved, stopped),
+            self._samples[c].holes = blob_polygons(protected_blobs(blobs, moved, stopped),
                                                    grow=1)
         for i, s in self._samples.items():
             if i <= c:
                 s.known = True
-        self._last_fg = (c, Hc, blob_polygons(protected_blobs(r.model_blobs, ahead, stopped),
-                                              grow=2))
+        self._last_fg = (c, Hc, blob_polygons(protected_blobs(blobs, ahead, stopped), grow=2))
         self._last_final = c
         if self.keep_debug:
             self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
