@@ -350,6 +350,7 @@ def test_predict_missing_tracks(tmp_path, capsys):
     "id,last_seen,horizon\n99,10,5\n",  # unknown id
     "id,last_seen,horizon\n1,10,0\n",   # horizon 0
     "id,last_seen,horizon\n1,x,5\n",    # non-numeric
+    "id,last_seen,horizon\n1,10,100000000000\n",  # was "out of memory" after a long wait
 ])
 def test_predict_bad_queries(tmp_path, capsys, tracks_file, text):
     q = tmp_path / "q.csv"

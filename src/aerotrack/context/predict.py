@@ -35,6 +35,10 @@ class Query:
     horizon: int
 
 
+#: Longest prediction horizon in frames (over 9 hours at 30 frames/s).
+MAX_HORIZON = 1_000_000
+
+
 def read_queries(path: str | Path) -> list[Query]:
     """Read ``Q.csv`` (header ``id,last_seen,horizon``, one query per row).
 
@@ -71,6 +75,9 @@ def read_queries(path: str | Path) -> list[Query]:
         q = Query(*(int(v) for v in vals))
         if q.horizon <= 0:
             raise FormatError(f"--queries {p} line {n}: horizon must be positive, got {q.horizon}")
+        if q.horizon > MAX_HORIZON:  # one output row per frame: this would exhaust memory
+            raise FormatError(f"--queries {p} line {n}: horizon {q.horizon} is more than "
+                              f"{MAX_HORIZON} frames (hours of video)")
         out.append(q)
     return out
 
