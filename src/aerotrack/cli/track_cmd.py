@@ -180,7 +180,7 @@ def check_detections(dets, path, source=None) -> None:
     if count:
         late = dets[:, 0] > count
         if late.any():
-            log.warning("%s: %d rows are after the input's last frame %d and are ignored "
+            log.warning("%s: %d row(s) after the input's last frame %d are ignored "
                         "(first: row %d, frame %d)", label, int(late.sum()), count,
                         int(late.argmax()) + 1, int(dets[late.argmax(), 0]))
 
