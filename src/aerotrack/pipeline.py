@@ -397,7 +397,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     The step after local association, shared by :class:`Pipeline` and segment-parallel runs
     (:mod:`aerotrack.parallel`); without the linking stage the tracklets are the tracks.
     ``roads``: a :class:`~aerotrack.context.roads.RoadNetwork` in world units for the motion
-    context.
+    context. The linked tracks are then finished (:mod:`aerotrack.association.finish`, config
+    section ``finish``): smoothed ground points, robust box sizes, static tracks dropped.
     """
     try:
         from .association.linking import GlobalLinker
