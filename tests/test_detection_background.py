@@ -9,7 +9,11 @@ import numpy as np
 
 from aerotrack.config import DetectionConfig
 from aerotrack.detection import MovingObjectDetector
-from aerotrack.detection.background import subset_median, warp_samples, window_background
+from aerotrack.detection.background import (
+    subset_median,
+    warp_samples,
+    window_background,
+)
 from aerotrack.detection.blobs import Blob
 from aerotrack.detection.detector import choose_hold, drop_ghost_parts
 from aerotrack.types import Frame, Registration
@@ -92,7 +96,7 @@ def test_vehicle_waiting_at_the_start_is_found_with_a_full_window():
 
 
 def test_parked_vehicle_stays_undetected_with_a_full_window():
-    frames, regs, boxes = scene(lambda t: (40 + 25 * t, 120.0), 50, parked=(150, 60))
+    frames, regs, _ = scene(lambda t: (40 + 25 * t, 120.0), 50, parked=(150, 60))
     for d in run(frames, regs, CONFIG):
         dx = 8.0 * frames[d.frame - 1].time
         parked = (150 - dx, 50.0, 22.0, 12.0)

@@ -24,7 +24,13 @@ from ..config import DetectionConfig
 from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography
 from .appearance import colour_histogram, ring_descriptor
-from .background import subset_median, to_cv_homography, warp, warp_polygons, warp_samples
+from .background import (
+    subset_median,
+    to_cv_homography,
+    warp,
+    warp_polygons,
+    warp_samples,
+)
 from .blobs import (
     Blob,
     close,
@@ -34,7 +40,7 @@ from .blobs import (
     open2,
     split_blob,
 )
-from .shadows import shadow_mask
+from .shadows import remove_shadows
 
 #: Registration statuses after which earlier frames no longer relate to this one.
 RESTART_STATUSES = ("reset", "reanchored")
@@ -355,8 +361,10 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         region = cv2.resize(mm, size, interpolation=cv2.INTER_NEAREST) > 0
         fg = (res_full > 0.8 * thr) & region
         if config.shadow_suppression:
-            fg &= ~shadow_mask(crop, bg_crop, alpha=config.shadow_alpha, beta=config.shadow_beta,
-                               tau_s=config.shadow_tau_s, tau_h=config.shadow_tau_h)
+            fg = remove_shadows(fg, crop, bg_crop, alpha=config.shadow_alpha,
+                                beta=config.shadow_beta, tau_s=config.shadow_tau_s,
+                                tau_h=config.shadow_tau_h,
+                                min_core=config.shadow_min_core)
         fg8 = open2(fg.astype(np.uint8))
         close_full = max(1.0, gates.close_px)
         fg8 = close(fg8, close_full)
