@@ -150,17 +150,22 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path) -> None
             wall = time.perf_counter() - t0
         join = {"segments": len(report.world_rms) + 1, "world_rms": report.world_rms,
                 "stitched": report.stitched, "cut": report.cut,
-                "plan": [[g.start, g.stop, g.own_start, g.own_stop] for g in report.segments]}
+                "plan": [[g.start, g.stop, g.own_start, g.own_stop] for g in report.segments],
+                "segment_wall_s": report.segment_wall_s, "segment_cpu_s": report.segment_cpu_s}
+        # CPU seconds on the critical path: the slowest segment, then the client's join and
+        # linking (a wall-time estimate for an idle machine with a core per worker)
+        cpu = max(report.segment_cpu_s) + result.timings["join"] + result.timings["linking"]
     else:
         from aerotrack.pipeline import run
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = run(src, metres_per_unit=gsd)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         join = {"segments": 1}
     rows = track_rows(result, None)[0]
     dets = [[d.frame] + [round(float(v), 2) for v in d.boxes.ravel()] for d in result.detections]
-    out.write_text(json.dumps({"wall_s": wall, "startup_s": startup, "timings": result.timings,
+    out.write_text(json.dumps({"wall_s": wall, "cpu_path_s": cpu, "startup_s": startup,
+                               "timings": result.timings,
                                "join": join, "rows": rows.tolist(), "detections": dets}))
 
 
@@ -333,6 +338,7 @@ def main() -> None:
     walls: dict[str, list[float]] = {}
     load = []
     per_rep: list[dict[str, float]] = []
+    load_end = []
     for rep in range(a.repeat):
         per_rep.append({})
         for mode in a.modes.split(","):
@@ -347,6 +353,8 @@ def main() -> None:
             r = json.loads(out.read_text())
             walls.setdefault(mode, []).append(r["wall_s"])
             per_rep[-1][mode] = r["wall_s"]
+            per_rep[-1][mode + ":cpu"] = r.get("cpu_path_s", float("nan"))
+            load_end.append(os.getloadavg()[0])
             if mode not in runs or r["wall_s"] < runs[mode]["wall_s"]:
                 runs[mode] = r
             print(f"{mode} (run {rep + 1}): {r['wall_s']:.1f} s", file=sys.stderr)
@@ -374,6 +382,14 @@ def main() -> None:
             "wall_vs_single_1t_median": round(float(np.median(paired)), 3) if paired else None,
             "wall_vs_single_median": round(float(np.median(paired_default)), 3)
             if paired_default else None,
+            # load-independent: CPU seconds on the critical path (single: the process; Dask: the
+            # slowest segment's worker, then join and linking), median over repetitions
+            "cpu_path_s_all_runs": [round(p[mode + ":cpu"], 2) for p in per_rep
+                                    if mode + ":cpu" in p],
+            "cpu_path_vs_single_1t_median": round(float(np.median(
+                [p[mode + ":cpu"] / p["single-1t:cpu"] for p in per_rep
+                 if "single-1t:cpu" in p and mode + ":cpu" in p])), 3)
+            if "single-1t" in runs else None,
             "frames_per_s": round(a.frames / r["wall_s"], 2),
             "HOTA": round(e["HOTA"], 4), "IDF1": round(e["IDF1"], 4),
             "agreement_HOTA": round(ag["HOTA"], 4), "agreement_IDF1": round(ag["IDF1"], 4),
@@ -381,11 +397,13 @@ def main() -> None:
             "join": r["join"], "stage_s": {k: round(v, 2) for k, v in r["timings"].items()},
         }
     head = (f"{'mode':10} {'wall s':>8} {'x 1t':>6} {'x 1t med':>8} {'x def':>6} {'fr/s':>6} "
-            f"{'HOTA':>6} {'IDF1':>6} {'agrHOTA':>7} {'agrIDF1':>7} {'tracks':>6} segs")
+            f"{'cpu x 1t':>8} {'HOTA':>6} {'IDF1':>6} {'agrHOTA':>7} {'agrIDF1':>7} {'tracks':>6} "
+            "segs")
     print(f"video: {a.frames} frames {size[0]}x{size[1]} at {a.fps:g} fps ({info['generator']}); "
           f"1-min load average at run starts {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} "
           "cores; x 1t: fastest run / fastest single-1t, x 1t med: median over repetitions of "
-          "run / single-1t of the same repetition, x def: fastest / fastest single")
+          "run / single-1t of the same repetition, x def: fastest / fastest single, cpu x 1t: "
+          "CPU seconds on the critical path / single-1t's, median over repetitions")
     print(head)
     for mode, t in table.items():
         med = t["wall_vs_single_1t_median"]
@@ -393,6 +411,7 @@ def main() -> None:
         print(f"{mode:10} {t['wall_s']:8.1f} {t['wall_vs_single_1t']:6.3f} "
               f"{med if med is not None else float('nan'):8.3f} "
               f"{vdef if vdef is not None else float('nan'):6.3f} {t['frames_per_s']:6.1f} "
+              f"{t['cpu_path_vs_single_1t_median'] or float('nan'):8.3f} "
               f"{t['HOTA']:6.3f} {t['IDF1']:6.3f} {t['agreement_HOTA']:7.3f} "
               f"{t['agreement_IDF1']:7.3f} {t['tracks']:6d} {t['join']['segments']}")
     for mode, j in joins.items():
@@ -405,7 +424,8 @@ def main() -> None:
     assoc = association_parity() if a.association else {}
     payload = {"video": info, "cpu_count": os.cpu_count(), "repeat": a.repeat,
                "association_alone": assoc,
-               "load_avg_1min_at_starts": [round(v, 2) for v in load], "runs": table,
+               "load_avg_1min_at_starts": [round(v, 2) for v in load],
+               "load_avg_1min_at_ends": [round(v, 2) for v in load_end], "runs": table,
                "joins": joins,
                "note": "wall_vs_single_1t: wall time / single process limited to one thread; "
                        "Dask wall excludes cluster start-up (cluster_startup_s)"}

@@ -337,6 +337,8 @@ class SegmentResult:
     frame_size: tuple[int, int] | None
     timings: dict[str, float] = field(default_factory=dict)
     pid: int = 0
+    wall_s: float = 0.0  # the whole task on the worker: opening the input, reading, every stage
+    cpu_s: float = 0.0  # CPU seconds of the worker process meanwhile (all its threads)
 
 
 def limit_threads() -> None:
@@ -379,6 +381,9 @@ def run_segment(task: SegmentTask) -> SegmentResult:
 
     Without a map the segment's world is the pixels of its first frame (``task.segment.start``).
     """
+    import time
+
+    t0, c0 = time.perf_counter(), time.process_time()
     limit_threads()
     seg = task.segment
     geomap = None
@@ -411,7 +416,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     tracklets = pipe.finish_local()
     return SegmentResult(segment=seg, registrations=dict(pipe.registrations),
                          detections=list(pipe.detections), tracklets=list(tracklets),
-                         frame_size=pipe.frame_size, timings=dict(pipe.timings), pid=os.getpid())
+                         frame_size=pipe.frame_size, timings=dict(pipe.timings), pid=os.getpid(),
+                         wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)
 
 
 # -- the join -------------------------------------------------------------------------------------
@@ -429,12 +435,17 @@ class JoinReport:
         in two, left to global linking).
     segments : list of Segment
         The segments joined, in order (their ``own_stop`` are the cuts).
+    segment_wall_s, segment_cpu_s : list of float
+        Per segment, its task's wall time and CPU seconds on the worker
+        (:attr:`SegmentResult.wall_s`, :attr:`SegmentResult.cpu_s`).
     """
 
     world_rms: list[float] = field(default_factory=list)
     stitched: list[int] = field(default_factory=list)
     cut: list[int] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
+    segment_wall_s: list[float] = field(default_factory=list)
+    segment_cpu_s: list[float] = field(default_factory=list)
 
 
 def _grid(frame_size: tuple[int, int] | None, n: int = 4) -> np.ndarray:
@@ -583,7 +594,9 @@ def join_segments(results: Sequence[SegmentResult], *, geomap=None,
     report : JoinReport
     """
     results = sorted(results, key=lambda r: r.segment.index)
-    report = JoinReport(segments=[r.segment for r in results])
+    report = JoinReport(segments=[r.segment for r in results],
+                        segment_wall_s=[r.wall_s for r in results],
+                        segment_cpu_s=[r.cpu_s for r in results])
     frame_size = next((r.frame_size for r in results if r.frame_size), None)
     # 1. every segment's world in world 0
     moved_regs: list[dict[int, Registration]] = []
