@@ -307,9 +307,10 @@ def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool) -> dict:
         t0 = time.perf_counter()
         if cfg is None:
             tracks = link(tl, dataclasses.replace(config, linking=dataclasses.replace(
-                config.linking, max_gap_s=1e-6, predict_gaps=False,
+                config.linking, max_gap_s=1e-6, predict_gaps=False, duplicate_overlap=1.0,
                 **({'min_track_s': 0.0} if hasattr(config.linking, 'min_track_s') else {}))), run["fps"],
-                metres_per_unit=run["mpu"])
+                metres_per_unit=run["mpu"], frame_size=run["frame_size"],
+                registrations=run["registrations"])
         else:
             tracks = link(tl, cfg, run["fps"], metres_per_unit=run["mpu"],
                           frame_size=run["frame_size"], registrations=run["registrations"])
