@@ -560,8 +560,9 @@ class MovingObjectDetector:
     ``step`` returns the detections of the frames that became final: with a centred window
     (the paper's) frame ``c`` is final once frame ``c + w`` has arrived, ``w`` being half the
     window (with ``config.full_window_at_ends``, the first ``w`` frames of a segment wait for
-    frame ``2w`` after its first); with ``config.causal`` every frame is final at once. Memory is bounded by the
-    window: ``w`` full frames and ``window_s / sample_every_s`` downscaled samples.
+    frame ``2w`` after its first); with ``config.causal`` every frame is final at once. Memory
+    is bounded by the window: ``w`` full frames (``2w`` at the start of a segment) and
+    ``window_s / sample_every_s`` downscaled samples.
     """
 
     def __init__(self, config: DetectionConfig, fps: float, geomap=None,
