@@ -73,6 +73,8 @@ VARIANTS: dict[str, dict | None] = {
     "accel 1": {"accel_std_mps2": 1.0},
     "accel 4": {"accel_std_mps2": 4.0},
     "no robust": {"robust_iters": 0},
+    "fill gaps 0.5 s": {"fill_gaps_s": 0.5},
+    "fill gaps 1.2 s": {"fill_gaps_s": 1.2},
 }
 KEYS = ("HOTA", "IDF1", "MOTA", "IDSW", "LocA", "DetA", "AssA")
 

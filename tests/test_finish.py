@@ -254,3 +254,17 @@ def test_window_sizes_match_numpy_quantiles():
         near = np.abs(tv - t[i]) <= 0.5
         ref = np.quantile(sv[near] if near.any() else sv, 0.6, axis=0)
         assert np.allclose(out[i], ref)
+
+
+def test_short_gaps_between_tracklets_become_bridged():
+    track, regs, truth = _vehicle(partial=0.0, n=90)
+    for p in track.points[40:49]:  # 9 frames (0.3 s) between two tracklets
+        p.kind, p.box = "predicted", np.full(4, np.nan)
+    for p in track.points[60:90]:  # 1 s after the last observation: stays predicted
+        p.kind, p.box = "predicted", np.full(4, np.nan)
+    (out,) = finish_tracks([track], FinishConfig(fill_gaps_s=0.5), FPS, metres_per_unit=MPU,
+                           registrations=regs)
+    kinds = [p.kind for p in out.points]
+    assert kinds[40:49] == ["bridged"] * 9 and kinds[60:] == ["predicted"] * 30
+    filled = np.array([p.box for p in out.points[40:49]])
+    assert _iou(filled, truth[40:49]).min() > 0.6

@@ -694,6 +694,11 @@ class FinishConfig:
         registered frames (in the image of a moving camera a vehicle driving with it stands
         still). Raising it drops slow crawlers seen only briefly; 4 m (about a car length)
         and 6 m dropped the same tracks on Santiago, 2.5 m fewer.
+    fill_gaps_s : float
+        Gaps between linked tracklets up to this long are reported in ``tracks.csv`` as
+        ``bridged`` (smoothed through) instead of ``predicted``, as local association reports the
+        misses it bridges inside a tracklet. 0 keeps them in ``predicted.csv``. Measured: 0.5 s
+        and 1.2 s alike, +0.002-0.004 IDF1 on generated scenes and UAVDT, Santiago unchanged.
     """
 
     enabled: bool = True
@@ -711,6 +716,7 @@ class FinishConfig:
     edge_margin_px: float = 1.0
     clip_to_frame: bool = False
     static_extent_m: float = 4.0
+    fill_gaps_s: float = 0.5
 
 
 @dataclass(frozen=True)

@@ -391,6 +391,8 @@ class TrackFinisher:
     # -- one track --------------------------------------------------------------------------------
     def _finish_track(self, t: Track, regs, frame_size, mpu: float, mode: str) -> bool:
         c = self.config
+        if c.fill_gaps_s > 0:
+            _fill_gaps(t, int(round(c.fill_gaps_s * self.fps)))
         pts = [p for p in t.points if p.kind in IN_VIEW and p.box is not None]
         if regs is not None:
             pts = [p for p in pts if p.frame in regs]
@@ -534,6 +536,20 @@ class TrackFinisher:
         elif bottom and not top:
             cy = box[1] + full[3] / 2
         return cx, cy
+
+
+def _fill_gaps(track: Track, max_frames: int) -> None:
+    """Turn the ``predicted`` points of gaps of at most ``max_frames`` frames between two in-view
+    points into ``bridged`` ones (in place): a gap that short inside one tracklet would have been
+    bridged by local association; across a tracklet boundary it is the same miss."""
+    pts = track.points
+    seen = [i for i, p in enumerate(pts) if p.kind in IN_VIEW]
+    for a, b in zip(seen[:-1], seen[1:]):
+        if b - a > 1 and pts[b].frame - pts[a].frame - 1 <= max_frames:
+            for p in pts[a + 1:b]:
+                if p.kind == "predicted":
+                    p.kind = "bridged"
+                    p.box = np.full(4, np.nan)
 
 
 def _clip(boxes: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
