@@ -204,11 +204,33 @@ def _check_partition(S) -> None:
             assert s.label[g - s.base] == -1
 
 
+def _fragmented(frames: list[Detections], rng: np.random.Generator, share: float
+                ) -> list[Detections]:
+    """The same frames with a ``share`` of the boxes replaced by a part of themselves (a blob
+    detector's fragment: smaller, inside the whole, off its centre)."""
+    out = []
+    for d in frames:
+        if not len(d):
+            out.append(d)
+            continue
+        w, sz = np.array(d.world, float), np.array(d.size_world, float)
+        part = rng.random(len(d)) < share
+        k = rng.uniform(0.35, 0.7, (len(d), 2))
+        shift = (1 - k) * sz / 2 * rng.uniform(-1, 1, (len(d), 2))
+        w[part] += shift[part]
+        sz[part] *= k[part]
+        out.append(Detections(frame=d.frame, boxes=np.column_stack([w - sz / 2, sz]),
+                              conf=d.conf, world=w, size_world=sz))
+    return out
+
+
 @settings(max_examples=15, deadline=None, derandomize=True)
-@given(seed=st.integers(0, 10_000), n_obj=st.integers(1, 7), fp_rate=st.floats(0, 2))
-def test_every_move_keeps_the_partition_valid(seed, n_obj, fp_rate):
-    """Random graphs (targets wandering close together, dropouts, clutter); after every
-    Metropolis-Hastings step of every move type the partition is valid."""
+@given(seed=st.integers(0, 10_000), n_obj=st.integers(1, 7), fp_rate=st.floats(0, 2),
+       fragments=st.booleans())
+def test_every_move_keeps_the_partition_valid(seed, n_obj, fp_rate, fragments):
+    """Random graphs (targets wandering close together, dropouts, clutter, and with
+    ``fragments`` partial boxes with partial links on); after every Metropolis-Hastings step of
+    every move type the partition is valid."""
     rng = np.random.default_rng(seed)
     n = 25
     tracks = {}
@@ -218,7 +240,10 @@ def test_every_move_keeps_the_partition_valid(seed, n_obj, fp_rate):
     fp = {f: [tuple(rng.uniform(0, 20, 2)) for _ in range(rng.poisson(fp_rate))]
           for f in range(1, n + 1)}
     frames, _ = _frames(tracks, n, fp=fp)
-    cfg = AssociationConfig(window_s=0.5, max_gap_s=0.3, min_iters=0, iters_per_ambiguity=0)
+    if fragments:
+        frames = _fragmented(frames, rng, 0.4)
+    cfg = AssociationConfig(window_s=0.5, max_gap_s=0.3, min_iters=0, iters_per_ambiguity=0,
+                            partial_score=4.0 if fragments else 0.0)
     la = LocalAssociator(cfg, FPS, 1.0, seed=seed)
     for d in frames:
         la.step(d)
@@ -336,3 +361,39 @@ def test_a_vehicle_waiting_at_a_light_stays_one_tracklet():
     (waiting,) = [t for t in out if ids[t.id][0] == 1]
     frames_covered = {p.frame for p in waiting.points}
     assert set(range(min(seen), max(seen) + 1)) <= frames_covered
+
+
+def test_fragments_of_a_vehicle_stay_in_its_tracklet():
+    """A blob detector returns a vehicle as a fragment (a smaller box inside the whole, off its
+    centre) in runs of frames between runs of whole boxes, beside a whole vehicle in the next
+    lane. Under the whole-box model the fragments form a second tracklet interleaved with the
+    vehicle's; with partial links they stay in the vehicle's tracklet (as bridged rows between
+    its whole observations) and the neighbour is untouched."""
+    rng = np.random.default_rng(0)
+    n = 90
+    frames, part = [], []
+    for f in range(1, n + 1):
+        t = (f - 1) / FPS
+        c = np.array([10.0 * t, 5.0]) + rng.normal(0, 0.05, 2)
+        other = np.array([10.0 * t, 12.0]) + rng.normal(0, 0.05, 2)
+        is_part = (f // 6) % 2 == 1
+        w = np.array([c + [1.0, 0.2] if is_part else c, other])
+        sz = np.array([[2.2, 1.4] if is_part else [4.5, 2.0], [4.5, 2.0]])
+        frames.append(Detections(frame=f, boxes=np.column_stack([w - sz / 2, sz]),
+                                 conf=np.ones(2), world=w, size_world=sz))
+        part.append(is_part)
+    whole = [f for f in range(1, n + 1) if not part[f - 1]]
+
+    def lanes(cfg):
+        out = associate(frames, cfg, FPS, metres_per_unit=1.0, seed=0)
+        return [t for t in out if abs(t.points[0].world[1] - 5) < 1.5], out
+
+    mine, out = lanes(AssociationConfig(partial_score=0.0))
+    assert len(mine) == 2  # the failure being fixed: fragments make their own tracklet
+    mine, out = lanes(AssociationConfig(partial_score=4.0))
+    assert len(out) == 2 and len(mine) == 1
+    pts = mine[0].points
+    assert [p.frame for p in pts if p.kind == "observed"] == whole
+    assert [p.frame for p in pts] == list(range(whole[0], whole[-1] + 1))
+    # bridged rows over the fragments carry the whole vehicle's size
+    assert all(np.allclose(p.size_world, [4.5, 2.0], atol=0.05) for p in pts)

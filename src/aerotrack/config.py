@@ -331,6 +331,24 @@ class AssociationConfig:
     overlap_lambda : float
         MRF interaction lambda (eq. 10): penalty per unit IoU of two same-frame observations that
         both belong to tracks. Suppresses tracks made of split blobs.
+    partial_score : float
+        Log-likelihood ratio of a *partial* link (``posterior.link_step``): a detection that fails
+        the whole-box gate of a track but is clearly smaller than its predicted box and lies
+        inside it is taken as a part of the target (a blob detector's fragment). It updates the
+        position only, and the track's row there is bridged between its whole observations.
+        0 disables. Raising it absorbs fragments that would otherwise form a second tracklet
+        interleaved with the vehicle's, but lets a track take a small neighbour lying inside its
+        predicted box in a frame where its own detection is missing.
+    partial_min_inside : float
+        Share of a detection's area that must lie inside the predicted box for a partial link.
+    partial_max_area : float
+        Largest ratio of a partial detection's area to the predicted box's: a part is clearly
+        smaller than the whole (box jitter is not a part).
+    partial_max_run_s : float
+        Longest time from a track's last whole observation to a partial one. A detector returns a
+        part for a few frames; a long run of "parts" is a target of its own, which a track that
+        started on a merged blob of two vehicles would otherwise keep following (Santiago's
+        fragment runs last up to 0.37 s; such merged-blob runs on generated scenes 1 s).
     iters_per_ambiguity : float
         MCMC samples per frame, per ambiguous new detection (in the gate of several tracks, or
         unmatched), plus ``min_iters``. More samples explore more but cost time linearly.
@@ -357,6 +375,10 @@ class AssociationConfig:
     birth_cost: float = 16.0
     app_weight: float = 1.0
     overlap_lambda: float = 4.0
+    partial_score: float = 0.0
+    partial_min_inside: float = 0.8
+    partial_max_area: float = 0.75
+    partial_max_run_s: float = 0.5
     iters_per_ambiguity: float = 2.0
     min_iters: int = 20
     extend_gamma: float = 0.5

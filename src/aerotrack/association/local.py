@@ -74,6 +74,10 @@ class LocalAssociator:
         for name in ("window_s", "max_speed_mps", "max_gap_s", "gate_chi2"):
             if getattr(config, name) <= 0:
                 raise ConfigError(f"config association.{name}: must be positive")
+        if (config.partial_score < 0 or not 0 < config.partial_min_inside <= 1
+                or not 0 < config.partial_max_area <= 1 or config.partial_max_run_s < 0):
+            raise ConfigError("config association.partial_score and partial_max_run_s must be "
+                              ">= 0, partial_min_inside and partial_max_area in (0, 1]")
         if not 0 < config.extend_gamma < 1:
             raise ConfigError("config association.extend_gamma: must be in (0, 1)")
         self.fps = float(fps)
@@ -109,8 +113,14 @@ class LocalAssociator:
             else:
                 return  # wait for a frame with detections to estimate the scale
         c = self.config
+        # the compiled link kernels take the partial-link terms and the gate after the filter's
+        # own parameters (posterior.link_step)
+        kf = np.concatenate([self.kf.as_array(),
+                             [c.partial_score, c.partial_min_inside, c.gate_chi2,
+                              c.partial_max_area, round(c.partial_max_run_s * self.fps)]])
         params = SamplerParams(
-            fps=self.fps, kf=self.kf.as_array(), reach_mps=c.max_speed_mps, max_gap=self.max_gap,
+            fps=self.fps, kf=kf, kf_back=np.where(np.arange(len(kf)) == 7, 0.0, kf),
+            reach_mps=c.max_speed_mps, max_gap=self.max_gap,
             gate2=c.gate_chi2, miss_cost=c.miss_cost, birth_cost=c.birth_cost,
             app_weight=c.app_weight, overlap_lambda=c.overlap_lambda, gamma=c.extend_gamma)
         bins = None if det.hist is None else int(np.shape(det.hist)[1])
@@ -222,7 +232,11 @@ class LocalAssociator:
             return
         pts = self.points.setdefault(tr.tid, [])
         s = S.store
-        for g in tr.nodes[:k].tolist():
+        for g, d2 in zip(tr.nodes[:k].tolist(), tr.d2[:k].tolist()):
+            if d2 < 0:
+                # a partial observation (posterior.link_step): its box is a part of the target's;
+                # the target's box is bridged there from the whole observations around it
+                continue
             det, i = s.payload[g - s.base]
             pt = _point(det, i)
             if pts and pt.frame - pts[-1].frame > 1:
@@ -275,6 +289,7 @@ class LocalAssociator:
             X = np.empty((len(live), 6))
             P = np.empty((len(live), 6, 6))
             FE = np.empty(len(live), np.int64)
+            FW = np.array([S.whole_frame(tr) for tr in live], np.int64)
             HE = np.zeros((len(live), B))
             for r, tr in enumerate(live):
                 X[r], P[r], FE[r], h = S.end_state(tr)
@@ -288,7 +303,7 @@ class LocalAssociator:
                 LHE = HE
             score = score_matrix(X, P, FE, HE, LHE, s.z[a:b], s.frame[a:b], H, LH, self.fps,
                                  S.p.kf, c.max_speed_mps, c.gate_chi2, S.p.miss_cost,
-                                 S.p.app_weight if B else 0.0)
+                                 S.p.app_weight if B else 0.0, FW)
             fin = np.isfinite(score)
             per_det = fin.sum(axis=0)
             per_track = fin.sum(axis=1)
@@ -326,13 +341,14 @@ class LocalAssociator:
         chain = [g]
         while True:
             lo, hi = max(f - self.max_gap, S.store.first_frame), f - 1
-            cands, w = S._children(x, P, f, h, lo, hi)
+            cands, w = S._children(x, P, f, h, lo, hi, forward=False)
             if cands is None:
                 break
             j = int(np.argmax(w))
             gg = int(cands[j])
             fg = S.frame_of(gg)
-            x, P, _, _ = link_step(x, P, (f - fg) / self.fps, S.store.z[gg - S.store.base], S.p.kf)
+            x, P, _, _ = link_step(x, P, (f - fg) / self.fps, S.store.z[gg - S.store.base],
+                                   S.p.kf_back)
             f, h = fg, S.hist_of(gg)
             chain.append(gg)
         return chain[::-1]

@@ -39,7 +39,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .graph import NodeStore
-from .posterior import append_link, children_scores, link_step, run_track, switch_candidates
+from .posterior import (
+    append_link,
+    children_scores,
+    link_step,
+    partial_allowed,
+    run_track,
+    switch_candidates,
+)
 
 MOVES = ("ext_f", "red_f", "ext_b", "red_b", "birth", "death", "split", "merge", "switch")
 #: Proposal probability of each move. Reverse pairs share a weight so that the ratios in the
@@ -99,7 +106,8 @@ class SamplerParams:
     """Numbers the sampler needs, already converted to metres and frames."""
 
     fps: float
-    kf: np.ndarray  # ConstantVelocityKF.as_array() in metres
+    kf: np.ndarray  # ConstantVelocityKF.as_array() in metres, then posterior.link_step partial terms
+    kf_back: np.ndarray  # the same without partial links, for reverse-time filtering
     reach_mps: float
     max_gap: int  # frames
     gate2: float
@@ -108,6 +116,12 @@ class SamplerParams:
     app_weight: float
     overlap_lambda: float
     gamma: float
+
+
+def _unlikeliness(d2: np.ndarray) -> np.ndarray:
+    """``1 - p(link)`` of links with squared Mahalanobis distances ``d2``: ``1 - exp(-d2 / 2)``,
+    and 1 for partial links (``d2 < 0``, :data:`.posterior.PARTIAL_D2`), the least certain."""
+    return np.where(d2 < 0, 1.0, 1.0 - np.exp(-0.5 * np.abs(d2)))
 
 
 _ZX = np.zeros(6)
@@ -233,14 +247,14 @@ class WindowSampler:
             return self._append(tid, nodes, prior, base, keep)
         if keep > 0:
             x0, P0, f0 = base.xs[keep - 1], base.Ps[keep - 1], int(s.frame[li[keep - 1]])
-            has = True
+            has, fw = True, self.whole_frame(base, keep)
         elif not born:
-            x0, P0, f0, has = prior.x, prior.P, prior.frame, True
+            x0, P0, f0, has, fw = prior.x, prior.P, prior.frame, True, prior.frame
         else:
-            x0, P0, f0, has = _ZX, _ZP, 0, False
+            x0, P0, f0, has, fw = _ZX, _ZP, 0, False, -1
         rest = li[keep:]
         xs, Ps, d2, rel, gaps = run_track(x0, P0, f0, has, s.z[rest], s.frame[rest], self.p.fps,
-                                          self.p.kf)
+                                          self.p.kf, fw)
         links = 0.5 * self.p.gate2 + rel - self.p.miss_cost * np.maximum(gaps - 1, 0)
         start = 1 if (born and keep == 0) else 0  # index in `rest` of the first incoming link
         if start and len(links):
@@ -279,7 +293,8 @@ class WindowSampler:
         xs, Ps, d2s, gaps, links, apps, d2, link = append_link(
             base.xs[:keep], base.Ps[:keep], base.d2[:keep], base.gaps[:keep], base.links[:keep],
             base.app[:keep], int(s.frame[lp]), s.z[lg], int(s.frame[lg]), hp, lhp, h, lh,
-            self.p.fps, self.p.kf, self.p.gate2, self.p.miss_cost, self.p.app_weight)
+            self.p.fps, self.p.kf, self.p.gate2, self.p.miss_cost, self.p.app_weight,
+            self.whole_frame(base, keep))
         score = float(links.sum()) - (self.p.birth_cost if prior is None else 0.0)
         if d2 > self.p.gate2:
             score = -math.inf
@@ -292,6 +307,15 @@ class WindowSampler:
             return t.xs[-1], t.Ps[-1], self.frame_of(g), self.hist_of(g)
         return t.prior.x, t.prior.P, t.prior.frame, t.prior.hist
 
+    def whole_frame(self, t: WTrack, k: int | None = None) -> int:
+        """Frame of the last whole (not partial) observation among ``t``'s first ``k`` (all by
+        default), or of its prior."""
+        d2 = t.d2 if k is None else t.d2[:k]
+        idx = np.flatnonzero(d2 >= 0)
+        if len(idx):
+            return self.frame_of(int(t.nodes[idx[-1]]))
+        return t.prior.frame if t.prior is not None else t.f_end
+
     @staticmethod
     def end_frame(t: WTrack) -> int:
         return t.f_end
@@ -300,7 +324,7 @@ class WindowSampler:
         """Reverse-time Kalman state at the first of ``nodes`` (filtering them backwards)."""
         li = np.asarray(nodes[::-1], dtype=np.int64) - self.store.base
         xs, Ps, _, _, _ = run_track(np.zeros(6), np.zeros((6, 6)), 0, False, self.store.z[li],
-                                 self.store.frame[li], self.p.fps, self.p.kf)
+                                 self.store.frame[li], self.p.fps, self.p.kf_back)
         return xs[-1], Ps[-1]
 
     # ------------------------------------------------------------------ partition edits
@@ -380,9 +404,13 @@ class WindowSampler:
         return -self.p.overlap_lambda * delta
 
     # ------------------------------------------------------------------ proposals
-    def _children(self, x, P, f_end, h_end, lo_frame, hi_frame):
+    def _children(self, x, P, f_end, h_end, lo_frame, hi_frame, forward=True, f_whole=None):
         """Free nodes of frames lo..hi linked to a track end (x, P at ``f_end``, histogram
-        ``h_end``) by an edge of the graph inside the gate; returns gids and link log-ratios."""
+        ``h_end``) by an edge of the graph inside the gate; returns gids and link log-ratios.
+
+        Backwards (``forward`` False, a reverse-time state) there are no partial links: a part
+        is smaller than the whole that comes *before* it in the track, and a track is always
+        scored forwards (:meth:`build`)."""
         s = self.store
         lo, hi = s.range(lo_frame, hi_frame)
         if hi <= lo:
@@ -396,8 +424,10 @@ class WindowSampler:
             H = LH = _EMPTY2
             he = lhe = _EMPTY1
         idx, w = children_scores(x, P, f_end, he, lhe, s.z[a:b], s.frame[a:b], s.label[a:b], H, LH,
-                                 self.p.fps, self.p.kf, self.p.reach_mps, self.p.gate2,
-                                 self.p.miss_cost, self.p.app_weight)
+                                 self.p.fps, self.p.kf if forward else self.p.kf_back,
+                                 self.p.reach_mps, self.p.gate2,
+                                 self.p.miss_cost, self.p.app_weight,
+                                 f_end if f_whole is None else f_whole)
         if not len(idx):
             return None, None
         return idx + lo, w
@@ -408,7 +438,8 @@ class WindowSampler:
         e = w - m
         return e - math.log(np.exp(e).sum())
 
-    def chain(self, x, P, f_end, h_end, forward: bool, given=None, allow_empty=False):
+    def chain(self, x, P, f_end, h_end, forward: bool, given=None, allow_empty=False,
+              f_whole=None):
         """Sample (``given`` None) or evaluate (``given`` a gid list) an extension chain.
 
         Starting from a track end with state (x, P) at ``f_end``, each draw picks a free child
@@ -416,6 +447,7 @@ class WindowSampler:
         link likelihood; after the first draw, the chain continues with probability ``gamma``
         while candidates exist. The first draw is forced when there are candidates; when there
         are none the chain is empty, which only births allow (``allow_empty``).
+        ``f_whole``: frame of the track's last whole observation (default ``f_end``).
         Returns (gids in the order drawn, log probability of drawing exactly them).
         """
         rng = self.rng
@@ -429,7 +461,7 @@ class WindowSampler:
                 lo, hi = f_end + 1, min(f_end + G, self.now)
             else:
                 lo, hi = max(f_end - G, s.first_frame), f_end - 1
-            cands, w = self._children(x, P, f_end, h_end, lo, hi)
+            cands, w = self._children(x, P, f_end, h_end, lo, hi, forward, f_whole)
             if cands is None:
                 if given is not None and k < len(given):
                     return out, -math.inf
@@ -456,7 +488,12 @@ class WindowSampler:
             out.append(g)
             k += 1
             fg = int(s.frame[g - s.base])
-            x, P, _, _ = link_step(x, P, abs(fg - f_end) / self.p.fps, s.z[g - s.base], self.p.kf)
+            fw = f_end if f_whole is None else f_whole
+            x, P, d2, _ = link_step(x, P, abs(fg - f_end) / self.p.fps, s.z[g - s.base],
+                                    self.p.kf if forward else self.p.kf_back,
+                                    partial_allowed(fg, fw, self.p.kf))
+            if d2 >= 0:
+                f_whole = fg
             f_end = fg
             h_end = None if s.hist is None else s.hist[g - s.base]
 
@@ -475,11 +512,13 @@ class WindowSampler:
     def _chain_eval(self, t_kept: WTrack, seq: list[int], forward: bool) -> float:
         if forward:
             x, P, f, h = self.end_state(t_kept)
+            fw = self.whole_frame(t_kept)
         else:
+            fw = None
             x, P = self.start_reverse_state(t_kept.nodes)
             g0 = int(t_kept.nodes[0])
             f, h = self.frame_of(g0), self.hist_of(g0)
-        _, lq = self.chain(x, P, f, h, forward, given=seq)
+        _, lq = self.chain(x, P, f, h, forward, given=seq, f_whole=fw)
         return lq
 
     def move_ext(self, forward: bool):
@@ -490,11 +529,13 @@ class WindowSampler:
             x, P, f, h = self.end_state(t)
             if f >= self.now:
                 return None
+            fw = self.whole_frame(t)
         else:
+            fw = None
             x, P = self.start_reverse_state(t.nodes)
             g0 = int(t.nodes[0])
             f, h = self.frame_of(g0), self.hist_of(g0)
-        seq, lq = self.chain(x, P, f, h, forward)
+        seq, lq = self.chain(x, P, f, h, forward, f_whole=fw)
         if not seq:
             return None
         if forward:
@@ -584,7 +625,7 @@ class WindowSampler:
     def _split_weights(self, t: WTrack) -> tuple[np.ndarray, int]:
         """Weights ``1 - p(link)`` of the links that may be cut, and the index of the first."""
         first = 0 if t.prior is not None else 1
-        w = 1.0 - np.exp(-0.5 * t.d2[first:]) + 1e-3
+        w = _unlikeliness(t.d2[first:]) + 1e-3
         return w, first
 
     def move_split(self):
@@ -676,7 +717,7 @@ class WindowSampler:
     @staticmethod
     def _switch_weights(t: WTrack) -> np.ndarray:
         """Data-driven choice of the switch point p (the link p -> p+1): unlikely links first."""
-        return 1.0 - np.exp(-0.5 * t.d2[1:]) + 0.05
+        return _unlikeliness(t.d2[1:]) + 0.05
 
     def _switch_route(self, t: WTrack, p: int) -> float:
         """Probability of proposing the switch at ``t``'s node p with a given partner."""

@@ -67,13 +67,75 @@ def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.where(union > 0, inter / union, 0.0)
 
 
+#: d^2 recorded for a partial link (see :func:`link_step`): a partial observation has no
+#: Mahalanobis distance of its own, and the negative value marks the link.
+PARTIAL_D2 = -1.0
+#: Variance (metres^2) given to the size of a partial observation: size is not observed.
+_UNOBSERVED = 1e8
+
+
 @njit(cache=True)
-def link_step(x, P, dt, z, params):
+def inside_fraction(z, xp, max_area):
+    """Fraction of box ``z``'s area (centre x, y, w, h) inside box ``xp[:4]``; 0 unless ``z``'s
+    area is at most ``max_area`` times ``xp``'s."""
+    az = abs(z[2] * z[3])
+    ab = abs(xp[2] * xp[3])
+    if az <= 0.0 or az > max_area * ab:
+        return 0.0
+    iw = min(z[0] + 0.5 * abs(z[2]), xp[0] + 0.5 * abs(xp[2])) - max(z[0] - 0.5 * abs(z[2]),
+                                                                      xp[0] - 0.5 * abs(xp[2]))
+    ih = min(z[1] + 0.5 * abs(z[3]), xp[1] + 0.5 * abs(xp[3])) - max(z[1] - 0.5 * abs(z[3]),
+                                                                      xp[1] - 0.5 * abs(xp[3]))
+    if iw <= 0.0 or ih <= 0.0:
+        return 0.0
+    return iw * ih / az
+
+
+@njit(cache=True)
+def partial_ok(z, xp, params):
+    """Whether ``z`` may be a partial observation of the predicted box ``xp[:4]``.
+
+    ``params[7]`` is the partial link's score (0 disables partial links), ``params[8]`` the
+    share of ``z``'s area that must lie inside the prediction, ``params[10]`` the largest ratio of
+    ``z``'s area to the prediction's.
+    """
+    if params.shape[0] < 11 or params[7] <= 0.0:
+        return False
+    return inside_fraction(z, xp, params[10]) >= params[8]
+
+
+@njit(cache=True)
+def partial_allowed(f, f_whole, params):
+    """Whether an observation at frame ``f`` may be partial after the last whole one at
+    ``f_whole`` (``params[11]``: the longest run, frames)."""
+    return params.shape[0] > 11 and abs(f - f_whole) <= params[11]
+
+
+@njit(cache=True)
+def link_step(x, P, dt, z, params, partial=False):
     """One Kalman link: predict ``dt`` s ahead from (x, P), update with ``z``.
 
     Returns the posterior x, P, the squared Mahalanobis distance d^2 and
     ``log N(z; Hx, S) - log N(0; 0, R)``, the motion log-likelihood (eq. 8) relative to that of
     a perfectly predicted observation (so that it does not depend on units).
+
+    **Partial observations.** A blob detector sometimes returns only part of a vehicle (a
+    fragment in one frame, the whole in the next). Under the whole-box model such a link fails
+    the gate on size, and the fragments then form a second track interleaved with the vehicle's
+    own (each taking the frames the other misses). ``params`` (11,) = the Kalman parameters
+    (``ConstantVelocityKF.as_array``), the partial link score ``c_part``, the minimum share of
+    the observation inside the predicted box, the gate ``gate^2``, the largest area ratio of a
+    part to the prediction, and the longest run (frames) from a whole observation to a partial
+    one; ``partial`` says whether this link may be partial at all (the caller knows the frame of
+    the track's last whole observation: a run of parts is bridged like a run of missed
+    detections and is bounded the same way, so a track that started on a merged blob cannot live
+    on as a part of it). When the whole-box link fails the gate while ``z`` is clearly smaller
+    than the predicted box and lies inside it, the link is partial: the observation updates the
+    position only, with
+    its noise widened by the uniform spread ``(W - w)^2 / 12`` of a part's centre inside the
+    whole, leaves the size alone, and scores ``c_part`` (returned as ``rel = c_part -
+    0.5 * gate^2`` with ``d^2 =`` :data:`PARTIAL_D2`). The paper has no such term; it is the
+    likelihood of the hidden observation type (whole or part) at its maximum.
     """
     xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
     R = measurement_noise_nb(z[2:4], params[2], params[3], params[4], params[5])
@@ -82,14 +144,24 @@ def link_step(x, P, dt, z, params):
     for i in range(4):
         logdet_r += np.log(R[i, i])
     rel = ll + 2.0 * np.log(2.0 * np.pi) + 0.5 * logdet_r
+    if partial and d2 > params[9] and partial_ok(z, xp, params):
+        zq = z.copy()
+        Rq = R.copy()
+        for i in range(2):
+            zq[2 + i] = xp[2 + i]
+            Rq[i, i] += (abs(xp[2 + i]) - abs(z[2 + i])) ** 2 / 12.0
+            Rq[2 + i, 2 + i] = _UNOBSERVED
+        xq, Pq, _, _ = update_nb(xp, Pp, zq, Rq)
+        return xq, Pq, PARTIAL_D2, params[7] - 0.5 * params[9]
     return xn, Pn, d2, rel
 
 
 @njit(cache=True)
-def run_track(x0, P0, f0, has_prior, zs, frames, fps, params):
+def run_track(x0, P0, f0, has_prior, zs, frames, fps, params, f_whole=-1):
     """Filter a track's window observations ``zs`` (n, 4, metres) at ``frames`` (n,).
 
     Starts from the prior state (x0, P0) at frame f0 when ``has_prior``, else initiates at zs[0].
+    ``f_whole`` is the frame of the last whole (not partial) observation before zs (-1: f0).
     Returns states (n, 6), covariances (n, 6, 6), squared Mahalanobis distances (n,), relative
     motion log-likelihoods (n,, see :func:`link_step`) and frame gaps (n,) of each incoming link
     (0 for a first observation without prior).
@@ -119,9 +191,14 @@ def run_track(x0, P0, f0, has_prior, zs, frames, fps, params):
         Ps[0] = P
         fprev = frames[0]
         start = 1
+    if f_whole < 0 or not has_prior:
+        f_whole = fprev
     for i in range(start, n):
         g = frames[i] - fprev
-        x, P, d2[i], rel[i] = link_step(x, P, abs(g) / fps, zs[i], params)
+        x, P, d2[i], rel[i] = link_step(x, P, abs(g) / fps, zs[i], params,
+                                        partial_allowed(frames[i], f_whole, params))
+        if d2[i] >= 0:
+            f_whole = frames[i]
         gaps[i] = abs(g)
         xs[i] = x
         Ps[i] = P
@@ -153,13 +230,14 @@ def _d2_predicted(xp, Pp, z, params):
 
 @njit(cache=True)
 def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, reach_mps, gate2,
-                    miss_cost, app_weight):
+                    miss_cost, app_weight, f_whole):
     """Link log-likelihood ratios from a track end to free candidate nodes.
 
     (x, P) is the track's state at frame ``f_end`` (reverse-time state for backward moves);
     Z (m, 4), F (m,), LAB (m,) the candidates' observations (metres), frames and labels; H, LH
     (m, B) their histograms and log-histograms (B = 0: appearance off). Returns the indices of
-    the free candidates inside eq. 3's reach and the gate, and their link scores.
+    the free candidates inside eq. 3's reach and the gate, and their link scores. ``f_whole``:
+    the frame of the track's last whole observation (partial links, see :func:`link_step`).
     """
     m = Z.shape[0]
     idx = np.empty(m, dtype=np.int64)
@@ -183,9 +261,13 @@ def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, r
             xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
             last_gap = gap
         d2, dlogdet = _d2_predicted(xp, Pp, Z[j], params)
-        if d2 > gate2:
+        if d2 <= gate2:
+            s = 0.5 * (gate2 - d2 - dlogdet)
+        elif partial_allowed(F[j], f_whole, params) and partial_ok(Z[j], xp, params):
+            s = params[7]  # a part of the target (see link_step)
+        else:
             continue
-        s = 0.5 * (gate2 - d2 - dlogdet) - miss_cost * (gap - 1)
+        s -= miss_cost * (gap - 1)
         if B > 0 and app_weight > 0 and h_end.shape[0] == B:
             kl = 0.0
             for b in range(B):
@@ -199,9 +281,10 @@ def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, r
 
 @njit(cache=True)
 def score_matrix(X, P, FE, HE, LHE, Z, F, H, LH, fps, params, reach_mps, gate2, miss_cost,
-                 app_weight):
+                 app_weight, FW):
     """Link scores (K, N) from K track ends (states X (K, 6), P (K, 6, 6) at frames FE (K,),
-    histograms HE, LHE (K, B)) to N new observations; -inf where there is no edge or the gate
+    histograms HE, LHE (K, B), last whole observations at frames FW (K,)) to N new
+    observations; -inf where there is no edge or the gate
     fails. The Hungarian initialisation of each frame uses it."""
     K = X.shape[0]
     N = Z.shape[0]
@@ -209,7 +292,7 @@ def score_matrix(X, P, FE, HE, LHE, Z, F, H, LH, fps, params, reach_mps, gate2, 
     lab = np.full(N, -1, dtype=np.int64)
     for k in range(K):
         idx, w = children_scores(X[k], P[k], FE[k], HE[k], LHE[k], Z, F, lab, H, LH, fps, params,
-                                 reach_mps, gate2, miss_cost, app_weight)
+                                 reach_mps, gate2, miss_cost, app_weight, FW[k])
         for i in range(idx.shape[0]):
             out[k, idx[i]] = w[i]
     return out
@@ -217,12 +300,14 @@ def score_matrix(X, P, FE, HE, LHE, Z, F, H, LH, fps, params, reach_mps, gate2, 
 
 @njit(cache=True)
 def append_link(xs, Ps, d2s, gaps, links, apps, f_end, z, f, h_prev, lh_prev, h, lh, fps, params,
-                gate2, miss_cost, app_weight):
+                gate2, miss_cost, app_weight, f_whole):
     """A track's cached arrays with one observation ``z`` at frame ``f`` appended (one Kalman
-    link from its last state at ``f_end``); returns the new arrays, the link's d^2 and score."""
+    link from its last state at ``f_end``, last whole observation at ``f_whole``); returns the
+    new arrays, the link's d^2 and score."""
     n = xs.shape[0]
     gap = f - f_end
-    xn, Pn, d2, rel = link_step(xs[n - 1], Ps[n - 1], abs(gap) / fps, z, params)
+    xn, Pn, d2, rel = link_step(xs[n - 1], Ps[n - 1], abs(gap) / fps, z, params,
+                                partial_allowed(f, f_whole, params))
     link = 0.5 * gate2 + rel - miss_cost * max(abs(gap) - 1, 0)
     app = 0.0
     if h.shape[0] > 0 and app_weight > 0:
