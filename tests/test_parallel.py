@@ -424,3 +424,28 @@ def test_segments_of_known_detections_track_like_the_single_process():
     es, ep = (evaluate(gt, track_rows(r, None)[0]) for r in (single, par))
     assert ep["IDF1"] > 0.95 and len(par.tracks) == 6  # one track per target across the cut
     assert abs(es["HOTA"] - ep["HOTA"]) <= 0.01 and abs(es["IDF1"] - ep["IDF1"]) <= 0.01
+
+
+def test_min_speed_without_a_scale_means_metres_per_second_in_segments_too():
+    """``--min-speed`` without a map or ``--gsd``: segments, like the single process, convert it
+    with the estimated ground scale (30-px boxes taken as 4.5 m: 0.15 m/px), not in pixels/s. A
+    target at 0.5 px/frame (15 px/s = 2.25 m/s) is slower than 4 m/s and dropped by both; one at
+    2 px/frame (9 m/s) is kept."""
+    from aerotrack.parallel import assemble, gather_segments
+    from aerotrack.pipeline import run
+
+    n_frames, fps, rows = 300, 30.0, []
+    for tid, (p, v) in enumerate([((100, 100), (2.0, 0.0)), ((100, 400), (0.5, 0.0)),
+                                  ((800, 200), (0.0, 2.0)), ((900, 500), (-0.5, 0.0))], 1):
+        for f in range(1, n_frames + 1):
+            q = np.add(p, np.multiply(v, f))
+            rows.append([f, tid, q[0] - 15, q[1] - 8, 30, 16, 0.9, -1, -1, -1])
+    dets = np.asarray(rows)
+    dets[:, 1] = -1
+    single = run(None, detections=dets, fps=fps, min_speed_mps=4.0)
+    segs = plan_segments(1, n_frames, fps=fps, segment_s=4.0, overlap_s=4.5, min_segments=2)
+    tasks = make_tasks(None, config=Config(), fps=fps, segments=segs, detections=dets)
+    par, _ = assemble(gather_segments(None, tasks), config=Config(), fps=fps, min_speed_mps=4.0)
+    for result in (single, par):
+        starts = sorted(float(t.points[0].box[1]) for t in result.tracks)
+        assert np.allclose(starts, [92, 194], atol=3), starts  # the fast targets' top edges

@@ -339,6 +339,8 @@ class SegmentResult:
     pid: int = 0
     wall_s: float = 0.0  # the whole task on the worker: opening the input, reading, every stage
     cpu_s: float = 0.0  # CPU seconds of the worker process meanwhile (all its threads)
+    started: float = 0.0  # time.time() on the worker when the task started and ended (the
+    ended: float = 0.0  # timeline of a run: dispatch, imbalance, return of results)
 
 
 def limit_threads() -> None:
@@ -383,6 +385,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     """
     import time
 
+    started = time.time()
     t0, c0 = time.perf_counter(), time.process_time()
     limit_threads()
     seg = task.segment
@@ -417,7 +420,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     return SegmentResult(segment=seg, registrations=dict(pipe.registrations),
                          detections=list(pipe.detections), tracklets=list(tracklets),
                          frame_size=pipe.frame_size, timings=dict(pipe.timings), pid=os.getpid(),
-                         wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)
+                         wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
+                         started=started, ended=time.time())
 
 
 # -- the join -------------------------------------------------------------------------------------
@@ -881,7 +885,12 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
         from .geo.roi import filter_min_speed
         from .pipeline import _renumber
 
-        tracks = _renumber(filter_min_speed(tracks, min_speed_mps, fps, mpu))
+        scale = mpu
+        if not scale and tracks:  # as Pipeline.finish: the estimated ground scale, not pixels/s
+            from .association.linking import estimate_scale
+
+            scale = estimate_scale(tracks, config.context.image_object_size_m)
+        tracks = _renumber(filter_min_speed(tracks, min_speed_mps, fps, scale))
     t2 = time.perf_counter()
     timings: dict[str, float] = {}
     for r in results:
