@@ -190,3 +190,154 @@ def test_a_resumed_run_drops_the_spill_files_of_the_interrupted_one(tmp_path):
     assert [t.id for t in again.load()] == [2]
     again.close()
     assert not folder.exists()
+
+
+# -- a video run: the stages' working state is saved on interruption -----------------------------
+def _video_run(frames, **kw):
+    from test_parallel import FPS
+
+    from aerotrack.io import open_source
+
+    return run(open_source(frames, FPS), fps=FPS, metres_per_unit=0.3, seed=3, **kw)
+
+
+def _everything(result):
+    """Tracks, registrations and detections, exactly (floats as bytes)."""
+    tracks = sorted((t.id, p.frame, p.kind, np.asarray(p.world).tobytes(),
+                     np.asarray(p.box).tobytes()) for t in result.tracks for p in t.points)
+    regs = {i: r.H.tobytes() for i, r in result.registrations.items()}
+    dets = [(d.frame, np.asarray(d.boxes).tobytes()) for d in result.detections]
+    return tracks, regs, dets
+
+
+@pytest.fixture(scope="module")
+def video_frames(tmp_path_factory):
+    from test_parallel import render_scene
+
+    folder = tmp_path_factory.mktemp("resume") / "frames"
+    render_scene(folder, n=120, n_cars=5)
+    return folder
+
+
+@pytest.mark.parametrize("stop_at", [47, 83])
+def test_interrupted_video_run_resumes_exactly(tmp_path, video_frames, stop_at):
+    """Registrar keyframe chain, detector window, held vehicles and frames not yet final are all
+    saved on Ctrl-C: the resumed run equals the uninterrupted one bit for bit (before the stage
+    state was saved, frames after the restart were registered and detected differently)."""
+    full = _video_run(video_frames)
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(stop_at))
+    assert (out.partial / "state.npz").is_file()
+    resumed = _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                         resume=True)
+    assert resumed.frames == full.frames == 120
+    assert len(full.tracks) >= 3
+    a, b = _everything(full), _everything(resumed)
+    assert a[1] == b[1]  # registrations
+    assert a[2] == b[2]  # detections
+    assert a[0] == b[0]  # tracks
+
+
+def test_video_resume_without_stage_state_restarts_before_the_stop(tmp_path, video_frames):
+    """A killed run (no state, periodic checkpoints only) still resumes and covers every frame;
+    only the frames after the restart may differ (documented in Pipeline.restore)."""
+    full = _video_run(video_frames)
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(83))
+    (out.partial / "state.npz").unlink()
+    resumed = _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                         resume=True)
+    assert resumed.frames == 120 and sorted(resumed.registrations) == list(range(1, 121))
+    a, b = _everything(full), _everything(resumed)
+    assert [r for i, r in sorted(a[1].items()) if i <= 60] == \
+        [r for i, r in sorted(b[1].items()) if i <= 60]  # checkpointed before the stop: kept
+    assert len(resumed.tracks) >= 3
+
+
+def test_stale_stage_state_is_not_used(tmp_path, video_frames):
+    """State saved at an earlier interruption, followed by more checkpoints (a later hard kill),
+    no longer matches the checkpoints and is ignored."""
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(20))
+    stale = (out.partial / "state.npz").read_bytes()
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30, resume=True,
+                   progress=interrupt_at(50))
+    (out.partial / "state.npz").write_bytes(stale)
+    from aerotrack.config import Config
+    from aerotrack.pipeline import Pipeline
+    from test_parallel import FPS
+
+    pipe = Pipeline(Config(), FPS, metres_per_unit=0.3, seed=3, checkpoint_dir=out.partial)
+    restart = pipe.restore()
+    assert not pipe.exact_resume and restart < 70
+
+
+# -- the state codec ------------------------------------------------------------------------------
+def test_state_codec_round_trip(tmp_path):
+    from collections import Counter, OrderedDict, deque
+
+    from aerotrack.io.state import apply_state, as_built, load_state, save_state
+    from aerotrack.types import Registration
+
+    class Stage:  # stands for a stage: attributes of every supported kind
+        def __init__(self):
+            self.config = Registration(1, np.eye(3), "ok", 0, 0.5, 0.1, "")  # frozen: as built
+            self.big = np.arange(12.0)  # as built and unchanged: not saved
+            self.touched = np.zeros(3)
+            self.pending = deque()
+
+    Stage.__module__ = "aerotrack.tests_stage"  # only aerotrack classes are rebuilt
+    s = Stage()
+    built = as_built(s)
+    shared = np.ones((2, 2))
+    s.touched[1] = 7.0  # changed in place: saved
+    s.pending.extend([Registration(5, shared, "carried", 3, np.float32(0.25), np.nan, "why"),
+                      (1, "a", None, float("inf"))])
+    s.alias = shared
+    s.table = OrderedDict([(3, [1, 2]), (1, {"x": np.int64(4)})])
+    s.counts = Counter(ok=3)
+    s.rng = np.random.default_rng(9)
+    s.rng.random(5)
+    s.flags = {1, 2}
+    save_state(tmp_path, 42, {"stage": (s, built)})
+    frame, stages, _ = load_state(tmp_path)
+    attrs = stages["stage"][1]
+    assert frame == 42 and "big" not in attrs and "config" not in attrs and "touched" in attrs
+    t = Stage()
+    apply_state(t, attrs)
+    assert t.touched.tolist() == [0, 7, 0]
+    reg = t.pending[0]
+    assert isinstance(reg, Registration) and reg.index == 5 and np.isnan(reg.error)
+    assert reg.H is t.alias  # shared arrays stay shared
+    assert t.pending[1] == (1, "a", None, float("inf"))
+    assert list(t.table) == [3, 1] and t.table[1]["x"] == 4 and t.counts["ok"] == 3
+    assert t.rng.random() == s.rng.random() and t.flags == {1, 2}
+
+
+def test_state_codec_refuses_what_it_cannot_write_and_foreign_classes(tmp_path):
+    import json
+    import threading
+
+    from aerotrack.errors import InputError
+    from aerotrack.io.state import StateNotSaved, load_state, save_state
+
+    class Stage:
+        pass
+
+    s = Stage()
+    s.lock = threading.Lock()
+    with pytest.raises(StateNotSaved, match="stage.lock"):
+        save_state(tmp_path, 1, {"stage": (s, {})})
+    assert not (tmp_path / "state.npz").exists()
+    meta = {"version": 1, "frame": 1, "extra": {}, "stages": {"stage": {"m": "x", "c": "y", "d": {
+        "a": {"t": "obj", "n": 0, "m": "subprocess", "c": "Popen", "d": {}}}}}}
+    np.savez(tmp_path / "state.npz", __meta__=np.array(json.dumps(meta)))
+    with pytest.raises(InputError, match="outside aerotrack"):
+        load_state(tmp_path)

@@ -153,6 +153,7 @@ class Pipeline:
         self._chunk_no = 0
         self._since_checkpoint = 0
         self._skip_until = 0  # detections of frames <= this were restored from checkpoints
+        self.exact_resume = False  # restore() put the stages' working state back
         # scope: lens undistortion, regions of interest / ignore regions, parked-vehicle filter
         self.undistort = undistort
         self.regions = list(regions or [])
@@ -163,9 +164,13 @@ class Pipeline:
     def _ensure_stages(self, frame: Frame) -> None:
         if self.registrar is not None:
             return
+        self._make_stages((frame.image.shape[1], frame.image.shape[0]))
+
+    def _make_stages(self, frame_size: tuple[int, int]) -> None:
+        from .io.state import as_built
         from .registration import FrameRegistrar
 
-        self.frame_size = (frame.image.shape[1], frame.image.shape[0])
+        self.frame_size = frame_size
         self.registrar = FrameRegistrar(self.config.registration, self.fps, geomap=self.geomap,
                                         H_init=self._H_init)
         if self.external is None:
@@ -173,6 +178,10 @@ class Pipeline:
 
             self.detector = MovingObjectDetector(self.config.detection, self.fps, geomap=self.geomap,
                                                  metres_per_unit=self.metres_per_unit)
+        # what the constructors made: save_state leaves it out (the resumed run makes it again)
+        self._built = {"registrar": as_built(self.registrar)}
+        if self.detector is not None:
+            self._built["detector"] = as_built(self.detector)
 
     def _exclude_boxes(self) -> np.ndarray | None:
         """Boxes of the latest final detections, in the previous frame's pixels (moving vehicles must
@@ -293,13 +302,43 @@ class Pipeline:
         self._pending_regs, self._pending_dets = [], []
         self._since_checkpoint = 0
 
+    def save_state(self) -> bool:
+        """Save the registrar's and detector's working state after the last frame (on Ctrl-C,
+        between two frames, after :meth:`checkpoint`), so :meth:`restore` continues exactly.
+        Returns False (and saves nothing) when a stage holds a value the state codec cannot write
+        (:mod:`aerotrack.io.state`); resume then restarts from the checkpoints alone."""
+        from .io.state import StateNotSaved, drop_state, save_state
+
+        if self.checkpoint_dir is None or self.registrar is None \
+                or isinstance(self.registrar, _Ended):
+            return False
+        stages = {"registrar": (self.registrar, self._built["registrar"])}
+        if self.detector is not None:
+            stages["detector"] = (self.detector, self._built["detector"])
+        try:
+            save_state(self.checkpoint_dir, self.last_frame, stages,
+                       extra={"frame_size": list(self.frame_size)}, shared=(self.geomap,))
+        except StateNotSaved as exc:
+            drop_state(self.checkpoint_dir)
+            log.warning("stage state not saved (%s): --resume restarts registration and "
+                        "detection shortly before frame %d", exc, self.last_frame)
+            return False
+        return True
+
     def restore(self) -> int:
         """Load checkpoints from ``checkpoint_dir`` and replay association on them.
 
-        Returns the frame from which frames must be fed again (registration and detection restart
-        a background half-window before the first frame whose detections were not final).
+        Returns the frame from which frames must be fed again. With the stages' working state
+        saved on interruption (:meth:`save_state`) that is the frame after the last one taken,
+        and the run continues exactly as if never stopped (``self.exact_resume``). Without it (a
+        killed process: periodic checkpoints only), registration and detection restart a
+        background half-window before the first frame whose detections were not final, from
+        that frame's registration: the frames after the restart can then be registered and
+        detected slightly differently (another keyframe chain, a background window without the
+        frames before the restart).
         """
         from .io.checkpoint import load_chunks
+        from .io.state import apply_state, load_state
 
         regs, dets, n = load_chunks(self.checkpoint_dir)
         self._chunk_no = n
@@ -315,6 +354,15 @@ class Pipeline:
         self.n_frames = len({*regs, *(d.frame for d in dets)})
         if self.external is not None and not regs:
             return last_det + 1
+        state = load_state(self.checkpoint_dir)
+        if state is not None and regs and state[0] == max(regs):  # not stale: exact
+            frame, stages, extra = state
+            self._make_stages(tuple(extra["frame_size"]))
+            for name, (_, attrs) in stages.items():
+                apply_state(getattr(self, name), attrs)
+            self.exact_resume = True
+            self._restart = frame + 1
+            return frame + 1
         half = int(np.ceil(self.config.detection.window_s * self.fps / 2)) + 1
         restart = max(self.first_frame, last_det + 1 - half)
         while restart > self.first_frame and restart not in regs:
@@ -517,10 +565,13 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     if resume and checkpoint_dir is not None:
         restart = pipe.restore()
         if restart > start:
-            # keep the stride grid of the original run
-            start = start + ((restart - start) // stride) * stride
+            # keep the stride grid of the original run (exact: the next grid frame not taken)
+            steps = restart - start
+            steps = -(-steps // stride) if pipe.exact_resume else steps // stride
+            start = start + steps * stride
             log.info("resuming from frame %d", start)
     done = 0
+    stepping = False  # inside Pipeline.step: its stages' state is not between two frames
     try:
         if source is None:
             last = int(detections[:, 0].max()) if len(detections) else 0
@@ -533,12 +584,16 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                     progress(done)
         else:
             for frame in source.frames(start=start, stop=stop, stride=stride):
+                stepping = True
                 pipe.step(frame)
+                stepping = False
                 done += 1
                 if progress:
                     progress(done)
     except KeyboardInterrupt:
         pipe.checkpoint()
+        if not stepping:
+            pipe.save_state()
         raise
     return pipe.finish()
 

@@ -1,0 +1,271 @@
+"""The working state of the stages, saved when a run is interrupted, so ``--resume`` is exact.
+
+Periodic checkpoints (:mod:`aerotrack.io.checkpoint`) keep what the stages *finished*
+(registrations, final detections). What they are still working on -- the registrar's keyframe and
+chain, the detector's window of registered frames, its background, held vehicles and frames not yet
+final -- is not in them, so a run resumed from checkpoints alone restarts registration and
+detection a little before where they stopped and can decide a few frames differently from an
+uninterrupted run. On Ctrl-C or SIGTERM the pipeline stops *between* two frames and also saves that
+working state here (``DIR/.partial/state.npz``); ``--resume`` puts it back and continues with the
+next frame, which gives exactly the uninterrupted run's results.
+
+The state is saved generically, attribute by attribute, so a stage that gains state is covered
+without code here: numbers, strings, numpy arrays and scalars, ``numpy.random.Generator``s,
+lists, tuples, dicts (``OrderedDict``, ``Counter``), deques, sets, and objects of aerotrack's own
+classes (rebuilt without calling their constructor). Nothing is unpickled: arrays go into the
+``.npz`` (loaded with ``allow_pickle=False``), the structure is JSON, and a class is only looked up
+inside the ``aerotrack`` package. Attributes still holding what the constructor gave them (the
+config, the map and its grey image) are not saved: the resumed run's constructor, given the same
+inputs (``--resume`` checks), makes them again. A value of any other type makes :func:`save_state`
+raise :class:`StateNotSaved`; the run then resumes from its checkpoints alone.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import zlib
+from collections import Counter, OrderedDict, deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from .output import atomic_write
+
+STATE_FILE = "state.npz"
+_VERSION = 1
+
+
+class StateNotSaved(TypeError):
+    """A stage holds a value the state codec cannot write (the message names where)."""
+
+
+def _immutable(value: Any) -> bool:
+    if value is None or type(value) in (bool, int, float, str, bytes, frozenset):
+        return True
+    if isinstance(value, np.generic):
+        return True
+    if type(value) is tuple:
+        return all(_immutable(v) for v in value)
+    params = getattr(type(value), "__dataclass_params__", None)
+    return bool(params is not None and params.frozen)
+
+
+def _fingerprint(value: Any) -> tuple[int, int | None] | None:
+    """(identity, CRC of the bytes for an array) of a value that can only change by being
+    replaced (an array is checked byte by byte); None for a mutable container or object, which
+    may have changed in place and is always saved."""
+    if isinstance(value, np.ndarray) and value.dtype != object:
+        return id(value), zlib.crc32(np.ascontiguousarray(value).view(np.uint8).reshape(-1))
+    if _immutable(value):
+        return id(value), None
+    return None
+
+
+def as_built(obj: object) -> dict[str, tuple[int, int | None]]:
+    """Fingerprints of ``obj``'s attributes right after its constructor; pass them to
+    :func:`save_state` so that what the constructor made (and nothing changed since: the config,
+    an array derived from the map) is not saved. Mutable containers and objects are always
+    saved, since they may have changed in place."""
+    out = {}
+    for k, v in vars(obj).items():
+        f = _fingerprint(v)
+        if f is not None:
+            out[k] = f
+    return out
+
+
+class _Encoder:
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+        self.memo: dict[int, int] = {}  # id -> node number: shared objects stay shared
+        self.keep: list[Any] = []  # holds encoded objects alive, so their ids are not reused
+
+    def _array(self, a: np.ndarray) -> str:
+        name = f"a{len(self.arrays)}"
+        self.arrays[name] = a
+        return name
+
+    def encode(self, v: Any, where: str) -> Any:
+        if v is None or isinstance(v, (bool, int, float, str)):
+            if type(v) not in (type(None), bool, int, float, str):  # IntEnum, str subclasses...
+                raise StateNotSaved(f"{where}: {type(v).__qualname__} is not saved")
+            return {"t": "v", "v": v}
+        if isinstance(v, np.generic):
+            return {"t": "np", "a": self._array(np.asarray(v))}
+        if id(v) in self.memo:
+            return {"t": "ref", "n": self.memo[id(v)]}
+        n = len(self.memo)
+        self.memo[id(v)] = n
+        self.keep.append(v)
+        node = self._encode_new(v, where)
+        node["n"] = n
+        return node
+
+    def _encode_new(self, v: Any, where: str) -> dict:
+        if isinstance(v, np.ndarray):
+            if v.dtype == object:
+                raise StateNotSaved(f"{where}: an object array is not saved")
+            return {"t": "nd", "a": self._array(v)}
+        if isinstance(v, np.random.Generator):
+            return {"t": "rng", "bit": type(v.bit_generator).__name__,
+                    "state": v.bit_generator.state}
+        if type(v) in (list, tuple, set, frozenset):
+            items = sorted(v, key=repr) if isinstance(v, (set, frozenset)) else v
+            return {"t": type(v).__name__,
+                    "v": [self.encode(x, f"{where}[{i}]") for i, x in enumerate(items)]}
+        if type(v) is deque:
+            return {"t": "deque", "maxlen": v.maxlen,
+                    "v": [self.encode(x, f"{where}[{i}]") for i, x in enumerate(v)]}
+        if type(v) in (dict, OrderedDict, Counter):
+            return {"t": type(v).__name__,
+                    "k": [self.encode(k, f"{where} key") for k in v],
+                    "v": [self.encode(x, f"{where}[{k!r}]") for k, x in v.items()]}
+        cls = type(v)
+        if cls.__module__.split(".")[0] == "aerotrack" and hasattr(v, "__dict__") \
+                and not hasattr(cls, "__slots__"):
+            return {"t": "obj", "m": cls.__module__, "c": cls.__qualname__,
+                    "d": {k: self.encode(x, f"{where}.{k}") for k, x in vars(v).items()}}
+        raise StateNotSaved(f"{where}: a {cls.__module__}.{cls.__qualname__} is not saved")
+
+
+class _Decoder:
+    def __init__(self, arrays) -> None:
+        self.arrays = arrays
+        self.memo: dict[int, Any] = {}
+
+    def decode(self, node: dict) -> Any:
+        t = node["t"]
+        if t == "v":
+            return node["v"]
+        if t == "np":
+            return self.arrays[node["a"]][()]
+        if t == "ref":
+            return self.memo[node["n"]]
+        n = node["n"]
+        if t == "nd":
+            self.memo[n] = out = np.array(self.arrays[node["a"]])
+            return out
+        if t == "rng":
+            bit = getattr(np.random, node["bit"], None)
+            if not (isinstance(bit, type) and issubclass(bit, np.random.BitGenerator)):
+                raise ValueError(f"unknown bit generator {node['bit']!r}")
+            gen = np.random.Generator(bit())
+            gen.bit_generator.state = node["state"]
+            self.memo[n] = gen
+            return gen
+        if t in ("list", "deque"):
+            out = [] if t == "list" else deque(maxlen=node["maxlen"])
+            self.memo[n] = out
+            out.extend(self.decode(x) for x in node["v"])
+            return out
+        if t in ("tuple", "set", "frozenset"):
+            out = {"tuple": tuple, "set": set, "frozenset": frozenset}[t](
+                self.decode(x) for x in node["v"])
+            self.memo[n] = out
+            return out
+        if t in ("dict", "OrderedDict", "Counter"):
+            out = {"dict": dict, "OrderedDict": OrderedDict, "Counter": Counter}[t]()
+            self.memo[n] = out
+            for k, x in zip(node["k"], node["v"]):
+                out[self.decode(k)] = self.decode(x)
+            return out
+        if t == "obj":
+            cls = _aerotrack_class(node["m"], node["c"])
+            out = cls.__new__(cls)
+            self.memo[n] = out
+            for k, x in node["d"].items():
+                object.__setattr__(out, k, self.decode(x))  # frozen dataclasses too
+            return out
+        raise ValueError(f"unknown node type {t!r}")
+
+
+def _aerotrack_class(module: str, qualname: str) -> type:
+    """A class of the aerotrack package (and only there) by module and qualified name."""
+    if module.split(".")[0] != "aerotrack":
+        raise ValueError(f"class outside aerotrack: {module}")
+    obj: Any = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    if not isinstance(obj, type):
+        raise ValueError(f"{module}.{qualname} is not a class")
+    return obj
+
+
+def save_state(folder: str | Path, frame: int, stages: dict[str, tuple[object, dict]],
+               extra: dict | None = None, shared: tuple = ()) -> Path:
+    """Write the working state of ``stages`` after ``frame`` to ``folder/state.npz``.
+
+    Parameters
+    ----------
+    folder : path
+        The run's ``.partial/``.
+    frame : int
+        The last frame every stage has taken (1-based); the resumed run continues after it.
+    stages : dict of name -> (object, fingerprints)
+        Each stage object with :func:`as_built` of it; attributes still as built are left out.
+    extra : dict, optional
+        Plain JSON values stored beside (the pipeline's own counters).
+    shared : tuple
+        Objects the caller gave the stages (the map): an attribute that is one of them is not
+        saved, the resumed run's constructor gets it again.
+
+    Raises
+    ------
+    StateNotSaved
+        A stage holds a value of a type this codec does not write (nothing is written then).
+    """
+    enc = _Encoder()
+    tree = {}
+    for name, (obj, built) in stages.items():
+        attrs = {}
+        for k, v in vars(obj).items():
+            if (k in built and built[k] == _fingerprint(v)) \
+                    or any(v is o for o in shared if o is not None):
+                continue
+            attrs[k] = enc.encode(v, f"{name}.{k}")
+        tree[name] = {"m": type(obj).__module__, "c": type(obj).__qualname__, "d": attrs}
+    meta = {"version": _VERSION, "frame": int(frame), "stages": tree, "extra": extra or {}}
+    path = Path(folder) / STATE_FILE
+    with atomic_write(path, "wb") as fh:
+        np.savez(fh, __meta__=np.array(json.dumps(meta)), **enc.arrays)
+    return path
+
+
+def load_state(folder: str | Path) -> tuple[int, dict[str, tuple[str, dict[str, Any]]], dict] | None:
+    """Read ``folder/state.npz``: (frame, {stage: (class name, attributes)}, extra), or None
+    when there is none.
+
+    Raises
+    ------
+    InputError
+        The file is there but unreadable (the message names it).
+    """
+    path = Path(folder) / STATE_FILE
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"][()]))
+            if meta.get("version") != _VERSION:
+                return None
+            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+        dec = _Decoder(arrays)
+        stages = {name: (f"{s['m']}.{s['c']}", {k: dec.decode(x) for k, x in s["d"].items()})
+                  for name, s in meta["stages"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ImportError) as exc:
+        raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
+    return int(meta["frame"]), stages, meta.get("extra", {})
+
+
+def apply_state(obj: object, attrs: dict[str, Any]) -> None:
+    """Put saved attributes back on a freshly constructed stage object."""
+    for k, v in attrs.items():
+        setattr(obj, k, v)
+
+
+def drop_state(folder: str | Path) -> None:
+    """Remove ``folder/state.npz`` (stale once later checkpoints exist)."""
+    (Path(folder) / STATE_FILE).unlink(missing_ok=True)
