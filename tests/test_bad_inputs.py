@@ -606,3 +606,55 @@ def test_track_video_cut_mid_stream_warns_and_completes(tmp_path, capsys):
     frames = json.loads((tmp_path / "o" / "summary.json").read_text())["frames"]
     last = int(re.search(r"decoding stopped after frame (\d+) of the 9", err).group(1))
     assert frames == last < 9  # every decoded frame was tracked, and only those
+
+
+def test_batch_reports_each_unusable_video_once_and_fails(tmp_path, capsys):
+    """An empty video is not skipped silently and a corrupt one is reported once (it was reported
+    twice, once as a warning repeating the path); both count as failed (exit 2), and the
+    good input is still tracked."""
+    inputs = tmp_path / "in"
+    write_frames(inputs / "good", [textured(shift=(0, i)) for i in range(4)])
+    (inputs / "empty.mp4").write_bytes(b"")
+    (inputs / "junk.avi").write_text("not a video\n")
+    (inputs / "notes.txt").write_text("not an input at all\n")
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", tmp_path / "o", "--gsd", "0.3")
+    assert code == 2 and "Traceback" not in err and "WARNING" not in err, err
+    lines = err.strip().splitlines()
+    assert sum("empty.mp4: failed" in ln and "0 bytes" in ln for ln in lines) == 1, err
+    assert sum("junk: failed" in ln for ln in lines) == 1, err
+    assert err.count("junk.avi") == 1, err  # the path once, in its one line
+    assert "batch: 1 tracked, 0 skipped, 2 failed" in err
+    assert lines[-1].startswith("aerotrack: error: batch: 2 of 3 inputs failed"), err
+    assert "notes" not in err
+    assert (tmp_path / "o" / "good" / "tracks.csv").is_file()
+    # -q still shows the failures (errors), not the progress of the good one
+    code, _, err = run_cli(capsys, "-q", "batch", inputs, "--out", tmp_path / "o")
+    assert code == 2 and "empty.mp4: failed" in err and "junk: failed" in err
+    assert "good" not in err
+
+
+@pytest.mark.parametrize("text,frag", [
+    ("id,last_seen,horizon\n99,10,5\n", "line 2 (query 0): unknown id 99"),
+    ("id,last_seen,horizon\n1,10,5\n\n1,77,5\n", "line 4 (query 1): track 1 has no row at"),
+    ("id,last_seen,horizon\n1,10,0\n", "line 2: horizon must be positive"),
+])
+def test_predict_errors_name_the_queries_file_and_line(tmp_path, capsys, tracks_file, text, frag):
+    q = tmp_path / "my_queries.csv"
+    q.write_text(text)
+    expect_error(capsys, [f"--queries {q} {frag}"], "predict", tracks_file, "--queries", q,
+                 "--out", tmp_path / "p.csv")
+
+
+def test_predict_refuses_to_overwrite_its_inputs_and_unwritable_out(tmp_path, capsys, tracks_file):
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,10,5\n")
+    before = tracks_file.read_text()
+    expect_error(capsys, ["--out", "TRACKS"], "predict", tracks_file, "--queries", q, "--out",
+                 tracks_file)
+    expect_error(capsys, ["--out", "--queries"], "predict", tracks_file, "--queries", q, "--out",
+                 q)
+    assert tracks_file.read_text() == before
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    expect_error(capsys, ["--out", "cannot write"], "predict", tracks_file, "--queries", q,
+                 "--out", blocker / "p.csv")

@@ -173,3 +173,52 @@ def test_sigterm_during_detect_leaves_nothing(tmp_path):
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "Traceback" not in err and "interrupted" in err
     assert not out.exists()
+
+
+def test_detections_alone_write_identity_registrations(tmp_path, capsys):
+    """The contract lists registration.csv for every track run: without frames, every frame of
+    the detections is registered by the identity (world = the detections' pixels), flagged as such
+    in the file and in summary.json."""
+    from conftest import run_cli
+
+    d = tmp_path / "d.txt"
+    d.write_text("".join(f"{f},-1,{10 + 3 * f},20,8,4,0.9\n" for f in (1, 2, 3, 5, 6)))
+    code, _, err = run_cli(capsys, "-q", "track", "--detections", d, "--out", tmp_path / "o",
+                           "--frames", "2:6")
+    assert code == 0, err
+    lines = (tmp_path / "o" / "registration.csv").read_text().splitlines()
+    assert lines[0].startswith("frame,h00,h01,h02,h10,h11,h12,h20,h21,h22,status")
+    rows = [ln.split(",") for ln in lines[1:]]
+    assert [int(r[0]) for r in rows] == [2, 3, 4, 5, 6]  # every frame processed, gaps included
+    for r in rows:
+        assert [float(v) for v in r[1:10]] == [1, 0, 0, 0, 1, 0, 0, 0, 1]
+        assert r[10] == "identity"
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["registration_mode"] == "identity"
+    assert summary["counts"]["registered_frames"] == 0 and not summary["registration_failures"]
+    # an empty detections file: no frames, a header-only registration.csv
+    e = tmp_path / "e.txt"
+    e.write_text("")
+    code, _, err = run_cli(capsys, "-q", "track", "--detections", e, "--out", tmp_path / "p")
+    assert code == 0, err
+    assert (tmp_path / "p" / "registration.csv").read_text().startswith("frame,h00")
+    assert json.loads((tmp_path / "p" / "summary.json").read_text())["registration_mode"] == "identity"
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_verbose_and_quiet_work_after_the_subcommand_too(tmp_path, capsys, where):
+    from conftest import run_cli
+
+    d = tmp_path / "d.txt"
+    d.write_text("1,-1,10,10,8,4,0.9\n2,-1,12,10,8,4,0.9\n")
+
+    def track(flag, out):
+        argv = ["track", "--detections", d, "--out", tmp_path / out]
+        return run_cli(capsys, *([flag, *argv] if where == "before" else [*argv, flag]))
+
+    code, _, err = track("-v", "v")
+    assert code == 0 and "INFO: track: 2/2 frames" in err, err  # progress lines off a terminal
+    code, _, err = track("-q", "q")
+    assert code == 0 and err == "", err
+    code, _, err = track("--verbose", "v2")
+    assert code == 0 and "INFO" in err, err

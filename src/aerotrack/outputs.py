@@ -80,6 +80,28 @@ def detection_rows(result: Result) -> np.ndarray:
     return _sorted(rows)
 
 
+#: ``registration.csv`` status of a run without frames (``--detections`` alone).
+IDENTITY = "identity"
+
+
+def registration_rows(result: Result) -> list[Registration]:
+    """The rows of ``registration.csv``: every registration the run used, by frame.
+
+    Association alone (``--detections`` without INPUT, or ``track --from`` such a run) registers
+    nothing: world coordinates are the detections' own pixels, i.e. the identity homography for
+    every frame. Those frames get identity rows with status ``identity`` and a reason, so the
+    contract's file is there and says what was used (``summary.json``: ``registration_mode``
+    ``identity``, ``counts.registered_frames`` 0).
+    """
+    regs = result.registrations
+    if regs or result.frame_size is not None:
+        return [regs[i] for i in sorted(regs)]
+    frames = sorted({d.frame for d in result.detections})
+    why = "no frames (--detections alone): world = the detections' pixels"
+    return [Registration(f, np.eye(3), IDENTITY, 0, float("nan"), float("nan"), why)
+            for f in frames]
+
+
 def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: GeoMap | None,
                   run_info: dict | None = None, out_crs: str | None = None) -> dict:
     """Write every contract file into ``out`` (atomically) and return the summary dict."""
@@ -87,11 +109,10 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
     write_mot(out.file("tracks.csv"), tracks)
     write_mot(out.file("predicted.csv"), predicted)
     write_mot(out.file("detections.csv"), detection_rows(result))
-    if result.registrations:
-        from .registration import write_registration_csv
+    from .registration import write_registration_csv
 
-        write_registration_csv(out.file("registration.csv"),
-                               [result.registrations[i] for i in sorted(result.registrations)])
+    used = registration_rows(result)
+    write_registration_csv(out.file("registration.csv"), used)
     if geomap is not None:
         try:
             from .io.geojson import write_tracks_geojson
@@ -121,6 +142,8 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         "last_frame": result.last_frame,
         "frame_size": list(result.frame_size) if result.frame_size else None,
         "metres_per_unit": result.metres_per_unit,
+        "registration_mode": (IDENTITY if not result.registrations and result.frame_size is None
+                              else "map" if geomap is not None else "frame1"),
         "counts": {
             "detections": int(sum(len(d) for d in result.detections)),
             "tracks": n_ids,

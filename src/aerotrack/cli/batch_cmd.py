@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import config_option, fps_option, seed_option, set_option
+from .common import config_option, fps_option, root_flags, seed_option, set_option
 
 log = logging.getLogger("aerotrack")
 
@@ -39,7 +39,9 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     """Track every video file and image-folder sub-folder of INPUT_DIR.
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
-    interrupted batch continues where it stopped when run again.
+    interrupted batch continues where it stopped when run again. An input that cannot be tracked
+    (an empty or unreadable video file) is reported on one line and counted as failed: the batch
+    goes on with the others and exits with code 2.
 
     \b
     Examples:
@@ -58,34 +60,88 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         raise InputError(f"--segment-s {segment_s}: must be positive")
     config = load_config(config_path, overrides)
     items = plan_batch(input_dir, out_dir)
-    if not items:
+    unusable = unusable_videos(input_dir)
+    bad = {p for p, _ in unusable}
+    items = [it for it in items if Path(it.input) not in bad]
+    if not items and not unusable:
         raise InputError(f"{input_dir}: no video files or image folders")
-    quiet = ctx.find_root().obj.get("quiet", False) if ctx.find_root().obj else False
+    quiet, _ = root_flags(ctx)
 
     def report(item, summary, error):
-        if quiet:
-            return
-        if error is not None:
+        if error is not None:  # an error: shown even with -q
             click.echo(f"aerotrack: {item.name}: failed: {error}", err=True)
+        elif quiet:
+            return
         else:
             c = summary["counts"]
             click.echo(f"aerotrack: {item.name}: {summary['frames']} frames, {c['tracks']} tracks "
                        f"-> {item.out}", err=True)
 
+    for path, why in unusable:
+        click.echo(f"aerotrack: {path.name}: failed: {path}: {why}", err=True)
     for it in items:
         if it.done and not quiet:
             click.echo(f"aerotrack: {it.name}: already finished, skipped", err=True)
     engine = (dask_client(workers=workers, scheduler=scheduler)
               if workers is not None or scheduler is not None else contextlib.nullcontext())
-    with engine as client:
+    with engine as client, _ReportedOnce():
         results = run_batch(items, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
                             stride=stride, client=client,
                             parallel=ParallelConfig(segment_s=segment_s), on_done=report)
-    failed = [name for name, r in results.items() if isinstance(r, BaseException)]
+    failed = [path.name for path, _ in unusable]
+    failed += [name for name, r in results.items() if isinstance(r, BaseException)]
+    tracked = sum(1 for r in results.values() if not isinstance(r, BaseException))
     done = sum(1 for it in items if it.done)
     if not quiet:
-        click.echo(f"aerotrack: batch: {len(results) - len(failed)} tracked, {done} skipped, "
+        click.echo(f"aerotrack: batch: {tracked} tracked, {done} skipped, "
                    f"{len(failed)} failed", err=True)
     if failed:
-        raise InputError(f"batch: {len(failed)} of {len(items)} inputs failed: "
+        raise InputError(f"batch: {len(failed)} of {len(items) + len(unusable)} inputs failed: "
                          + ", ".join(failed))
+
+
+def unusable_videos(input_dir: Path) -> list[tuple[Path, str]]:
+    """Video files of ``input_dir`` that cannot be tracked at all, with the reason: empty files
+    (which :func:`~aerotrack.parallel.plan_batch` leaves out) and files without read permission.
+    Each is reported and counted as failed, never skipped silently."""
+    import os
+
+    from ..parallel import VIDEO_SUFFIXES
+
+    out = []
+    for p in sorted(Path(input_dir).iterdir(), key=lambda p: p.name):
+        if p.name.startswith(".") or p.suffix.lower() not in VIDEO_SUFFIXES or not p.is_file():
+            continue
+        try:
+            size = p.stat().st_size
+        except OSError as exc:
+            out.append((p, f"cannot read ({exc.strerror})"))
+            continue
+        if size == 0:
+            why = "empty file (0 bytes)"
+        elif not os.access(p, os.R_OK):
+            why = "cannot read (permission denied)"
+        else:
+            continue
+        out.append((p, why))
+    return out
+
+
+class _ReportedOnce(logging.Filter):
+    """While the batch runs, drop the library's own warning about a failed input: the command
+    reports each failure once, on one line (``NAME: failed: reason``), through ``on_done``."""
+
+    LOGGER = "aerotrack.parallel"
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.levelno == logging.WARNING and record.args
+                    and isinstance(record.args, tuple)
+                    and isinstance(record.args[-1], BaseException))
+
+    def __enter__(self):
+        logging.getLogger(self.LOGGER).addFilter(self)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        logging.getLogger(self.LOGGER).removeFilter(self)
+        return False

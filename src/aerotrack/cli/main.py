@@ -35,11 +35,21 @@ COMMANDS = [
 log = logging.getLogger("aerotrack")
 
 
+#: Environment that silences FFmpeg's and OpenCV's own messages unless -vv.
+_QUIET_LIBS = {"OPENCV_FFMPEG_LOGLEVEL": "-8", "OPENCV_LOG_LEVEL": "ERROR"}  # -8: AV_LOG_QUIET
+_set_by_us: set[str] = set()
+
+
 def configure_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
-    if verbose < 2:  # FFmpeg and OpenCV print to stderr themselves; our own message says it once
-        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
-        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    for name, value in _QUIET_LIBS.items():
+        # FFmpeg and OpenCV print to stderr themselves; our own message says it once
+        if verbose < 2 and name not in os.environ:
+            os.environ[name] = value
+            _set_by_us.add(name)
+        elif verbose >= 2 and name in _set_by_us:  # -vv after the subcommand: undo our own
+            os.environ.pop(name, None)
+            _set_by_us.discard(name)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("aerotrack: %(levelname)s: %(message)s"))
     root = logging.getLogger("aerotrack")
@@ -73,6 +83,33 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
     ctx.obj = {"verbose": verbose, "quiet": quiet}
 
 
+def _also_here(ctx: click.Context, param: click.Parameter, value) -> None:
+    """``-v`` / ``-q`` given after the subcommand (``aerotrack track ... -v``) add to the ones
+    given before it: the group's flags are updated and logging set up again."""
+    if not value:
+        return
+    root = ctx.find_root()
+    obj = root.obj if isinstance(root.obj, dict) else {"verbose": 0, "quiet": False}
+    if param.name == "verbose_here":
+        obj["verbose"] = int(obj.get("verbose", 0)) + int(value)
+    else:
+        obj["quiet"] = True
+    root.obj = obj
+    configure_logging(obj["verbose"], obj["quiet"])
+
+
+def verbosity_options() -> list[click.Option]:
+    """The group's ``-v`` and ``-q``, accepted by every subcommand too."""
+    return [
+        click.Option(["-v", "--verbose", "verbose_here"], count=True, expose_value=False,
+                     callback=_also_here,
+                     help="More messages, as `aerotrack -v` before the command."),
+        click.Option(["-q", "--quiet", "quiet_here"], is_flag=True, expose_value=False,
+                     callback=_also_here,
+                     help="Only warnings and errors, as `aerotrack -q` before the command."),
+    ]
+
+
 def _register() -> None:
     for module, attr in COMMANDS:
         try:
@@ -81,7 +118,10 @@ def _register() -> None:
             if exc.name == f"{__package__}.{module}":
                 continue  # command not built yet
             raise
-        cli.add_command(getattr(mod, attr))
+        command = getattr(mod, attr)
+        taken = {o for p in command.params for o in getattr(p, "opts", ())}
+        command.params.extend(o for o in verbosity_options() if not taken & set(o.opts))
+        cli.add_command(command)
 
 
 _register()

@@ -51,13 +51,21 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
       aerotrack predict tracks.csv --queries q.csv --out p.csv --method paper --fps 25
       aerotrack predict run/tracks.csv --queries q.csv --out p.csv --space map
     """
-    from ..errors import InputError
+    from pathlib import Path
+
+    from ..errors import InputError, OutputError
 
     check_positive(fps, "--fps")
     check_positive(gsd, "--gsd")
     if crs is not None and roads is None:
         raise InputError(f"--crs {crs}: only used with --roads (the CRS of the tracks' x,y columns)")
+    for label, given in (("TRACKS", tracks), ("--queries", queries)):
+        if Path(out).resolve() == Path(given).resolve():  # would replace an input with answers
+            raise InputError(f"--out {out}: is the {label} file; write the predictions elsewhere")
     config = load_config(config_path, overrides).context
-    n = run_predict(tracks, queries, out, method=method or config.method, fps=fps, space=space,
-                    config=config, metres_per_unit=gsd, roads=roads, crs=crs)
+    try:
+        n = run_predict(tracks, queries, out, method=method or config.method, fps=fps,
+                        space=space, config=config, metres_per_unit=gsd, roads=roads, crs=crs)
+    except OutputError as exc:
+        raise OutputError(f"--out {exc}") from None
     log.info("wrote %d predicted positions to %s", n, out)

@@ -10,7 +10,7 @@ x, y map columns (``space="map"``). The prediction at frame f uses only the targ
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,7 @@ class Query:
     id: int
     last_seen: int
     horizon: int
+    line: int = field(default=0, compare=False)  # line of the queries file (1-based), for messages
 
 
 #: Longest prediction horizon in frames (over 9 hours at 30 frames/s).
@@ -72,7 +73,7 @@ def read_queries(path: str | Path) -> list[Query]:
             raise FormatError(f"--queries {p} line {n}: non-numeric value in {ln.strip()!r}") from None
         if not all(math.isfinite(v) and v.is_integer() for v in vals):
             raise FormatError(f"--queries {p} line {n}: id, last_seen and horizon must be integers")
-        q = Query(*(int(v) for v in vals))
+        q = Query(*(int(v) for v in vals), line=n)
         if q.horizon <= 0:
             raise FormatError(f"--queries {p} line {n}: horizon must be positive, got {q.horizon}")
         if q.horizon > MAX_HORIZON:  # one output row per frame: this would exhaust memory
@@ -117,9 +118,11 @@ def scale_of(rows: np.ndarray, space: str, config: ContextConfig) -> float:
 
 
 def predict_queries(table: TrackTable, queries: list[Query], method: str, config: ContextConfig,
-                    fps: float, metres_per_unit: float | None, roads=None) -> list[np.ndarray]:
+                    fps: float, metres_per_unit: float | None, roads=None,
+                    label: str = "--queries") -> list[np.ndarray]:
     """One (horizon, 2) array of predicted positions per query, in the table's units (``roads``:
     a :class:`~aerotrack.context.roads.RoadNetwork` in the same units, used by ``context``).
+    ``label`` starts error messages (``--queries FILE``).
 
     Raises
     ------
@@ -130,12 +133,12 @@ def predict_queries(table: TrackTable, queries: list[Query], method: str, config
     known = set(table.track_ids().tolist())
     out = []
     for n, q in enumerate(queries):
+        where = f"{label} line {q.line or n + 2} (query {n})"
         if q.id not in known:
-            raise InputError(f"--queries row {n} (line {n + 2}): unknown id {q.id}")
+            raise InputError(f"{where}: unknown id {q.id}")
         fr, _ = table.track(q.id)
         if not np.any(fr == q.last_seen):
-            raise InputError(f"--queries row {n} (line {n + 2}): track {q.id} has no row at "
-                             f"last_seen {q.last_seen}")
+            raise InputError(f"{where}: track {q.id} has no row at last_seen {q.last_seen}")
         out.append(pred.predict(table, q.id, q.last_seen, q.horizon))
     return out
 
@@ -176,6 +179,7 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
         network = read_roads(roads, crs=crs, snap_m=config.roads_snap_m)
         if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
             network = RoadNetwork(network.lines, mpu, config.roads_snap_m)
-    preds = predict_queries(table, qs, method, config, fps, mpu, roads=network)
+    preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,
+                            label=f"--queries {queries}")
     atomic_write_text(out, format_predictions(qs, preds))
     return sum(q.horizon for q in qs)
