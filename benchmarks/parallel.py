@@ -18,7 +18,12 @@ HOTA/IDF1 of each run's tracks taking ``single-1t``'s tracks as ground truth.
 Usage::
 
     /tmp/venv/bin/python benchmarks/parallel.py [--frames 1800] [--size 480x270] [--fps 15] \
-        [--repeat 2]
+        [--repeat 2] [--video mp4|frames]
+
+The input is an MPEG-4 video encoded from the generated frames (``--video mp4``, the default: what
+users process; segments seek into it) or the folder of JPEG frames (``--video frames``).
+For Dask runs, ``timeline`` in the JSON (and the "where the time goes" lines) splits the wall time:
+task start on the workers, each segment's end, its result's arrival, the client's join and linking.
 
 Each mode runs ``--repeat`` times, interleaved, and the fastest run counts: on a shared machine
 other processes only ever slow a run down. The 1-minute load average at each run's start is
@@ -125,6 +130,25 @@ def make_video(folder: Path, n: int, size: tuple[int, int], fps: float,
 
 
 # -- one configuration, in its own process ---------------------------------------------------------
+def encode_mp4(frames: Path, out: Path, fps: float) -> Path:
+    """``frames`` (a folder of images) as an MPEG-4 part 2 video ``out`` (reused when there)."""
+    import cv2
+
+    if out.is_file() and out.stat().st_size > 0:
+        return out
+    files = sorted(p for p in frames.iterdir() if p.suffix.lower() in (".jpg", ".png"))
+    h, w = cv2.imread(str(files[0])).shape[:2]
+    tmp = out.with_suffix(".tmp.mp4")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    if not writer.isOpened():
+        sys.exit(f"benchmark: cannot encode {tmp} (no MPEG-4 encoder); use --video frames")
+    for p in files:
+        writer.write(cv2.imread(str(p)))
+    writer.release()
+    tmp.rename(out)
+    return out
+
+
 def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path, seed: int = 0) -> None:
     import cv2
 
@@ -152,7 +176,8 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path, seed: i
         join = {"segments": len(report.world_rms) + 1, "world_rms": report.world_rms,
                 "stitched": report.stitched, "cut": report.cut,
                 "plan": [[g.start, g.stop, g.own_start, g.own_stop] for g in report.segments],
-                "segment_wall_s": report.segment_wall_s, "segment_cpu_s": report.segment_cpu_s}
+                "segment_wall_s": report.segment_wall_s, "segment_cpu_s": report.segment_cpu_s,
+                "timeline": report.timeline}
         # CPU seconds on the critical path: the slowest segment, then the client's join and
         # linking (a wall-time estimate for an idle machine with a core per worker)
         cpu = max(report.segment_cpu_s) + result.timings["join"] + result.timings["linking"]
@@ -260,6 +285,29 @@ def join_differences(base: dict, run: dict, fps: float, window_s: float = 5.0) -
     return out
 
 
+def where_time_goes(run: dict, single_1t_wall: float | None, frames: int) -> dict:
+    """One Dask run's wall time split along its timeline (seconds): planning and submitting,
+    the slowest segment's task, how much earlier the other segment ended (imbalance), the last
+    result's transfer to the client, the join, global linking; ``ideal_s``: the single process's
+    wall time scaled to the frames the largest segment reads (perfect parallelism, no join)."""
+    tl = run["join"].get("timeline") or {}
+    if not tl.get("ended"):
+        return {}
+    plan = run["join"].get("plan") or []
+    reads = max((stop - start + 1 for start, stop, _, _ in plan), default=frames)
+    last_end, last_recv = max(tl["ended"]), max(tl["received"])
+    return {
+        "before_tasks_s": round(run["wall_s"] - tl["linked"] + min(tl["started"]), 3),
+        "slowest_task_s": round(last_end - min(tl["started"]), 3),
+        "imbalance_s": round(last_end - min(tl["ended"]), 3),
+        "result_transfer_s": round(last_recv - last_end, 3),
+        "join_s": round(tl["joined"] - last_recv, 3),
+        "linking_s": round(tl["linked"] - tl["joined"], 3),
+        "client_cpu_s": tl.get("client_cpu_s"),
+        "largest_segment_reads_frames": reads,
+        "ideal_s": round(single_1t_wall * reads / frames, 3) if single_1t_wall else None}
+
+
 def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
     """Segments against the single process on known detections (association and linking alone):
     ``common.synthetic_dets`` with 10 and 30 targets, 2 segments run in this process (the engine
@@ -314,6 +362,9 @@ def main() -> None:
                     help="aerotrack synth scenario (default, dense, ...); results of another "
                          "scenario go to parallel-SCENARIO.json")
     ap.add_argument("--modes", default=",".join(MODES))
+    ap.add_argument("--video", choices=("mp4", "frames"), default="mp4",
+                    help="Input: an MPEG-4 video encoded from the generated frames (default), or "
+                         "the folder of JPEG frames.")
     ap.add_argument("--vary-seed", action="store_true",
                     help="Repetition k runs every mode with MCMC seed k: HOTA/IDF1 are then also "
                          "reported as means over seeds (one seed's difference between two runs "
@@ -339,6 +390,10 @@ def main() -> None:
     tag = "" if a.scenario == "default" else f"-{a.scenario}"
     folder = WORK / f"parallel-synth{tag}-{a.frames}-{size[0]}x{size[1]}-{a.fps:g}"
     info = make_video(folder, a.frames, size, a.fps, a.scenario)
+    source = folder / "frames"
+    if a.video == "mp4":
+        source = encode_mp4(source, folder / "video.mp4", a.fps)
+    info = dict(info, input=a.video)
     gt = np.loadtxt(folder / "gt.txt", delimiter=",", ndmin=2)
     runs: dict[str, dict] = {}
     walls: dict[str, list[float]] = {}
@@ -353,7 +408,7 @@ def main() -> None:
             env = dict(os.environ)
             if mode != "single":
                 env.update(THREAD_ENV)
-            cmd = [sys.executable, __file__, "--run", mode, "--input", str(folder / "frames"),
+            cmd = [sys.executable, __file__, "--run", mode, "--input", str(source),
                    "--out", str(out), "--fps", str(a.fps), "--gsd", str(a.gsd),
                    "--seed", str(rep if a.vary_seed else 0)]
             load.append(os.getloadavg()[0])
@@ -421,7 +476,8 @@ def main() -> None:
           f"1-min load average at run starts {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} "
           "cores; x 1t: fastest run / fastest single-1t, x 1t med: median over repetitions of "
           "run / single-1t of the same repetition, x def: fastest / fastest single, cpu x 1t: "
-          "CPU seconds on the critical path / single-1t's, median over repetitions")
+          "CPU seconds on the critical path / single-1t's, median over repetitions. Dask wall "
+          "times exclude starting the cluster (start s in the JSON: cluster_startup_s)")
     print(head)
     for mode, t in table.items():
         med = t["wall_vs_single_1t_median"]
@@ -439,6 +495,21 @@ def main() -> None:
                                             f"{t['IDF1_per_seed'][k]:.3f}"
                                             for k in t["HOTA_per_seed"])
                   + f"  mean {t['HOTA_mean_over_seeds']:.3f}/{t['IDF1_mean_over_seeds']:.3f}")
+    print("where the Dask wall time goes (median over repetitions, s; the cluster's start is "
+          "excluded from every wall time above and reported apart): ideal = single-1t's wall "
+          "scaled to the frames the largest segment reads")
+    for mode, t in table.items():
+        parts = [where_time_goes(v[mode], v.get("single-1t", {}).get("wall_s"), a.frames)
+                 for v in by_rep.values() if mode in v]
+        parts = [x for x in parts if x]
+        if not parts:
+            continue
+        med = {k: round(float(np.median([x[k] for x in parts if x[k] is not None])), 3)
+               for k in parts[0] if any(x[k] is not None for x in parts)}
+        t["where_time_goes_median"] = med
+        t["where_time_goes_per_rep"] = parts
+        print(f"{mode:10} start {t['cluster_startup_s']:.2f} | " + ", ".join(
+            f"{k.removesuffix('_s')} {v:g}" for k, v in med.items()))
     for mode, j in joins.items():
         print(f"{mode}: per join (cut frame: tracks split / merged there, within 5 s) "
               + "; ".join(f"{x['cut']}: {x['split']}/{x['merged']}" for x in j["joins"])
@@ -455,7 +526,7 @@ def main() -> None:
                "joins": joins,
                "note": "wall_vs_single_1t: wall time / single process limited to one thread; "
                        "Dask wall excludes cluster start-up (cluster_startup_s)"}
-    path = write_results("parallel" + tag, payload)
+    path = write_results("parallel" + tag + ("" if a.video == "mp4" else "-frames"), payload)
     print(f"wrote {path}")
 
 

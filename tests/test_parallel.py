@@ -480,3 +480,13 @@ def test_segment_frames_seek_a_video_to_the_frames_sequential_decoding_gives(tmp
     assert [f.index for f in got] == [f.index for f in want] and want
     assert [f.time for f in got] == [f.time for f in want]
     assert all(np.array_equal(a.image, b.image) for a, b in zip(got, want))
+
+
+def test_client_warm_up_runs_linking_for_real():
+    """The client's warm-up runs global linking and the finish stage (a failure there is
+    swallowed, so the flag is what shows it worked); a second call does nothing."""
+    from aerotrack import parallel
+
+    parallel._LINKING_WARM.clear()
+    assert parallel.warm_up_linking() > 0 and parallel._LINKING_WARM.is_set()
+    assert parallel.warm_up_linking() == 0.0
