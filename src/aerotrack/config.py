@@ -238,6 +238,57 @@ class DetectionConfig:
         0 disables the test; raising it removes more ghosts but also smooth, low-contrast vehicles.
     min_conf : float
         Detections with a lower confidence are dropped.
+    persist : bool
+        Multi-frame persistence for small, faint movers (``detection.persistence``): a
+        motion-compensated leaky sum of each frame's weak residual reports targets whose
+        evidence keeps coming back at reachable places although no single frame has a blob
+        that passes the gates. Off by default (see benchmarks in its docstring).
+    persist_tau_s : float
+        Time constant of the sum, seconds (decay ``exp(-dt / tau)``). Longer averages more noise
+        away but smears a target that changes speed and delays its first report.
+    persist_window_s, persist_min_support : float
+        A peak is reported only when at least ``persist_min_support`` of the frames of the last
+        ``persist_window_s`` seconds had a peak or a detection within reach of its world
+        position (travel at the maximum speed plus one target length). 0 disables the test.
+    persist_max_speed_mps, persist_max_speed_px_s : float
+        Largest speed of a target relative to the ground (metres/s with a scale, full-resolution
+        pixels/s without): the sum is grey-dilated by this distance each frame. Higher follows
+        faster targets but lets more clutter add up.
+    persist_max_length_m, persist_max_length_px : float
+        Largest side of a persistence box (small targets only; larger ones are found by the
+        regular blobs).
+    persist_threshold : float
+        Reporting threshold on the sum in steady-state units: a target whose capped, locally
+        normalised evidence is ``e`` in every frame scores ``e`` (1 = at the single-frame
+        threshold over its whole patch). Lower finds fainter targets and more clutter.
+    persist_noise_ratio : float
+        The threshold is at least this multiple of the sum's 0.99 quantile over the frame: where
+        clutter (or a large speed-times-memory search area) lifts every maximum, only what
+        stands out is reported. 0 keeps ``persist_threshold`` alone.
+    persist_edge_px : float
+        No peak within this many full-resolution pixels of an untrusted background pixel
+        (view edges, pixels entering the view).
+    persist_min_evidence : float
+        The current frame's evidence at the peak (same units) must reach this: the target is
+        here now, not only its trail.
+    persist_cap : float
+        Per-pixel evidence cap, in single-frame thresholds.
+    persist_blur_px : float
+        Side (full-resolution pixels) of the box average of the evidence: about a small
+        target's size.
+    persist_noise_block_px : float
+        Side (full-resolution pixels) of the blocks whose evidence RMS, where above the frame's,
+        scales the evidence down (textured ground, foliage, parallax). 0 disables.
+    persist_box_ratio : float
+        A persistence box spans the current frame's evidence above this fraction of its value
+        at the peak (connected to the peak).
+    persist_exclude_px : float
+        Peaks within this many full-resolution pixels of a regular detection are not reported.
+    persist_max_per_frame : int
+        At most this many persistence detections per frame (strongest first).
+    persist_conf : float
+        Confidence of a persistence detection at score ``persist_threshold``; it rises towards
+        1 with the score.
     """
 
     window_s: float = 3.0
@@ -278,6 +329,25 @@ class DetectionConfig:
     ghost_part_ratio: float = 1.5
     ghost_ratio: float = 0.6
     min_conf: float = 0.05
+    persist: bool = False
+    persist_tau_s: float = 0.5
+    persist_window_s: float = 1.0
+    persist_min_support: float = 0.6
+    persist_max_speed_mps: float = 15.0
+    persist_max_speed_px_s: float = 20.0
+    persist_max_length_m: float = 8.0
+    persist_max_length_px: float = 40.0
+    persist_threshold: float = 0.5
+    persist_noise_ratio: float = 1.4
+    persist_edge_px: float = 16.0
+    persist_min_evidence: float = 0.5
+    persist_cap: float = 2.0
+    persist_blur_px: float = 6.0
+    persist_noise_block_px: float = 64.0
+    persist_box_ratio: float = 0.35
+    persist_exclude_px: float = 8.0
+    persist_max_per_frame: int = 10
+    persist_conf: float = 0.3
 
 
 @dataclass(frozen=True)

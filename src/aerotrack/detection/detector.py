@@ -40,6 +40,7 @@ from .blobs import (
     open2,
     split_blob,
 )
+from .persistence import PersistenceTracker
 from .shadows import remove_shadows
 
 #: Registration statuses after which earlier frames no longer relate to this one.
@@ -589,6 +590,7 @@ class MovingObjectDetector:
         self._newest: int | None = None  # newest frame stepped
         self._ending = False  # inside flush(): no frame comes after the newest
         self.last_result: FrameResult | None = None
+        self._persist = PersistenceTracker(config, fps, self.scale) if config.persist else None
         #: When True, ``debug_frames`` collects ``(index, image, residual, boxes, stationary)``
         #: of every finalised frame (the caller drains it).
         self.keep_debug = False
@@ -610,6 +612,8 @@ class MovingObjectDetector:
             self._bg = None
             self._last_fg = None
             self._start = frame.index
+            if self._persist is not None:
+                self._persist.reset()
         if self._first is None:
             self._first = frame.index
         if self._start is None:
@@ -753,6 +757,8 @@ class MovingObjectDetector:
         bg, testable = self._background(p)
         gates = self._gates(Hc, p.frame.image.shape[:2])
         r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
+        if self._persist is not None:
+            r = self._add_persistent(p, r, testable)
         self.last_result = r
         blobs = r.model_blobs
         if self._bg is not None and self._bg.cut is not None and len(blobs):
@@ -785,6 +791,43 @@ class MovingObjectDetector:
         if self.keep_debug:
             self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
         return self._to_detections(p, r, stationary)
+
+    def _add_persistent(self, p: _Pending, r: FrameResult, testable: np.ndarray) -> FrameResult:
+        """``r`` with the small, faint movers found by multi-frame persistence appended
+        (:class:`.persistence.PersistenceTracker`); their boxes come from the model-resolution
+        evidence, their masks fill the boxes."""
+        H = np.asarray(p.reg.H, dtype=np.float64)
+        image = p.frame.image
+        mpp = None
+        if self.metres_per_unit:
+            mpp = self.metres_per_unit * local_scale(H, np.array([image.shape[1] / 2,
+                                                                  image.shape[0] / 2]))
+            mpp = mpp if mpp > 0 and math.isfinite(mpp) else None
+        found = self._persist.step(r.residual, r.threshold, testable, H, p.frame.time, r.boxes, mpp)
+        if not found:
+            return r
+        c = self.config
+        Hf, Wf = image.shape[:2]
+        boxes, confs = [r.boxes], list(r.conf)
+        masks, crops, blobs = list(r.masks), list(r.crops), list(r.model_blobs)
+        contrast = list(r.contrast) if r.contrast is not None else [1.0] * len(r.boxes)
+        for d in found:
+            x, y, w, h = d.box
+            x0, y0 = int(math.floor(x / self.scale)), int(math.floor(y / self.scale))
+            x1 = min(Wf, int(math.ceil((x + w) / self.scale)))
+            y1 = min(Hf, int(math.ceil((y + h) / self.scale)))
+            if x1 <= x0 or y1 <= y0:
+                continue
+            boxes.append(np.array([[x0, y0, x1 - x0, y1 - y0]], np.float64))
+            confs.append(float(min(1.0, c.persist_conf * d.score / c.persist_threshold)))
+            masks.append(np.ones((y1 - y0, x1 - x0), bool))  # the box is a tiny target's blob
+            crops.append((x0, y0, x1, y1))
+            blobs.append(Blob((x, y, w, h), np.ones((h, w), bool)))
+            contrast.append(d.score)
+        return FrameResult(boxes=np.vstack(boxes).reshape(-1, 4),
+                           conf=np.asarray(confs, np.float64), masks=masks, crops=crops,
+                           model_blobs=blobs, contrast=np.asarray(contrast, np.float64),
+                           threshold=r.threshold, residual=r.residual)
 
     def _ahead(self, p: _Pending, r: FrameResult, bg: np.ndarray, moved: list) -> list:
         """Per detection, the pixels (in its model box) to keep out of the not-yet-final samples.

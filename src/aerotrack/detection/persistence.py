@@ -1,0 +1,379 @@
+"""Multi-frame persistence for small, faint movers (a track-before-detect step).
+
+A vehicle a few pixels long at the model resolution, or one whose colour is close to the road's,
+leaves only a handful of scattered residual pixels above the single-frame threshold, so no blob
+passes the size gates; lowering the gates floods the frame with noise blobs. Noise and a target
+differ in *persistence*: the target's weak residual comes back frame after frame at places
+reachable from each other at a vehicle's speed, the noise's does not.
+
+:func:`accumulate` keeps a motion-compensated, leaky sum of per-frame evidence (a max-product
+track-before-detect recursion): the previous sum is warped into the current frame through the
+registrations, grey-dilated by the distance a target can travel in one frame (``v_max dt``), decayed
+and added to the current evidence::
+
+    A_t(x) = lambda * max_{|y - x| <= v_max dt} A_{t-1}(H_{t-1 -> t}^{-1} y) + e_t(x)
+
+A target whose evidence is ``e`` in every frame reaches ``e / (1 - lambda)``; flicker that is
+strong in one frame only decays away. :func:`frame_evidence` turns the residual into the evidence
+``e_t``: the residual over the frame's threshold, capped (so one strong noise pixel cannot make a
+track by itself), box-averaged over about a small target's size (a target is a coherent patch,
+compression noise is not) and divided by its local RMS where that is above the frame's (textured
+ground, foliage and parallax leave more residual everywhere; without this the sum ranks them
+above a faint target). :func:`persistent_peaks` thresholds the sum, in units of the steady state,
+where the current frame also shows evidence; :func:`peak_box` boxes each peak from the current
+frame's weak residual. :class:`PersistenceTracker` runs the recursion over the frames a detector
+finalises and requires, as a last guard against persistent clutter, that a peak had support (a
+peak or a regular detection) near its world position in a share of the recent frames.
+
+All maps are at the detector's model resolution, in the current frame's model pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..config import DetectionConfig
+from ..errors import ConfigError
+from ..types import apply_homography
+from .background import to_cv_homography, warp
+
+
+def frame_evidence(residual: np.ndarray, threshold: float, valid: np.ndarray | None = None, *,
+                   cap: float = 2.0, blur_px: int = 3, noise_block_px: int = 31) -> np.ndarray:
+    """Per-pixel evidence of a moving target in one frame, (h, w) float32 (model pixels).
+
+    Parameters
+    ----------
+    residual : ndarray, shape (h, w) uint8
+        The frame's residual against its background (grey levels).
+    threshold : float
+        The frame's single-frame residual threshold, grey levels.
+    valid : ndarray, shape (h, w), optional
+        Non-zero where the residual can be trusted; evidence is 0 elsewhere.
+    cap : float
+        Evidence is ``min(residual / threshold, cap)`` before averaging. Higher lets single strong
+        pixels count more (a sharp small target, but also a compression artefact).
+    blur_px : int
+        Side of the box average (model pixels), about a small target's size. 1 disables.
+    noise_block_px : int
+        Side of the block (model pixels) over which the local RMS of the evidence is measured;
+        where it exceeds the frame's RMS the evidence is scaled down by the ratio. 0 disables.
+        Smaller adapts to finer clutter but also damps a target in an empty neighbourhood.
+
+    Returns
+    -------
+    ndarray, shape (h, w) float32
+    """
+    e = np.minimum(residual.astype(np.float32) * np.float32(1.0 / max(threshold, 1e-6)),
+                   np.float32(cap))
+    if valid is not None:
+        e[np.asarray(valid) == 0] = 0
+    if blur_px > 1:
+        e = cv2.blur(e, (blur_px, blur_px))
+    if noise_block_px > 1:
+        rms = np.sqrt(cv2.blur(e * e, (noise_block_px, noise_block_px)))
+        g = float(np.sqrt(np.mean(e * e)))
+        if g > 0:
+            e = e * (np.float32(g) / np.maximum(rms, np.float32(g)))
+    return e
+
+
+def accumulate(previous: np.ndarray | None, to_current: np.ndarray | None,
+               evidence: np.ndarray, decay: float, radius: int) -> np.ndarray:
+    """One step of the motion-compensated leaky max-sum (see the module docstring).
+
+    Parameters
+    ----------
+    previous : ndarray, shape (h', w') float32 or None
+        The sum at the previous frame, in its model pixels; None starts afresh.
+    to_current : ndarray, shape (3, 3) or None
+        OpenCV homography (model pixel indices) previous frame -> current frame.
+    evidence : ndarray, shape (h, w) float32
+        This frame's evidence (:func:`frame_evidence`).
+    decay : float
+        ``lambda`` in [0, 1): ``exp(-dt / tau)``.
+    radius : int
+        Grey dilation radius in model pixels: how far a target may move in one frame. 0 keeps the
+        sum in place (a target standing still in the world).
+
+    Returns
+    -------
+    ndarray, shape (h, w) float32
+    """
+    if previous is None or to_current is None:
+        return evidence.astype(np.float32, copy=True)
+    h, w = evidence.shape
+    moved = warp(previous, to_current, (w, h))
+    if radius > 0:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        moved = cv2.dilate(moved, k)
+    return cv2.scaleAdd(moved, float(decay), evidence.astype(np.float32))
+
+
+def persistent_peaks(score: np.ndarray, evidence: np.ndarray, threshold: float,
+                     min_evidence: float, exclude: np.ndarray | None = None,
+                     nms_px: int = 7) -> list[tuple[int, int, float]]:
+    """Local maxima of a steady-state-normalised sum above ``threshold`` (model pixels).
+
+    Parameters
+    ----------
+    score : ndarray, shape (h, w) float32
+        ``(1 - lambda) A_t``: a target with evidence ``e`` in every frame scores ``e``.
+    evidence : ndarray, shape (h, w) float32
+        This frame's evidence; a peak must have at least ``min_evidence`` within 1 pixel (the
+        target is here now, not only its trail).
+    threshold, min_evidence : float
+    exclude : ndarray, shape (h, w) bool, optional
+        Where peaks are not reported (regular detections, untrusted background).
+    nms_px : int
+        Side of the window a peak must be the maximum of (about a small target's size; larger
+        windows let a stronger neighbour hide a target).
+
+    Returns
+    -------
+    list of (x, y, score)
+        Model pixel column, row and the score at the peak, strongest first.
+    """
+    k = max(1, int(nms_px)) | 1
+    top = cv2.dilate(score, np.ones((k, k), np.uint8))
+    near = cv2.dilate(evidence, np.ones((3, 3), np.uint8))
+    m = (score >= top) & (score > threshold) & (near >= min_evidence)
+    if exclude is not None:
+        m &= ~exclude
+    ys, xs = np.nonzero(m)
+    if len(xs) == 0:
+        return []
+    v = score[ys, xs]
+    order = np.argsort(-v, kind="stable")
+    return [(int(xs[i]), int(ys[i]), float(v[i])) for i in order]
+
+
+def peak_box(evidence: np.ndarray, x: int, y: int, max_side: int,
+             ratio: float = 0.35) -> tuple[int, int, int, int] | None:
+    """Box (model pixels ``x, y, w, h``) of the evidence blob at a peak, or None.
+
+    The region of ``evidence`` above ``ratio`` x its largest value within 1 pixel of the peak,
+    connected to that pixel, clipped to ``max_side`` around the peak. A threshold relative to the
+    peak rather than to the frame keeps a faint target's box from spreading into the clutter
+    around it. The evidence is box-averaged, which widens a target by the averaging's
+    half-width; a faint target's residual is also sparser than its body, which narrows it:
+    the box is not corrected for either (on truck4, shrinking it by the half-width lowered its
+    IoU with the annotated truck).
+    """
+    h, w = evidence.shape
+    r = max(2, int(max_side))
+    x0, y0, x1, y1 = max(0, x - r), max(0, y - r), min(w, x + r + 1), min(h, y + r + 1)
+    win = evidence[y0:y1, x0:x1]
+    px, py = x - x0, y - y0
+    ys0, xs0 = max(0, py - 1), max(0, px - 1)
+    nb = win[ys0:py + 2, xs0:px + 2]
+    top = float(nb.max())
+    if top <= 0:
+        return None
+    ky, kx = np.unravel_index(int(np.argmax(nb)), nb.shape)
+    m = (win >= ratio * top).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    lab = labels[ys0 + ky, xs0 + kx]
+    if lab == 0:
+        return None
+    bx, by, bw, bh = (int(v) for v in stats[lab, :4])
+    half = max_side // 2
+    bx0, by0 = max(bx, px - half), max(by, py - half)
+    bx1, by1 = min(bx + bw, px + half + 1), min(by + bh, py + half + 1)
+    if bx1 <= bx0 or by1 <= by0:
+        return None
+    return x0 + bx0, y0 + by0, bx1 - bx0, by1 - by0
+
+
+@dataclass(frozen=True)
+class PersistentDetection:
+    """One detection found by persistence.
+
+    Attributes
+    ----------
+    box : (int, int, int, int)
+        ``x, y, w, h`` in model pixels of the current frame.
+    score : float
+        Steady-state-normalised accumulated evidence at the peak.
+    support : float
+        Share of the recent frames with support near its world position.
+    """
+
+    box: tuple[int, int, int, int]
+    score: float
+    support: float
+
+
+class PersistenceTracker:
+    """Runs the persistence recursion over a detector's finalised frames (in order).
+
+    Parameters
+    ----------
+    config : DetectionConfig
+        Uses the ``persist_*`` fields.
+    fps : float
+    scale : float
+        Model / full resolution.
+
+    Notes
+    -----
+    The recursion is causal over finalised frames: a target needs about ``persist_tau_s`` of
+    evidence before it is reported. ``reset`` starts afresh (a new registration segment).
+    """
+
+    def __init__(self, config: DetectionConfig, fps: float, scale: float) -> None:
+        validate(config)
+        self.config = config
+        self.fps = float(fps)
+        self.scale = float(scale)
+        self.decay = math.exp(-1.0 / (self.fps * config.persist_tau_s))
+        self._history_n = max(1, int(round(config.persist_window_s * self.fps)))
+        self.reset()
+
+    def reset(self) -> None:
+        self._acc: np.ndarray | None = None
+        self._H: np.ndarray | None = None
+        self._budget = 0.0
+        #: per recent frame: (time, (K, 2) world positions of peaks and detections)
+        self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=self._history_n)
+
+    def step(self, residual: np.ndarray, threshold: float, valid: np.ndarray, H: np.ndarray,
+             time: float, det_boxes: np.ndarray, metres_per_px: float | None,
+             ) -> list[PersistentDetection]:
+        """Add one finalised frame; return the persistent detections not among ``det_boxes``.
+
+        Parameters
+        ----------
+        residual : ndarray, shape (h, w) uint8
+            Model-resolution residual of the frame (``FrameResult.residual``).
+        threshold : float
+            Its single-frame threshold, grey levels.
+        valid : ndarray, shape (h, w)
+            Non-zero where the background is trusted.
+        H : ndarray, shape (3, 3)
+            Frame pixels (full resolution) -> world.
+        time : float
+            Seconds.
+        det_boxes : ndarray, shape (N, 4)
+            The frame's regular detections, ``x, y, w, h`` in full-resolution frame pixels.
+        metres_per_px : float or None
+            Metres per full-resolution frame pixel when known (speeds and sizes in metres),
+            else None (pixels).
+        """
+        c = self.config
+        s = self.scale
+        if metres_per_px:
+            speed_px_s = c.persist_max_speed_mps / metres_per_px
+            max_len_px = c.persist_max_length_m / metres_per_px
+        else:
+            speed_px_s, max_len_px = c.persist_max_speed_px_s, c.persist_max_length_px
+        blur = max(1, int(round(c.persist_blur_px * s)))
+        e = frame_evidence(residual, threshold, valid, cap=c.persist_cap, blur_px=blur,
+                           noise_block_px=int(round(c.persist_noise_block_px * s)))
+        to_cur = None
+        if self._acc is not None and self._H is not None:
+            to_cur = to_cv_homography(np.linalg.inv(H) @ self._H, s)
+        # Sub-pixel speeds: the dilation budget accumulates until it reaches a whole pixel.
+        self._budget += speed_px_s * s / self.fps
+        radius = int(self._budget)
+        self._budget -= radius
+        self._acc = accumulate(self._acc, to_cur, e, self.decay, radius)
+        self._H = np.asarray(H, np.float64)
+        score = self._acc * np.float32(1.0 - self.decay)
+
+        h, w = residual.shape
+        # Near the edge of the trusted area (pixels entering the view, the video's border) the
+        # background has few samples and its noise is not that of the frame.
+        edge = max(1, int(round(c.persist_edge_px * s)))
+        trusted = np.pad((np.asarray(valid) > 0).astype(np.uint8), 1)
+        trusted = cv2.erode(trusted, np.ones((2 * edge + 1, 2 * edge + 1), np.uint8))[1:-1, 1:-1]
+        exclude = trusted == 0
+        pad = max(1, int(round(c.persist_exclude_px * s)))
+        for bx, by, bw, bh in np.asarray(det_boxes, np.float64).reshape(-1, 4):
+            x0, y0 = max(0, int(bx * s) - pad), max(0, int(by * s) - pad)
+            x1, y1 = min(w, int(math.ceil((bx + bw) * s)) + pad), min(h, int(math.ceil((by + bh) * s)) + pad)
+            exclude[y0:y1, x0:x1] = True
+        thr = c.persist_threshold
+        if c.persist_noise_ratio > 0 and (~exclude).any():
+            # Relative to the sum's own clutter level: a larger search (faster allowed speed,
+            # longer memory) or more clutter lifts every maximum, and the threshold with them.
+            thr = max(thr, c.persist_noise_ratio * float(np.quantile(score[~exclude], 0.99)))
+        self.last_threshold = thr
+        peaks = persistent_peaks(score, e, thr, c.persist_min_evidence, exclude, 2 * blur + 1)
+
+        max_side = max(2, int(round(max_len_px * s)))
+        boxes = []
+        for x, y, sc in peaks:
+            b = peak_box(e, x, y, max_side, c.persist_box_ratio)
+            boxes.append(b)
+        # world positions (full-resolution pixel centres through H) of peaks and detections
+        pk = np.array([[(x + 0.5) / s, (y + 0.5) / s] for x, y, _ in peaks]).reshape(-1, 2)
+        db = np.asarray(det_boxes, np.float64).reshape(-1, 4)
+        pts = np.vstack([pk, db[:, :2] + db[:, 2:] / 2])
+        world = apply_homography(self._H, pts) if len(pts) else np.zeros((0, 2))
+        wpp = _world_per_px(self._H, residual.shape, s)
+
+        out = []
+        taken = np.zeros((h, w), bool)
+        for k, ((x, y, sc), b) in enumerate(zip(peaks, boxes)):
+            if b is None or taken[b[1]:b[1] + b[3], b[0]:b[0] + b[2]].any():
+                continue  # no box, or a second peak of a stronger one's blob
+            support = self._support(world[k], time, speed_px_s * wpp, max_len_px * wpp)
+            if support >= c.persist_min_support:
+                out.append(PersistentDetection(b, sc, support))
+                taken[b[1]:b[1] + b[3], b[0]:b[0] + b[2]] = True
+                if len(out) >= c.persist_max_per_frame:
+                    break
+        self._history.append((time, world))
+        return out
+
+    def _support(self, p: np.ndarray, time: float, speed_w: float, tol_w: float) -> float:
+        """Share of the recent frames with a peak or detection within reach of world point p."""
+        if self._history.maxlen is None or self._history.maxlen == 0:
+            return 1.0
+        hits = 0
+        for t, pts in self._history:
+            if len(pts) == 0:
+                continue
+            reach = speed_w * abs(time - t) + tol_w
+            if np.min(np.sum((pts - p) ** 2, axis=1)) <= reach * reach:
+                hits += 1
+        return hits / self._history.maxlen
+
+
+def _world_per_px(H: np.ndarray, shape: tuple[int, int], scale: float) -> float:
+    """World units per full-resolution frame pixel at the centre of a model-resolution frame."""
+    h, w = shape
+    cx, cy = w / scale / 2, h / scale / 2
+    q = apply_homography(H, np.array([[cx, cy], [cx + 1.0, cy], [cx, cy + 1.0]]))
+    J = np.stack([q[1] - q[0], q[2] - q[0]], axis=1)
+    return math.sqrt(abs(float(np.linalg.det(J))))
+
+
+def validate(c: DetectionConfig) -> None:
+    """Raise :class:`ConfigError` naming the first ``persist_*`` option out of range."""
+    checks = [
+        ("persist_tau_s", c.persist_tau_s > 0), ("persist_window_s", c.persist_window_s >= 0),
+        ("persist_min_support", 0 <= c.persist_min_support <= 1),
+        ("persist_max_speed_mps", c.persist_max_speed_mps >= 0),
+        ("persist_max_speed_px_s", c.persist_max_speed_px_s >= 0),
+        ("persist_max_length_m", c.persist_max_length_m > 0),
+        ("persist_max_length_px", c.persist_max_length_px > 0),
+        ("persist_threshold", c.persist_threshold > 0),
+        ("persist_min_evidence", c.persist_min_evidence >= 0),
+        ("persist_cap", c.persist_cap > 0), ("persist_blur_px", c.persist_blur_px >= 0),
+        ("persist_noise_block_px", c.persist_noise_block_px >= 0),
+        ("persist_box_ratio", 0 < c.persist_box_ratio <= 1),
+        ("persist_exclude_px", c.persist_exclude_px >= 0),
+        ("persist_max_per_frame", c.persist_max_per_frame >= 0),
+        ("persist_conf", 0 <= c.persist_conf <= 1),
+        ("persist_noise_ratio", c.persist_noise_ratio >= 0), ("persist_edge_px", c.persist_edge_px >= 0),
+    ]
+    for name, ok in checks:
+        if not ok:
+            raise ConfigError(f"config detection.{name}: out of range ({getattr(c, name)!r})")
