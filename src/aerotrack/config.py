@@ -250,6 +250,10 @@ class DetectionConfig:
         A peak is reported only when at least ``persist_min_support`` of the frames of the last
         ``persist_window_s`` seconds had a peak or a detection within reach of its world
         position (travel at the maximum speed plus one target length). 0 disables the test.
+    persist_support_level : float
+        Peaks of the sum above this fraction of the threshold count as support for later
+        frames (an M-of-N test's first threshold); lower lets a target that fades for a few
+        frames keep its support, and lets clutter lend support too.
     persist_max_speed_mps, persist_max_speed_px_s : float
         Largest speed of a target relative to the ground (metres/s with a scale, full-resolution
         pixels/s without): the sum is grey-dilated by this distance each frame. Higher follows
@@ -333,6 +337,7 @@ class DetectionConfig:
     persist_tau_s: float = 0.5
     persist_window_s: float = 1.0
     persist_min_support: float = 0.6
+    persist_support_level: float = 0.5
     persist_max_speed_mps: float = 15.0
     persist_max_speed_px_s: float = 20.0
     persist_max_length_m: float = 8.0

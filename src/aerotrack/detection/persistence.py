@@ -61,9 +61,10 @@ def frame_evidence(residual: np.ndarray, threshold: float, valid: np.ndarray | N
     blur_px : int
         Side of the box average (model pixels), about a small target's size. 1 disables.
     noise_block_px : int
-        Side of the block (model pixels) over which the local RMS of the evidence is measured;
-        where it exceeds the frame's RMS the evidence is scaled down by the ratio. 0 disables.
-        Smaller adapts to finer clutter but also damps a target in an empty neighbourhood.
+        Side of the block (model pixels) over which the local RMS of the evidence is measured,
+        leaving out the central ``3 blur_px`` square (:func:`clutter_gain`); where it exceeds
+        the frame's RMS the evidence is scaled down by the ratio. 0 disables. Smaller adapts to
+        finer clutter but lets a larger target's own evidence count as clutter.
 
     Returns
     -------
@@ -76,11 +77,29 @@ def frame_evidence(residual: np.ndarray, threshold: float, valid: np.ndarray | N
     if blur_px > 1:
         e = cv2.blur(e, (blur_px, blur_px))
     if noise_block_px > 1:
-        rms = np.sqrt(cv2.blur(e * e, (noise_block_px, noise_block_px)))
-        g = float(np.sqrt(np.mean(e * e)))
-        if g > 0:
-            e = e * (np.float32(g) / np.maximum(rms, np.float32(g)))
+        e = e * clutter_gain(e, noise_block_px, 3 * max(1, blur_px))
     return e
+
+
+def clutter_gain(e: np.ndarray, block_px: int, inner_px: int) -> np.ndarray:
+    """Per-pixel factor <= 1 that scales evidence down where the clutter around is above the
+    frame's, (h, w) float32.
+
+    The clutter is the RMS of ``e`` over a ``block_px`` square *minus* the ``inner_px`` square at
+    its centre (a ring): a target smaller than the inner square does not count as its own
+    clutter, so a lone target in a clean neighbourhood keeps its evidence while one in foliage or
+    textured ground is damped. The factor is ``g / max(ring RMS, g)``, ``g`` the frame's RMS.
+    """
+    B = int(block_px)
+    b = int(min(inner_px, B - 1))
+    e2 = e * e
+    g = float(np.sqrt(np.mean(e2)))
+    if g <= 0:
+        return np.ones_like(e)
+    outer = cv2.blur(e2, (B, B)) * np.float32(B * B)
+    inner = cv2.blur(e2, (b, b)) * np.float32(b * b) if b > 0 else 0
+    ring = np.maximum(outer - inner, 0) * np.float32(1.0 / (B * B - b * b))
+    return np.float32(g) / np.maximum(np.sqrt(ring), np.float32(g))
 
 
 def accumulate(previous: np.ndarray | None, to_current: np.ndarray | None,
@@ -304,25 +323,27 @@ class PersistenceTracker:
             # longer memory) or more clutter lifts every maximum, and the threshold with them.
             thr = max(thr, c.persist_noise_ratio * float(np.quantile(score[~exclude], 0.99)))
         self.last_threshold = thr
-        peaks = persistent_peaks(score, e, thr, c.persist_min_evidence, exclude, 2 * blur + 1)
-
-        max_side = max(2, int(round(max_len_px * s)))
-        boxes = []
-        for x, y, sc in peaks:
-            b = peak_box(e, x, y, max_side, c.persist_box_ratio)
-            boxes.append(b)
-        # world positions (full-resolution pixel centres through H) of peaks and detections
-        pk = np.array([[(x + 0.5) / s, (y + 0.5) / s] for x, y, _ in peaks]).reshape(-1, 2)
+        # Peaks down to persist_support_level x the threshold count as support for later frames
+        # (the first threshold of an M-of-N test); only those above it can be reported.
+        cands = persistent_peaks(score, e, c.persist_support_level * thr, c.persist_min_evidence,
+                                 exclude, 2 * blur + 1)
+        pk = np.array([[(x + 0.5) / s, (y + 0.5) / s] for x, y, _ in cands]).reshape(-1, 2)
         db = np.asarray(det_boxes, np.float64).reshape(-1, 4)
         pts = np.vstack([pk, db[:, :2] + db[:, 2:] / 2])
         world = apply_homography(self._H, pts) if len(pts) else np.zeros((0, 2))
         wpp = _world_per_px(self._H, residual.shape, s)
 
+        max_side = max(2, int(round(max_len_px * s)))
         out = []
         taken = np.zeros((h, w), bool)
-        for k, ((x, y, sc), b) in enumerate(zip(peaks, boxes)):
+        for k, (x, y, sc) in enumerate(cands):
+            if sc <= thr:
+                break  # strongest first
+            if taken[y, x]:
+                continue  # a second peak of a stronger one's blob
+            b = peak_box(e, x, y, max_side, c.persist_box_ratio)
             if b is None or taken[b[1]:b[1] + b[3], b[0]:b[0] + b[2]].any():
-                continue  # no box, or a second peak of a stronger one's blob
+                continue
             support = self._support(world[k], time, speed_px_s * wpp, max_len_px * wpp)
             if support >= c.persist_min_support:
                 out.append(PersistentDetection(b, sc, support))
@@ -372,7 +393,8 @@ def validate(c: DetectionConfig) -> None:
         ("persist_exclude_px", c.persist_exclude_px >= 0),
         ("persist_max_per_frame", c.persist_max_per_frame >= 0),
         ("persist_conf", 0 <= c.persist_conf <= 1),
-        ("persist_noise_ratio", c.persist_noise_ratio >= 0), ("persist_edge_px", c.persist_edge_px >= 0),
+        ("persist_noise_ratio", c.persist_noise_ratio >= 0),
+        ("persist_support_level", 0 < c.persist_support_level <= 1), ("persist_edge_px", c.persist_edge_px >= 0),
     ]
     for name, ok in checks:
         if not ok:
