@@ -658,3 +658,29 @@ def test_predict_refuses_to_overwrite_its_inputs_and_unwritable_out(tmp_path, ca
     blocker.write_text("")
     expect_error(capsys, ["--out", "cannot write"], "predict", tracks_file, "--queries", q,
                  "--out", blocker / "p.csv")
+
+
+@pytest.mark.parametrize("command", ["mosaic", "mosaic-registration", "render", "report", "batch",
+                                     "predict"])
+def test_unwritable_output_refused_first_naming_option(tmp_path, capsys, video, run_dir,
+                                                       tracks_file, command):
+    """An output under a plain file is refused before any work, in one line naming the option
+    and the file in the way (mosaic named --out for its --registration file; batch failed each
+    input in turn; render and report only failed after all the work)."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("")
+    bad = blocker / "x"
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,10,5\n")
+    argv, option = {
+        "mosaic": (["mosaic", video, "--out", f"{bad}.png"], "--out"),
+        "mosaic-registration": (["mosaic", video, "--out", tmp_path / "m.png", "--registration",
+                                 f"{bad}.csv"], "--registration"),
+        "render": (["render", video, run_dir, "--out", f"{bad}.webm", "--no-pictures"], "--out"),
+        "report": (["report", run_dir, "--out", f"{bad}.html", "--no-video"], "--out"),
+        "batch": (["batch", video.parent, "--out", bad], "--out"),
+        "predict": (["predict", tracks_file, "--queries", q, "--out", f"{bad}.csv"], "--out"),
+    }[command]
+    err = expect_error(capsys, [f"{option} {bad}", "is a file, not a folder"], *argv)
+    assert "failed" not in err
+    assert not (tmp_path / "m.png").exists()

@@ -10,6 +10,7 @@ import pytest
 from aerotrack import io, pipeline
 from aerotrack.cli.main import main
 from aerotrack.evaluation import evaluate
+from aerotrack.evaluation.geo import geo_errors
 from aerotrack.geo import GeoMap, read_map_init
 from aerotrack.synth import render_to
 
@@ -42,9 +43,22 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     assert not (out / ".partial").exists()
     tracks = io.read_mot(out / "tracks.csv")
     gt = io.read_mot(scene / "gt.txt", strict=False)
+    # A static camera, 7 vehicles: registration, detection and association must all work.
+    # The vehicles are 15 x 6 px (0.3 m pixels). At IoU 0.5 such a box tolerates about 1 px of
+    # error per side across the vehicle, and the detector's boxes are ~2 px wider per side than
+    # the ground truth's (the half-resolution background model, residual blur and closing; the
+    # generator also draws each vehicle 0.5 px right of and below its ground-truth box, anti-
+    # aliased about 1 px larger): IDF1 at IoU 0.5 is then 0.36-0.61 over scene seeds 2, 3, 5
+    # although every vehicle is followed (IDF1 0.86-0.99 at IoU 0.3). So identity is scored at
+    # the contract's own synthetic matching IoU (0.3), and localisation on the map, where it
+    # matters, in metres; HOTA (averaged over IoU 0.05..0.95) covers the boxes.
     scores = evaluate(gt, tracks)
-    # a static camera, 7 vehicles: registration, detection and association must all work
-    assert scores["HOTA"] > 0.35 and scores["IDF1"] > 0.35, scores
+    assert scores["HOTA"] > 0.35, scores  # measured 0.44
+    loose = evaluate(gt, tracks, iou_threshold=0.3)
+    assert loose["IDF1"] >= 0.8 and loose["MOTA"] >= 0.7, loose  # measured 0.935 / 0.872
+    assert loose["IDSW"] <= 3 and loose["Pred_IDs"] <= loose["GT_IDs"] + 2, loose  # 1; 6 for 7
+    geo = geo_errors(gt, tracks, "EPSG:4326", iou_threshold=0.3)
+    assert geo["matches"] > 0.8 * len(gt) and geo["median_m"] < 0.6, geo  # 593 of 631, 0.33 m
     # x, y are the ground point in the map CRS (EPSG:4326 here: lon/lat degrees)
     assert np.all(np.abs(tracks[:, 7] + 115.232) < 0.01) and np.all(np.abs(tracks[:, 8] - 36.14) < 0.01)
     reg = np.loadtxt(out / "registration.csv", delimiter=",", skiprows=1, usecols=range(10))
@@ -64,3 +78,4 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     main(["-q", "track", str(scene / "frames"), "--out", str(again), "--map",
           str(scene / "map.tif"), "--map-init", str(scene / "map_init.txt"), "--seed", "1"])
     assert (again / "tracks.csv").read_text() == (out / "tracks.csv").read_text()
+

@@ -75,6 +75,7 @@ def test_cli_ctrl_c_keeps_partial_and_resume_finishes(tmp_path):
             break
         time.sleep(0.2)
     if proc.poll() is not None:
+        proc.communicate()  # close the pipe (else a ResourceWarning fails a later test)
         pytest.skip("the run finished before it could be interrupted")
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
@@ -270,9 +271,10 @@ def test_stale_stage_state_is_not_used(tmp_path, video_frames):
         _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30, resume=True,
                    progress=interrupt_at(50))
     (out.partial / "state.npz").write_bytes(stale)
+    from test_parallel import FPS
+
     from aerotrack.config import Config
     from aerotrack.pipeline import Pipeline
-    from test_parallel import FPS
 
     pipe = Pipeline(Config(), FPS, metres_per_unit=0.3, seed=3, checkpoint_dir=out.partial)
     restart = pipe.restore()

@@ -52,6 +52,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
 
     from ..config import load_config
     from ..errors import InputError
+    from ..io.output import check_writable
     from ..parallel import ParallelConfig, dask_client, plan_batch, run_batch
 
     if gsd is not None and not gsd > 0:
@@ -59,6 +60,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     if not segment_s > 0:
         raise InputError(f"--segment-s {segment_s}: must be positive")
     config = load_config(config_path, overrides)
+    check_writable(out_dir, "--out", folder=True)  # once, not once per input
     items = plan_batch(input_dir, out_dir)
     unusable = unusable_videos(input_dir)
     bad = {p for p, _ in unusable}

@@ -103,10 +103,10 @@ def verbosity_options() -> list[click.Option]:
     return [
         click.Option(["-v", "--verbose", "verbose_here"], count=True, expose_value=False,
                      callback=_also_here,
-                     help="More messages, as `aerotrack -v` before the command."),
+                     help="More messages (as `aerotrack -v`)."),
         click.Option(["-q", "--quiet", "quiet_here"], is_flag=True, expose_value=False,
                      callback=_also_here,
-                     help="Only warnings and errors, as `aerotrack -q` before the command."),
+                     help="Only warnings and errors (as `aerotrack -q`)."),
     ]
 
 

@@ -49,7 +49,7 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     from ..errors import InputError, OutputError
     from ..geo import GeoMap, read_map_init
     from ..io import open_source
-    from ..io.output import atomic_write_bytes
+    from ..io.output import atomic_write_bytes, check_writable
     from ..registration import FrameRegistrar, write_registration_csv
     from ..registration.mosaic import paint_mosaic
 
@@ -64,6 +64,9 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
         raise InputError("--map and --map-init must be given together")
     config = load_config(config_path, overrides)
     source = open_source(input_path, fps)
+    check_writable(out, "--out")  # before registering the whole video, not after
+    if reg_csv is not None:
+        check_writable(reg_csv, "--registration")
     geomap = H_init = None
     if map_path is not None:
         geomap = GeoMap(map_path)
@@ -88,11 +91,13 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     ok, buf = cv2.imencode(out.suffix.lower(), img)
     if not ok:
         raise OutputError(f"--out {out}: cannot encode the picture")
-    try:
-        atomic_write_bytes(out, buf.tobytes())
-        if reg_csv is not None:
-            write_registration_csv(reg_csv, regs)
-    except OSError as exc:
-        raise OutputError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    for option, path, write in (("--out", out, lambda: atomic_write_bytes(out, buf.tobytes())),
+                                ("--registration", reg_csv,
+                                 lambda: write_registration_csv(reg_csv, regs))):
+        if path is not None:
+            try:
+                write()
+            except OutputError as exc:
+                raise OutputError(f"{option} {exc}") from None
     click.echo(f"{out}: {len(regs)} frames registered, every {stride}th painted "
                f"({img.shape[1]}x{img.shape[0]} px)")

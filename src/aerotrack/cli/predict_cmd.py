@@ -54,6 +54,7 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
     from pathlib import Path
 
     from ..errors import InputError, OutputError
+    from ..io.output import check_writable
 
     check_positive(fps, "--fps")
     check_positive(gsd, "--gsd")
@@ -63,6 +64,7 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
         if Path(out).resolve() == Path(given).resolve():  # would replace an input with answers
             raise InputError(f"--out {out}: is the {label} file; write the predictions elsewhere")
     config = load_config(config_path, overrides).context
+    check_writable(out, "--out")
     try:
         n = run_predict(tracks, queries, out, method=method or config.method, fps=fps,
                         space=space, config=config, metres_per_unit=gsd, roads=roads, crs=crs)

@@ -69,7 +69,8 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
 
     results = RunResults.load(run_dir)
     if start < 1 or (stop is not None and stop < start):
-        raise InputError(f"--start {start} --stop {stop}: need 1 <= start <= stop")
+        raise InputError(f"--start {start}" + (f" --stop {stop}" if stop is not None else "")
+                         + ": need 1 <= --start <= --stop")
     if not (trail_s >= 0 and trail_s < float("inf")):
         raise InputError(f"--trail-s {trail_s}: must be a number of seconds >= 0")
     if max_width is not None and max_width < 16:
@@ -77,6 +78,9 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     style = OverlayStyle(trail_s=trail_s, max_width=max_width)
     out = Path(out_path) if out_path else results.path / "overlay.webm"
     source = open_source(input_path, results.fps)  # fail fast on a bad input
+    from ..io.output import check_writable
+
+    check_writable(out, "--out")  # before rendering, not after
     quiet, verbose = root_flags(ctx)
     n = source.count
     if n and start > n:

@@ -45,6 +45,9 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
         raise InputError(f"--gt {gt_path}: file not found")
     if input_path is not None and not Path(input_path).exists():
         raise InputError(f"--input {input_path}: no such file or folder")
+    from ..io.output import check_writable
+
+    check_writable(out_path or Path(results.path) / "report.html", "--out")
     geomap = None
     if map_path is not None:
         from ..geo import GeoMap

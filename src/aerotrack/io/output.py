@@ -29,6 +29,42 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
+def _why_not(path: Path, exc: OSError) -> str:
+    """Why ``path`` cannot be written, in words: a file standing where a folder must be is named
+    (the system only says 'File exists' or 'Not a directory')."""
+    for anc in Path(path).parents:
+        if anc.exists():
+            if not anc.is_dir():
+                return f"{anc} is a file, not a folder"
+            break
+    return exc.strerror or str(exc)
+
+
+def check_writable(path: str | Path, option: str, *, folder: bool = False) -> None:
+    """Refuse, before any work, an output ``path`` that cannot be written: a folder where a file
+    is wanted (or the reverse), a file where a parent folder must be, no permission, a read-only
+    place. Nothing is left behind (the probe file is removed, no folder is made).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``option`` and ``path``.
+    """
+    p = Path(path)
+    if p.exists() and folder != p.is_dir():
+        what = "is a folder; give a file name" if not folder else "exists and is not a folder"
+        raise OutputError(f"{option} {p}: {what}")
+    anc = p if folder and p.is_dir() else next(a for a in p.parents if a.exists())
+    if not anc.is_dir():
+        raise OutputError(f"{option} {p}: cannot write there ({anc} is a file, not a folder)")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".aerotrack-probe-", suffix=".tmp", dir=anc)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"{option} {p}: cannot write there ({exc.strerror or exc})") from None
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     """Open a temporary file beside ``path``; on success rename it to ``path``, on error delete it.
@@ -46,7 +82,7 @@ def atomic_write(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
         os.close(fd)
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; results are as readable as any new file
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise OutputError(f"{path}: cannot write there ({_why_not(path, exc)})") from None
     try:
         with open(tmp, mode, **kwargs) as fh:
             yield fh
@@ -116,7 +152,7 @@ class OutputDir:
             probe.write_text("")
             probe.unlink()
         except OSError as exc:
-            raise OutputError(f"{option} {p}: cannot write there ({exc.strerror or exc})") from None
+            raise OutputError(f"{option} {p}: cannot write there ({_why_not(p, exc)})") from None
 
     @property
     def partial(self) -> Path:
