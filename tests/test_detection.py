@@ -374,3 +374,25 @@ def test_vehicle_that_waits_then_leaves_keeps_a_tight_box():
         rows = [(d, g[0]) for d, g in zip(out, gt) if lo < d.frame <= hi and inside(g[0])]
         best = [max([iou(b, g) for b in d.boxes], default=0.0) for d, g in rows]
         assert np.mean(np.array(best) >= 0.5) >= 0.65, name  # measured 1.0 / 0.67 / 1.0
+
+
+def test_debris_far_smaller_than_the_frames_vehicles_is_dropped():
+    rng = np.random.default_rng(3)
+    bg = np.clip(100 + rng.normal(0, 2, (160, 240, 3)), 0, 255).astype(np.uint8)
+    img = bg.copy()
+    cars = [(20 + 70 * (k % 3), 20 + 50 * (k // 3), 30, 12) for k in range(5)]
+    for x, y, w, h in cars:
+        img[y:y + h, x:x + w] = 200
+    img[130:138, 200:208] = 200  # a blown sheet: 8 x 8 px, a fifth of a vehicle's area
+    small = cv2.resize(img, (120, 80), interpolation=cv2.INTER_AREA)
+    bg_small = cv2.resize(bg, (120, 80), interpolation=cv2.INTER_AREA)
+    testable = np.full((80, 120), 255, np.uint8)
+    gates = SizeGates(min_area_px=40, max_length_px=200, close_px=2, join_gap_px=3)
+    cfg = DetectionConfig(shadow_suppression=False)
+    r = detect_moving(img, small, bg_small, testable, cfg, 0.5, gates)
+    assert len(r.boxes) == 5
+    for box in cars:
+        assert any(iou(b, box) > 0.8 for b in r.boxes)
+    r = detect_moving(img, small, bg_small, testable,
+                      dataclasses.replace(cfg, drop_small_ratio=0.0), 0.5, gates)
+    assert len(r.boxes) == 6

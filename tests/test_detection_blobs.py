@@ -80,3 +80,33 @@ def test_plain_hysteresis_and_far_parts_drop_unseeded():
     low[25:29, 34:39] = 1
     blobs = hysteresis_blobs(low, high, close_radius=1.0, min_area=4)
     assert [b.box for b in blobs] == [(5, 10, 21, 6)]
+
+
+def _rect_blob(x: int, y: int, w: int, h: int):
+    from aerotrack.detection.blobs import Blob
+
+    return Blob((x, y, w, h), np.ones((h, w), bool))
+
+
+def test_typical_sides_is_the_median_oriented_extent():
+    from aerotrack.detection.blobs import typical_sides
+
+    blobs = [_rect_blob(10 * k, 0, 20, 8) for k in range(4)] + [_rect_blob(0, 50, 6, 30)]
+    assert typical_sides(blobs[:4]) is None  # too few blobs to trust a median
+    long_, short = typical_sides(blobs)
+    assert abs(long_ - 20) <= 1 and abs(short - 8) <= 1
+
+
+def test_drop_small_removes_fragments_and_debris_but_not_vehicles():
+    from aerotrack.detection.blobs import drop_small
+
+    cars = [_rect_blob(0, 30 * k, 20, 8) for k in range(5)]  # 160 px each
+    beside = _rect_blob(22, 0, 4, 4)  # a leftover fragment next to car 0
+    alone = _rect_blob(200, 200, 5, 5)  # debris far from every car
+    blobs = cars + [beside, alone]
+    assert drop_small(blobs, area_ratio=0.0) == blobs
+    assert drop_small(blobs, area_ratio=0.4) == cars
+    # near: only fragments within a typical length (20 px) of a vehicle go
+    assert drop_small(blobs, area_ratio=0.4, near=1.0) == cars + [alone]
+    # a frame with too few blobs has no trusted median: nothing is dropped
+    assert drop_small(cars[:2] + [beside], area_ratio=0.4) == cars[:2] + [beside]

@@ -236,6 +236,14 @@ class DetectionConfig:
         A blob whose frame pixels carry less than this fraction of the background's gradient
         energy is a ghost (a vehicle imprinted on the background, not in the frame) and dropped.
         0 disables the test; raising it removes more ghosts but also smooth, low-contrast vehicles.
+    drop_small_ratio : float
+        After splitting and joining, a blob under this fraction of the frame's median blob area
+        (needs 5 blobs) is dropped (``blobs.drop_small``): leftover fragments of a vehicle
+        detected beside it, pedestrians, blown debris, noise. Raising it removes more of them
+        but also small or partly seen vehicles; 0 disables.
+    drop_small_near : float
+        With > 0, such a small blob is dropped only within this many typical blob lengths of a
+        bigger blob (leftover fragments only); 0 drops small blobs anywhere.
     min_conf : float
         Detections with a lower confidence are dropped.
     persist : bool
@@ -332,6 +340,8 @@ class DetectionConfig:
     protect_changed: float = 0.2
     ghost_part_ratio: float = 1.5
     ghost_ratio: float = 0.6
+    drop_small_ratio: float = 0.4
+    drop_small_near: float = 0.0
     min_conf: float = 0.05
     persist: bool = False
     persist_tau_s: float = 0.5

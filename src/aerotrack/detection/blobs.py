@@ -197,6 +197,25 @@ def box_gap(a: tuple, b: tuple) -> float:
     return float(max(gx, gy))
 
 
+def oriented_sides(blob: Blob) -> tuple[float, float]:
+    """Longer and shorter side of the blob mask's minimum-area rectangle, pixels."""
+    pts = np.column_stack(np.nonzero(blob.mask)[::-1]).astype(np.float32)
+    if len(pts) < 3:
+        return float(max(blob.box[2:])), float(min(blob.box[2:]))
+    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
+    return float(max(rw, rh)) + 1.0, float(min(rw, rh)) + 1.0
+
+
+def typical_sides(blobs: list[Blob], min_count: int = 5) -> tuple[float, float] | None:
+    """Median oriented length and width of a frame's blobs, pixels; None with fewer than
+    ``min_count`` blobs. Without a vehicle model, the frame's typical blob is the best guess
+    of one vehicle."""
+    if len(blobs) < min_count:
+        return None
+    sides = np.array([oriented_sides(b) for b in blobs])
+    return float(np.median(sides[:, 0])), float(np.median(sides[:, 1]))
+
+
 def join_fragments(blobs: list[Blob], *, gap: float, max_length: float,
                    fragment_ratio: float = 0.35) -> list[Blob]:
     """Join a small fragment to a bigger blob within ``gap`` pixels.
@@ -259,6 +278,46 @@ def join_vehicle_parts(blobs: list[Blob], *, gap: float, max_long: float,
         blobs[i] = u
         del blobs[j]
     return blobs
+
+
+def drop_small(blobs: list[Blob], *, area_ratio: float, near: float = 0.0,
+               min_count: int = 5) -> list[Blob]:
+    """Blobs without those much smaller than the frame's typical one.
+
+    Run after splitting and joining: a blob under ``area_ratio`` x the median blob area that
+    joined no vehicle is a leftover fragment of a vehicle detected beside it (the part of a
+    dark or slow car the background half absorbed), a pedestrian, debris blown about or
+    noise. Left in, each became a false detection and often a short false track. Without a
+    vehicle model (no metric scale) the frame's median blob is the best guess of one vehicle,
+    so nothing is dropped in a frame with fewer than ``min_count`` blobs.
+
+    Parameters
+    ----------
+    blobs : list of Blob
+        One frame's blobs, any pixel frame.
+    area_ratio : float
+        Fraction of the median blob area under which a blob is dropped; 0 keeps all. Raising
+        it removes more debris and fragments but also small or partly seen vehicles.
+    near : float
+        With ``near`` > 0 a small blob is dropped only when its box lies within ``near`` x the
+        typical blob length (:func:`typical_sides`) of a blob that is not small: only leftover
+        fragments go, isolated small movers stay. 0 drops small blobs anywhere.
+    min_count : int
+        Fewest blobs for a median to be trusted.
+
+    Returns
+    -------
+    list of Blob
+    """
+    if area_ratio <= 0 or len(blobs) < min_count:
+        return list(blobs)
+    limit = area_ratio * float(np.median([b.area for b in blobs]))
+    big = [b for b in blobs if b.area >= limit]
+    if near <= 0:
+        return big
+    reach = near * typical_sides(blobs, min_count)[0]
+    return [b for b in blobs if b.area >= limit
+            or not any(box_gap(b.box, o.box) <= reach for o in big)]
 
 
 def merge_blobs(a: Blob, b: Blob) -> Blob:

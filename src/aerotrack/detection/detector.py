@@ -34,6 +34,7 @@ from .background import (
 from .blobs import (
     Blob,
     close,
+    drop_small,
     hysteresis_blobs,
     join_fragments,
     join_vehicle_parts,
@@ -332,6 +333,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         blobs = join_vehicle_parts(blobs, gap=2 * gates.join_gap_px * scale,
                                    max_long=config.join_parts_ratio * long_t,
                                    max_short=config.join_parts_ratio * short_t)
+    blobs = drop_small(blobs, area_ratio=config.drop_small_ratio, near=config.drop_small_near)
 
     H, W = image.shape[:2]
     h, w = small.shape[:2]
