@@ -454,3 +454,57 @@ def test_descriptor_cost_is_truncated_so_one_odd_tracklet_cannot_veto_its_own_ve
     assert linker.last_costs[(0, 1)][1].descriptor == 3.0
     assert len(GlobalLinker(LinkingConfig(descriptor_max=1e9), ContextConfig(), FPS,
                             metres_per_unit=1.0).link(tl)) == 2
+
+
+def test_partial_box_edge_model_recovers_the_hidden_centre():
+    from aerotrack.association.linking import partial_edge_positions
+    from aerotrack.types import Registration
+
+    # frame pixels = world = metres: going under the occluder the target shows its trailing part,
+    # coming out its leading part; the box edge away from the occluder is on the target
+    tl = _partial_end_tracklets()
+    regs = {f: Registration(f, np.eye(3)) for f in range(1, 301)}
+    for t, sign in ((tl[0], -1), (tl[1], 1)):
+        fr = np.array([p.frame for p in t.points])
+        xy = np.array([p.world for p in t.points])
+        vis = np.array([p.box[2] for p in t.points])
+        true = (fr - 1) * 10.0 / FPS
+        out = partial_edge_positions(t, fr, xy, regs, 1.0, FPS, 0.8, 1.0, 1.0, 30)
+        assert out is not None
+        fr2, xy2 = out
+        assert np.array_equal(fr2, fr)
+        part = vis < 0.8 * 5.0
+        assert part.sum() >= 8
+        # the raw centres lag (end) or lead (start) by up to 2 m; corrected, noise only
+        assert np.all(sign * (xy[part, 0] - true[part]) > 0.5)
+        assert np.abs(xy2[part, 0] - true[part]).max() < 0.25
+        assert np.array_equal(xy2[~part], xy[~part])
+    # a box cut by the image edge on the side the occluder rule keeps has no reliable edge: out
+    fr = np.array([p.frame for p in tl[0].points])
+    xy = np.array([p.world for p in tl[0].points])
+    edge = float(tl[0].points[-1].box[0] + tl[0].points[-1].box[2]) + 1.0  # right image edge
+    fr2, _ = partial_edge_positions(tl[0], fr, xy, regs, 1.0, FPS, 0.8, 1.0, 1.0, 30,
+                                    frame_size=(edge, 100))
+    # the last box touches the image edge ahead (its leading side): trailing edge kept, not dropped
+    assert fr2[-1] == fr[-1]
+    # coming out from under an occluder (trailing side hidden) into the image edge (leading side
+    # cut): the first box has no reliable edge and is left out
+    fr = np.array([p.frame for p in tl[1].points])
+    xy = np.array([p.world for p in tl[1].points])
+    b0 = tl[1].points[0].box
+    fr2, _ = partial_edge_positions(tl[1], fr, xy, regs, 1.0, FPS, 0.8, 1.0, 1.0, 30,
+                                    frame_size=(float(b0[0] + b0[2]) + 1.0, 100))
+    assert fr2[0] > fr[0]
+    # standing still: no direction, no correction (the caller trims instead)
+    still = Track(0, [TrackPoint(f, np.array([0.0, 0, 5 - 0.01 * f, 2]), np.array([2.5, 1.0]), 1.0)
+                      for f in range(1, 61)])
+    fr = np.arange(1, 61)
+    assert partial_edge_positions(still, fr, np.tile([2.5, 1.0], (60, 1)), regs, 1.0, FPS, 0.8,
+                                  1.0, 1.0, 30) is None
+
+
+def test_an_unknown_partial_model_is_refused_naming_the_option():
+    from aerotrack.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="partial_model.*trim, edge"):
+        GlobalLinker(LinkingConfig(partial_model="centre"), ContextConfig(), FPS)

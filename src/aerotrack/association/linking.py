@@ -52,6 +52,8 @@ __all__ = ["GlobalLinker", "link_tracklets", "estimate_scale"]
 log = logging.getLogger(__name__)
 
 _IN_VIEW = ("observed", "bridged", "stationary")
+#: Treatments of a tracklet's partly visible ends (``LinkingConfig.partial_model``).
+PARTIAL_MODELS = ("trim", "edge")
 
 
 def _positions(t: Track) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +90,9 @@ class GlobalLinker:
         self.ctx = ctx or ContextConfig()
         if not fps or fps <= 0:
             raise ConfigError(f"fps must be positive, got {fps}")
+        if self.config.partial_model not in PARTIAL_MODELS:
+            raise ConfigError(f"linking.partial_model: unknown {self.config.partial_model!r}; "
+                              f"one of {', '.join(PARTIAL_MODELS)}")
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
@@ -99,6 +104,8 @@ class GlobalLinker:
         self._table: TrackTable | None = None
         self._table_key: list[Track] | None = None
         self._trimmed: list[tuple[np.ndarray, np.ndarray]] | None = None
+        self._regs: dict | None = None  # frame -> Registration, for the partial-box model
+        self._frame_size: tuple[int, int] | None = None
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -132,6 +139,8 @@ class GlobalLinker:
             self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
             log.info("linking: no scale known; taking the median object (%.1f world units) as %.1f m",
                      self.ctx.image_object_size_m / self.mpu, self.ctx.image_object_size_m)
+        self._regs = registrations or None
+        self._frame_size = frame_size
         links, _ = self.solve(tl)
         return self.build_tracks(tl, links, registrations, frame_size)
 
@@ -359,6 +368,24 @@ class GlobalLinker:
 
     def _trim_partial(self, t: Track, fr: np.ndarray, xy: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
+        """A tracklet's (frames, xy) with its partly visible ends corrected or left out.
+
+        With registrations and ``partial_model = "edge"`` the partial boxes are corrected
+        (:func:`partial_edge_positions`); where that is not possible (no registrations, a target
+        standing still) they are left out as below.
+        """
+        c = self.config
+        if c.partial_model == "edge" and self._regs and c.partial_size_ratio > 0:
+            out = partial_edge_positions(t, fr, xy, self._regs, self.mpu, self.fps, c.partial_size_ratio,
+                                         c.partial_trim_s, c.partial_min_speed_mps,
+                                         max(2, int(round(self.ctx.history_s * self.fps))),
+                                         self._frame_size)
+            if out is not None:
+                return out
+        return self._trim_ends(t, fr, xy)
+
+    def _trim_ends(self, t: Track, fr: np.ndarray, xy: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
         """A tracklet's (frames, xy) without the ends where it was only partly visible.
 
         A target sliding under an occluder or out of the image is detected as a shrinking box
@@ -611,6 +638,136 @@ def estimate_scale(tracklets: list[Track], object_size_m: float) -> float:
             if size is not None and np.all(np.isfinite(size)) and max(size) > 0:
                 sides.append(float(max(size)))
     return object_size_m / float(np.median(sides)) if sides else 1.0
+
+
+def partial_edge_positions(t: Track, fr: np.ndarray, xy: np.ndarray, registrations: dict,
+                           mpu: float, fps: float, ratio: float, window_s: float,
+                           min_speed_mps: float, history: int,
+                           frame_size: tuple[int, int] | None = None
+                           ) -> tuple[np.ndarray, np.ndarray] | None:
+    """World positions of a tracklet with the partial boxes at its ends moved to where the whole
+    target's centre is (the partial-box model of a target sliding under an occluder or out of the
+    image, and the reverse).
+
+    A target going into an occluder (or over the image edge) at the end of a tracklet keeps its
+    *trailing* edge visible until it is gone; one coming out at the start shows its *leading*
+    edge first. The edge away from the occluder is therefore on the target, and the centre lies
+    half the target's full extent from it. With ``u`` the direction of motion in frame pixels
+    (from the world velocity over the ``history`` frames at that end, mapped through the end
+    frame's registration; the shrinking happens along the motion, so the direction is not
+    biased) and the extent of a box along it ``e = |w u_x| + |h u_y|``, an end (start) point whose
+    box has ``e < ratio L`` (``L`` the 90th percentile of e over the tracklet's observed boxes)
+    is moved forward (backward) along ``u`` by ``(L - e) / 2`` frame pixels, for at most
+    ``window_s`` from the end (start), and back to world through its frame's registration.
+    The image edge is an occluder whose side is known: a box touching it on its leading side
+    keeps its trailing edge (moved forward), on its trailing side its leading edge (moved
+    backward), whichever end it is at; a box cut on both sides (an occluder at one end, the image
+    edge at the other) has no reliable edge and is left out.
+
+    Unlike leaving the partial points out (:meth:`GlobalLinker._trim_ends`), this keeps the
+    tracklet's end where it was last seen, so the gap to the next tracklet is the true one and the
+    end velocity is that of the trailing edge, the target's own. ``L`` is underestimated for a
+    tracklet that never showed the whole target (the correction is then too small, never wrong
+    in direction). The papers have no such model; it is aerotrack's. It holds for boxes cut by an
+    occluder's outline (ground-truth-like boxes); aerotrack's own detector shrinks a vehicle's
+    box about its centre about as often, and there it moves points away from the truth (see
+    ``LinkingConfig.partial_model``, off by default).
+
+    Parameters
+    ----------
+    t : Track
+        The tracklet (frame-pixel boxes on its points).
+    fr : ndarray, shape (n,)
+    xy : ndarray, shape (n, 2)
+        Frames and world positions of its in-view points (:func:`_positions`).
+    registrations : dict frame -> Registration
+        Frame pixels -> world.
+    mpu, fps : float
+        Metres per world unit, frames per second.
+    ratio, window_s, min_speed_mps : float
+        ``partial_size_ratio``, ``partial_trim_s`` and ``partial_min_speed_mps`` of
+        :class:`~aerotrack.config.LinkingConfig`: an end slower than ``min_speed_mps`` has no
+        direction and is not corrected.
+    history : int
+        Frames of the velocity windows.
+    frame_size : (W, H), optional
+        Image size, for boxes touching the image edge (within 2 pixels).
+
+    Returns
+    -------
+    (frames (m,), xy (m, 2)) or None
+        The points kept (m <= n) with corrected world positions; None when neither end could be
+        treated (too few boxes, no registration at the ends, standing still), for the caller to
+        fall back on trimming.
+    """
+    n = len(fr)
+    boxes = _boxes(t)
+    if n < 4 or len(boxes) < 4:
+        return None
+    B = np.array([boxes.get(int(f), np.full(4, np.nan)) for f in fr])
+    observed = np.array([p.frame for p in t.points if p.kind == "observed"])
+    obs = np.isin(fr, observed) & np.isfinite(B).all(axis=1)
+    if obs.sum() < 4:
+        return None
+    out = xy.copy()
+    drop = np.zeros(n, dtype=bool)
+    span = window_s * fps
+    done = False
+    for end in (True, False):
+        sel = (fr >= fr[-1] - history) if end else (fr <= fr[0] + history)
+        f, w = fr[sel].astype(float), xy[sel]
+        if len(f) < 3 or np.ptp(f) <= 0:
+            continue
+        v = np.polyfit(f - f.mean(), w, 1)[0]  # world units per frame, (2,)
+        if np.hypot(*v) * mpu * fps < min_speed_mps:
+            continue
+        k = n - 1 if end else 0
+        reg = registrations.get(int(fr[k]))
+        if reg is None:
+            continue
+        a, b = reg.to_frame(np.vstack([xy[k], xy[k] + v * fps]))
+        u = b - a
+        if not np.all(np.isfinite(u)) or np.hypot(*u) <= 0:
+            continue
+        u = u / np.hypot(*u)
+        e = np.abs(B[:, 2] * u[0]) + np.abs(B[:, 3] * u[1])
+        L = float(np.percentile(e[obs], 90))
+        near = (fr >= fr[-1] - span) if end else (fr <= fr[0] + span)
+        fix = np.flatnonzero(near & np.isfinite(e) & (e < ratio * L))
+        for i in fix:
+            r = registrations.get(int(fr[i]))
+            if r is None:
+                continue
+            sign = 1.0 if end else -1.0  # the occluder ahead at an end, behind at a start
+            if frame_size is not None:
+                lead, trail = _edge_cut(B[i], u, frame_size)
+                if lead and trail or (trail and end) or (lead and not end):
+                    drop[i] = True  # the image edge cuts the side the occluder rule keeps
+                    continue
+                if lead or trail:
+                    sign = 1.0 if lead else -1.0
+            c = B[i, :2] + B[i, 2:] / 2
+            out[i] = xy[i] + (r.to_world(c[None] + sign * 0.5 * (L - e[i]) * u[None])[0]
+                              - r.to_world(c[None])[0])
+        done = True
+    if not done or (~drop).sum() < 2:
+        return None
+    return fr[~drop], out[~drop]
+
+
+def _edge_cut(box: np.ndarray, u: np.ndarray, frame_size: tuple[int, int],
+              margin: float = 2.0) -> tuple[bool, bool]:
+    """Whether a frame-pixel box ``x, y, w, h`` touches the image edge on its leading side
+    (the side ``u`` points to) and on its trailing side."""
+    W, H = frame_size
+    x, y, w, h = box
+    at = {"left": x <= margin, "right": x + w >= W - margin, "top": y <= margin,
+          "bottom": y + h >= H - margin}
+    lead = (u[0] > 0.3 and at["right"]) or (u[0] < -0.3 and at["left"]) or \
+        (u[1] > 0.3 and at["bottom"]) or (u[1] < -0.3 and at["top"])
+    trail = (u[0] > 0.3 and at["left"]) or (u[0] < -0.3 and at["right"]) or \
+        (u[1] > 0.3 and at["top"]) or (u[1] < -0.3 and at["bottom"])
+    return bool(lead), bool(trail)
 
 
 def _speed(v) -> float:
