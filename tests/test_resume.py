@@ -343,3 +343,21 @@ def test_state_codec_refuses_what_it_cannot_write_and_foreign_classes(tmp_path):
     np.savez(tmp_path / "state.npz", __meta__=np.array(json.dumps(meta)))
     with pytest.raises(InputError, match="outside aerotrack"):
         load_state(tmp_path)
+
+
+def test_resume_of_a_finished_run_does_nothing(tmp_path, capsys):
+    """--resume on a finished run (no .partial/) used to run it again from the start; now it
+    says so and leaves the files alone, and refuses when the inputs differ."""
+    from conftest import run_cli
+
+    d = tmp_path / "d.txt"
+    write_mot(d, detections(n_frames=60))
+    out = tmp_path / "o"
+    assert run_cli(capsys, "-q", "track", "--detections", d, "--out", out)[0] == 0
+    stamp = (out / "tracks.csv").stat().st_mtime_ns
+    code, _, err = run_cli(capsys, "track", "--detections", d, "--out", out, "--resume")
+    assert code == 0 and "already finished" in err, err
+    assert (out / "tracks.csv").stat().st_mtime_ns == stamp
+    code, _, err = run_cli(capsys, "track", "--detections", d, "--out", out, "--resume",
+                           "--seed", "5")
+    assert code == 2 and "--seed" in err and "--overwrite" in err, err

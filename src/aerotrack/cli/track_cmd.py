@@ -339,6 +339,11 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "min_speed": min_speed, "config": dumps_config(config),
     }
     check_overwrite(out_dir, overwrite)
+    if resume and finished_run(out_dir, input_path, detections_path, seed):
+        if not root_flags(ctx)[0]:
+            click.echo(f"aerotrack: {out_dir}: the run is already finished; nothing to resume "
+                       "(--overwrite runs it again)", err=True)
+        return
     cleanup = CleanupOnBadInput(out_dir, resume=resume)  # before the folder is made
     out = OutputDir(out_dir, overwrite=overwrite, resume=resume)
     with cleanup:
@@ -386,6 +391,37 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
 
 
 MANIFEST = "run.json"
+
+
+def finished_run(out_dir, input_path, detections_path, seed) -> bool:
+    """``--resume`` on a folder whose run finished (``summary.json``, no ``.partial/``): True when
+    it was made from the same INPUT, --detections and --seed (there is nothing to continue);
+    refused when from others (resuming cannot change what a finished run used)."""
+    import json
+
+    from ..errors import InputError
+    from ..io.output import PARTIAL
+
+    out = Path(out_dir)
+    summary = out / "summary.json"
+    if not summary.is_file() or (out / PARTIAL).exists() or not (out / "tracks.csv").is_file():
+        return False
+    try:
+        before = json.loads(summary.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(before, dict):
+        return False
+    now = {"input": input_path, "detections": detections_path, "seed": seed}
+    changed = [k for k, v in now.items() if k in before and (
+        before[k] != v if k == "seed" else
+        (before[k] is None) != (v is None) or (v is not None
+                                               and Path(before[k]).resolve() != Path(v).resolve()))]
+    if changed:
+        names = ", ".join("INPUT" if k == "input" else f"--{k}" for k in changed)
+        raise InputError(f"--resume {out}: holds a finished run made with another {names}; "
+                         "use --overwrite to run again")
+    return True
 
 
 def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
