@@ -222,3 +222,28 @@ def test_verbose_and_quiet_work_after_the_subcommand_too(tmp_path, capsys, where
     assert code == 0 and err == "", err
     code, _, err = track("--verbose", "v2")
     assert code == 0 and "INFO" in err, err
+
+
+def test_opencv_warnings_silenced_unless_vv(tmp_path):
+    """OpenCV was imported before logging was set up, so OPENCV_LOG_LEVEL came too late and
+    libtiff's warnings about GeoTIFF tags reached stderr on every frame of a GeoTIFF folder."""
+    import warnings
+
+    import numpy as np
+    import rasterio
+    from rasterio.transform import from_origin
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for i in (1, 2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with rasterio.open(frames / f"{i:03d}.tif", "w", driver="GTiff", width=96, height=64,
+                               count=3, dtype="uint8", crs="EPSG:32611",
+                               transform=from_origin(660000, 4000000, 0.3, 0.3)) as ds:
+                ds.write(rng.integers(0, 255, (3, 64, 96), dtype=np.uint8))
+    res = run("detect", frames, "--out", tmp_path / "a")
+    assert res.returncode == 0 and "WARN" not in res.stderr, res.stderr
+    res = run("detect", frames, "--out", tmp_path / "b", "-vv")
+    assert res.returncode == 0 and "TIFF" in res.stderr, res.stderr  # -vv shows them

@@ -50,6 +50,10 @@ def configure_logging(verbose: int, quiet: bool) -> None:
         elif verbose >= 2 and name in _set_by_us:  # -vv after the subcommand: undo our own
             os.environ.pop(name, None)
             _set_by_us.discard(name)
+    cv2 = sys.modules.get("cv2")  # already imported: OPENCV_LOG_LEVEL is read at import only
+    utils = getattr(getattr(cv2, "utils", None), "logging", None)
+    if utils is not None and "OPENCV_LOG_LEVEL" not in os.environ.keys() - _set_by_us:
+        utils.setLogLevel(utils.LOG_LEVEL_INFO if verbose >= 2 else utils.LOG_LEVEL_ERROR)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("aerotrack: %(levelname)s: %(message)s"))
     root = logging.getLogger("aerotrack")
