@@ -243,7 +243,18 @@ def test_opencv_warnings_silenced_unless_vv(tmp_path):
                                count=3, dtype="uint8", crs="EPSG:32611",
                                transform=from_origin(660000, 4000000, 0.3, 0.3)) as ds:
                 ds.write(rng.integers(0, 255, (3, 64, 96), dtype=np.uint8))
-    res = run("detect", frames, "--out", tmp_path / "a")
+    import os
+
+    # in-process CLI tests set these in this process; a user's environment does not have them
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENCV_LOG_LEVEL", "OPENCV_FFMPEG_LOGLEVEL")}
+
+    def detect(out, *flags):
+        return subprocess.run([sys.executable, "-m", "aerotrack", "detect", str(frames), "--out",
+                               str(out), *flags], capture_output=True, text=True, env=env,
+                              timeout=300)
+
+    res = detect(tmp_path / "a")
     assert res.returncode == 0 and "WARN" not in res.stderr, res.stderr
-    res = run("detect", frames, "--out", tmp_path / "b", "-vv")
+    res = detect(tmp_path / "b", "-vv")
     assert res.returncode == 0 and "TIFF" in res.stderr, res.stderr  # -vv shows them
