@@ -65,15 +65,18 @@ def test_resume_after_interrupt_gives_the_same_tracks(tmp_path):
 
 def test_cli_ctrl_c_keeps_partial_and_resume_finishes(tmp_path):
     d = tmp_path / "d.txt"
-    write_mot(d, detections(n_frames=3000, n_targets=8))
+    write_mot(d, detections(n_frames=1500, n_targets=8))
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "aerotrack", "track", "--detections", str(d),
                              "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    # interrupt once the run is under way (its manifest is written just before the frames
+    # start): waiting for the first periodic checkpoint let a fast run finish first (a skip)
     deadline = time.time() + 240
-    while time.time() < deadline and not list((out / ".partial").glob("chunk_*.npz")):
+    while time.time() < deadline and not (out / ".partial" / "run.json").exists():
         if proc.poll() is not None:
             break
-        time.sleep(0.2)
+        time.sleep(0.05)
+    time.sleep(0.5)
     if proc.poll() is not None:
         proc.communicate()  # close the pipe (else a ResourceWarning fails a later test)
         pytest.skip("the run finished before it could be interrupted")
@@ -88,7 +91,7 @@ def test_cli_ctrl_c_keeps_partial_and_resume_finishes(tmp_path):
     assert exc.value.code == 2  # refused without --resume
     main(["-q", "track", "--detections", str(d), "--out", str(out), "--resume"])
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["frames"] == 3000
+    assert summary["frames"] == 1500
     assert len(read_mot(out / "tracks.csv")) > 0
     assert not (out / ".partial").exists()
 
