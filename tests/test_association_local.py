@@ -397,3 +397,44 @@ def test_fragments_of_a_vehicle_stay_in_its_tracklet():
     assert [p.frame for p in pts] == list(range(whole[0], whole[-1] + 1))
     # bridged rows over the fragments carry the whole vehicle's size
     assert all(np.allclose(p.size_world, [4.5, 2.0], atol=0.05) for p in pts)
+
+
+def test_partial_candidates_exclude_a_part_between_two_boxes():
+    """A fragment inside one box of the previous frame may be a part; inside two (between two
+    vehicles of a queue) it may not; with no previous frame every observation may be."""
+    from aerotrack.association.posterior import partial_candidates
+
+    prev = np.array([[0.0, 0.0, 4.5, 2.0], [3.0, 0.0, 4.5, 2.0], [20.0, 0.0, 4.5, 2.0]])
+    z = np.array([[20.5, 0.0, 2.0, 1.4],   # inside the third box only
+                  [1.5, 0.0, 1.0, 1.0],    # inside the first and the second
+                  [10.0, 0.0, 2.0, 1.4],   # inside none
+                  [20.0, 0.0, 4.4, 2.0]])  # a whole box (too large to be a part of anything)
+    assert partial_candidates(z, prev, 0.8, 0.75).tolist() == [True, False, True, True]
+    assert partial_candidates(z, np.zeros((0, 4)), 0.8, 0.75).all()
+
+
+def test_a_partial_link_keeps_the_predicted_state():
+    """A part says that the target is there, not where its centre is: the
+    partial link returns the prediction unchanged, so parts on one side of the box, run after
+    run, do not drag the track onto a neighbour."""
+    from aerotrack.association.posterior import PARTIAL_D2, link_step
+    from aerotrack.kalman import ConstantVelocityKF, predict_nb, process_noise_nb, transition_nb
+
+    cfg = AssociationConfig()
+    kf = ConstantVelocityKF(accel_std=cfg.accel_std_mps2, size_std=cfg.size_std_m,
+                            pos_std=cfg.pos_std_m, pos_frac=cfg.pos_frac,
+                            size_std_obs=cfg.pos_std_m, size_frac=cfg.size_frac,
+                            vel_std=0.5 * cfg.max_speed_mps)
+    params = np.concatenate([kf.as_array(), [4.0, 0.8, cfg.gate_chi2, 0.75, 15]])
+    x = np.array([0.0, 0.0, 4.5, 2.0, 10.0, 0.0])
+    P = np.diag([0.05, 0.05, 0.05, 0.05, 0.5, 0.5])
+    dt = 1 / FPS
+    xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
+    part = np.array([xp[0] + 1.2, 0.4, 1.6, 1.0])  # the front half, off centre
+    xn, Pn, d2, rel = link_step(x, P, dt, part, params, True)
+    assert d2 == PARTIAL_D2 and rel == pytest.approx(4.0 - 0.5 * cfg.gate_chi2)
+    np.testing.assert_allclose(xn, xp)
+    np.testing.assert_allclose(Pn, Pp)
+    # without partial links allowed the same observation is a (failing) whole-box link
+    _, _, d2_whole, _ = link_step(x, P, dt, part, params, False)
+    assert d2_whole > cfg.gate_chi2

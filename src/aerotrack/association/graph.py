@@ -31,6 +31,9 @@ class NodeStore:
         The previous node's gid in its track's window part, -1 if first or unassigned.
     idx : (n,) int64
         Position of the node in its track's window part.
+    pok : (n,) bool
+        Whether the node may be a partial observation of a target
+        (:func:`.posterior.partial_candidates`).
     payload : list
         Per node, the source row for output: (Detections, row index).
     """
@@ -46,6 +49,7 @@ class NodeStore:
         self.label = np.full(cap, -1, np.int64)
         self.prev = np.full(cap, -1, np.int64)
         self.idx = np.zeros(cap, np.int64)
+        self.pok = np.ones(cap, bool)
         self.payload: list = []
         self.fstart: dict[int, int] = {}
         self.fend: dict[int, int] = {}
@@ -57,8 +61,9 @@ class NodeStore:
         return self.next - self.base
 
     def add_frame(self, frame: int, z: np.ndarray, hist: np.ndarray | None, payload: list,
-                  ious: np.ndarray) -> np.ndarray:
-        """Append one frame's nodes; ``ious`` (n, n) their pairwise overlaps (eq. 10).
+                  ious: np.ndarray, pok: np.ndarray | None = None) -> np.ndarray:
+        """Append one frame's nodes; ``ious`` (n, n) their pairwise overlaps (eq. 10), ``pok``
+        (n,) which may be partial observations (default all).
 
         Returns their gids."""
         n = len(z)
@@ -72,6 +77,7 @@ class NodeStore:
         self.label[lo:lo + n] = -1
         self.prev[lo:lo + n] = -1
         self.idx[lo:lo + n] = 0
+        self.pok[lo:lo + n] = True if pok is None else pok
         self.payload.extend(payload)
         gids = np.arange(self.next, self.next + n, dtype=np.int64)
         if not self.fstart:
@@ -95,7 +101,7 @@ class NodeStore:
         if used + n <= cap:
             return
         new = max(2 * cap, used + n)
-        for name in ("frame", "z", "hist", "loghist", "label", "prev", "idx"):
+        for name in ("frame", "z", "hist", "loghist", "label", "prev", "idx", "pok"):
             arr = getattr(self, name)
             if arr is None:
                 continue
@@ -117,7 +123,7 @@ class NodeStore:
             self.overlaps.pop(g, None)
         shift = new_base - self.base
         used = self.next - self.base
-        for name in ("frame", "z", "hist", "loghist", "label", "prev", "idx"):
+        for name in ("frame", "z", "hist", "loghist", "label", "prev", "idx", "pok"):
             arr = getattr(self, name)
             if arr is None:
                 continue

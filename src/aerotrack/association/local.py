@@ -30,7 +30,7 @@ from ..kalman import ConstantVelocityKF
 from ..types import Detections, Track, TrackPoint, Tracklet
 from .graph import HIST_EPS
 from .moves import Prior, SamplerParams, WindowSampler, WTrack
-from .posterior import iou_xywh_centre, link_step, score_matrix
+from .posterior import iou_xywh_centre, link_step, partial_candidates, score_matrix
 
 
 class LocalAssociator:
@@ -187,10 +187,15 @@ class LocalAssociator:
         z[:, 2:] = self._sizes(det) * self.mpu
         ious = iou_xywh_centre(z, z) if n > 1 else np.zeros((n, n))
         payload = [(det, i) for i in range(n)]
+        pok = None
+        if self.config.partial_score > 0 and n:
+            lo, hi = S.store.range(t - 1, t - 1)
+            pok = partial_candidates(z, S.store.z[lo - S.store.base:hi - S.store.base],
+                                     self.config.partial_min_inside, self.config.partial_max_area)
         S.now = t
         S.rng = self.rng = np.random.default_rng([self.seed, max(t, 0)])
         gids = S.store.add_frame(t, z, None if det.hist is None else np.asarray(det.hist, float),
-                                 payload, ious)
+                                 payload, ious, pok)
         finished = self._slide(t - self.window + 1)
         n_amb = self._initialise(gids)
         n_iter = int(self.config.min_iters + math.ceil(self.config.iters_per_ambiguity * n_amb))
@@ -303,7 +308,7 @@ class LocalAssociator:
                 LHE = HE
             score = score_matrix(X, P, FE, HE, LHE, s.z[a:b], s.frame[a:b], H, LH, self.fps,
                                  S.p.kf, c.max_speed_mps, c.gate_chi2, S.p.miss_cost,
-                                 S.p.app_weight if B else 0.0, FW)
+                                 S.p.app_weight if B else 0.0, FW, s.pok[a:b])
             fin = np.isfinite(score)
             per_det = fin.sum(axis=0)
             per_track = fin.sum(axis=1)

@@ -254,7 +254,7 @@ class WindowSampler:
             x0, P0, f0, has, fw = _ZX, _ZP, 0, False, -1
         rest = li[keep:]
         xs, Ps, d2, rel, gaps = run_track(x0, P0, f0, has, s.z[rest], s.frame[rest], self.p.fps,
-                                          self.p.kf, fw)
+                                          self.p.kf, fw, s.pok[rest])
         links = 0.5 * self.p.gate2 + rel - self.p.miss_cost * np.maximum(gaps - 1, 0)
         start = 1 if (born and keep == 0) else 0  # index in `rest` of the first incoming link
         if start and len(links):
@@ -294,7 +294,7 @@ class WindowSampler:
             base.xs[:keep], base.Ps[:keep], base.d2[:keep], base.gaps[:keep], base.links[:keep],
             base.app[:keep], int(s.frame[lp]), s.z[lg], int(s.frame[lg]), hp, lhp, h, lh,
             self.p.fps, self.p.kf, self.p.gate2, self.p.miss_cost, self.p.app_weight,
-            self.whole_frame(base, keep))
+            self.whole_frame(base, keep), bool(s.pok[lg]))
         score = float(links.sum()) - (self.p.birth_cost if prior is None else 0.0)
         if d2 > self.p.gate2:
             score = -math.inf
@@ -324,7 +324,8 @@ class WindowSampler:
         """Reverse-time Kalman state at the first of ``nodes`` (filtering them backwards)."""
         li = np.asarray(nodes[::-1], dtype=np.int64) - self.store.base
         xs, Ps, _, _, _ = run_track(np.zeros(6), np.zeros((6, 6)), 0, False, self.store.z[li],
-                                 self.store.frame[li], self.p.fps, self.p.kf_back)
+                                    self.store.frame[li], self.p.fps, self.p.kf_back, -1,
+                                    self.store.pok[li])
         return xs[-1], Ps[-1]
 
     # ------------------------------------------------------------------ partition edits
@@ -427,7 +428,7 @@ class WindowSampler:
                                  self.p.fps, self.p.kf if forward else self.p.kf_back,
                                  self.p.reach_mps, self.p.gate2,
                                  self.p.miss_cost, self.p.app_weight,
-                                 f_end if f_whole is None else f_whole)
+                                 f_end if f_whole is None else f_whole, s.pok[a:b])
         if not len(idx):
             return None, None
         return idx + lo, w
@@ -491,7 +492,8 @@ class WindowSampler:
             fw = f_end if f_whole is None else f_whole
             x, P, d2, _ = link_step(x, P, abs(fg - f_end) / self.p.fps, s.z[g - s.base],
                                     self.p.kf if forward else self.p.kf_back,
-                                    partial_allowed(fg, fw, self.p.kf))
+                                    bool(s.pok[g - s.base])
+                                    and partial_allowed(fg, fw, self.p.kf))
             if d2 >= 0:
                 f_whole = fg
             f_end = fg
