@@ -269,6 +269,11 @@ class DetectionConfig:
     persist_max_length_m, persist_max_length_px : float
         Largest side of a persistence box (small targets only; larger ones are found by the
         regular blobs).
+    persist_min_area_ratio, persist_typical_s : float
+        A persistence box must cover at least this fraction of the median area of the regular
+        detections of the last ``persist_typical_s`` seconds (when there are 5 or more): the
+        typical detection is the best guess of a vehicle's size, so persistence finds far,
+        small vehicles among small detections but not pedestrians beside large ones. 0 disables.
     persist_threshold : float
         Reporting threshold on the sum in steady-state units: a target whose capped, locally
         normalised evidence is ``e`` in every frame scores ``e`` (1 = at the single-frame
@@ -352,6 +357,8 @@ class DetectionConfig:
     persist_max_speed_px_s: float = 20.0
     persist_max_length_m: float = 8.0
     persist_max_length_px: float = 40.0
+    persist_min_area_ratio: float = 0.25
+    persist_typical_s: float = 10.0
     persist_threshold: float = 0.5
     persist_noise_ratio: float = 1.4
     persist_edge_px: float = 16.0

@@ -260,6 +260,8 @@ class PersistenceTracker:
         self._budget = 0.0
         #: per recent frame: (time, (K, 2) world positions of peaks and detections)
         self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=self._history_n)
+        #: per recent frame: (time, (N,) areas of its regular detections, frame pixels^2)
+        self._areas: deque[tuple[float, np.ndarray]] = deque()
 
     def step(self, residual: np.ndarray, threshold: float, valid: np.ndarray, H: np.ndarray,
              time: float, det_boxes: np.ndarray, metres_per_px: float | None,
@@ -334,6 +336,7 @@ class PersistenceTracker:
         wpp = _world_per_px(self._H, residual.shape, s)
 
         max_side = max(2, int(round(max_len_px * s)))
+        min_area = self._min_area(time, db)
         out = []
         taken = np.zeros((h, w), bool)
         for k, (x, y, sc) in enumerate(cands):
@@ -344,6 +347,8 @@ class PersistenceTracker:
             b = peak_box(e, x, y, max_side, c.persist_box_ratio)
             if b is None or taken[b[1]:b[1] + b[3], b[0]:b[0] + b[2]].any():
                 continue
+            if b[2] * b[3] < min_area * s * s:
+                continue
             support = self._support(world[k], time, speed_px_s * wpp, max_len_px * wpp)
             if support >= c.persist_min_support:
                 out.append(PersistentDetection(b, sc, support))
@@ -352,6 +357,24 @@ class PersistenceTracker:
                     break
         self._history.append((time, world))
         return out
+
+    def _min_area(self, time: float, det_boxes: np.ndarray) -> float:
+        """Smallest persistence box area (full-resolution pixels^2): ``persist_min_area_ratio``
+        x the median area of the regular detections of the last ``persist_typical_s`` seconds,
+        0 with fewer than 5 of them.
+
+        Without a vehicle model the typical detection is the best guess of one vehicle's size:
+        this keeps persistence to targets of about a vehicle's size in the scene (a far, small
+        truck among small detections) and away from pedestrians and debris where vehicles are
+        large (a nadir view of a street)."""
+        c = self.config
+        self._areas.append((time, det_boxes[:, 2] * det_boxes[:, 3]))
+        while self._areas and self._areas[0][0] < time - c.persist_typical_s:
+            self._areas.popleft()
+        areas = np.concatenate([a for _, a in self._areas])
+        if c.persist_min_area_ratio <= 0 or len(areas) < 5:
+            return 0.0
+        return c.persist_min_area_ratio * float(np.median(areas))
 
     def _support(self, p: np.ndarray, time: float, speed_w: float, tol_w: float) -> float:
         """Share of the recent frames with a peak or detection within reach of world point p."""
@@ -394,7 +417,9 @@ def validate(c: DetectionConfig) -> None:
         ("persist_max_per_frame", c.persist_max_per_frame >= 0),
         ("persist_conf", 0 <= c.persist_conf <= 1),
         ("persist_noise_ratio", c.persist_noise_ratio >= 0),
-        ("persist_support_level", 0 < c.persist_support_level <= 1), ("persist_edge_px", c.persist_edge_px >= 0),
+        ("persist_support_level", 0 < c.persist_support_level <= 1),
+        ("persist_min_area_ratio", c.persist_min_area_ratio >= 0),
+        ("persist_typical_s", c.persist_typical_s > 0), ("persist_edge_px", c.persist_edge_px >= 0),
     ]
     for name, ok in checks:
         if not ok:
