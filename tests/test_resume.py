@@ -284,6 +284,23 @@ def test_stale_stage_state_is_not_used(tmp_path, video_frames):
     assert not pipe.exact_resume and restart < 70
 
 
+def test_a_periodic_checkpoint_drops_the_state_it_outdates(tmp_path, video_frames):
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(20))
+    assert (out.partial / "state.npz").is_file()
+
+    def killed(done):  # a hard kill: nothing is saved on the way out
+        if done == 35:
+            raise RuntimeError("killed")
+
+    with pytest.raises(RuntimeError):  # resumed at frame 21, checkpoint after frame 50
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30, resume=True,
+                   progress=killed)
+    assert not (out.partial / "state.npz").exists()
+
+
 # -- the state codec ------------------------------------------------------------------------------
 def test_state_codec_round_trip(tmp_path):
     from collections import Counter, OrderedDict, deque

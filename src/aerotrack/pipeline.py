@@ -296,8 +296,10 @@ class Pipeline:
         if self.checkpoint_dir is None or not (self._pending_regs or self._pending_dets):
             return
         from .io.checkpoint import save_chunk
+        from .io.state import drop_state
 
         save_chunk(self.checkpoint_dir, self._chunk_no, self._pending_regs, self._pending_dets)
+        drop_state(self.checkpoint_dir)  # an earlier interruption's stage state is stale now
         self._chunk_no += 1
         self._pending_regs, self._pending_dets = [], []
         self._since_checkpoint = 0
