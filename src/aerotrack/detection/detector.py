@@ -98,6 +98,8 @@ class FrameResult:
         Residual threshold used, grey levels.
     residual : ndarray, shape (h, w) uint8
         Model-resolution residual (for debug pictures).
+    persistent : ndarray, shape (N,) bool, optional
+        True for detections found by multi-frame persistence (None: none were).
     """
 
     boxes: np.ndarray
@@ -108,6 +110,7 @@ class FrameResult:
     contrast: np.ndarray | None = None
     threshold: float = 0.0
     residual: np.ndarray | None = None
+    persistent: np.ndarray | None = None
 
 
 def _gain_normalise(image: np.ndarray, bg: np.ndarray, block: float) -> np.ndarray:
@@ -829,7 +832,8 @@ class MovingObjectDetector:
         return FrameResult(boxes=np.vstack(boxes).reshape(-1, 4),
                            conf=np.asarray(confs, np.float64), masks=masks, crops=crops,
                            model_blobs=blobs, contrast=np.asarray(contrast, np.float64),
-                           threshold=r.threshold, residual=r.residual)
+                           threshold=r.threshold, residual=r.residual,
+                           persistent=np.arange(len(confs)) >= len(r.boxes))
 
     def _ahead(self, p: _Pending, r: FrameResult, bg: np.ndarray, moved: list) -> list:
         """Per detection, the pixels (in its model box) to keep out of the not-yet-final samples.
@@ -913,7 +917,8 @@ class MovingObjectDetector:
                               mapxy=None if self.geomap is None else np.zeros((0, 2)),
                               lonlat=None if self.geomap is None else np.zeros((0, 2)),
                               extra={"desc": np.zeros((0, 6, 8, 8)),
-                                     "stationary": np.zeros(0, bool)})
+                                     "stationary": np.zeros(0, bool),
+                                     "persistent": np.zeros(0, bool)})
         H = np.asarray(p.reg.H, dtype=np.float64)
         centres = r.boxes[:, :2] + r.boxes[:, 2:] / 2.0
         world = apply_homography(H, centres)
@@ -931,7 +936,9 @@ class MovingObjectDetector:
             lonlat = self.geomap.pixel_to_lonlat(world)
         return Detections(frame=p.frame.index, boxes=r.boxes, conf=r.conf, world=world,
                           mapxy=mapxy, lonlat=lonlat, hist=hists, size_world=size_world,
-                          extra={"desc": descs, "stationary": stationary})
+                          extra={"desc": descs, "stationary": stationary,
+                                 "persistent": (np.zeros(n, bool) if r.persistent is None
+                                                else r.persistent)})
 
     def _drop_old(self) -> None:
         if self._pending:

@@ -70,10 +70,10 @@ def frame_evidence(residual: np.ndarray, threshold: float, valid: np.ndarray | N
     -------
     ndarray, shape (h, w) float32
     """
-    e = np.minimum(residual.astype(np.float32) * np.float32(1.0 / max(threshold, 1e-6)),
-                   np.float32(cap))
+    e = cv2.min(cv2.multiply(residual.astype(np.float32), 1.0 / max(threshold, 1e-6)), float(cap))
     if valid is not None:
-        e[np.asarray(valid) == 0] = 0
+        # multiply rather than index: boolean assignment costs ~10x more on a whole frame
+        e = cv2.multiply(e, (np.asarray(valid) > 0).astype(np.float32))
     if blur_px > 1:
         e = cv2.blur(e, (blur_px, blur_px))
     if noise_block_px > 1:
@@ -92,14 +92,28 @@ def clutter_gain(e: np.ndarray, block_px: int, inner_px: int) -> np.ndarray:
     """
     B = int(block_px)
     b = int(min(inner_px, B - 1))
-    e2 = e * e
-    g = float(np.sqrt(np.mean(e2)))
+    e2 = cv2.multiply(e, e)
+    g = float(np.sqrt(cv2.mean(e2)[0]))
     if g <= 0:
         return np.ones_like(e)
-    outer = cv2.blur(e2, (B, B)) * np.float32(B * B)
-    inner = cv2.blur(e2, (b, b)) * np.float32(b * b) if b > 0 else 0
-    ring = np.maximum(outer - inner, 0) * np.float32(1.0 / (B * B - b * b))
-    return np.float32(g) / np.maximum(np.sqrt(ring), np.float32(g))
+    ring = cv2.boxFilter(e2, -1, (B, B), normalize=False)
+    if b > 0:
+        ring = cv2.subtract(ring, cv2.boxFilter(e2, -1, (b, b), normalize=False))
+    ring = cv2.max(cv2.multiply(ring, 1.0 / (B * B - b * b)), g * g)
+    return cv2.divide(g, cv2.sqrt(ring))
+
+
+def quantile(image: np.ndarray, q: float, mask: np.ndarray | None, top: float) -> float:
+    """The ``q`` quantile of a float image over ``mask`` from a 256-bin histogram on
+    ``[0, top]`` (resolution ``top / 256``; ~20x faster than ``np.quantile`` on a frame)."""
+    u8 = cv2.convertScaleAbs(image, alpha=255.0 / top)
+    m = None if mask is None else mask.astype(np.uint8)
+    hist = cv2.calcHist([u8], [0], m, [256], [0, 256]).ravel()
+    total = hist.sum()
+    if total <= 0:
+        return 0.0
+    k = int(np.searchsorted(np.cumsum(hist), q * total))
+    return (k + 0.5) * top / 255.0
 
 
 def accumulate(previous: np.ndarray | None, to_current: np.ndarray | None,
@@ -323,7 +337,7 @@ class PersistenceTracker:
         if c.persist_noise_ratio > 0 and (~exclude).any():
             # Relative to the sum's own clutter level: a larger search (faster allowed speed,
             # longer memory) or more clutter lifts every maximum, and the threshold with them.
-            thr = max(thr, c.persist_noise_ratio * float(np.quantile(score[~exclude], 0.99)))
+            thr = max(thr, c.persist_noise_ratio * quantile(score, 0.99, ~exclude, c.persist_cap))
         self.last_threshold = thr
         # Peaks down to persist_support_level x the threshold count as support for later frames
         # (the first threshold of an M-of-N test); only those above it can be reported.
