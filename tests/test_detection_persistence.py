@@ -137,7 +137,8 @@ def test_reset_and_bad_options():
     tr = PersistenceTracker(cfg, FPS, 0.5)
     res = np.zeros((60, 80), np.uint8)
     valid = np.full(res.shape, 255, np.uint8)
-    assert tr.step(res, 10.0, valid, np.eye(3), 0.0, np.zeros((0, 4)), None) == []
+    # numpy scalars as the detector passes them
+    assert tr.step(res, np.float32(10.0), valid, np.eye(3), 0.0, np.zeros((0, 4)), None) == []
     tr.reset()
     assert tr._acc is None
     with pytest.raises(ConfigError, match="persist_tau_s"):

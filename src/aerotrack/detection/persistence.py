@@ -70,7 +70,8 @@ def frame_evidence(residual: np.ndarray, threshold: float, valid: np.ndarray | N
     -------
     ndarray, shape (h, w) float32
     """
-    e = cv2.min(cv2.multiply(residual.astype(np.float32), 1.0 / max(threshold, 1e-6)), float(cap))
+    e = cv2.min(cv2.multiply(residual.astype(np.float32), 1.0 / max(float(threshold), 1e-6)),
+                float(cap))
     if valid is not None:
         # multiply rather than index: boolean assignment costs ~10x more on a whole frame
         e = cv2.multiply(e, (np.asarray(valid) > 0).astype(np.float32))
