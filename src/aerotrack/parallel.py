@@ -24,6 +24,20 @@ The steps, each a plain function usable without Dask:
 :func:`run_parallel` does all of it on a ``distributed.Client``; :func:`dask_client` starts a local
 cluster (processes on loopback, one thread each) or connects to an existing scheduler.
 
+Where the wall time goes (:attr:`JoinReport.timeline`; ``benchmarks/parallel.py`` prints it). With
+``K`` segments on ``K`` cores the floor is the largest segment's frames (owned plus overlap; 960 of
+1800 for 2 segments at the default windows, 0.533 of the single process) plus what runs serially
+after the last segment. What was cut, each measured: a segment of a video seeks to its first frame
+(:func:`segment_frames`) instead of decoding every frame before it; workers load the stages' code
+(imports, numba) while the cluster starts (:func:`warm_up_worker`: a warm worker's first segment
+costs what its second does), and the client loads global linking's (:func:`warm_up_linking`: the
+first link after the segments took 0.8-1.9 s cold, 0.13-0.2 s warm); the cluster's own
+housekeeping is slowed down (:data:`WORKER_CONFIG`). What remains: the overlap (each of 2 segments
+reads 6.7% more than half), a fixed start of about 0.2-0.3 CPU s per segment (the detector's first
+window), segments that cost differently per frame (more vehicles, more association), and two
+processes sharing the machine's caches; the join, linking and results' transfer took 0.2-0.3 s
+together on the benchmark's 1800-frame video.
+
 Chaining the worlds (no map): for a frame ``f`` read by segments ``k-1`` and ``k``, with ``H_j(f)``
 its frame -> world_j homography, ``H_{0<-k} = H_{0<-k-1} @ H_{k-1}(f) @ inv(H_k(f))``. The estimate
 of one frame carries that frame's registration noise, so ``H_{0<-k}`` is the least-squares
