@@ -13,6 +13,7 @@ from aerotrack.association.finish import (
     TrackFinisher,
     finish_tracks,
     footprint_box,
+    is_small,
     is_static,
     oriented_size,
     robust_smooth,
@@ -268,3 +269,30 @@ def test_short_gaps_between_tracklets_become_bridged():
     assert kinds[40:49] == ["bridged"] * 9 and kinds[60:] == ["predicted"] * 30
     filled = np.array([p.box for p in out.points[40:49]])
     assert _iou(filled, truth[40:49]).min() > 0.6
+
+
+def _walker(n: int = 90) -> Track:
+    """A pedestrian-sized mover (1.0 x 1.2 m box) walking at 1.5 m/s in the identity world."""
+    pts = []
+    for k in range(1, n + 1):
+        c = np.array([200.0 + 1.5 / MPU / FPS * k, 400.0])
+        pts.append(TrackPoint(frame=k, box=np.array([c[0] - 5, c[1] - 6, 10, 12]), world=c,
+                              conf=1.0, kind="observed"))
+    return Track(id=3, points=pts)
+
+
+def test_tracks_smaller_than_a_vehicle_are_dropped():
+    identity = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 200)}
+    car, _, _ = _vehicle(n=90, partial=0.0)
+    for p in car.points:  # in the identity world of these registrations
+        p.world = p.box[:2] + p.box[2:] / 2
+    cfg = FinishConfig(min_size_m=1.5)
+    out = finish_tracks([_walker(), car], cfg, FPS, metres_per_unit=MPU, registrations=identity)
+    assert [t.id for t in out] == [1]
+    # 0 keeps every track; without registrations sizes change with the range: kept too
+    assert len(finish_tracks([_walker()], FinishConfig(min_size_m=0.0), FPS, metres_per_unit=MPU,
+                             registrations=identity)) == 1
+    assert len(finish_tracks([_walker()], cfg, FPS, metres_per_unit=MPU)) == 1
+    assert is_small(np.array([[10.0, 12.0], [11.0, 12.0]]), MPU, 1.5)
+    assert not is_small(np.array([[45.0, 20.0], [10.0, 12.0], [44.0, 19.0]]), MPU, 1.5)
+    assert not is_small(np.zeros((0, 2)), MPU, 1.5)

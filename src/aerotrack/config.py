@@ -828,6 +828,17 @@ class FinishConfig:
         registered frames (in the image of a moving camera a vehicle driving with it stands
         still). Raising it drops slow crawlers seen only briefly; 4 m (about a car length)
         and 6 m dropped the same tracks on Santiago, 2.5 m fewer.
+    min_size_m : float
+        Tracks whose typical footprint (median over fully visible observations of the square
+        root of width x height, metres) is smaller than this are not vehicles (pedestrians, a
+        fragment of a parked car) and are dropped; 0 keeps them. Applied only on registered
+        frames, like ``static_extent_m`` (in the image of an oblique moving camera the size
+        changes with the range). 1.5 m is about the detector's own gate (``detection
+        .min_area_m2`` 2 m^2): a track whose typical box is that small is made of blobs at the
+        limit of detection. Measured (mean of seeds 0-2, HOTA / IDF1): Santiago 0.632 / 0.825 ->
+        0.648 / 0.850 (a walking pedestrian and a fragment of a car dropped; 1.5 to 2.3 m drop the
+        same tracks); generated scenes default:0, convoy:1, convoy:2 unchanged; UAVDT (no
+        registered frames) unchanged.
     fill_gaps_s : float
         Gaps between linked tracklets up to this long are reported in ``tracks.csv`` as
         ``bridged`` (smoothed through) instead of ``predicted``, as local association reports the
@@ -850,6 +861,7 @@ class FinishConfig:
     edge_margin_px: float = 1.0
     clip_to_frame: bool = False
     static_extent_m: float = 4.0
+    min_size_m: float = 1.5
     fill_gaps_s: float = 0.5
 
 

@@ -71,6 +71,7 @@ __all__ = [
     "SIZE_MODES",
     "TrackFinisher",
     "finish_tracks",
+    "is_small",
     "is_static",
     "oriented_size",
     "robust_smooth",
@@ -306,6 +307,15 @@ def is_static(world: np.ndarray, metres_per_unit: float, extent_m: float) -> boo
     return float(np.hypot(*ext)) * metres_per_unit < extent_m
 
 
+def is_small(sizes: np.ndarray, metres_per_unit: float, min_size_m: float) -> bool:
+    """True when the median footprint ``sqrt(w * h)`` of the world sizes (N, 2) is below
+    ``min_size_m`` metres (False without sizes or with ``min_size_m`` 0)."""
+    sizes = np.abs(np.asarray(sizes, dtype=np.float64).reshape(-1, 2))
+    if min_size_m <= 0 or not len(sizes):
+        return False
+    return float(np.median(np.sqrt(sizes[:, 0] * sizes[:, 1]))) * metres_per_unit < min_size_m
+
+
 def _headings(vel: np.ndarray, min_speed: float) -> np.ndarray:
     """Heading (radians) of each velocity (N, 2); where slower than ``min_speed`` (world units/s)
     the nearest faster point's heading (NaN when none is)."""
@@ -424,8 +434,10 @@ class TrackFinisher:
         # driving along with it stands still
         if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
             return False
-        J = _jacobian(Hinv, xs[:, :2])
         full = measured & ~edge
+        if regs is not None and is_small(sizes[full], mpu, c.min_size_m):
+            return False
+        J = _jacobian(Hinv, xs[:, :2])
         # one size per run of consecutive in-view frames (a tracklet): a wrong link between two
         # vehicles must not give one of them the other's size
         new = np.zeros((n, 4))
