@@ -418,7 +418,12 @@ def test_a_partial_link_keeps_the_predicted_state():
     partial link returns the prediction unchanged, so parts on one side of the box, run after
     run, do not drag the track onto a neighbour."""
     from aerotrack.association.posterior import PARTIAL_D2, link_step
-    from aerotrack.kalman import ConstantVelocityKF, predict_nb, process_noise_nb, transition_nb
+    from aerotrack.kalman import (
+        ConstantVelocityKF,
+        predict_nb,
+        process_noise_nb,
+        transition_nb,
+    )
 
     cfg = AssociationConfig()
     kf = ConstantVelocityKF(accel_std=cfg.accel_std_mps2, size_std=cfg.size_std_m,
