@@ -18,6 +18,7 @@ from aerotrack.detection.persistence import (
 )
 from aerotrack.errors import ConfigError
 from aerotrack.types import Frame, Registration
+from test_detection_background import iou  # noqa: E402  (tests folder is on sys.path)
 
 FPS = 10.0
 TARGET = (10, 8)  # w, h in frame pixels
@@ -58,15 +59,8 @@ def _detect(frames, persist: bool):
     return out + det.flush()
 
 
-def _iou(a, b) -> float:
-    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
-    x1, y1 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
-    inter = max(0.0, x1 - x0) * max(0.0, y1 - y0)
-    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
-
-
 def _hits(out, truth) -> np.ndarray:
-    return np.array([any(_iou(b, truth[d.frame - 1]) >= 0.3 for b in d.boxes) for d in out])
+    return np.array([any(iou(b, truth[d.frame - 1]) >= 0.3 for b in d.boxes) for d in out])
 
 
 def test_accumulate_reaches_steady_state_along_the_motion():
