@@ -330,4 +330,3 @@ def merge_blobs(a: Blob, b: Blob) -> Blob:
         bx, by, bw, bh = bl.box
         m[by - y0:by - y0 + bh, bx - x0:bx - x0 + bw] |= bl.mask
     return Blob((x0, y0, x1 - x0, y1 - y0), m)
-
