@@ -235,8 +235,7 @@ def santiago(results: dict, quick: bool) -> None:
         "ours, causal": dataclasses.replace(base, causal=True),
         "ours, no shadow suppression": dataclasses.replace(base, shadow_suppression=False),
         "ours, small blobs kept": dataclasses.replace(base, drop_small_ratio=0.0),
-        "ours, only small blobs beside a bigger one dropped": dataclasses.replace(
-            base, drop_small_near=1.0),
+        "ours, small blobs dropped near big": dataclasses.replace(base, drop_small_near=1.0),
     }
     if not quick:
         variants.update({
