@@ -12,6 +12,13 @@ Usage::
    TrackEval over the three sequences combined.
 2. **Speed**: frames/s of association alone at 20, 50 and 150 objects per frame
    (``common.synthetic_dets``), beside ByteTrack and OC-SORT in the same run, as ratios.
+3. ``--seeds-ablation VARIANT ...`` (instead of 1 and 2): each variant (comma-separated
+   ``SECTION.KEY=VALUE`` items) against the defaults, mean and sd of HOTA / IDF1 / IDSW over
+   MCMC seeds (``--seeds``, default 3), association and linking re-run on one cached detection
+   run per source: Santiago end to end (own detector, corrected ground truth, frames 2..98) and
+   generated scenes default:0, convoy:2 (600 frames), convoy:1 (900); writes
+   ``benchmarks/results/association-seeds.json``. The MCMC varies with the seed by about
+   0.005-0.01 HOTA on Santiago: judge a change over seeds, not one run.
 
 Prints tables and writes ``benchmarks/results/association.json``.
 """
@@ -129,6 +136,78 @@ def speed(config: AssociationConfig, sizes, n_frames: int, peers: bool) -> dict:
     return out
 
 
+#: ``--seeds-ablation`` sources: Santiago end to end and generated scenes (scenario, seed, frames).
+ABLATION_SCENES = (("default", 0, 600), ("convoy", 2, 600), ("convoy", 1, 900))
+
+
+def _cached_run(name: str, track_args: list[str]) -> Path:
+    """``aerotrack track ARGS --out WORK/association/NAME`` once (registration and detection
+    cached in its stages/ for ``--from`` runs)."""
+    import subprocess
+
+    out = WORK / "association" / name
+    if not (out / "stages").is_dir():
+        subprocess.run([sys.executable, "-m", "aerotrack", "track", *track_args, "--out",
+                        str(out), "--overwrite"], check=True, capture_output=True)
+    return out
+
+
+def seeds_ablation(variants: list[str], seeds: int) -> dict:
+    """HOTA / IDF1 / IDSW (mean and sd over MCMC seeds 0..seeds-1) of each ``--set`` variant
+    against the defaults, association and linking re-run (``track --from``) on one detection run
+    per source: Santiago (own detector, corrected ground truth, frames 2..98) and the generated
+    scenes of :data:`ABLATION_SCENES`."""
+    import json
+
+    from common import SANTIAGO_DIR
+
+    from aerotrack.evaluation.mot import evaluate, fix_ground_truth
+    from aerotrack.evaluation.santiago import SANTIAGO_FRAMES, load_santiago
+    from aerotrack.io.mot import read_mot
+    from aerotrack.outputs import track_rows
+    from aerotrack.pipeline import run_cached
+
+    sources = {}
+    gt, _ = load_santiago(SANTIAGO_DIR)
+    sources["santiago"] = (_cached_run("santiago", [
+        str(SANTIAGO_DIR / "video_sift_estabilizado_filtrado.mp4")]), fix_ground_truth(gt)[0],
+        SANTIAGO_FRAMES)
+    for scen, sd, n in ABLATION_SCENES:
+        scene = WORK / "association" / f"scene-{scen}{sd}-{n}"
+        if not (scene / "gt.txt").exists():
+            import subprocess
+            subprocess.run([sys.executable, "-m", "aerotrack", "synth", "--out", str(scene),
+                            "--seed", str(sd), "--frames", str(n), "--scenario", scen,
+                            "--overwrite"], check=True, capture_output=True)
+        run = _cached_run(f"run-{scen}{sd}-{n}", [str(scene / "frames"), "--map",
+                                                  str(scene / "map.tif"), "--map-init",
+                                                  str(scene / "map_init.txt")])
+        sources[f"{scen}:{sd}"] = (run, read_mot(scene / "gt.txt"), None)
+    out: dict = {}
+    for src, (run, gt, frames) in sources.items():
+        summ = json.loads((run / "summary.json").read_text())
+        geomap = None
+        if summ.get("map"):
+            from aerotrack.geo import GeoMap
+            geomap = GeoMap(summ["map"])
+        mpu = None if geomap else summ.get("metres_per_unit")
+        out[src] = {}
+        for v in ["defaults", *variants]:
+            config = load_config(None, [] if v == "defaults" else v.split(","))
+            scores = []
+            for seed in range(seeds):
+                res = run_cached(run / "stages", config=config, fps=summ["fps"], seed=seed,
+                                 geomap=geomap, frame_size=tuple(summ["frame_size"]),
+                                 metres_per_unit=mpu)
+                scores.append(evaluate(gt, track_rows(res, geomap)[0], frames=frames))
+            m = {k: (float(np.mean([x[k] for x in scores])), float(np.std([x[k] for x in scores])))
+                 for k in ("HOTA", "IDF1", "IDSW")}
+            out[src][v] = m
+            print(f"{src:10s} {v:45s} " + "  ".join(f"{k} {a:.3f}±{b:.3f}" for k, (a, b)
+                                                      in m.items()), flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -138,7 +217,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[20, 50, 150])
     ap.add_argument("--frames", type=int, default=300, help="frames per speed measurement")
     ap.add_argument("--set", action="append", default=[], metavar="association.KEY=VALUE")
+    ap.add_argument("--seeds-ablation", nargs="*", default=None, metavar="SECTION.KEY=VALUE,...",
+                    help="instead: each variant (comma-separated --set items) against the "
+                         "defaults over MCMC seeds on Santiago and generated scenes; writes "
+                         "results/association-seeds.json")
+    ap.add_argument("--seeds", type=int, default=3, help="seeds of --seeds-ablation")
     args = ap.parse_args(argv)
+    if args.seeds_ablation is not None:
+        res = seeds_ablation(args.seeds_ablation, args.seeds)
+        path = write_results("association-seeds", {"seeds": args.seeds, "results": res})
+        print(f"\nwrote {path}")
+        return
     config = load_config(None, args.set).association
     result: dict = {"config": config.__dict__}
     if not args.no_uavdt:

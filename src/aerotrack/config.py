@@ -437,14 +437,15 @@ class AssociationConfig:
         detection inside two boxes of the previous frame is never a part. 0 disables. Raising it
         absorbs fragments that would otherwise form a second tracklet interleaved with the
         vehicle's, but lets a track take a small neighbour lying inside its predicted box in a
-        frame where its own detection is missing. 4 against 0, mean of seeds 0-2 (HOTA / IDF1;
-        generated scenes of 600 frames, convoy:1 of 900): generated default:0 0.576 / 0.778 vs
-        0.554 / 0.759, convoy:2 0.578 / 0.689 vs 0.561 / 0.636, convoy:1 0.478 / 0.704 vs
-        0.476 / 0.686; UAVDT (seed 0) 0.754 / 0.813 vs 0.751 / 0.810; Santiago depends on the
-        detector: 0.632 / 0.825 vs 0.618 / 0.802 on the detections of commit 7b6f1ea, but
-        0.627 / 0.825 vs 0.639 / 0.842 (seeds 0-5) on those of the detector being reworked
-        (persistence; a track split by a part leaves two pieces under ``linking.min_track_s``,
-        both dropped). Off until that is settled.
+        frame where its own detection is missing. 4 against 0 depends on the detector (mean of
+        seeds 0-2, HOTA / IDF1, ``benchmarks/association.py --seeds-ablation``): with the
+        detector of commit 7b6f1ea Santiago 0.632 / 0.825 vs 0.618 / 0.802 and generated
+        default:0 0.576 / 0.778 vs 0.554 / 0.759; with the reworked one (persistence) Santiago
+        0.629 / 0.830 vs 0.636 / 0.838, default:0 0.567 / 0.767 vs 0.575 / 0.799, convoy:2
+        0.578 / 0.689 vs 0.558 / 0.639, convoy:1 0.478 / 0.704 vs 0.476 / 0.686; UAVDT (seed
+        0) 0.754 / 0.813 vs 0.751 / 0.810. A part taken instead of a whole detection that
+        narrowly fails the gate leaves the size stale, the track splits, and pieces shorter than
+        ``linking.min_track_s`` are dropped. Off.
     partial_min_inside : float
         Share of a detection's area that must lie inside the predicted box for a partial link.
     partial_max_area : float
