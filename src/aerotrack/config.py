@@ -304,8 +304,10 @@ class DetectionConfig:
     persist_box_ratio : float
         A persistence box spans the current frame's evidence above this fraction of its value
         at the peak (connected to the peak).
-    persist_exclude_px : float
-        Peaks within this many full-resolution pixels of a regular detection are not reported.
+    persist_exclude_px, persist_exclude_length : float
+        Peaks within ``max(persist_exclude_px, persist_exclude_length x its longer side)``
+        full-resolution pixels of a regular detection are not reported: near a detection
+        persistence mostly finds the other part of a vehicle the blobs split in two.
     persist_max_per_frame : int
         At most this many persistence detections per frame (strongest first).
     persist_conf : float
@@ -373,6 +375,7 @@ class DetectionConfig:
     persist_noise_block_px: float = 64.0
     persist_box_ratio: float = 0.35
     persist_exclude_px: float = 8.0
+    persist_exclude_length: float = 1.0
     persist_max_per_frame: int = 10
     persist_conf: float = 0.3
 

@@ -347,17 +347,24 @@ class PersistenceTracker:
         edge = max(1, int(round(c.persist_edge_px * s)))
         trusted = np.pad((np.asarray(valid) > 0).astype(np.uint8), 1)
         trusted = cv2.erode(trusted, np.ones((2 * edge + 1, 2 * edge + 1), np.uint8))[1:-1, 1:-1]
-        exclude = trusted == 0
-        pad = max(1, int(round(c.persist_exclude_px * s)))
+        untrusted = trusted == 0
+        exclude = untrusted.copy()
         for bx, by, bw, bh in np.asarray(det_boxes, np.float64).reshape(-1, 4):
+            # A regular detection's surroundings up to its own length are left to the blobs:
+            # there persistence only finds the other part of a vehicle they split in two, and
+            # the second box splits the track.
+            pad = max(1, int(round(max(c.persist_exclude_px,
+                                       c.persist_exclude_length * max(bw, bh)) * s)))
             x0, y0 = max(0, int(bx * s) - pad), max(0, int(by * s) - pad)
             x1, y1 = min(w, int(math.ceil((bx + bw) * s)) + pad), min(h, int(math.ceil((by + bh) * s)) + pad)
             exclude[y0:y1, x0:x1] = True
         thr = c.persist_threshold
-        if c.persist_noise_ratio > 0 and (~exclude).any():
+        if c.persist_noise_ratio > 0 and (~untrusted).any():
             # Relative to the sum's own clutter level: a larger search (faster allowed speed,
             # longer memory) or more clutter lifts every maximum, and the threshold with them.
-            thr = max(thr, c.persist_noise_ratio * quantile(score, 0.99, ~exclude, c.persist_cap))
+            # Over the whole trusted frame, detections included: leaving them out lowered the
+            # level where vehicles are many and large, and let clutter through.
+            thr = max(thr, c.persist_noise_ratio * quantile(score, 0.99, ~untrusted, c.persist_cap))
         self.last_threshold = thr
         # Peaks down to persist_support_level x the threshold count as support for later frames
         # (the first threshold of an M-of-N test); only those above it can be reported.
@@ -448,6 +455,7 @@ def validate(c: DetectionConfig) -> None:
         ("persist_noise_block_px", c.persist_noise_block_px >= 0),
         ("persist_box_ratio", 0 < c.persist_box_ratio <= 1),
         ("persist_exclude_px", c.persist_exclude_px >= 0),
+        ("persist_exclude_length", c.persist_exclude_length >= 0),
         ("persist_max_per_frame", c.persist_max_per_frame >= 0),
         ("persist_conf", 0 <= c.persist_conf <= 1),
         ("persist_noise_ratio", c.persist_noise_ratio >= 0),
