@@ -396,3 +396,9 @@ def test_debris_far_smaller_than_the_frames_vehicles_is_dropped():
     r = detect_moving(img, small, bg_small, testable,
                       dataclasses.replace(cfg, drop_small_ratio=0.0), 0.5, gates)
     assert len(r.boxes) == 6
+
+
+@pytest.mark.parametrize("key", ["drop_small_ratio", "drop_small_near"])
+def test_negative_small_blob_settings_are_refused_naming_the_option(key):
+    with pytest.raises(ConfigError, match=f"detection.{key}"):
+        MovingObjectDetector(DetectionConfig(**{key: -0.1}), 30.0)
