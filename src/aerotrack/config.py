@@ -240,7 +240,10 @@ class DetectionConfig:
         After splitting and joining, a blob under this fraction of the frame's median blob area
         (needs 5 blobs) is dropped (``blobs.drop_small``): leftover fragments of a vehicle
         detected beside it, pedestrians, blown debris, noise. Raising it removes more of them
-        but also small or partly seen vehicles; 0 disables.
+        but also small or partly seen vehicles; 0 disables. Measured (0 -> 0.4): Santiago
+        detection P/R@IoU0.5 0.668/0.868 -> 0.756/0.863, tracking HOTA/IDF1 over seeds 0-2
+        0.632/0.825 -> 0.636/0.838; generated scenes P/R 0.845/0.829 -> 0.882/0.816,
+        identity benchmark (5 scenes x 300 frames) IDF1/HOTA 0.795/0.583 -> 0.840/0.601.
     drop_small_near : float
         With > 0, such a small blob is dropped only within this many typical blob lengths of a
         bigger blob (leftover fragments only); 0 drops small blobs anywhere.
