@@ -670,8 +670,8 @@ def partial_edge_positions(t: Track, fr: np.ndarray, xy: np.ndarray, registratio
     tracklet that never showed the whole target (the correction is then too small, never wrong
     in direction). The papers have no such model; it is aerotrack's. It holds for boxes cut by an
     occluder's outline (ground-truth-like boxes); aerotrack's own detector shrinks a vehicle's
-    box about its centre about as often, and there it moves points away from the truth (see
-    ``LinkingConfig.partial_model``, off by default).
+    box about its centre about as often, so the moved points are no closer to the truth on
+    average, yet linking gains (``LinkingConfig.partial_model`` has the measurements).
 
     Parameters
     ----------
