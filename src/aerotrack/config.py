@@ -253,7 +253,7 @@ class DetectionConfig:
         Multi-frame persistence for small, faint movers (``detection.persistence``): a
         motion-compensated leaky sum of each frame's weak residual reports targets whose
         evidence keeps coming back at reachable places although no single frame has a blob
-        that passes the gates. Off by default: it costs Santiago precision (0.756 -> 0.732;
+        that passes the gates. Off by default: it costs Santiago precision (0.756 -> 0.739;
         mostly pedestrians and other small real movers that are not annotated), see
         ``detection/persistence.py`` for the measurements.
     persist_tau_s : float

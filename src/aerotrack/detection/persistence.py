@@ -27,24 +27,28 @@ peak or a regular detection) near its world position in a share of the recent fr
 
 All maps are at the detector's model resolution, in the current frame's model pixels.
 
-Measured (``config.detection.persist = true``, other settings default, HEAD e2b1e36; scripts
-equivalent to ``benchmarks/detection.py --only truck4/santiago/synth --quick`` and
-``benchmarks/identity.py --truck4``):
+Measured (``config.detection.persist = true``, other settings default, at 408eb0f, both columns
+in the same run; scripts equivalent to ``benchmarks/detection.py --only truck4/santiago/speed``,
+``--only synth --quick`` and ``benchmarks/identity.py --truck4``):
 
-==========================================  =============  ==============
-                                            persist off    persist on
-==========================================  =============  ==============
-truck4: truck detected (IoU >= 0.3)         0.542          0.689
-truck4 part 1 (frames 1-192, tiny truck)    0.073          0.370
-truck4: best single ID's coverage           0.594          0.777
-Santiago P / R at IoU 0.5                   0.756 / 0.863  0.732 / 0.866
-generated scenes P / R (3 seeds, 150 fr.)   0.865 / 0.796  0.858 / 0.801
-detection CPU time, truck4 (421 frames)     1.00           1.46
-==========================================  =============  ==============
+==============================================  =============  ==============
+                                                persist off    persist on
+==============================================  =============  ==============
+truck4: truck detected (IoU >= 0.3)             0.542          0.689
+truck4 part 1 (frames 1-192, tiny truck)        0.073          0.370
+truck4: best single ID's coverage, seeds 0-2    0.594 (x3)     0.770/0.779/0.779
+Santiago P / R at IoU 0.5                       0.756 / 0.863  0.739 / 0.865
+Santiago P / R centre-in-box                    0.803 / 0.915  0.791 / 0.927
+generated scenes P / R (3 seeds, 150 frames)    0.865 / 0.796  0.863 / 0.798
+detection frames per CPU-second, 1280x720       58.4           43.9
+detection frames per CPU-second, 1920x1080      15.8           13.3
+==============================================  =============  ==============
 
 Santiago loses precision because persistence finds what it is built for, small real movers,
 and most of those there are pedestrians, which the ground truth does not annotate; hence off by
-default. Parallax of buildings on the oblique truck4 clip is its main clutter.
+default. Parallax of buildings on the oblique truck4 clip is its main clutter. On truck4 the
+truck is tracked from frame 74 instead of 168; before frame 74 it is below half the typical
+detection's area (``persist_min_area_ratio``).
 """
 
 from __future__ import annotations
