@@ -86,6 +86,79 @@ def test_video_source(tmp_path):
     assert [f.index for f in frames] == [2, 4]
 
 
+def _write_video(path, fourcc, n=45, size=(160, 96)):
+    """A video whose every frame differs: a drifting texture and a moving square."""
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.integers(0, 255, (120, 200, 3), dtype=np.uint8), (0, 0), 3)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 15, size)
+    if not writer.isOpened():
+        pytest.skip(f"no {fourcc} encoder in this OpenCV build")
+    w, h = size
+    for k in range(n):
+        img = base[k % 20:k % 20 + h, k % 37:k % 37 + w].copy()
+        cv2.rectangle(img, (2 * k, 40), (2 * k + 12, 52), (255, 255, 255), -1)
+        writer.write(img)
+    writer.release()
+
+
+def _decoded(path, stop):
+    """Frames 1..stop decoded one after the other with OpenCV alone (no seeking)."""
+    cap = cv2.VideoCapture(str(path))
+    out = []
+    while len(out) < stop:
+        ok, img = cap.read()
+        if not ok:
+            break
+        out.append(img)
+    cap.release()
+    return out
+
+
+@pytest.mark.parametrize("fourcc,suffix", [("mp4v", ".mp4"), ("MJPG", ".avi")])
+@pytest.mark.parametrize("start,stop,stride", [(1, 12, 1), (17, 33, 2), (38, 60, 1), (44, 45, 3)])
+def test_video_frames_seek_to_the_frames_sequential_decoding_gives(tmp_path, fourcc, suffix,
+                                                                   start, stop, stride):
+    """Reading from frame ``start`` seeks there; it must give the very frames (index, time,
+    pixels) that decoding from the first frame gives, and stop at the video's end."""
+    path = tmp_path / f"clip{suffix}"
+    _write_video(path, fourcc)
+    src = open_source(path, None)
+    decoded = _decoded(path, stop)
+    want = list(range(start, min(stop, len(decoded)) + 1, stride))
+    got = list(src.frames(start=start, stop=stop, stride=stride))
+    assert [f.index for f in got] == want and want
+    assert [f.time for f in got] == [(i - 1) / src.fps for i in want]
+    assert all(np.array_equal(f.image, decoded[f.index - 1]) for f in got)
+
+
+def test_video_frames_decode_from_the_first_when_the_backend_cannot_seek(tmp_path, monkeypatch):
+    """A backend that refuses to seek still gives the right frames (decoded from frame 1)."""
+    path = tmp_path / "clip.avi"
+    _write_video(path, "MJPG", n=12)
+    src = open_source(path, None)
+    monkeypatch.setattr(type(src), "_seek", lambda self, cap, start: -1)
+    decoded = _decoded(path, 12)
+    got = list(src.frames(start=5, stop=9, stride=2))
+    assert [f.index for f in got] == [5, 7, 9]
+    assert all(np.array_equal(f.image, decoded[f.index - 1]) for f in got)
+
+
+def test_image_folder_frames_open_only_the_range(tmp_path, monkeypatch):
+    """A range of an image folder reads the files of that range alone (a broken file outside it
+    is never opened), in name order, with the frame numbers of the whole folder."""
+    for i in range(1, 10):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((8, 10, 3), i * 10, np.uint8))
+    src = open_source(tmp_path, fps=10)
+    (tmp_path / "002.png").write_bytes(b"broken")  # after open_source read the first file
+    frames = list(src.frames(start=4, stop=8, stride=2))
+    assert [f.index for f in frames] == [4, 6, 8]
+    assert [int(f.image[0, 0, 0]) for f in frames] == [40, 60, 80]
+    assert frames[0].time == pytest.approx(0.3)
+    assert [f.index for f in src.frames(start=8, stop=20)] == [8, 9]
+    with pytest.raises(InputError, match="002.png"):
+        list(src.frames(start=1, stop=3))
+
+
 @pytest.mark.parametrize("content", [b"", b"this is not a video at all" * 10])
 def test_bad_video_is_input_error(tmp_path, content):
     p = tmp_path / "bad.mp4"

@@ -455,33 +455,6 @@ def test_min_speed_without_a_scale_means_metres_per_second_in_segments_too():
         assert np.allclose(starts, [92, 194], atol=3), starts  # the fast targets' top edges
 
 
-@pytest.mark.parametrize("start,stop,stride", [(1, 12, 1), (17, 33, 2), (38, 60, 1)])
-def test_segment_frames_seek_a_video_to_the_frames_sequential_decoding_gives(tmp_path, start, stop,
-                                                                            stride):
-    """A segment reading from frame ``start`` of a video seeks there; it must get the very frames
-    (index, time, pixels) that decoding from the first frame gives."""
-    from aerotrack.io import open_source
-    from aerotrack.parallel import segment_frames
-
-    path = tmp_path / "clip.mp4"
-    rng = np.random.default_rng(0)
-    base = cv2.GaussianBlur(rng.integers(0, 255, (120, 200, 3), dtype=np.uint8), (0, 0), 3)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (160, 96))
-    if not writer.isOpened():
-        pytest.skip("no MPEG-4 encoder in this OpenCV build")
-    for k in range(45):  # every frame different: a drifting texture and a moving square
-        img = base[k % 20:k % 20 + 96, k % 37:k % 37 + 160].copy()
-        cv2.rectangle(img, (2 * k, 40), (2 * k + 12, 52), (255, 255, 255), -1)
-        writer.write(img)
-    writer.release()
-    src = open_source(path, None)
-    want = list(src.frames(start=start, stop=stop, stride=stride))
-    got = list(segment_frames(src, start, stop, stride))
-    assert [f.index for f in got] == [f.index for f in want] and want
-    assert [f.time for f in got] == [f.time for f in want]
-    assert all(np.array_equal(a.image, b.image) for a, b in zip(got, want))
-
-
 def test_client_warm_up_runs_linking_for_real():
     """The client's warm-up runs global linking and the finish stage (a failure there is
     swallowed, so the flag is what shows it worked); a second call does nothing."""

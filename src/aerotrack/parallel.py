@@ -28,8 +28,8 @@ Where the wall time goes (:attr:`JoinReport.timeline`; ``benchmarks/parallel.py`
 ``K`` segments on ``K`` cores the floor is the largest segment's frames (owned plus overlap; 960 of
 1800 for 2 segments at the default windows, 0.533 of the single process) plus what runs serially
 after the last segment. What was cut, each measured: a segment of a video seeks to its first frame
-(:func:`segment_frames`) instead of decoding every frame before it; workers load the stages' code
-(imports, numba) while the cluster starts (:func:`warm_up_worker`: a warm worker's first segment
+(:meth:`~aerotrack.io.frames.VideoSource.frames`) instead of decoding every frame before it;
+workers load the stages' code (imports, numba) while the cluster starts (:func:`warm_up_worker`: a warm worker's first segment
 costs what its second does), and the client loads global linking's (:func:`warm_up_linking`: the
 first link after the segments took 0.8-1.9 s cold, 0.13-0.2 s warm); the cluster's own
 housekeeping is slowed down (:data:`WORKER_CONFIG`). What remains: the overlap (each of 2 segments
@@ -401,55 +401,6 @@ def warm_up_worker(n: int = 24, size: tuple[int, int] = (160, 120)) -> float:
     return time.perf_counter() - t0
 
 
-def segment_frames(source, start: int, stop: int, stride: int = 1) -> Iterator:
-    """Frames ``start, start+stride, ... <= stop`` of ``source`` (1-based), as
-    ``source.frames`` yields them, but a video is *sought* to ``start`` instead of decoded from
-    its first frame.
-
-    ``VideoSource.frames`` grabs (decodes) every frame before ``start``: the segment starting at
-    frame ``s`` of a video then spends ``s - 1`` decodes before its first frame (0.9 ms each at
-    480x270 in MPEG-4 part 2, 8 ms at 1920x1080 in H.264, measured on this machine), so the last
-    of ``K`` segments decodes nearly the whole video and the cost grows with the video's length.
-    OpenCV's FFmpeg backend seeks to the keyframe before the frame and decodes forward to it,
-    counting frames by their timestamps: exact for constant-rate videos (checked frame by frame
-    against sequential decoding on Santiago's H.264 video and an MPEG-4 encoding of a generated
-    one). When the backend cannot seek (the position it reports afterwards is not the one asked
-    for) this falls back to ``source.frames``. A video with irregular timestamps could still
-    land on a wrong frame; the join would then see it as a large ``JoinReport.world_rms``.
-    """
-    from .io.frames import VideoSource
-
-    if not isinstance(source, VideoSource) or start <= 1:
-        yield from source.frames(start=start, stop=stop, stride=stride)
-        return
-    import cv2
-
-    from .types import Frame
-
-    cap = cv2.VideoCapture(str(source.path))
-    try:
-        if not (cap.isOpened() and cap.set(cv2.CAP_PROP_POS_FRAMES, start - 1)
-                and int(round(cap.get(cv2.CAP_PROP_POS_FRAMES))) == start - 1):
-            log.info("%s: cannot seek to frame %d; decoding from the first frame", source.path,
-                     start)
-            cap.release()
-            yield from source.frames(start=start, stop=stop, stride=stride)
-            return
-        for index in range(start, stop + 1):
-            if not cap.grab():
-                return
-            if (index - start) % stride:
-                continue
-            ok, img = cap.retrieve()
-            if not ok or img is None:
-                return
-            if img.ndim == 2:
-                img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-            yield Frame(index=index, image=img, time=(index - 1) / source.fps)
-    finally:
-        cap.release()
-
-
 def run_segment(task: SegmentTask) -> SegmentResult:
     """Registration, detection and local association over one segment (runs on a worker).
 
@@ -483,7 +434,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
         from .io import open_source
 
         source = open_source(task.input_path, task.fps)
-        for frame in segment_frames(source, seg.start, seg.stop, task.stride):
+        for frame in source.frames(start=seg.start, stop=seg.stop, stride=task.stride):
             if config is not task.config and frame.index >= hold_from and pipe.detector is not None:
                 pipe.detector.config = task.config.detection  # warm-up over: hold from now on
                 config = task.config
