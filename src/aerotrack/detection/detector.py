@@ -604,10 +604,7 @@ class MovingObjectDetector:
     # -- public API -----------------------------------------------------------------------
     def step(self, frame: Frame, registration: Registration) -> list[Detections]:
         """Add one frame; return the detections of frames that became final (oldest first)."""
-        img = frame.image
-        H, W = img.shape[:2]
-        size = (max(1, int(round(W * self.scale))), max(1, int(round(H * self.scale))))
-        small = cv2.resize(img, size, interpolation=cv2.INTER_AREA) if self.scale != 1 else img
+        small = self.model_image(frame.image)
         out = []
         if registration.status in RESTART_STATUSES and self._pending:
             # The new world frame is unrelated to the old one: finish the frames waiting for their
@@ -652,6 +649,14 @@ class MovingObjectDetector:
             self._ending = False
         self._drop_old()
         return out
+
+    def model_image(self, image: np.ndarray) -> np.ndarray:
+        """A frame at model resolution (``config.model_scale``), as the detector keeps it; a
+        function of the frame alone, so a resumed run can make it again
+        (:mod:`aerotrack.io.state`)."""
+        H, W = image.shape[:2]
+        size = (max(1, int(round(W * self.scale))), max(1, int(round(H * self.scale))))
+        return cv2.resize(image, size, interpolation=cv2.INTER_AREA) if self.scale != 1 else image
 
     # -- internals ------------------------------------------------------------------------
     def _gates(self, H: np.ndarray, shape: tuple[int, int]) -> SizeGates:
