@@ -281,7 +281,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
 
     \b
     Writes to --out: tracks.csv, predicted.csv, detections.csv, registration.csv,
-    tracks.geojson (with a map), config.toml, summary.json.
+    tracks.geojson and observations.csv (with a map), config.toml, summary.json,
+    stages/ (cached registrations and detections for --from).
 
     \b
     Examples:
