@@ -381,3 +381,135 @@ def test_resume_of_a_finished_run_does_nothing(tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", "--detections", d, "--out", out, "--resume",
                            "--seed", "5")
     assert code == 2 and "--seed" in err and "--overwrite" in err, err
+
+
+# -- what state.npz holds, and resuming from a video ----------------------------------------------
+def _state_arrays(partial):
+    with np.load(partial / "state.npz", allow_pickle=False) as z:
+        meta = json.loads(str(z["__meta__"][()]))
+        return meta, {k: z[k] for k in z.files if k != "__meta__"}
+
+
+def test_stage_state_refers_to_the_frames_it_can_read_again(tmp_path, video_frames):
+    """The frames the detector still holds (and their model-resolution copies) are saved as
+    references, not pixels: no full frame is in state.npz, and a run interrupted again after a
+    resume refers to the frames it re-read too."""
+    import cv2
+
+    frame_shape = cv2.imread(str(min(video_frames.iterdir()))).shape
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(47))
+    meta, arrays = _state_arrays(out.partial)
+    assert meta["frames"] and max(meta["frames"]) == 47
+    assert not [k for k, a in arrays.items() if a.shape == frame_shape]
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30, resume=True,
+                   progress=interrupt_at(10))
+    meta, arrays = _state_arrays(out.partial)
+    assert max(meta["frames"]) == 57 and min(meta["frames"]) < 47  # re-read ones among them
+    assert not [k for k, a in arrays.items() if a.shape == frame_shape]
+
+
+def test_interrupted_run_on_a_video_resumes_exactly(tmp_path, video_frames):
+    """A video source: the resumed run seeks to the frames it needs again (the ones the stages
+    held, then the next one) and equals the uninterrupted run bit for bit."""
+    import cv2
+
+    from aerotrack.io import open_source
+
+    files = sorted(video_frames.iterdir())
+    h, w = cv2.imread(str(files[0])).shape[:2]
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (w, h))
+    if not writer.isOpened():
+        pytest.skip("no MJPEG encoder in this OpenCV build")
+    for p in files:
+        writer.write(cv2.imread(str(p)))
+    writer.release()
+
+    def video_run(**kw):
+        return run(open_source(video, None), fps=10.0, metres_per_unit=0.3, seed=3, **kw)
+
+    full = video_run()
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        video_run(checkpoint_dir=out.partial, checkpoint_every=30, progress=interrupt_at(83))
+    resumed = video_run(checkpoint_dir=out.partial, checkpoint_every=30, resume=True)
+    assert resumed.frames == full.frames == 120 and len(full.tracks) >= 3
+    assert _everything(full) == _everything(resumed)
+
+
+def test_frames_that_changed_since_the_interruption_give_the_checkpoint_resume(
+        tmp_path, video_frames, caplog):
+    """When the input no longer gives the pixels the state was saved with, the state is not
+    used (checked by CRC): the run resumes from its checkpoints, with a warning, and covers
+    every frame."""
+    import shutil
+
+    import cv2
+
+    frames = tmp_path / "frames"
+    shutil.copytree(video_frames, frames)
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(83))
+    p = sorted(frames.iterdir())[79]  # frame 80: held by the detector at the interruption
+    img = cv2.imread(str(p))
+    img[:10, :10] = 255 - img[:10, :10]
+    cv2.imwrite(str(p), img)
+    with caplog.at_level("WARNING", logger="aerotrack.pipeline"):
+        resumed = _video_run(frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                             resume=True)
+    assert "stage state not used" in caplog.text and "differs" in caplog.text
+    assert resumed.frames == 120 and sorted(resumed.registrations) == list(range(1, 121))
+
+
+KILLED_RUN = """
+import os, signal, sys
+sys.path.insert(0, {tests!r})
+from test_resume import _video_run
+from aerotrack.io.output import OutputDir
+
+def progress(done):
+    if done == 83:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+_video_run({frames!r}, checkpoint_dir=OutputDir({out!r}).partial, checkpoint_every=30,
+           progress=progress)
+"""
+
+
+def test_a_hard_kill_resumes_from_the_last_periodic_checkpoint(tmp_path, video_frames):
+    """SIGKILL at frame 83 with checkpoints every 30 frames: what aerotrack.io.checkpoint
+    promises. The chunks hold registrations up to frame 60 and the detections that were final
+    then; the resumed run keeps those exactly, redoes registration and detection from a
+    background half-window before the first missing detections, and covers every frame."""
+    from pathlib import Path
+
+    from aerotrack.io.checkpoint import load_chunks
+
+    out = tmp_path / "o"
+    code = KILLED_RUN.format(tests=str(Path(__file__).parent), frames=str(video_frames),
+                             out=str(out))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=False, timeout=600)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    partial = out / ".partial"
+    assert not (partial / "state.npz").exists()  # nothing is saved on a kill
+    regs, dets, _ = load_chunks(partial)
+    assert max(regs) == 60  # the last periodic checkpoint: frames 31-83 are redone
+    kept = max(d.frame for d in dets)
+    assert kept < 60  # the detector's window lags behind registration
+    full = _video_run(video_frames)
+    resumed = _video_run(video_frames, checkpoint_dir=OutputDir(out, resume=True).partial,
+                         checkpoint_every=30, resume=True)
+    a, b = _everything(full), _everything(resumed)
+    assert resumed.frames == 120 and sorted(b[1]) == list(range(1, 121))
+    assert {i: r for i, r in a[1].items() if i <= 60} == {i: r for i, r in b[1].items()
+                                                          if i <= 60}
+    assert [d for d in a[2] if d[0] <= kept] == [d for d in b[2] if d[0] <= kept]
+    assert len(resumed.tracks) >= 3
+    assert not (partial / "state.npz").exists()

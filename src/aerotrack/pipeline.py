@@ -13,7 +13,9 @@ them as the CLI contract's files.
 from __future__ import annotations
 
 import logging
+import math
 import time
+import weakref
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -159,6 +161,9 @@ class Pipeline:
         self.regions = list(regions or [])
         self.min_speed_mps = min_speed_mps
         self.opencv_threads = opencv_threads
+        # frame index -> the image the stages were given, while some stage still holds it: on
+        # interruption the state then refers to these frames instead of holding their pixels
+        self._images: weakref.WeakValueDictionary[int, np.ndarray] = weakref.WeakValueDictionary()
 
     # -- stages -----------------------------------------------------------------------------------
     def _ensure_stages(self, frame: Frame) -> None:
@@ -205,6 +210,8 @@ class Pipeline:
         if self.undistort is not None:
             frame = self.undistort(frame)
         self._ensure_stages(frame)
+        if frame.image is not None:
+            self._images[frame.index] = frame.image
         if self.first_frame is None:
             self.first_frame = frame.index
         t0 = time.perf_counter()
@@ -309,7 +316,7 @@ class Pipeline:
         between two frames, after :meth:`checkpoint`), so :meth:`restore` continues exactly.
         Returns False (and saves nothing) when a stage holds a value the state codec cannot write
         (:mod:`aerotrack.io.state`); resume then restarts from the checkpoints alone."""
-        from .io.state import StateNotSaved, drop_state, save_state
+        from .io.state import Rereadable, StateNotSaved, drop_state, save_state
 
         if self.checkpoint_dir is None or self.registrar is None \
                 or isinstance(self.registrar, _Ended):
@@ -317,9 +324,11 @@ class Pipeline:
         stages = {"registrar": (self.registrar, self._built["registrar"])}
         if self.detector is not None:
             stages["detector"] = (self.detector, self._built["detector"])
+        frames = Rereadable(dict(self._images), self._derive())
         try:
             save_state(self.checkpoint_dir, self.last_frame, stages,
-                       extra={"frame_size": list(self.frame_size)}, shared=(self.geomap,))
+                       extra={"frame_size": list(self.frame_size)}, shared=(self.geomap,),
+                       frames=frames)
         except StateNotSaved as exc:
             drop_state(self.checkpoint_dir)
             log.warning("stage state not saved (%s): --resume restarts registration and "
@@ -327,20 +336,41 @@ class Pipeline:
             return False
         return True
 
-    def restore(self) -> int:
+    def _derive(self) -> dict:
+        """What the stages make from a frame and keep beside it (the detector's model-resolution
+        copy): state.npz refers to it instead of holding it (:mod:`aerotrack.io.state`)."""
+        return {} if self.detector is None else {"model": self.detector.model_image}
+
+    def _reread(self, source, indices: list[int]) -> dict[int, np.ndarray]:
+        """Frames ``indices`` of ``source`` as the stages were given them (undistorted)."""
+        if source is None or not indices:
+            return {}
+        want = set(indices)
+        lo, hi = min(want), max(want)
+        step = math.gcd(*[b - a for a, b in zip(sorted(want), sorted(want)[1:])]) or 1
+        out = {}
+        for frame in source.frames(start=lo, stop=hi, stride=step):
+            if frame.index in want:
+                out[frame.index] = (self.undistort(frame) if self.undistort else frame).image
+                self._images[frame.index] = out[frame.index]  # the stages get this very array
+        return out
+
+    def restore(self, source=None) -> int:
         """Load checkpoints from ``checkpoint_dir`` and replay association on them.
 
         Returns the frame from which frames must be fed again. With the stages' working state
         saved on interruption (:meth:`save_state`) that is the frame after the last one taken,
-        and the run continues exactly as if never stopped (``self.exact_resume``). Without it (a
-        killed process: periodic checkpoints only), registration and detection restart a
-        background half-window before the first frame whose detections were not final, from
-        that frame's registration: the frames after the restart can then be registered and
-        detected slightly differently (another keyframe chain, a background window without the
-        frames before the restart).
+        and the run continues exactly as if never stopped (``self.exact_resume``); the frames
+        the stages still held are read again from ``source`` (the run's frame source), which
+        must give the same pixels (checked; see :mod:`aerotrack.io.state`). Without that state
+        (a killed process: periodic checkpoints only), or when ``source`` is missing or gives
+        other pixels, registration and detection restart a background half-window before the
+        first frame whose detections were not final, from that frame's registration: the frames
+        after the restart can then be registered and detected slightly differently (another
+        keyframe chain, a background window without the frames before the restart).
         """
         from .io.checkpoint import load_chunks
-        from .io.state import apply_state, load_state
+        from .io.state import FramesChanged, apply_state, load_state, saved_frame
 
         regs, dets, n = load_chunks(self.checkpoint_dir)
         self._chunk_no = n
@@ -356,15 +386,23 @@ class Pipeline:
         self.n_frames = len({*regs, *(d.frame for d in dets)})
         if self.external is not None and not regs:
             return last_det + 1
-        state = load_state(self.checkpoint_dir)
-        if state is not None and regs and state[0] == max(regs):  # not stale: exact
-            frame, stages, extra = state
-            self._make_stages(tuple(extra["frame_size"]))
-            for name, (_, attrs) in stages.items():
-                apply_state(getattr(self, name), attrs)
-            self.exact_resume = True
-            self._restart = frame + 1
-            return frame + 1
+        head = saved_frame(self.checkpoint_dir)
+        if head is not None and regs and head[0] == max(regs):  # not stale: exact
+            self._make_stages(tuple(head[1]["frame_size"]))
+            try:
+                frame, stages, _ = load_state(self.checkpoint_dir,
+                                              lambda idx: self._reread(source, idx),
+                                              self._derive())
+            except FramesChanged as exc:
+                log.warning("--resume: stage state not used (%s); registration and detection "
+                            "restart shortly before frame %d", exc, head[0])
+                self.registrar = self.detector = None  # made again at the restart
+            else:
+                for name, (_, attrs) in stages.items():
+                    apply_state(getattr(self, name), attrs)
+                self.exact_resume = True
+                self._restart = frame + 1
+                return frame + 1
         half = int(np.ceil(self.config.detection.window_s * self.fps / 2)) + 1
         restart = max(self.first_frame, last_det + 1 - half)
         while restart > self.first_frame and restart not in regs:
@@ -565,7 +603,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                     checkpoint_every=checkpoint_every, undistort=undistort, regions=regions,
                     min_speed_mps=min_speed_mps, roads=roads)
     if resume and checkpoint_dir is not None:
-        restart = pipe.restore()
+        restart = pipe.restore(source)
         if restart > start:
             # keep the stride grid of the original run (exact: the next grid frame not taken)
             steps = restart - start

@@ -19,9 +19,19 @@ config, the map and its grey image) are not saved: the resumed run's constructor
 inputs (``--resume`` checks), makes them again. A value of any other type makes :func:`save_state`
 raise :class:`StateNotSaved`; the run then resumes from its checkpoints alone.
 
-Size: mostly the detector's frames not yet final (half a background window of full frames): 55 MB
-at 640x480 and 30 frames/s, about 6x that at 1920x1080. It is written once, on interruption
-(periodic checkpoints do not write it), and is stale (ignored) once a later checkpoint exists.
+Frames are not saved, they are read again. Most of the working state is the detector's frames
+not yet final (half a background window of full frames, ``detection.window_s * fps / 2``) and
+their model-resolution copies, all of which the input gives again: the pipeline passes the frames
+the stages still hold (:class:`Rereadable`), and an array equal to one of them, or to what a stage
+derives from one (``MovingObjectDetector.model_image``), byte for byte, is saved as a reference
+(frame, kind, CRC-32). ``--resume`` reads those frames again (a video is sought to the first,
+:meth:`~aerotrack.io.frames.VideoSource.frames`), makes the derived arrays again and checks every
+CRC: an input that now gives other pixels (a replaced file, a video whose seeking lands elsewhere)
+raises :class:`FramesChanged`, and the run resumes from its checkpoints alone, with a warning,
+rather than continue from a state it cannot reproduce. What remains in the file (compressed) is
+model-resolution samples of frames already final, the background and the registrar's keyframe.
+It is written once, on interruption (periodic checkpoints do not write it), and is stale (ignored)
+once a later checkpoint exists.
 """
 
 from __future__ import annotations
@@ -30,6 +40,8 @@ import importlib
 import json
 import zlib
 from collections import Counter, OrderedDict, deque
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +51,7 @@ from ..errors import InputError
 from .output import atomic_write
 
 STATE_FILE = "state.npz"
-_VERSION = 1
+_VERSION = 2  # 2: frame references; a version-1 file is read as before
 
 
 class StateNotSaved(TypeError):
@@ -81,11 +93,52 @@ def as_built(obj: object) -> dict[str, tuple[int, int | None]]:
     return out
 
 
+def _crc(a: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).reshape(-1))
+
+
+@dataclass(frozen=True)
+class Rereadable:
+    """Arrays a resumed run can make again from its input, so state.npz need not hold them.
+
+    Parameters
+    ----------
+    images : mapping of int -> ndarray
+        Frame index (1-based) -> the image the stages were given for it (after undistortion).
+    derive : mapping of str -> callable
+        Name -> a function of one image making an array the stages keep beside it (the
+        detector's model-resolution copy: ``MovingObjectDetector.model_image``). It must be
+        deterministic: the resumed run calls it again on the re-read image.
+    """
+
+    images: Mapping[int, np.ndarray]
+    derive: Mapping[str, Callable[[np.ndarray], np.ndarray]] = field(default_factory=dict)
+
+    def kinds(self) -> dict[str, Callable[[np.ndarray], np.ndarray]]:
+        return {"image": lambda img: img, **self.derive}
+
+    def lookup(self) -> dict[tuple, tuple[int, str]]:
+        """(shape, dtype, CRC-32) -> (frame, kind) of every image and derived array."""
+        out = {}
+        for index, img in self.images.items():
+            for kind, fn in self.kinds().items():
+                a = fn(img)
+                out.setdefault((a.shape, a.dtype.str, _crc(a)), (int(index), kind))
+        return out
+
+
+class FramesChanged(ValueError):
+    """The frames re-read on resume are not the ones the state was saved with."""
+
+
 class _Encoder:
-    def __init__(self) -> None:
+    def __init__(self, frames: Rereadable | None = None) -> None:
         self.arrays: dict[str, np.ndarray] = {}
         self.memo: dict[int, int] = {}  # id -> node number: shared objects stay shared
         self.keep: list[Any] = []  # holds encoded objects alive, so their ids are not reused
+        self.lookup = frames.lookup() if frames is not None and frames.images else {}
+        self.shapes = {(k[0], k[1]) for k in self.lookup}
+        self.referenced = 0  # bytes left out as frame references
 
     def _array(self, a: np.ndarray) -> str:
         name = f"a{len(self.arrays)}"
@@ -112,6 +165,12 @@ class _Encoder:
         if isinstance(v, np.ndarray):
             if v.dtype == object:
                 raise StateNotSaved(f"{where}: an object array is not saved")
+            if (v.shape, v.dtype.str) in self.shapes:
+                crc = _crc(v)
+                ref = self.lookup.get((v.shape, v.dtype.str, crc))
+                if ref is not None:
+                    self.referenced += v.nbytes
+                    return {"t": "frame", "f": ref[0], "k": ref[1], "crc": crc}
             return {"t": "nd", "a": self._array(v)}
         if isinstance(v, np.random.Generator):
             return {"t": "rng", "bit": type(v.bit_generator).__name__,
@@ -136,9 +195,13 @@ class _Encoder:
 
 
 class _Decoder:
-    def __init__(self, arrays) -> None:
+    def __init__(self, arrays, frames: Mapping[int, np.ndarray] | None = None,
+                 derive: Mapping[str, Callable[[np.ndarray], np.ndarray]] | None = None) -> None:
         self.arrays = arrays
         self.memo: dict[int, Any] = {}
+        self.frames = frames or {}
+        self.kinds = Rereadable({}, derive or {}).kinds()
+        self.given: set[tuple[int, str]] = set()
 
     def decode(self, node: dict) -> Any:
         t = node["t"]
@@ -151,6 +214,20 @@ class _Decoder:
         n = node["n"]
         if t == "nd":
             self.memo[n] = out = np.array(self.arrays[node["a"]])
+            return out
+        if t == "frame":
+            img, fn = self.frames.get(node["f"]), self.kinds.get(node["k"])
+            if img is None or fn is None:
+                raise FramesChanged(f"frame {node['f']} ({node['k']}) was not re-read")
+            out = fn(img)
+            key = (node["f"], node["k"])
+            if key in self.given or out is img and node["k"] != "image":
+                out = out.copy()  # stages may change arrays in place: no two share one
+            self.given.add(key)
+            if _crc(out) != node["crc"]:
+                raise FramesChanged(f"frame {node['f']} re-read from the input differs from "
+                                    "the one the state was saved with")
+            self.memo[n] = out
             return out
         if t == "rng":
             bit = getattr(np.random, node["bit"], None)
@@ -199,7 +276,8 @@ def _aerotrack_class(module: str, qualname: str) -> type:
 
 
 def save_state(folder: str | Path, frame: int, stages: dict[str, tuple[object, dict]],
-               extra: dict | None = None, shared: tuple = ()) -> Path:
+               extra: dict | None = None, shared: tuple = (),
+               frames: Rereadable | None = None) -> Path:
     """Write the working state of ``stages`` after ``frame`` to ``folder/state.npz``.
 
     Parameters
@@ -215,13 +293,17 @@ def save_state(folder: str | Path, frame: int, stages: dict[str, tuple[object, d
     shared : tuple
         Objects the caller gave the stages (the map): an attribute that is one of them is not
         saved, the resumed run's constructor gets it again.
+    frames : Rereadable, optional
+        The frames the stages still hold and what they derive from them: an array equal to one
+        of them byte for byte is saved as a reference (frame, kind, CRC-32), and
+        :func:`load_state` needs that frame again.
 
     Raises
     ------
     StateNotSaved
         A stage holds a value of a type this codec does not write (nothing is written then).
     """
-    enc = _Encoder()
+    enc = _Encoder(frames)
     tree = {}
     for name, (obj, built) in stages.items():
         attrs = {}
@@ -231,21 +313,49 @@ def save_state(folder: str | Path, frame: int, stages: dict[str, tuple[object, d
                 continue
             attrs[k] = enc.encode(v, f"{name}.{k}")
         tree[name] = {"m": type(obj).__module__, "c": type(obj).__qualname__, "d": attrs}
-    meta = {"version": _VERSION, "frame": int(frame), "stages": tree, "extra": extra or {}}
+    meta = {"version": _VERSION, "frame": int(frame), "stages": tree, "extra": extra or {},
+            "frames": sorted({int(x) for x in _frame_refs(tree)})}
     path = Path(folder) / STATE_FILE
     with atomic_write(path, "wb") as fh:
-        np.savez(fh, __meta__=np.array(json.dumps(meta)), **enc.arrays)
+        np.savez_compressed(fh, __meta__=np.array(json.dumps(meta)), **enc.arrays)
     return path
 
 
-def load_state(folder: str | Path) -> tuple[int, dict[str, tuple[str, dict[str, Any]]], dict] | None:
+def _frame_refs(node: Any) -> Iterator[int]:
+    """Frame numbers of the frame references in an encoded tree."""
+    if isinstance(node, dict):
+        if node.get("t") == "frame":
+            yield node["f"]
+            return
+        for v in node.values():
+            yield from _frame_refs(v)
+    elif isinstance(node, list):
+        for v in node:
+            yield from _frame_refs(v)
+
+
+def load_state(folder: str | Path,
+               read_frames: Callable[[list[int]], Mapping[int, np.ndarray]] | None = None,
+               derive: Mapping[str, Callable[[np.ndarray], np.ndarray]] | None = None,
+               ) -> tuple[int, dict[str, tuple[str, dict[str, Any]]], dict] | None:
     """Read ``folder/state.npz``: (frame, {stage: (class name, attributes)}, extra), or None
     when there is none.
+
+    Parameters
+    ----------
+    read_frames : callable, optional
+        Frame numbers -> {frame: image}, the images as the stages were given them (same
+        source, same undistortion): called once with the frames the state refers to.
+    derive : mapping, optional
+        The :attr:`Rereadable.derive` functions the state was saved with.
 
     Raises
     ------
     InputError
         The file is there but unreadable (the message names it).
+    FramesChanged
+        The state refers to frames and ``read_frames`` is missing, or gives other pixels than
+        were saved (checked by CRC-32): exact resume is then impossible.
     """
     path = Path(folder) / STATE_FILE
     if not path.is_file():
@@ -253,15 +363,41 @@ def load_state(folder: str | Path) -> tuple[int, dict[str, tuple[str, dict[str, 
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["__meta__"][()]))
-            if meta.get("version") != _VERSION:
+            if meta.get("version") not in (1, _VERSION):
                 return None
             arrays = {k: z[k] for k in z.files if k != "__meta__"}
-        dec = _Decoder(arrays)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
+    wanted = [int(f) for f in meta.get("frames", [])]
+    if wanted and read_frames is None:
+        raise FramesChanged(f"the state refers to frames {wanted[0]}-{wanted[-1]} and no "
+                            "input was given to re-read them")
+    images = read_frames(wanted) if wanted else {}
+    try:
+        dec = _Decoder(arrays, images, derive)
         stages = {name: (f"{s['m']}.{s['c']}", {k: dec.decode(x) for k, x in s["d"].items()})
                   for name, s in meta["stages"].items()}
+    except FramesChanged:
+        raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError, ImportError) as exc:
         raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
     return int(meta["frame"]), stages, meta.get("extra", {})
+
+
+def saved_frame(folder: str | Path) -> tuple[int, dict] | None:
+    """(frame, extra) of ``folder/state.npz`` without decoding the stages (None when there is
+    no readable state): whether the state is stale, and what to construct before loading it."""
+    path = Path(folder) / STATE_FILE
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"][()]))
+    except (OSError, ValueError, KeyError) as exc:
+        if path.is_file():
+            raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
+        return None
+    if meta.get("version") not in (1, _VERSION):
+        return None
+    return int(meta["frame"]), meta.get("extra", {})
 
 
 def apply_state(obj: object, attrs: dict[str, Any]) -> None:
