@@ -4,6 +4,33 @@ Every chunk is one ``.npz`` file (written atomically, loaded with ``allow_pickle
 ever unpickled from disk) holding the registrations and the final detections produced since the
 previous chunk. On resume the chunks are read back in order; the pipeline replays association on
 the stored detections and restarts registration and detection just before where they stopped.
+
+When chunks are written: every ``N`` frames taken (``Pipeline(checkpoint_every=N)``, 300 for
+``aerotrack track``: 10 s of a 30 frames/s video), and once more on Ctrl-C or SIGTERM, which also
+save the stages' working state (:mod:`aerotrack.io.state`) so that ``--resume`` is exact.
+
+What a hard kill leaves (SIGKILL, the out-of-memory killer, a power cut: nothing runs on the way
+out). Say the run was killed after frame ``k`` and its last chunk was written after frame ``m``
+(the last multiple of ``N`` frames taken, so ``k - m < N``); ``w = round(window_s * fps / 2)``
+is the detector's half window (``detection.window_s``; 45 frames at 3 s and 30 frames/s):
+
+* ``.partial/`` holds the chunks up to ``m``, the run's manifest and perhaps tracklets spilled
+  since (dropped on resume). No final file exists: they are written, each atomically, only
+  once every frame is done. A ``state.npz`` left by an earlier Ctrl-C is stale (the periodic
+  checkpoint after it deleted it, or its frame is not the last chunk's) and is ignored;
+* registrations of frames up to ``m`` and detections of frames up to ``d``, the last frame
+  final at ``m`` (``m - w`` with the centred window, less in the first ``2w`` frames of the
+  video or after a lost registration), are kept exactly; association is replayed on the kept
+  detections as the first run did it (its random choices are seeded by frame number);
+* registration and detection restart at ``r = d + 1 - (ceil(window_s * fps / 2) + 1)``
+  (about ``m - 2w``; the registered frame at or before it), from frame ``r``'s saved
+  registration, with a new keyframe chain and a background window that starts at ``r``: frames
+  after ``d`` can be registered and detected slightly differently from an uninterrupted run
+  (sub-pixel drift of the chain, a borderline blob kept or lost), and a track crossing frame
+  ``d`` can be cut or linked differently. Frames ``r`` to ``k`` are processed twice: at most
+  ``N + 2w + 1`` frames of work are lost (390 frames, 13 s of video, at the defaults);
+* the resumed run covers every frame once, and its outputs have the same form as any run's.
+  ``tests/test_resume.py`` kills a run with SIGKILL and checks these points.
 """
 
 from __future__ import annotations
