@@ -513,3 +513,22 @@ def test_a_hard_kill_resumes_from_the_last_periodic_checkpoint(tmp_path, video_f
     assert [d for d in a[2] if d[0] <= kept] == [d for d in b[2] if d[0] <= kept]
     assert len(resumed.tracks) >= 3
     assert not (partial / "state.npz").exists()
+
+
+@pytest.mark.parametrize("damaged", ["state.npz", "chunk_000000.npz"])
+def test_a_damaged_checkpoint_is_a_one_line_error(tmp_path, video_frames, capsys, damaged):
+    """A truncated state or chunk (a disk fault: aerotrack writes them atomically) stops
+    ``--resume`` with exit 2 and one line naming the file, not a traceback."""
+    from conftest import run_cli
+
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(47))
+    path = out.partial / damaged
+    path.write_bytes(path.read_bytes()[:300])
+    code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "o", "--fps", "10",
+                           "--gsd", "0.3", "--seed", "3", "--resume")
+    assert code == 2, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and damaged in lines[0] and "unreadable" in lines[0], err

@@ -43,6 +43,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Detections, Registration, Track, TrackPoint
 from .output import atomic_write
+from .state import UNREADABLE
 
 CHUNK_RE = re.compile(r"^chunk_(\d{6})\.npz$")
 _OPTIONAL = ("mapxy", "lonlat", "hist", "size_world")
@@ -91,30 +92,35 @@ def load_chunks(folder: Path) -> tuple[dict[int, Registration], list[Detections]
     files = sorted(p for p in Path(folder).glob("chunk_*.npz") if CHUNK_RE.match(p.name))
     for p in files:
         try:
-            z = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"--resume: checkpoint {p} is unreadable ({exc})") from None
-        with z:
-            for i in range(len(z["reg_index"])):
-                idx = int(z["reg_index"][i])
-                regs[idx] = Registration(
-                    index=idx, H=z["reg_H"][i], status=str(z["reg_status"][i]),
-                    inliers=int(z["reg_inliers"][i]), inlier_ratio=float(z["reg_ratio"][i]),
-                    error=float(z["reg_error"][i]), reason=str(z["reg_reason"][i]))
-            start = 0
-            for frame, n in zip(z["det_frames"], z["det_counts"]):
-                sl = slice(start, start + int(n))
-                start += int(n)
-                if n == 0:
-                    dets.append(Detections.empty(int(frame)))
-                    continue
-                opt = {name: (z[f"det_{name}"][sl] if f"det_{name}" in z else None)
-                       for name in _OPTIONAL}
-                extra = {k[6:]: z[k][sl] for k in z.files if k.startswith("extra_")}
-                dets.append(Detections(frame=int(frame), boxes=z["det_boxes"][sl],
-                                       conf=z["det_conf"][sl], world=z["det_world"][sl],
-                                       extra=extra, **opt))
+            with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # closed if damaged
+                _read_chunk(z, regs, dets)
+        except UNREADABLE as exc:
+            raise InputError(f"--resume: checkpoint {p} is unreadable "
+                             f"({exc or type(exc).__name__})") from None
     return regs, dets, len(files)
+
+
+def _read_chunk(z, regs: dict[int, Registration], dets: list[Detections]) -> None:
+    """Add one open chunk's registrations and detections to ``regs`` and ``dets``."""
+    for i in range(len(z["reg_index"])):
+        idx = int(z["reg_index"][i])
+        regs[idx] = Registration(
+            index=idx, H=z["reg_H"][i], status=str(z["reg_status"][i]),
+            inliers=int(z["reg_inliers"][i]), inlier_ratio=float(z["reg_ratio"][i]),
+            error=float(z["reg_error"][i]), reason=str(z["reg_reason"][i]))
+    start = 0
+    for frame, n in zip(z["det_frames"], z["det_counts"]):
+        sl = slice(start, start + int(n))
+        start += int(n)
+        if n == 0:
+            dets.append(Detections.empty(int(frame)))
+            continue
+        opt = {name: (z[f"det_{name}"][sl] if f"det_{name}" in z else None)
+               for name in _OPTIONAL}
+        extra = {k[6:]: z[k][sl] for k in z.files if k.startswith("extra_")}
+        dets.append(Detections(frame=int(frame), boxes=z["det_boxes"][sl],
+                               conf=z["det_conf"][sl], world=z["det_world"][sl],
+                               extra=extra, **opt))
 
 
 # -- finished tracklets, spilled until global linking ---------------------------------------------
@@ -269,7 +275,7 @@ class TrackletSpill:
         """Every tracklet, in the order added."""
         out: list[Track] = []
         for p in self._files:
-            with np.load(p, allow_pickle=False) as z:
+            with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # closed if damaged
                 out.extend(unpack_tracks(z))
         out.extend(self._buffer)
         return out

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import zipfile
 import zlib
 from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Iterator, Mapping
@@ -52,6 +53,16 @@ from .output import atomic_write
 
 STATE_FILE = "state.npz"
 _VERSION = 2  # 2: frame references; a version-1 file is read as before
+
+
+#: What reading a damaged ``.npz`` raises (a truncated or altered zip, a missing member).
+UNREADABLE = (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError,
+              zipfile.BadZipFile)
+
+
+def _unreadable(path: Path, exc: BaseException) -> InputError:
+    return InputError(f"--resume: stage state {path} is unreadable ({exc or type(exc).__name__}); "
+                      "delete it to resume from the checkpoints alone")
 
 
 class StateNotSaved(TypeError):
@@ -361,13 +372,13 @@ def load_state(folder: str | Path,
     if not path.is_file():
         return None
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # closed if damaged
             meta = json.loads(str(z["__meta__"][()]))
             if meta.get("version") not in (1, _VERSION):
                 return None
             arrays = {k: z[k] for k in z.files if k != "__meta__"}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
+    except UNREADABLE as exc:
+        raise _unreadable(path, exc) from None
     wanted = [int(f) for f in meta.get("frames", [])]
     if wanted and read_frames is None:
         raise FramesChanged(f"the state refers to frames {wanted[0]}-{wanted[-1]} and no "
@@ -379,8 +390,8 @@ def load_state(folder: str | Path,
                   for name, s in meta["stages"].items()}
     except FramesChanged:
         raise
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, ImportError) as exc:
-        raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
+    except (*UNREADABLE, ImportError) as exc:
+        raise _unreadable(path, exc) from None
     return int(meta["frame"]), stages, meta.get("extra", {})
 
 
@@ -389,11 +400,11 @@ def saved_frame(folder: str | Path) -> tuple[int, dict] | None:
     no readable state): whether the state is stale, and what to construct before loading it."""
     path = Path(folder) / STATE_FILE
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # closed if damaged
             meta = json.loads(str(z["__meta__"][()]))
-    except (OSError, ValueError, KeyError) as exc:
+    except UNREADABLE as exc:
         if path.is_file():
-            raise InputError(f"--resume: stage state {path} is unreadable ({exc})") from None
+            raise _unreadable(path, exc) from None
         return None
     if meta.get("version") not in (1, _VERSION):
         return None
