@@ -43,7 +43,7 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrit
     \b
     Writes to --out: frames/000001.jpg..., gt.txt (visible targets), states.csv (every target,
     visible/occluded/outside), homographies.csv (true frame -> map pixels), map.tif,
-    map_init.txt, map_init_gcps.csv, map_init_lonlat.csv, occluders.csv, roads.geojson,
+    map_init.txt, map_init_gcps.csv, map_init_lonlat.csv, occluders.csv/.geojson, roads.geojson,
     scenario.json.
 
     \b
