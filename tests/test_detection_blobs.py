@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from aerotrack.detection.blobs import hysteresis_blobs
+from aerotrack.detection.blobs import edge_extent, hysteresis_blobs
 from aerotrack.detection.shadows import remove_shadows, shadow_mask
 
 ROAD = (70, 72, 74)  # grey asphalt, BGR
@@ -110,3 +111,32 @@ def test_drop_small_removes_fragments_and_debris_but_not_vehicles():
     assert drop_small(blobs, area_ratio=0.4, near=1.0) == cars + [alone]
     # a frame with too few blobs has no trusted median: nothing is dropped
     assert drop_small(cars[:2] + [beside], area_ratio=0.4) == cars[:2] + [beside]
+
+
+def _soft_rect(contrast: float, x0: float, y0: float, x1: float, y1: float,
+               blur: float = 0.8) -> np.ndarray:
+    """Residual of a flat vehicle of ``contrast`` grey levels covering the continuous box
+    ``[x0, x1) x [y0, y1)`` (pixel area coverage from 8x supersampling), blurred."""
+    s = 8
+    yy, xx = (np.mgrid[0:40 * s, 0:40 * s] + 0.5) / s
+    fine = ((xx >= x0) & (xx < x1) & (yy >= y0) & (yy < y1)).astype(np.float32)
+    cover = cv2.resize(fine, (40, 40), interpolation=cv2.INTER_AREA)
+    return cv2.GaussianBlur(cover * contrast, (0, 0), blur)
+
+
+def test_edge_extent_puts_the_box_at_the_half_contrast_edge_whatever_the_contrast():
+    truth = (10.0, 12.0, 30.0, 22.0)
+    thr = 10.0
+    fixed, edged = [], []
+    for contrast in (25.0, 60.0, 200.0):
+        res = _soft_rect(contrast, *truth)
+        mask = res > thr
+        ys, xs = np.nonzero(mask)
+        fixed.append((xs.min(), ys.min(), xs.max() + 1, ys.max() + 1))
+        edged.append(edge_extent(res, mask, level=0.5, floor=0.5 * thr))
+    # a fixed threshold reaches further out the brighter the vehicle ...
+    assert fixed[2][2] - fixed[2][0] >= fixed[0][2] - fixed[0][0] + 2
+    # ... the half-contrast edge does not, and it is the vehicle's own extent
+    assert len(set(edged)) == 1
+    assert edged[0] == (10, 12, 30, 22)
+    assert edge_extent(np.zeros((5, 5)), np.zeros((5, 5), bool), level=0.5) is None

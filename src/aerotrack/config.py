@@ -247,6 +247,15 @@ class DetectionConfig:
     drop_small_near : float
         With > 0, such a small blob is dropped only within this many typical blob lengths of a
         bigger blob (leftover fragments only); 0 drops small blobs anywhere.
+    box_edge_level : float
+        Box edges are placed where a blob's full-resolution residual falls to this fraction of
+        its median (``blobs.edge_extent``) instead of at the noise threshold, which reaches
+        further out the higher the vehicle's contrast (anti-aliased rims, blur). 0 disables;
+        higher gives tighter boxes. Measured (0 -> 0.5), detection P/R at IoU 0.5: generated
+        scenes 0.882/0.816 -> 0.892/0.825 (mean IoU of matched boxes 0.706 -> 0.768);
+        Santiago 0.756/0.863 -> 0.754/0.860 (0.741 -> 0.733: its ground-truth boxes, made by a
+        commercial tool at one size per track, are about 2 px wider than the vehicles); truck4
+        unchanged.
     min_conf : float
         Detections with a lower confidence are dropped.
     persist : bool
@@ -357,6 +366,7 @@ class DetectionConfig:
     ghost_ratio: float = 0.6
     drop_small_ratio: float = 0.4
     drop_small_near: float = 0.0
+    box_edge_level: float = 0.5
     min_conf: float = 0.05
     persist: bool = False
     persist_tau_s: float = 0.5

@@ -330,3 +330,47 @@ def merge_blobs(a: Blob, b: Blob) -> Blob:
         bx, by, bw, bh = bl.box
         m[by - y0:by - y0 + bh, bx - x0:bx - x0 + bw] |= bl.mask
     return Blob((x0, y0, x1 - x0, y1 - y0), m)
+
+
+def edge_extent(residual: np.ndarray, mask: np.ndarray, *, level: float,
+                floor: float = 0.0) -> tuple[int, int, int, int] | None:
+    """Extent of a blob at the half-contrast edge: the box around the pixels of ``mask`` whose
+    residual reaches ``level`` x the blob's median residual (and ``floor``).
+
+    A blob thresholded at a fixed residual level reaches out to pixels that the vehicle covers
+    only in part, and how far depends on the vehicle's contrast: a white car on dark asphalt
+    passes the noise threshold where it covers a tenth of a pixel, and blur from the optics,
+    the compression and the warps widens it further, while a dark car is cut inside its edge.
+    A symmetric blur leaves a straight edge where the signal is half of its plateau, so placing
+    the box edges at half of the vehicle's own contrast (``level`` 0.5) removes the contrast
+    dependence. The median over the blob stands for the plateau: it is robust to a dark
+    windscreen or a roof that matches the road (those pixels lower it little and do not set the
+    box, which only the outermost passing pixels do).
+
+    Parameters
+    ----------
+    residual : ndarray, shape (h, w)
+        Residual of the blob's crop (any pixel frame; the caller's full resolution).
+    mask : ndarray, shape (h, w) bool
+        The blob's pixels in the crop.
+    level : float
+        Fraction of the blob's median residual at which the edge is placed. Higher gives
+        tighter boxes (0.5: where the vehicle covers half a pixel); lower keeps more of the
+        blurred rim, as annotators who box everything visible do.
+    floor : float
+        Smallest residual kept whatever the contrast (the caller's noise threshold, so a
+        low-contrast blob is never grown by this).
+
+    Returns
+    -------
+    (x0, y0, x1, y1) or None
+        Inclusive-exclusive pixel extent in the crop; None when no pixel passes.
+    """
+    vals = residual[mask]
+    if not len(vals):
+        return None
+    edge = mask & (residual >= max(floor, level * float(np.median(vals))))
+    ys, xs = np.nonzero(edge)
+    if not len(xs):
+        return None
+    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1

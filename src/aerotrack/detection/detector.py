@@ -35,6 +35,7 @@ from .blobs import (
     Blob,
     close,
     drop_small,
+    edge_extent,
     hysteresis_blobs,
     join_fragments,
     join_vehicle_parts,
@@ -405,6 +406,11 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         conf = float(np.clip(c_contrast * (0.5 + 0.5 * c_shape), 0.0, 1.0))
         if conf < config.min_conf:
             continue
+        if config.box_edge_level > 0:
+            # the box at the vehicle's half-contrast edge, not at the noise threshold
+            ext = edge_extent(res_full, fgm, level=config.box_edge_level, floor=0.5 * thr)
+            if ext is not None:
+                x0, y0, x1, y1 = ext
         boxes.append([fx0 + x0, fy0 + y0, x1 - x0, y1 - y0])
         confs.append(conf)
         contrasts.append(contrast)
@@ -973,6 +979,7 @@ def _validate(c: DetectionConfig) -> None:
         ("min_conf", 0 <= c.min_conf <= 1),
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
+        ("box_edge_level", 0 <= c.box_edge_level < 1),
     ]
     for name, ok in checks:
         if not ok:
