@@ -15,7 +15,9 @@ runs on ``aerotrack synth`` output.
 1. **Speed per stage** at 640x480, 1280x720, 1920x1080 and 4000x3000 (30 frames/s): the frames are
    rendered into memory first (rendering is not timed), then one ``Pipeline.step``/``finish``
    run; per-stage frames/s are frames / seconds in that stage (``Pipeline.timings``: registration,
-   detection, association, linking), full pipeline = frames / wall time of the whole run. The floor
+   detection, association, linking), full pipeline = frames / wall time of the whole run; the
+   same per CPU second (``Pipeline.cpu_timings``, the process's CPU time) is the number to read
+   when others load the machine. The floor
    is a naive OpenCV pipeline on the same frames (MOG2 background subtraction, 3x3 opening and 5x5
    closing, connected components with an area gate): ratio = our full pipeline frames/s / its
    frames/s (goal >= 0.5). Pipeline and floor run alternately twice (once at 4000x3000) and the
@@ -202,6 +204,13 @@ def child_speed(size: str, n: int, seed: int = 0, repeats: int | None = None) ->
            "peak_rss_mb": _peak_mb()}
     out["fps"]["pipeline"] = n / wall
     out["fps"]["naive_opencv"] = n / naive_s
+    # frames per CPU second: what a core gives each stage, whatever else runs on the machine
+    cst = getattr(res, "cpu_timings", {}) or {}
+    out["stage_cpu_s"] = cst
+    out["fps_cpu"] = {k: (n / cst[k] if cst.get(k) else None)
+                      for k in ("registration", "detection", "association", "linking")}
+    out["fps_cpu"]["pipeline"] = n / cpu
+    out["fps_cpu"]["naive_opencv"] = n / naive_cpu if naive_cpu > 0 else None
     out["pipeline_vs_naive"] = out["fps"]["pipeline"] / out["fps"]["naive_opencv"]
     out["pipeline_vs_naive_cpu"] = naive_cpu / cpu
     return out
@@ -370,6 +379,19 @@ def print_table(results: dict) -> None:
                   f"{_f(f['association'], '7.0f')} {_f(f['linking'], '7.0f')} {_f(f['pipeline'])} "
                   f"{_f(f['naive_opencv'])} {r['pipeline_vs_naive']:10.2f} "
                   f"{_f(r.get('pipeline_vs_naive_cpu'), '9.2f')} {r['load_avg_1min_at_start']:5.1f}")
+        if any("fps_cpu" in r for r in sp.values()):
+            print("\nSpeed, frames per CPU second (CPU seconds of the process in each stage: "
+                  "the single-core rate, whatever the load)")
+            print(f"{'size':10} {'reg':>6} {'det':>6} {'assoc':>7} {'link':>7} {'PIPE':>6} "
+                  f"{'naive':>6} {'pipe/naive':>10}")
+            for size, r in sorted(sp.items(), key=area):
+                if "fps_cpu" not in r:
+                    continue
+                f = r["fps_cpu"]
+                print(f"{size:10} {_f(f['registration'])} {_f(f['detection'])} "
+                      f"{_f(f['association'], '7.0f')} {_f(f['linking'], '7.0f')} "
+                      f"{_f(f['pipeline'])} {_f(f['naive_opencv'])} "
+                      f"{_f(r.get('pipeline_vs_naive_cpu'), '10.2f')}")
     a = results.get("association")
     if a and "error" not in a:
         print("\nAssociation alone, frames/s (ratio to ByteTrack in brackets)")

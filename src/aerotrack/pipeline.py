@@ -66,7 +66,10 @@ class Result:
     metres_per_unit : float or None
         Metres per world unit (map pixel), when known.
     timings : dict
-        Seconds spent in each stage.
+        Seconds spent in each stage (wall clock).
+    cpu_timings : dict
+        CPU seconds of this process (all its threads) in each stage: the stage's cost when other
+        work shares the machine, where wall seconds say more about the load than the stage.
     frames : int
         Number of frames processed.
     """
@@ -78,6 +81,7 @@ class Result:
     frame_size: tuple[int, int] | None
     metres_per_unit: float | None
     timings: dict[str, float] = field(default_factory=dict)
+    cpu_timings: dict[str, float] = field(default_factory=dict)
     frames: int = 0
     first_frame: int = 1
     last_frame: int = 0
@@ -142,6 +146,7 @@ class Pipeline:
             TrackletSpill(None if checkpoint_dir is None else Path(checkpoint_dir) / "tracklets")
             if spill else [])
         self.timings = {"registration": 0.0, "detection": 0.0, "association": 0.0, "linking": 0.0}
+        self.cpu_timings = dict(self.timings)
         self.frame_size: tuple[int, int] | None = None
         self.n_frames = 0
         self.first_frame: int | None = None
@@ -164,6 +169,16 @@ class Pipeline:
         # frame index -> the image the stages were given, while some stage still holds it: on
         # interruption the state then refers to these frames instead of holding their pixels
         self._images: weakref.WeakValueDictionary[int, np.ndarray] = weakref.WeakValueDictionary()
+
+    @contextmanager
+    def _timed(self, stage: str) -> Iterator[None]:
+        """Add the block's wall and CPU seconds to ``stage``'s timings."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            self.timings[stage] += time.perf_counter() - t0
+            self.cpu_timings[stage] += time.process_time() - c0
 
     # -- stages -----------------------------------------------------------------------------------
     def _ensure_stages(self, frame: Frame) -> None:
@@ -214,22 +229,19 @@ class Pipeline:
             self._images[frame.index] = frame.image
         if self.first_frame is None:
             self.first_frame = frame.index
-        t0 = time.perf_counter()
-        reg = self.registrar.step(frame, exclude_boxes=self._exclude_boxes())
-        t1 = time.perf_counter()
-        self.timings["registration"] += t1 - t0
+        with self._timed("registration"):
+            reg = self.registrar.step(frame, exclude_boxes=self._exclude_boxes())
         if reg is not None and frame.index not in self.registrations:
             self.registrations[frame.index] = reg
             if self.checkpoint_dir is not None:  # else nothing ever empties it (a leak per frame)
                 self._pending_regs.append(reg)
-        if self.external is not None:
-            final = [self._external_detections(frame, reg)]
-        elif reg is None:
-            final = []
-        else:
-            final = self.detector.step(frame, reg)
-        t2 = time.perf_counter()
-        self.timings["detection"] += t2 - t1
+        with self._timed("detection"):
+            if self.external is not None:
+                final = [self._external_detections(frame, reg)]
+            elif reg is None:
+                final = []
+            else:
+                final = self.detector.step(frame, reg)
         if frame.index > self.last_frame:
             self.n_frames += 1
             self.last_frame = frame.index
@@ -268,23 +280,22 @@ class Pipeline:
                           lonlat=lonlat, hist=hist, size_world=size_world, extra=extra)
 
     def _associate(self, final: Iterable[Detections]) -> None:
-        t0 = time.perf_counter()
-        for dets in final:
-            if dets.frame <= self._skip_until:
-                continue  # already restored from a checkpoint
-            for region in self.regions:
+        with self._timed("association"):
+            for dets in final:
+                if dets.frame <= self._skip_until:
+                    continue  # already restored from a checkpoint
+                for region in self.regions:
+                    if len(dets):
+                        dets = dets.subset(region.keep_detections(dets.centers, dets.world))
+                self.detections.append(_light(dets))
+                if self.checkpoint_dir is not None:  # full detections, appearance included: only
+                    self._pending_dets.append(dets)  # kept until the next checkpoint empties them
                 if len(dets):
-                    dets = dets.subset(region.keep_detections(dets.centers, dets.world))
-            self.detections.append(_light(dets))
-            if self.checkpoint_dir is not None:  # full detections, appearance included: only
-                self._pending_dets.append(dets)  # kept until the next checkpoint empties them
-            if len(dets):
-                size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
-                self._last_boxes_world = np.hstack([dets.world, size])
-            else:
-                self._last_boxes_world = None
-            self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
-        self.timings["association"] += time.perf_counter() - t0
+                    size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
+                    self._last_boxes_world = np.hstack([dets.world, size])
+                else:
+                    self._last_boxes_world = None
+                self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
 
     def step_detections_only(self, index: int) -> None:
         """Association alone: feed frame ``index`` of the external detections (no image)."""
@@ -425,15 +436,12 @@ class Pipeline:
         from .io.checkpoint import TrackletSpill
 
         if self.detector is not None:
-            t0 = time.perf_counter()
-            with opencv_threads(self.opencv_threads):
+            with self._timed("detection"), opencv_threads(self.opencv_threads):
                 rest = self.detector.flush()
-            self.timings["detection"] += time.perf_counter() - t0
             self._associate(rest)
         if self.associator is not None:
-            t0 = time.perf_counter()
-            self.tracklets.extend(_thin_appearance(t) for t in self.associator.flush())
-            self.timings["association"] += time.perf_counter() - t0
+            with self._timed("association"):
+                self.tracklets.extend(_thin_appearance(t) for t in self.associator.flush())
         self.detector = self.associator = None
         self.registrar = _Ended()
         if isinstance(self.tracklets, TrackletSpill):
@@ -445,21 +453,21 @@ class Pipeline:
         """Flush every stage and link tracklets into final tracks."""
         self.finish_local()
         self.checkpoint()  # the last chunk: checkpoints then hold every stage result
-        t0 = time.perf_counter()
-        tracks = self._link(self.tracklets)
-        if self.min_speed_mps:
-            from .geo.roi import filter_min_speed
+        with self._timed("linking"):
+            tracks = self._link(self.tracklets)
+            if self.min_speed_mps:
+                from .geo.roi import filter_min_speed
 
-            mpu = self.metres_per_unit
-            if not mpu and tracks:  # no map or --gsd: the scale linking estimated, not pixels/s
-                from .association.linking import estimate_scale
+                mpu = self.metres_per_unit
+                if not mpu and tracks:  # no map or --gsd: the scale linking estimated, not pixels/s
+                    from .association.linking import estimate_scale
 
-                mpu = estimate_scale(tracks, self.config.context.image_object_size_m)
-            tracks = _renumber(filter_min_speed(tracks, self.min_speed_mps, self.fps, mpu))
-        self.timings["linking"] += time.perf_counter() - t0
+                    mpu = estimate_scale(tracks, self.config.context.image_object_size_m)
+                tracks = _renumber(filter_min_speed(tracks, self.min_speed_mps, self.fps, mpu))
         return Result(tracks=tracks, registrations=self.registrations, detections=self.detections,
                       fps=self.fps, frame_size=self.frame_size,
                       metres_per_unit=self.metres_per_unit, timings=dict(self.timings),
+                      cpu_timings=dict(self.cpu_timings),
                       frames=self.n_frames, first_frame=self.first_frame or 1,
                       last_frame=self.last_frame)
 
