@@ -140,3 +140,40 @@ def test_edge_extent_puts_the_box_at_the_half_contrast_edge_whatever_the_contras
     assert len(set(edged)) == 1
     assert edged[0] == (10, 12, 30, 22)
     assert edge_extent(np.zeros((5, 5)), np.zeros((5, 5), bool), level=0.5) is None
+
+
+def _dark_vehicle(contrast: float, noise: float = 4.0):
+    """A 160x120 frame of grey road with sensor noise and a dark 30x12 vehicle at (60, 50)
+    whose windscreen is darker still; its model-resolution (0.5) image and clean background."""
+    rng = np.random.default_rng(0)
+    bg = np.full((120, 160, 3), 90, np.uint8)
+    img = 90 + rng.normal(0, noise, bg.shape)
+    img[50:62, 60:90] -= contrast
+    img[54:58, 70:80] -= 40
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    half = (80, 60)
+    return (img, cv2.resize(img, half, interpolation=cv2.INTER_AREA),
+            cv2.resize(bg, half, interpolation=cv2.INTER_AREA))
+
+
+def test_seeds_out_of_the_noise_let_a_dark_vehicle_be_found_whole():
+    import dataclasses
+
+    from aerotrack.config import DetectionConfig
+    from aerotrack.detection.detector import SizeGates, detect_moving
+
+    gates = SizeGates(min_area_px=60, max_length_px=300, close_px=4, join_gap_px=5,
+                      min_width_px=5)
+    testable = np.full((60, 80), 255, np.uint8)
+    img, small, bg = _dark_vehicle(contrast=18)
+    low = dataclasses.replace(DetectionConfig(), threshold_sigma=5.0, seed_sigma=12.0)
+    r = detect_moving(img, small, bg, testable, low, 0.5, gates)
+    assert r.boxes.tolist() == [[60.0, 50.0, 30.0, 12.0]]
+    # the body (about 6 noise sigmas) under a 7-sigma threshold: nothing vehicle-sized is left
+    old = dataclasses.replace(DetectionConfig(), threshold_sigma=7.0, seed_sigma=0.0)
+    assert len(detect_moving(img, small, bg, testable, old, 0.5, gates).boxes) == 0
+    # noise alone seeds nothing
+    img, small, bg = _dark_vehicle(contrast=0)
+    img = np.clip(90 + np.random.default_rng(1).normal(0, 4.0, img.shape), 0, 255).astype(np.uint8)
+    small = cv2.resize(img, (80, 60), interpolation=cv2.INTER_AREA)
+    assert len(detect_moving(img, small, bg, testable, low, 0.5, gates).boxes) == 0

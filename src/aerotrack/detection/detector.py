@@ -310,7 +310,9 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     sigma = robust_sigma(res, testable)
     thr = max(config.min_threshold, config.threshold_sigma * sigma)
     low = res > thr
-    high = res > thr * config.seed_ratio
+    # Seeds also stand out of the noise by seed_sigma: the low threshold can then sit close to
+    # the noise (whole dark vehicles), while noise alone rarely reaches a seed.
+    high = res > max(thr * config.seed_ratio, config.seed_sigma * sigma)
     model_min_area = 0.5 * gates.min_area_px * scale * scale
     blobs = hysteresis_blobs(low, high, close_radius=gates.close_px * scale,
                              min_area=model_min_area)
@@ -969,6 +971,7 @@ def _validate(c: DetectionConfig) -> None:
         ("update_every_s", c.update_every_s > 0), ("model_scale", 0 < c.model_scale <= 1),
         ("min_valid_samples", c.min_valid_samples >= 1), ("threshold_sigma", c.threshold_sigma >= 0),
         ("min_threshold", 0 <= c.min_threshold < 255), ("seed_ratio", c.seed_ratio >= 1),
+        ("seed_sigma", c.seed_sigma >= 0),
         ("gain_block_px", c.gain_block_px >= 0), ("close_m", c.close_m >= 0),
         ("close_px", c.close_px >= 0), ("min_area_m2", c.min_area_m2 >= 0),
         ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
