@@ -310,10 +310,13 @@ class WindowSampler:
     def whole_frame(self, t: WTrack, k: int | None = None) -> int:
         """Frame of the last whole (not partial) observation among ``t``'s first ``k`` (all by
         default), or of its prior."""
-        d2 = t.d2 if k is None else t.d2[:k]
-        idx = np.flatnonzero(d2 >= 0)
-        if len(idx):
-            return self.frame_of(int(t.nodes[idx[-1]]))
+        d2 = t.d2
+        n = len(d2) if k is None else k
+        # almost always the last one is whole: scan from the end (called for every live track
+        # every frame; a numpy search per call cost 5 % of the CPU time at 150 objects/frame)
+        for i in range(n - 1, -1, -1):
+            if d2[i] >= 0:
+                return int(self.store.frame[t.nodes[i] - self.store.base])
         return t.prior.frame if t.prior is not None else t.f_end
 
     @staticmethod
