@@ -296,3 +296,96 @@ def test_tracks_smaller_than_a_vehicle_are_dropped():
     assert is_small(np.array([[10.0, 12.0], [11.0, 12.0]]), MPU, 1.5)
     assert not is_small(np.array([[45.0, 20.0], [10.0, 12.0], [44.0, 19.0]]), MPU, 1.5)
     assert not is_small(np.zeros((0, 2)), MPU, 1.5)
+
+
+def _stopping(n_drive: int = 60, n_stand: int = 45, speed_mps: float = 8.0, tid: int = 1,
+              y: float = 400.0, start: int = 1) -> Track:
+    """A car (4.5 x 2 m) driving at ``speed_mps`` along x in the identity world, braking evenly
+    to a stop over its last 30 driving frames, then observed standing for ``n_stand`` frames."""
+    v = speed_mps / MPU / FPS  # world units per frame
+    pts, x = [], 100.0
+    for k in range(n_drive + n_stand):
+        if k < n_drive:
+            x += v * min(1.0, max(0.0, (n_drive - k) / 30))
+        c = np.array([x, y])
+        pts.append(TrackPoint(frame=start + k, box=np.array([c[0] - 22.5, c[1] - 10, 45, 20]),
+                              world=c, conf=0.9, kind="observed"))
+    return Track(id=tid, points=pts)
+
+
+def _predict_after(track: Track, n: int) -> None:
+    """Append ``n`` predicted points (what linking adds after a track's end) at its last place."""
+    last = track.points[-1]
+    track.points += [TrackPoint(frame=last.frame + k, box=np.full(4, np.nan),
+                                world=last.world + [3.0 * k, 0], conf=0.0, kind="predicted")
+                     for k in range(1, n + 1)]
+
+
+IDENT = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 301)}
+
+
+def test_a_vehicle_that_stopped_is_held_at_its_stop_until_seen_elsewhere():
+    car = _stopping()  # frames 1..105, standing from frame 61
+    _predict_after(car, 60)
+    stop = car.points[-61].world.copy()
+    # another track drives over the stop in frame 200: the place is taken from 2 m before (frame
+    # 194), the hold ends there
+    other = Track(id=2, points=[TrackPoint(frame=f, box=np.array([0, 0, 45, 20.0]) + [
+        stop[0] - 22.5 + 3 * (f - 200), stop[1] - 10, 0, 0], world=stop + [3.0 * (f - 200), 0],
+        conf=0.9) for f in range(190, 211)])
+    cfg = FinishConfig(stop_hold_s=30.0)
+    out = finish_tracks([car, other], cfg, FPS, metres_per_unit=MPU, registrations=IDENT)
+    car = next(t for t in out if t.id == 1)
+    held = [p for p in car.points if p.kind == "stationary"]
+    assert [p.frame for p in held] == list(range(106, 194))
+    boxes = np.array([p.box for p in held])
+    truth = np.tile([stop[0] - 22.5, stop[1] - 10, 45, 20], (len(held), 1))
+    assert _iou(boxes, truth).min() > 0.8
+    # the hold is capped
+    short = _stopping()
+    (out,) = finish_tracks([short], FinishConfig(stop_hold_s=1.0), FPS, metres_per_unit=MPU,
+                           registrations=IDENT)
+    assert [p.frame for p in out.points if p.kind == "stationary"] == list(range(106, 136))
+
+
+def test_a_stop_between_two_tracklets_is_stationary_not_predicted():
+    car = _stopping()
+    stop = car.points[-1].world.copy()
+    gap = [TrackPoint(frame=f, box=np.full(4, np.nan), world=stop + [0.5 * (f - 105), 0],
+                      conf=0.0, kind="predicted") for f in range(106, 146)]
+    off = [TrackPoint(frame=f, box=np.array([stop[0] - 22.5 + 0.1 * (f - 146) ** 2, stop[1] - 10,
+                                             45, 20]),
+                      world=stop + [0.1 * (f - 146) ** 2, 0], conf=0.9) for f in range(146, 176)]
+    car.points += gap + off
+    (out,) = finish_tracks([car], FinishConfig(), FPS, metres_per_unit=MPU, registrations=IDENT)
+    kinds = {p.frame: p.kind for p in out.points}
+    assert all(kinds[f] == "stationary" for f in range(106, 146))
+    assert _iou(np.array([out.points[f - 1].box for f in range(106, 146)]),
+                np.tile([stop[0] - 22.5, stop[1] - 10, 45, 20], (40, 1))).min() > 0.8
+
+
+def test_no_hold_for_a_track_that_ends_moving_or_never_moved():
+    moving = _stopping(n_stand=0)
+    moving.points = moving.points[:40]  # lost while still at full speed
+    _predict_after(moving, 30)
+    parked = _stopping(n_drive=0, n_stand=90, tid=2, y=600.0)
+    out = finish_tracks([moving, parked], FinishConfig(), FPS, metres_per_unit=MPU,
+                        registrations=IDENT)
+    assert [t.id for t in out] == [1]  # the parked car is static: dropped, not held
+    assert not any(p.kind == "stationary" for p in out[0].points)
+    # and nothing is held without registered frames (image of a moving camera)
+    car = _stopping()
+    (out,) = finish_tracks([car], FinishConfig(), FPS, metres_per_unit=MPU)
+    assert not any(p.kind == "stationary" for p in out.points)
+
+
+def test_a_vehicle_that_drives_off_from_a_standstill_is_held_backwards():
+    car = _stopping()
+    for k, p in enumerate(car.points):  # time reversed: stands, then accelerates away
+        p.frame = 200 - k
+    car.points.reverse()  # frames 96..200, standing 96..140
+    (out,) = finish_tracks([car], FinishConfig(stop_hold_back_s=2.0), FPS, metres_per_unit=MPU,
+                           registrations=IDENT)
+    assert [p.frame for p in out.points if p.kind == "stationary"] == list(range(36, 96))
+    with pytest.raises(ConfigError, match="stop_hold_s"):
+        TrackFinisher(FinishConfig(stop_hold_s=-1.0))
