@@ -463,6 +463,24 @@ def run_truck4(overrides: list[str], run_dir: Path | None) -> dict:
     return res
 
 
+def code_version() -> str:
+    """The commit of the aerotrack package measured (``+changes`` when its tree differs), or
+    ``AEROTRACK_CODE`` from the environment for a copy without git (a snapshot)."""
+    import os
+
+    import aerotrack
+
+    src = Path(aerotrack.__file__).resolve().parents[2]
+    try:
+        rev = subprocess.run(["git", "-C", str(src), "rev-parse", "--short", "HEAD"], check=True,
+                             capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "src"],
+                               capture_output=True, text=True).stdout.strip()
+        return rev + (" +changes" if dirty else "")
+    except (subprocess.CalledProcessError, OSError):
+        return os.environ.get("AEROTRACK_CODE", "unknown")
+
+
 def main(argv=None) -> None:
     global CACHE
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -526,6 +544,7 @@ def main(argv=None) -> None:
         if old:
             results["truck4"] = old
     payload = {"protocol": {"scenes": args.scenes, "frames": args.frames, "overrides": args.overrides, "fps": FPS, "min_gap_frames": MIN_GAP,
+                                 "code": code_version(),
                                  "source": "aerotrack.synth scenes; gt-dets = gt.txt with 10% dropped, "
                                         "1 px / 5% jitter, 0.1 false alarm per frame"},
                    "results": results}
