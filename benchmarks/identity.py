@@ -474,7 +474,7 @@ def code_version() -> str:
     try:
         rev = subprocess.run(["git", "-C", str(src), "rev-parse", "--short", "HEAD"], check=True,
                              capture_output=True, text=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "src"],
+        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "src"], check=False,
                                capture_output=True, text=True).stdout.strip()
         return rev + (" +changes" if dirty else "")
     except (subprocess.CalledProcessError, OSError):
