@@ -626,15 +626,6 @@ class LinkingConfig:
         (:func:`aerotrack.context.reacquire.descriptor_cost`): partial and merged blobs make it
         unbounded for a vehicle's own tracklets. Lower lets the descriptor decide less (0: off);
         a large value (1e9) is the paper's untruncated distance.
-    """
-
-    max_gap_s: float = 12.0
-    v_max_mps: float = 40.0
-    a_max_mps2: float = 6.0
-    gate_slack_m: float = 3.0
-    speed_slack_mps: float = 3.0
-    motion_sigma_m: float = 0.7
-    motion_sigma_growth_mps: float = 0.7
     fill_sigma : float
         A tracklet unlinked on both sides that lies inside the gap of a link, its points within
         this many motion sigmas of the gap's path (median), is inserted into the chain
@@ -644,6 +635,15 @@ class LinkingConfig:
         a1835b6, 8 generated scenes): with aerotrack's detector occlusions <= 4 s re-acquired
         25/55 -> 26/55, IDF1 0.768 unchanged; ground-truth detections, Santiago (seeds 0-2)
         and UAVDT unchanged (few pieces survive local association's ``min_length_s``).
+    """
+
+    max_gap_s: float = 12.0
+    v_max_mps: float = 40.0
+    a_max_mps2: float = 6.0
+    gate_slack_m: float = 3.0
+    speed_slack_mps: float = 3.0
+    motion_sigma_m: float = 0.7
+    motion_sigma_growth_mps: float = 0.7
     velocity_sigma_mps: float = 1.0
     velocity_sigma_growth_mps2: float = 0.5
     weight_motion: float = 1.0
@@ -667,6 +667,7 @@ class LinkingConfig:
     handover_max_s: float = 2.0
     handover_cost: float = 1.0
     descriptor_max: float = 3.0
+    fill_sigma: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -676,7 +677,6 @@ class ContextConfig:
     Attributes
     ----------
     history_s : float
-    fill_sigma: float = 3.0
         Seconds of a target's last observations matched against other tracks (the paper's F).
     prediction_horizon_s : float
         How long an unobserved target's position is predicted into ``predicted.csv``.
