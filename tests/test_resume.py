@@ -554,3 +554,31 @@ def test_loaded_checkpoints_hold_each_detection_once(tmp_path):
     for a, b in zip(dets, back):
         assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.hist, b.hist)
         assert np.array_equal(a.extra["desc"], b.extra["desc"]) and a.frame == b.frame
+
+
+def test_exact_resume_takes_association_back_instead_of_replaying_it(tmp_path, video_frames):
+    """The state holds association's window and the tracklets it had finished: resuming does
+    not run association again over the checkpointed frames (its cost grew with the video), and
+    the result still equals the uninterrupted run (test_interrupted_video_run_resumes_exactly)."""
+    from test_parallel import FPS
+
+    from aerotrack.config import Config
+    from aerotrack.io import open_source
+    from aerotrack.pipeline import Pipeline
+
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                   progress=interrupt_at(83))
+    assert (out.partial / "state-tracklets").is_dir()
+    pipe = Pipeline(Config(), FPS, metres_per_unit=0.3, seed=3, checkpoint_dir=out.partial)
+    calls = []
+    step = pipe.associator.step
+    pipe.associator.step = lambda dets: calls.append(dets.frame) or step(dets)
+    assert pipe.restore(open_source(video_frames, FPS)) == 84 and pipe.exact_resume
+    assert not calls and len(pipe.tracklets) > 0
+    assert [d.frame for d in pipe.detections] == list(range(1, len(pipe.detections) + 1))
+    (out.partial / "state-tracklets").rename(out.partial / "gone")  # e.g. deleted by hand
+    again = Pipeline(Config(), FPS, metres_per_unit=0.3, seed=3, checkpoint_dir=out.partial)
+    again.restore(open_source(video_frames, FPS))
+    assert again.exact_resume and len(again.tracklets) == len(pipe.tracklets)  # replayed

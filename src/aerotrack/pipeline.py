@@ -127,6 +127,7 @@ class Pipeline:
                  spill: bool = True, roads=None, opencv_threads: int | None = 1) -> None:
         from .association import LocalAssociator
         from .io.checkpoint import TrackletSpill
+        from .io.state import as_built
 
         self.config = config
         self.fps = float(fps)
@@ -139,6 +140,7 @@ class Pipeline:
         self._H_init = H_init
         self.associator = LocalAssociator(config.association, self.fps,
                                           metres_per_unit=self.metres_per_unit, seed=seed)
+        self._built_assoc = as_built(self.associator)
         self.registrations: dict[int, Registration] = {}
         self.detections: list[Detections] = []
         # finished tracklets (on disk with ``spill``; a list again after finish_local)
@@ -290,12 +292,22 @@ class Pipeline:
                 self.detections.append(_light(dets))
                 if self.checkpoint_dir is not None:  # full detections, appearance included: only
                     self._pending_dets.append(dets)  # kept until the next checkpoint empties them
-                if len(dets):
-                    size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
-                    self._last_boxes_world = np.hstack([dets.world, size])
-                else:
-                    self._last_boxes_world = None
+                self._remember_boxes(dets)
                 self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
+
+    def _remember_boxes(self, dets: Detections | None) -> None:
+        """Keep the latest final detections' world boxes (kept out of registration)."""
+        if dets is not None and len(dets):
+            size = dets.size_world if dets.size_world is not None else dets.boxes[:, 2:]
+            self._last_boxes_world = np.hstack([dets.world, size])
+        else:
+            self._last_boxes_world = None
+
+    def _replay(self, dets: list[Detections]) -> None:
+        """Association over checkpointed detections (resume without association's state)."""
+        self._associate(dets)
+        self._pending_dets = []  # already in the checkpoints
+        self._skip_until = max((d.frame for d in dets), default=0)
 
     def step_detections_only(self, index: int) -> None:
         """Association alone: feed frame ``index`` of the external detections (no image)."""
@@ -323,11 +335,21 @@ class Pipeline:
         self._since_checkpoint = 0
 
     def save_state(self) -> bool:
-        """Save the registrar's and detector's working state after the last frame (on Ctrl-C,
-        between two frames, after :meth:`checkpoint`), so :meth:`restore` continues exactly.
-        Returns False (and saves nothing) when a stage holds a value the state codec cannot write
-        (:mod:`aerotrack.io.state`); resume then restarts from the checkpoints alone."""
-        from .io.state import Rereadable, StateNotSaved, drop_state, save_state
+        """Save the registrar's, detector's and local association's working state after the
+        last frame (on Ctrl-C, between two frames, after :meth:`checkpoint`), so :meth:`restore`
+        continues exactly; the finished tracklets spilled so far are linked beside it
+        (``state-tracklets/``), so that association is not replayed over the whole video.
+        Returns False (and saves nothing) when the registrar or detector holds a value the state
+        codec cannot write (:mod:`aerotrack.io.state`); resume then restarts from the checkpoints
+        alone. When only association's state cannot be written, resume replays association."""
+        from .io.checkpoint import TrackletSpill
+        from .io.state import (
+            STATE_TRACKLETS,
+            Rereadable,
+            StateNotSaved,
+            drop_state,
+            save_state,
+        )
 
         if self.checkpoint_dir is None or self.registrar is None \
                 or isinstance(self.registrar, _Ended):
@@ -336,10 +358,23 @@ class Pipeline:
         if self.detector is not None:
             stages["detector"] = (self.detector, self._built["detector"])
         frames = Rereadable(dict(self._images), self._derive())
+        extra = {"frame_size": list(self.frame_size)}
+        drop_state(self.checkpoint_dir)
+        if isinstance(self.tracklets, TrackletSpill) and self.associator is not None:
+            # association's window and the tracklets it finished: resume need not replay it
+            try:
+                save_state(self.checkpoint_dir, self.last_frame,
+                           {**stages, "associator": (self.associator, self._built_assoc)},
+                           extra={**extra, "tracklets": self.tracklets.link_into(
+                               Path(self.checkpoint_dir) / STATE_TRACKLETS)},
+                           shared=(self.geomap,), frames=frames)
+                return True
+            except StateNotSaved as exc:
+                drop_state(self.checkpoint_dir)
+                log.info("association state not saved (%s): --resume replays association", exc)
         try:
-            save_state(self.checkpoint_dir, self.last_frame, stages,
-                       extra={"frame_size": list(self.frame_size)}, shared=(self.geomap,),
-                       frames=frames)
+            save_state(self.checkpoint_dir, self.last_frame, stages, extra=extra,
+                       shared=(self.geomap,), frames=frames)
         except StateNotSaved as exc:
             drop_state(self.checkpoint_dir)
             log.warning("stage state not saved (%s): --resume restarts registration and "
@@ -367,7 +402,8 @@ class Pipeline:
         return out
 
     def restore(self, source=None) -> int:
-        """Load checkpoints from ``checkpoint_dir`` and replay association on them.
+        """Load checkpoints from ``checkpoint_dir``, and association's state with them or else
+        replay association on them.
 
         Returns the frame from which frames must be fed again. With the stages' working state
         saved on interruption (:meth:`save_state`) that is the frame after the last one taken,
@@ -380,40 +416,55 @@ class Pipeline:
         after the restart can then be registered and detected slightly differently (another
         keyframe chain, a background window without the frames before the restart).
         """
-        from .io.checkpoint import load_chunks
-        from .io.state import FramesChanged, apply_state, load_state, saved_frame
+        from .io.checkpoint import TrackletSpill, load_chunks
+        from .io.state import (
+            STATE_TRACKLETS,
+            FramesChanged,
+            apply_state,
+            load_state,
+            saved_frame,
+        )
 
         regs, dets, n = load_chunks(self.checkpoint_dir)
         self._chunk_no = n
         if not regs and not dets:
             return 1
         self.registrations.update(regs)
-        self._associate(dets)
-        self._pending_dets = []
         last_det = max((d.frame for d in dets), default=0)
-        self._skip_until = last_det
         self.last_frame = max(regs) if regs else last_det
         self.first_frame = min(regs) if regs else 1
         self.n_frames = len({*regs, *(d.frame for d in dets)})
         if self.external is not None and not regs:
+            self._replay(dets)
             return last_det + 1
         head = saved_frame(self.checkpoint_dir)
         if head is not None and regs and head[0] == max(regs):  # not stale: exact
             self._make_stages(tuple(head[1]["frame_size"]))
             try:
-                frame, stages, _ = load_state(self.checkpoint_dir,
-                                              lambda idx: self._reread(source, idx),
-                                              self._derive())
+                frame, stages, extra = load_state(self.checkpoint_dir,
+                                                  lambda idx: self._reread(source, idx),
+                                                  self._derive())
             except FramesChanged as exc:
                 log.warning("--resume: stage state not used (%s); registration and detection "
                             "restart shortly before frame %d", exc, head[0])
                 self.registrar = self.detector = None  # made again at the restart
             else:
+                assoc = stages.pop("associator", None)
                 for name, (_, attrs) in stages.items():
                     apply_state(getattr(self, name), attrs)
+                if assoc is not None and isinstance(self.tracklets, TrackletSpill) \
+                        and self.tracklets.adopt(Path(self.checkpoint_dir) / STATE_TRACKLETS,
+                                                 extra.get("tracklets")):
+                    apply_state(self.associator, assoc[1])  # no replay: as it stood
+                    self.detections = [_light(d) for d in dets]
+                    self._remember_boxes(dets[-1] if dets else None)
+                    self._skip_until = last_det
+                else:
+                    self._replay(dets)
                 self.exact_resume = True
                 self._restart = frame + 1
                 return frame + 1
+        self._replay(dets)
         half = int(np.ceil(self.config.detection.window_s * self.fps / 2)) + 1
         restart = max(self.first_frame, last_det + 1 - half)
         while restart > self.first_frame and restart not in regs:

@@ -35,7 +35,9 @@ is the detector's half window (``detection.window_s``; 45 frames at 3 s and 30 f
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -276,6 +278,34 @@ class TrackletSpill:
         self._files.append(path)
         self._buffer = []
 
+    def link_into(self, folder: Path) -> dict:
+        """Write the buffer, and put the spill files in ``folder`` too (hard links, or copies
+        where the file system has none): what :meth:`adopt` takes back. Returns their names and
+        the number of tracklets, for the caller to store."""
+        self.flush()
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        for p in self._files:
+            _link_or_copy(p, folder / p.name)
+        return {"files": [p.name for p in self._files], "count": self._count}
+
+    def adopt(self, folder: Path, saved: dict | None) -> bool:
+        """Continue from the spill files :meth:`link_into` put in ``folder`` (``saved``: what it
+        returned), instead of an empty spill. False, and nothing changed, when they are not all
+        there or this spill is not empty."""
+        if not saved or self._count or self._buffer:
+            return False
+        files = [Path(folder) / name for name in saved["files"]]
+        if not all(p.is_file() for p in files):
+            return False
+        own = self._folder()
+        self._files = []
+        for p in files:
+            _link_or_copy(p, own / p.name)
+            self._files.append(own / p.name)
+        self._count = int(saved["count"])
+        return True
+
     def load(self) -> list[Track]:
         """Every tracklet, in the order added."""
         out: list[Track] = []
@@ -298,3 +328,13 @@ class TrackletSpill:
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """``dst`` becomes ``src``'s content: a hard link (no copy), or a copy where the file system
+    has no links."""
+    dst.unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
