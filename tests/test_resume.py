@@ -582,3 +582,25 @@ def test_exact_resume_takes_association_back_instead_of_replaying_it(tmp_path, v
     again = Pipeline(Config(), FPS, metres_per_unit=0.3, seed=3, checkpoint_dir=out.partial)
     again.restore(open_source(video_frames, FPS))
     assert again.exact_resume and len(again.tracklets) == len(pipe.tracklets)  # replayed
+
+
+def test_state_codec_keeps_slotted_objects(tmp_path):
+    """Objects of aerotrack's slotted classes (association's window tracks) come back with every
+    slot that was set, shared arrays still shared."""
+    from aerotrack.association.moves import WTrack
+    from aerotrack.io.state import apply_state, load_state, save_state
+
+    class Stage:
+        pass
+
+    s = Stage()
+    t = WTrack.__new__(WTrack)
+    t.tid, t.nodes, t.score = 4, np.arange(3), -1.5
+    s.tracks = {4: t}
+    s.same = t.nodes
+    save_state(tmp_path, 7, {"stage": (s, {})})
+    back = Stage()
+    apply_state(back, load_state(tmp_path)[1]["stage"][1])
+    u = back.tracks[4]
+    assert type(u) is WTrack and u.tid == 4 and u.score == -1.5 and u.nodes.tolist() == [0, 1, 2]
+    assert u.nodes is back.same and not hasattr(u, "xs")  # unset slots stay unset
