@@ -103,6 +103,39 @@ def score(dets: dict[int, np.ndarray], gts: dict[int, np.ndarray], frames) -> di
     return out
 
 
+def box_geometry(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict:
+    """Fit of matched boxes: mean IoU and the median bias of each side, detection minus truth,
+    pixels (left/right: + is further right; top/bottom: + is further down), and of width and
+    height. ``pairs``: (detection, truth) x, y, w, h boxes matched one-to-one at IoU >= 0.3."""
+    if not pairs:
+        return {"n": 0}
+    d = np.array([p[0] for p in pairs], float)
+    g = np.array([p[1] for p in pairs], float)
+    io = iou_matrix(d, g).diagonal()
+    side = {"left": d[:, 0] - g[:, 0], "top": d[:, 1] - g[:, 1],
+            "right": d[:, 0] + d[:, 2] - g[:, 0] - g[:, 2],
+            "bottom": d[:, 1] + d[:, 3] - g[:, 1] - g[:, 3],
+            "width": d[:, 2] - g[:, 2], "height": d[:, 3] - g[:, 3]}
+    return {"n": len(d), "mean_iou": float(io.mean()),
+            **{f"bias_{k}": float(np.median(v)) for k, v in side.items()}}
+
+
+def matched_pairs(det: np.ndarray, gt: np.ndarray, min_iou: float = 0.3) -> list:
+    """One-to-one (Hungarian on IoU) pairs of detection and truth boxes with IoU >= min_iou."""
+    if not len(det) or not len(gt):
+        return []
+    io = iou_matrix(det, gt)
+    r, c = linear_sum_assignment(-io)
+    return [(det[i], gt[j]) for i, j in zip(r, c) if io[i, j] >= min_iou]
+
+
+def format_geometry(g: dict) -> str:
+    return (f"mean IoU {g['mean_iou']:.3f}; median side bias (det - truth, px): left "
+            f"{g['bias_left']:+.2f} top {g['bias_top']:+.2f} right {g['bias_right']:+.2f} "
+            f"bottom {g['bias_bottom']:+.2f}; width {g['bias_width']:+.2f} height "
+            f"{g['bias_height']:+.2f}")
+
+
 def santiago_gt() -> dict[int, np.ndarray]:
     rows = np.loadtxt(SANTIAGO / "dfs_ground_truth.csv", delimiter=",")
     rows[:, 0] += 1  # 0-based -> 1-based
@@ -236,6 +269,7 @@ def santiago(results: dict, quick: bool) -> None:
         "ours, no shadow suppression": dataclasses.replace(base, shadow_suppression=False),
         "ours, small blobs kept": dataclasses.replace(base, drop_small_ratio=0.0),
         "ours, small blobs dropped near big": dataclasses.replace(base, drop_small_near=1.0),
+        "ours, box edges at the threshold": dataclasses.replace(base, box_edge_level=0.0),
     }
     if not quick:
         variants.update({
@@ -252,6 +286,9 @@ def santiago(results: dict, quick: bool) -> None:
         table[name] = {**score(dets, gts, eval_frames), "fps": fps_run}
         if cfg is base:
             table[name].update(santiago_breakdown(dets, gts, labels, eval_frames))
+            table[name]["box_geometry"] = box_geometry(
+                [p for f in eval_frames for p in matched_pairs(dets.get(f, np.zeros((0, 4))),
+                                                                gts.get(f, np.zeros((0, 4))))])
     dets, fps_run = run_mog2(frames, fps, base)
     table["MOG2 + same post-processing"] = {**score(dets, gts, eval_frames), "fps": fps_run}
     results["santiago"] = table
@@ -267,6 +304,8 @@ def santiago(results: dict, quick: bool) -> None:
                                           sorted(r[key].items(), key=lambda kv: -kv[1])))
     print(f"  precision at IoU 0.5 with detections of moving vehicles absent from the ground truth "
           f"left out: {r['precision_iou0.5_without_unannotated_movers']:.3f}")
+    print(f"  matched boxes (IoU >= 0.3, {r['box_geometry']['n']}): "
+          f"{format_geometry(r['box_geometry'])}")
 
 
 def run_registered(frames, fps, det_config: DetectionConfig, reg_config=None):
@@ -416,15 +455,17 @@ def synth(results: dict, quick: bool) -> None:
     n = 150 if quick else 300
     per_seed = {}
     pooled = np.zeros(5)
+    all_pairs: list = []
     for seed in SYNTH_SEEDS:
         r = _synth_one(Scenario(seed=seed, frames=n, size=(640, 480), fps=30.0, name="default"), n)
+        all_pairs += r.pop("_pairs")
         per_seed[str(seed)] = r
         pooled += [r["tp"], r["tp3"], r["targets"], r["detections"], r["cpu_fps_640x480"]]
     tp, tp3, n_target, n_det, fps_sum = pooled
     r = {"frames": n, "seeds": list(SYNTH_SEEDS), "targets": int(n_target),
          "recall_iou0.5": tp / max(n_target, 1), "precision_iou0.5": tp / max(n_det, 1),
          "recall_iou0.3": tp3 / max(n_target, 1), "cpu_fps_640x480": fps_sum / len(SYNTH_SEEDS),
-         "per_seed": per_seed}
+         "box_geometry": box_geometry(all_pairs), "per_seed": per_seed}
     results["synth"] = r
     print(f"\nGenerated scenes (default, seeds {list(SYNTH_SEEDS)}, 640x480, {n} frames each, true "
           f"homographies, metre gates): visible moving vehicles > 3 m from occluders:")
@@ -433,6 +474,8 @@ def synth(results: dict, quick: bool) -> None:
               f"(IoU 0.3); precision {q['precision_iou0.5']:.3f}; {q['targets']} targets")
     print(f"  pooled: recall {r['recall_iou0.5']:.3f} (IoU 0.5), {r['recall_iou0.3']:.3f} (IoU 0.3); "
           f"precision {r['precision_iou0.5']:.3f}")
+    print(f"  matched boxes (IoU >= 0.3, {r['box_geometry']['n']}): "
+          f"{format_geometry(r['box_geometry'])}")
     for key, title in (("misses", "missed targets"), ("missed_tags", "of which (tags overlap)"),
                        ("false_detections", "false detections")):
         pooled_counts: dict[str, int] = {}
@@ -511,6 +554,7 @@ def _synth_one(sc, n: int) -> dict:
     run_fps = n / (time.process_time() - t0)
     tp = n_target = n_det = 0
     tp3 = 0
+    pairs: list = []
     misses: dict[str, int] = {}
     falses: dict[str, int] = {}
     tags = {"dark (mean colour < 70)": 0, "slow (< 3 m/s)": 0, "within 6 m of an occluder": 0}
@@ -525,11 +569,13 @@ def _synth_one(sc, n: int) -> dict:
         used = np.zeros(len(boxes), bool)
         found = np.zeros(len(target), bool)
         if len(target) and len(boxes):
-            io = iou_matrix(boxes, np.array([v["box"] for v in target]))
+            tb = np.array([v["box"] for v in target])
+            io = iou_matrix(boxes, tb)
             r, c = linear_sum_assignment(-io)
             ok = io[r, c] >= 0.5
             tp += int(ok.sum())
             tp3 += int((io[r, c] >= 0.3).sum())
+            pairs += [(boxes[i], tb[j]) for i, j in zip(r, c) if io[i, j] >= 0.3]
             used[r[ok]] = True
             found[c[ok]] = True
         if len(other) and len(boxes):
@@ -551,7 +597,8 @@ def _synth_one(sc, n: int) -> dict:
     return {"targets": n_target, "detections": n_det, "tp": tp, "tp3": tp3,
             "recall_iou0.5": tp / max(n_target, 1), "precision_iou0.5": tp / max(n_det, 1),
             "recall_iou0.3": tp3 / max(n_target, 1), "cpu_fps_640x480": run_fps,
-            "misses": misses, "missed_tags": tags, "false_detections": falses}
+            "misses": misses, "missed_tags": tags, "false_detections": falses,
+            "box_geometry": box_geometry(pairs), "_pairs": pairs}
 
 
 def main(argv=None) -> None:
