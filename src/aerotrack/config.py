@@ -176,6 +176,8 @@ class DetectionConfig:
         frames; Santiago per-frame detection unchanged with identity registrations (its
         threshold is at ``min_threshold``) but, registered by the pipeline, its noise is higher:
         P/R 0.759/0.865 -> 0.735/0.873 and HOTA/IDF1 0.633/0.850 -> 0.617/0.816. Hence off.
+        threshold_sigma 6 / seed_sigma 12, HOTA: Santiago 0.633 -> 0.612, default:0 0.630 ->
+        0.614, convoy:2 0.576 -> 0.601, convoy:1 0.502 -> 0.520.
     residual_sigma_px : float
         Gaussian (full-resolution pixels) applied to the signed frame - background difference
         before thresholding: averages out per-pixel noise so low-contrast (dark on dark)
