@@ -604,3 +604,20 @@ def test_state_codec_keeps_slotted_objects(tmp_path):
     u = back.tracks[4]
     assert type(u) is WTrack and u.tid == 4 and u.score == -1.5 and u.nodes.tolist() == [0, 1, 2]
     assert u.nodes is back.same and not hasattr(u, "xs")  # unset slots stay unset
+
+
+def test_a_run_resumed_at_its_last_frame_leaves_no_state_behind(tmp_path, video_frames):
+    """Interrupted after the last frame was taken (frames with external detections: nothing is
+    left pending then), the resumed run has nothing new to checkpoint, and must still not leave
+    the spent state among the finished stages."""
+    dets = detections(n_frames=120)
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        _video_run(video_frames, detections=dets, checkpoint_dir=out.partial,
+                   checkpoint_every=30, progress=interrupt_at(120))
+    assert (out.partial / "state.npz").is_file()
+    resumed = _video_run(video_frames, detections=dets, checkpoint_dir=out.partial,
+                         checkpoint_every=30, resume=True)
+    assert resumed.frames == 120
+    assert not (out.partial / "state.npz").exists()
+    assert not (out.partial / "state-tracklets").exists()

@@ -504,6 +504,10 @@ class Pipeline:
         """Flush every stage and link tracklets into final tracks."""
         self.finish_local()
         self.checkpoint()  # the last chunk: checkpoints then hold every stage result
+        if self.checkpoint_dir is not None:  # a resumed run's state is spent (not kept in stages/)
+            from .io.state import drop_state
+
+            drop_state(self.checkpoint_dir)
         with self._timed("linking"):
             tracks = self._link(self.tracklets)
             if self.min_speed_mps:
