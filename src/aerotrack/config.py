@@ -274,9 +274,12 @@ class DetectionConfig:
         Multi-frame persistence for small, faint movers (``detection.persistence``): a
         motion-compensated leaky sum of each frame's weak residual reports targets whose
         evidence keeps coming back at reachable places although no single frame has a blob
-        that passes the gates. Off by default: it costs Santiago precision (0.756 -> 0.739;
-        mostly pedestrians and other small real movers that are not annotated), see
-        ``detection/persistence.py`` for the measurements.
+        that passes the gates. Off by default: at 63c86d3 it raises truck4's best single ID
+        0.59 -> 0.78 (the issue 6 goal is 0.80) and keeps Santiago's GT 24 while it waits at
+        the light (55 instead of 44 frames), but costs Santiago precision 0.754 -> 0.732 and
+        IDF1 0.851 -> 0.833 (mostly small real movers that are not annotated) and 1.17-1.27x
+        detection CPU time; ``benchmarks/persistence.py`` measures it, and
+        ``detection/persistence.py`` lists what was tried.
     persist_tau_s : float
         Time constant of the sum, seconds (decay ``exp(-dt / tau)``). Longer averages more noise
         away but smears a target that changes speed and delays its first report.
