@@ -249,6 +249,42 @@ def test_ring_descriptor_and_histogram():
     assert np.allclose(hist.sum(1), 1) and desc[1].sum() == 0
 
 
+def _ring_descriptor_reference(patch, mask):
+    """The plain numpy form of ring_descriptor (one bincount per statistic, np.median)."""
+    import cv2
+
+    out = np.zeros((6, 8, 8))
+    ys, xs = np.nonzero(mask > 0)
+    if len(xs) == 0:
+        return out
+    (cx, cy), radius = cv2.minEnclosingCircle(np.stack([xs, ys], 1).astype(np.float32))
+    radius = max(float(radius), 0.5)
+    dx, dy = xs + 0.5 - (cx + 0.5), ys + 0.5 - (cy + 0.5)
+    ring = np.minimum((np.hypot(dx, dy) / radius * 6).astype(np.int64), 5)
+    ang = np.mod(np.arctan2(dy, dx), 2 * np.pi)
+    cell = ring * 8 + np.minimum((ang / (2 * np.pi) * 8).astype(np.int64), 7)
+    grey = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
+    med = float(np.median(grey))
+    edges = cv2.Canny(grey, max(10.0, 0.66 * med), max(20.0, 1.33 * med)) > 0
+    bgr = patch[ys, xs].astype(np.float64)
+    cols = [np.ones(len(xs)), *bgr.T, *(bgr.T ** 2), edges[ys, xs].astype(np.float64)]
+    for j, v in enumerate(cols):
+        out[..., j] = np.bincount(cell, weights=v, minlength=48).reshape(6, 8)
+    return out
+
+
+def test_ring_descriptor_equals_reference():
+    """The compiled accumulation and the histogram median give the numpy form's exact bits."""
+    rng = np.random.default_rng(3)
+    for _ in range(60):
+        h, w = rng.integers(1, 50, 2)
+        patch = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+        patch[: h // 2] //= 3  # a darker half: edges, an off-centre median
+        mask = (rng.random((h, w)) < rng.random()).astype(np.uint8)
+        np.testing.assert_array_equal(ring_descriptor(patch, mask),
+                                      _ring_descriptor_reference(patch, mask))
+
+
 def test_bad_config_is_refused():
     with pytest.raises(ConfigError, match="model_scale"):
         MovingObjectDetector(DetectionConfig(model_scale=0), FPS)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 N_RINGS = 6
 N_DIRECTIONS = 8
@@ -73,7 +74,9 @@ def ring_descriptor(patch_bgr: np.ndarray, mask: np.ndarray | None = None) -> np
     ys, xs = np.nonzero(m)
     if len(xs) == 0:
         return out
-    pts = np.stack([xs, ys], axis=1).astype(np.float32)
+    pts = np.empty((len(xs), 2), np.float32)
+    pts[:, 0] = xs
+    pts[:, 1] = ys
     (cx, cy), radius = cv2.minEnclosingCircle(pts)
     radius = max(float(radius), 0.5)
     dx = xs + 0.5 - (cx + 0.5)
@@ -84,15 +87,39 @@ def ring_descriptor(patch_bgr: np.ndarray, mask: np.ndarray | None = None) -> np
     sector = np.minimum((ang / (2 * np.pi) * N_DIRECTIONS).astype(np.int64), N_DIRECTIONS - 1)
     cell = ring * N_DIRECTIONS + sector
     grey = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
-    med = float(np.median(grey))
-    edges = cv2.Canny(grey, max(10.0, 0.66 * med), max(20.0, 1.33 * med)) > 0
-    bgr = patch[ys, xs].astype(np.float64)
-    ncell = N_RINGS * N_DIRECTIONS
-    cols = [np.ones(len(xs)), bgr[:, 0], bgr[:, 1], bgr[:, 2],
-            bgr[:, 0] ** 2, bgr[:, 1] ** 2, bgr[:, 2] ** 2, edges[ys, xs].astype(np.float64)]
-    for j, v in enumerate(cols):
-        out[..., j] = np.bincount(cell, weights=v, minlength=ncell).reshape(N_RINGS, N_DIRECTIONS)
+    med = _median_u8(grey)
+    edges = cv2.Canny(grey, max(10.0, 0.66 * med), max(20.0, 1.33 * med))
+    _accumulate(out.reshape(N_RINGS * N_DIRECTIONS, 8), patch, edges, ys, xs, cell)
     return out
+
+
+def _median_u8(grey: np.ndarray) -> float:
+    """``float(np.median(grey))`` of a uint8 image from its 256-bin histogram (exactly equal:
+    the mean of the two middle values of an even count, an integer or a half in float64)."""
+    counts = np.cumsum(np.bincount(grey.ravel(), minlength=256))
+    n = int(counts[-1])
+    lo = int(np.searchsorted(counts, (n - 1) // 2, side="right"))
+    hi = int(np.searchsorted(counts, n // 2, side="right"))
+    return (lo + hi) / 2.0
+
+
+@njit(cache=True)
+def _accumulate(out, patch, edges, ys, xs, cell):  # pragma: no cover - compiled
+    """Add each blob pixel ``(ys[i], xs[i])`` to row ``cell[i]`` of ``out`` (48, 8): count,
+    B, G, R sums, their squares' sums and the edge count. Every term is an integer, so the float64
+    sums are exact whatever the order (the same values as one ``np.bincount`` per column)."""
+    for i in range(len(ys)):
+        y, x, c = ys[i], xs[i], cell[i]
+        b, g, r = float(patch[y, x, 0]), float(patch[y, x, 1]), float(patch[y, x, 2])
+        out[c, 0] += 1.0
+        out[c, 1] += b
+        out[c, 2] += g
+        out[c, 3] += r
+        out[c, 4] += b * b
+        out[c, 5] += g * g
+        out[c, 6] += r * r
+        if edges[y, x] > 0:
+            out[c, 7] += 1.0
 
 
 def box_mask(h: int, w: int) -> np.ndarray:
