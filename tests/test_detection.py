@@ -22,6 +22,8 @@ from aerotrack.detection.detector import (
     SizeGates,
     _outline_ratio,
     detect_moving,
+    local_scale,
+    local_scales,
     protected_blobs,
     robust_sigma,
 )
@@ -283,6 +285,15 @@ def test_ring_descriptor_equals_reference():
         mask = (rng.random((h, w)) < rng.random()).astype(np.uint8)
         np.testing.assert_array_equal(ring_descriptor(patch, mask),
                                       _ring_descriptor_reference(patch, mask))
+
+
+def test_local_scales_equal_one_call_per_point():
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        H = np.eye(3) + rng.normal(0, [[0.2, 0.2, 30], [0.2, 0.2, 30], [1e-4, 1e-4, 0]])
+        pts = rng.uniform(-100, 1500, (int(rng.integers(1, 40)), 2))
+        np.testing.assert_array_equal(local_scales(H, pts), [local_scale(H, q) for q in pts])
+    assert local_scales(np.eye(3), np.zeros((0, 2))).shape == (0,)
 
 
 def test_bad_config_is_refused():

@@ -266,6 +266,16 @@ def local_scale(H: np.ndarray, point: np.ndarray) -> float:
     return math.sqrt(abs(float(np.linalg.det(J))))
 
 
+def local_scales(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`local_scale` at each of the (N, 2) ``points`` (frame pixels); (N,) float64, the same
+    bits as one call per point (the Jacobians of all points from one homography product)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    p = np.stack([pts, pts + (1.0, 0.0), pts + (0.0, 1.0)], axis=1).reshape(-1, 2)
+    q = apply_homography(H, p).reshape(-1, 3, 2)
+    J = np.stack([q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]], axis=2)
+    return np.sqrt(np.abs(np.linalg.det(J)))
+
+
 @dataclass(frozen=True)
 class SizeGates:
     """Size limits of one frame in full-resolution frame pixels (from metres via the frame's
@@ -935,8 +945,7 @@ class MovingObjectDetector:
         H = np.asarray(p.reg.H, dtype=np.float64)
         centres = r.boxes[:, :2] + r.boxes[:, 2:] / 2.0
         world = apply_homography(H, centres)
-        size_world = np.array([[bw * local_scale(H, c), bh * local_scale(H, c)]
-                               for (_, _, bw, bh), c in zip(r.boxes, centres)]).reshape(-1, 2)
+        size_world = r.boxes[:, 2:] * local_scales(H, centres)[:, None]
         hists = np.empty((n, 128))
         descs = np.empty((n, 6, 8, 8))
         for k, ((x0, y0, x1, y1), m) in enumerate(zip(r.crops, r.masks)):
