@@ -915,17 +915,18 @@ class MovingObjectDetector:
         s = self._samples[past[-1]]
         M = to_cv_homography(np.linalg.inv(p.reg.H) @ s.H, self.scale)
         sh, sw = s.small.shape[:2]
+        M_inv = np.linalg.inv(M)
         for k, b in enumerate(r.model_blobs):
             x, y, bw, bh = b.box
             m = b.mask
+            back = apply_homography(M_inv, np.array([[x, y], [x + bw, y + bh],
+                                                     [x, y + bh], [x + bw, y]], float))
+            if not (np.all(back >= 0) and np.all(back[:, 0] < sw) and np.all(back[:, 1] < sh)):
+                continue  # the earlier frame did not see the whole blob
             # Warp only the blob's box: a translated homography into a (bh, bw) image.
             Mk = np.array([[1.0, 0, -x], [0, 1.0, -y], [0, 0, 1]]) @ M
             seen = cv2.warpPerspective(s.small, Mk, (bw, bh), flags=cv2.INTER_LINEAR,
                                        borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-            back = apply_homography(np.linalg.inv(M), np.array([[x, y], [x + bw, y + bh],
-                                                                [x, y + bh], [x + bw, y]], float))
-            if not (np.all(back >= 0) and np.all(back[:, 0] < sw) and np.all(back[:, 1] < sh)):
-                continue  # the earlier frame did not see the whole blob
             d = residual_image(p.small[y:y + bh, x:x + bw], seen, 1) > r.threshold
             out[k] = float(np.mean(d[m]))
             moved[k] = d
