@@ -14,6 +14,8 @@ one run (``--set`` overrides apply to both):
 * UAV123 truck4 (moving camera, 10 fps, no map, no initial box) end to end: the best single
   track ID's share of the 421 frames at IoU 0.3 (``identity.truck4_coverage``; issue 6 goal
   0.80), seeds 0-2.
+* Generated scenes (``detection.synth`` protocol, seeds 0-2, 150 frames each): precision and
+  recall at IoU 0.5.
 * Detection CPU time per frame at 1280x720 and 1920x1080 (truck4 frames, registered), on/off
   ratio, two repetitions interleaved.
 
@@ -163,6 +165,24 @@ def truck4_tracking(name: str, overrides: list[str]) -> dict:
             "any_fraction": [s["any_fraction"] for s in per_seed]}
 
 
+def synth(config) -> dict:
+    """Generated scenes as in ``detection.synth --quick`` with ``config`` instead of the
+    defaults."""
+    from aerotrack.synth import Scenario
+
+    orig = D.MovingObjectDetector
+    D.MovingObjectDetector = lambda _config, fps, **kw: orig(config, fps, **kw)
+    try:
+        tp = n_target = n_det = 0
+        for seed in D.SYNTH_SEEDS:
+            r = D._synth_one(Scenario(seed=seed, frames=150, size=(640, 480), fps=30.0,
+                                      name="default"), 150)
+            tp, n_target, n_det = tp + r["tp"], n_target + r["targets"], n_det + r["detections"]
+    finally:
+        D.MovingObjectDetector = orig
+    return {"precision_iou0.5": tp / max(n_det, 1), "recall_iou0.5": tp / max(n_target, 1)}
+
+
 def speed(base) -> dict:
     from aerotrack.config import RegistrationConfig
     from aerotrack.registration import FrameRegistrar
@@ -196,14 +216,17 @@ def main(argv=None) -> None:
         sets = [*args.overrides, f"detection.persist={str(on).lower()}"]
         r = {"santiago_detection": santiago_detection(dataclasses.replace(base, persist=on)),
              "santiago_tracking": santiago_tracking(key, sets),
-             "truck4": truck4_tracking(key, sets)}
+             "truck4": truck4_tracking(key, sets),
+             "synth": synth(dataclasses.replace(base, persist=on))}
         results[key] = r
         sd, st, t4 = r["santiago_detection"], r["santiago_tracking"]["mean"], r["truck4"]
         print(f"persist {key}: Santiago P/R@IoU0.5 {sd['iou']['precision']:.3f}/"
               f"{sd['iou']['recall']:.3f}; HOTA {st['HOTA']:.4f} IDF1 {st['IDF1']:.4f} "
               f"(mean of seeds {list(SEEDS)}); GT 24 covered {st['gt24_frames_covered']:.1f} "
               f"frames, GT 10 {st['gt10_frames_covered']:.1f}; truck4 best ID "
-              + "/".join(f"{v:.3f}" for v in t4["best_fraction"]), flush=True)
+              + "/".join(f"{v:.3f}" for v in t4["best_fraction"])
+              + f"; generated scenes P/R {r['synth']['precision_iou0.5']:.3f}/"
+              f"{r['synth']['recall_iou0.5']:.3f}", flush=True)
         if on:
             print(f"  persistence detections on Santiago: {sd['persistent_detections']}")
             for gid in STANDING:
