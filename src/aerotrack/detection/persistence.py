@@ -39,7 +39,7 @@ Santiago HOTA / IDF1 (mean of seeds 0-2)        0.634 / 0.851  0.629 / 0.833
 Santiago GT 24 (stands at the light from ~64):
 frames covered by a track at IoU 0.5 (mean)     44             55
 generated scenes P / R (3 seeds, 150 frames)    0.877 / 0.808  0.875 / 0.810
-detection CPU time per frame, on / off          1.21 at 1280x720 and 1920x1080 (two runs: 1.17-1.27)
+detection CPU time per frame, 720p and 1080p    1              1.21 (1.17-1.27)
 ==============================================  =============  ==============
 
 Off by default, because of what the table shows: persistence finds what it is built for, small
