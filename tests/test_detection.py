@@ -20,6 +20,7 @@ from aerotrack.detection import (
 from aerotrack.detection.blobs import Blob, join_vehicle_parts
 from aerotrack.detection.detector import (
     SizeGates,
+    _gain_normalise,
     _outline_ratio,
     detect_moving,
     local_scale,
@@ -294,6 +295,28 @@ def test_local_scales_equal_one_call_per_point():
         pts = rng.uniform(-100, 1500, (int(rng.integers(1, 40)), 2))
         np.testing.assert_array_equal(local_scales(H, pts), [local_scale(H, q) for q in pts])
     assert local_scales(np.eye(3), np.zeros((0, 2))).shape == (0,)
+
+
+def test_gain_normalise_equals_two_resizes():
+    """The block means of frame and background from one 2-channel area resize are those of
+    one resize each, bit for bit (also for a single block)."""
+    import cv2
+
+    rng = np.random.default_rng(7)
+    for block in (4.0, 16.0, 48.0, 500.0):
+        img = cv2.GaussianBlur(rng.integers(0, 256, (90, 130, 3), dtype=np.uint8), (0, 0), 2)
+        bg = cv2.GaussianBlur(rng.integers(0, 256, (90, 130, 3), dtype=np.uint8), (0, 0), 2)
+        img[:30] //= 4  # a dark band: gains at the 0.5 clip
+        h, w = img.shape[:2]
+        gw, gh = max(1, round(w / block)), max(1, round(h / block))
+        gi = cv2.resize(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), (gw, gh), interpolation=cv2.INTER_AREA)
+        gb = cv2.resize(cv2.cvtColor(bg, cv2.COLOR_BGR2GRAY), (gw, gh), interpolation=cv2.INTER_AREA)
+        gain = (gi.astype(np.float32) + 4.0) / (gb.astype(np.float32) + 4.0)
+        if gw >= 3 and gh >= 3:
+            gain = cv2.medianBlur(gain, 3)
+        gain = cv2.resize(np.clip(gain, 0.5, 2.0), (w, h), interpolation=cv2.INTER_LINEAR)
+        ref = cv2.multiply(bg.astype(np.float32), cv2.merge([gain] * 3)).clip(0, 255).astype(np.uint8)
+        np.testing.assert_array_equal(_gain_normalise(img, bg, block), ref)
 
 
 def test_bad_config_is_refused():
