@@ -21,6 +21,7 @@ from aerotrack.detection.blobs import Blob, join_vehicle_parts
 from aerotrack.detection.detector import (
     SizeGates,
     _gain_normalise,
+    _pad0,
     _outline_ratio,
     detect_moving,
     local_scale,
@@ -317,6 +318,15 @@ def test_gain_normalise_equals_two_resizes():
         gain = cv2.resize(np.clip(gain, 0.5, 2.0), (w, h), interpolation=cv2.INTER_LINEAR)
         ref = cv2.multiply(bg.astype(np.float32), cv2.merge([gain] * 3)).clip(0, 255).astype(np.uint8)
         np.testing.assert_array_equal(_gain_normalise(img, bg, block), ref)
+
+
+def test_pad0_equals_np_pad():
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        m = (rng.random(tuple(rng.integers(1, 30, 2))) < 0.5).astype(np.uint8)
+        for n in (1, 2, 3):
+            np.testing.assert_array_equal(_pad0(m, n), np.pad(m, n))
+            np.testing.assert_array_equal(_pad0(m[::2, 1:], n), np.pad(m[::2, 1:], n))
 
 
 def test_bad_config_is_refused():

@@ -155,7 +155,7 @@ def split_blob(blob: Blob, *, min_area: float, max_radius: int) -> list[Blob]:
         ``[blob]`` when it does not split.
     """
     x0, y0 = blob.box[:2]
-    m = np.pad(blob.mask.astype(np.uint8), 1)
+    m = cv2.copyMakeBorder(blob.mask.astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     for r in range(1, max_radius + 1):
         core = cv2.erode(m, _disk(r))
         n, labels, stats, _ = cv2.connectedComponentsWithStats(core, connectivity=8)

@@ -150,7 +150,7 @@ def border_fill_mask(image: np.ndarray, level: int = 12) -> np.ndarray:
         return np.zeros(dark.shape, bool)
     # a ring of "dark" around the image joins every dark region touching the border; one flood
     # fill from the ring marks them all (8-connected), ~9x faster than labelling every component
-    m = np.pad(dark.astype(np.uint8), 1, constant_values=1)
+    m = cv2.copyMakeBorder(dark.astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
     cv2.floodFill(m, None, (0, 0), 2, flags=8)
     m = (m[1:-1, 1:-1] == 2).astype(np.uint8)
     return cv2.dilate(m, np.ones((3, 3), np.uint8)) > 0
@@ -217,6 +217,11 @@ def smoothed_residual(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 1,
     d = cv2.subtract(pos, neg, dtype=cv2.CV_16S)
     d = cv2.GaussianBlur(d, (0, 0), sigma_px)
     return _channel_max(cv2.convertScaleAbs(d))
+
+
+def _pad0(m: np.ndarray, n: int) -> np.ndarray:
+    """``np.pad(m, n)`` of a 2-D uint8 image (zeros around it) at a tenth of the cost."""
+    return cv2.copyMakeBorder(m, n, n, n, n, cv2.BORDER_CONSTANT, value=0)
 
 
 def _channel_max(img: np.ndarray) -> np.ndarray:
@@ -408,7 +413,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
             # Thickness = twice the largest inscribed radius: the residual of a parallax edge
             # (a wall or overpass side the ground homography does not register) is a thin
             # line however long; a vehicle is at least about its width thick.
-            dist = cv2.distanceTransform(np.pad(fgm, 1).astype(np.uint8), cv2.DIST_L2, 3)
+            dist = cv2.distanceTransform(_pad0(fgm.astype(np.uint8), 1), cv2.DIST_L2, 3)
             if 2.0 * float(dist.max()) < gates.min_width_px:
                 continue
         ys, xs = np.nonzero(fgm)
@@ -562,7 +567,7 @@ def blob_polygons(blobs: list[Blob], grow: int = 1) -> list[np.ndarray]:
     k = np.ones((2 * grow + 1,) * 2, np.uint8)
     for b in blobs:
         x, y, _, _ = b.box
-        m = cv2.dilate(np.pad(b.mask.astype(np.uint8), grow + 1), k)
+        m = cv2.dilate(_pad0(b.mask.astype(np.uint8), grow + 1), k)
         contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if contours:
             hull = cv2.convexHull(np.concatenate(contours))
