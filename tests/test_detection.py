@@ -21,8 +21,8 @@ from aerotrack.detection.blobs import Blob, join_vehicle_parts
 from aerotrack.detection.detector import (
     SizeGates,
     _gain_normalise,
-    _pad0,
     _outline_ratio,
+    _pad0,
     detect_moving,
     local_scale,
     local_scales,
