@@ -17,6 +17,7 @@ from aerotrack.detection import (
     shadow_mask,
     stack_median,
 )
+from aerotrack.detection.appearance import median_u8
 from aerotrack.detection.blobs import Blob, join_vehicle_parts
 from aerotrack.detection.detector import (
     SizeGates,
@@ -327,6 +328,14 @@ def test_pad0_equals_np_pad():
         for n in (1, 2, 3):
             np.testing.assert_array_equal(_pad0(m, n), np.pad(m, n))
             np.testing.assert_array_equal(_pad0(m[::2, 1:], n), np.pad(m[::2, 1:], n))
+
+
+def test_median_u8_equals_np_median():
+    rng = np.random.default_rng(4)
+    for n in [1, 2, 3, 4, *rng.integers(5, 500, 40)]:
+        v = rng.integers(0, int(rng.integers(1, 257)), int(n)).astype(np.uint8)
+        assert median_u8(v) == float(np.median(v))
+    assert median_u8(np.array([[3, 250], [7, 9]], np.uint8)) == 8.0
 
 
 def test_bad_config_is_refused():

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .appearance import median_u8
+
 
 @dataclass
 class Blob:
@@ -369,7 +371,8 @@ def edge_extent(residual: np.ndarray, mask: np.ndarray, *, level: float,
     vals = residual[mask]
     if not len(vals):
         return None
-    edge = mask & (residual >= max(floor, level * float(np.median(vals))))
+    med = median_u8(vals) if vals.dtype == np.uint8 else float(np.median(vals))
+    edge = mask & (residual >= max(floor, level * med))
     ys, xs = np.nonzero(edge)
     if not len(xs):
         return None
