@@ -398,6 +398,14 @@ def test_track_command_runs_on_the_cluster(tmp_path, scene, client):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 45 and summary["counts"]["registered_frames"] == 45
     assert not (out / ".partial").exists()
+    # its stages/ serve `track --from` like a single process's: the same detections come back
+    again = tmp_path / "again"
+    r = CliRunner().invoke(cli, ["track", "--from", str(out), "--out", str(again), "--fps", "10",
+                                 "--gsd", "0.3"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    redone = json.loads((again / "summary.json").read_text())
+    assert redone["counts"]["detections"] == summary["counts"]["detections"] > 0
+    assert (again / "detections.csv").read_text() == (out / "detections.csv").read_text()
     r = CliRunner().invoke(cli, args + ["--overwrite", "--workers", "2", "--scheduler", "x:1"])
     assert isinstance(r.exception, InputError) and "cannot be used together" in str(r.exception)
 

@@ -712,6 +712,9 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
 
     config = config or Config()
     regs, dets, _ = load_chunks(stages)
+    if any(len(d) and d.hist is None for d in dets):
+        log.warning("%s: the cached detections carry no colour histograms (a --workers run keeps "
+                    "them light): association compares motion only", stages)
     pipe = Pipeline(config, fps, geomap=geomap, seed=seed, detections={},
                     metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps,
                     roads=roads)

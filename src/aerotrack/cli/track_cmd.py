@@ -383,6 +383,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         }
         summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                                 out_crs=out_crs)
+        if workers is not None or scheduler is not None:
+            # A Dask run's stages/ holds segment results; the joined registrations and detections
+            # go there as one chunk too, so that `track --from` re-associates it like any run.
+            from ..io.checkpoint import save_chunk
+
+            save_chunk(out.partial, 0, [result.registrations[k] for k in sorted(result.registrations)],
+                       list(result.detections))
         out.finish(keep_as="stages")
     c = summary["counts"]
     if not quiet:
