@@ -550,7 +550,7 @@ class LinkingConfig:
         Expected change of velocity between the end of one tracklet and the start of its
         continuation: at gap 0 (m/s) and its growth per second of gap (m/s^2).
     weight_motion, weight_appearance, weight_descriptor : float
-        Weights of the three cues in the link cost (docs/CONTEXT.md); 0 switches a cue off.
+        Weights of the three cues in the link cost (docs/DESIGN.md, "Persistent identity"); 0 switches a cue off.
     max_cost : float
         A pair whose fused cost exceeds this is never linked (the cost of "a new target").
     min_tracklet_s : float

@@ -36,10 +36,13 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
      to ``window``.
 3. **Frame border**: a box touching the border is clipped by it; it gives no size and its centre
    is rebuilt from its inner edges and the track's size before the final smoothing. Reported
-   boxes are clipped to the frame.
-4. **Static tracks** (:func:`is_static`): a track whose smoothed ground points stay within a box
-   of ``static_extent_m`` diagonal never moved (a parked vehicle, a median blob, a registration
-   artefact) and is dropped. A vehicle that waits and then drives is kept whole.
+   boxes keep the whole vehicle past the border unless ``clip_to_frame`` (off by default, as
+   ground truths draw them).
+4. **Static and small tracks** (:func:`is_static`, :func:`is_small`): a track whose smoothed
+   ground points stay within a box of ``static_extent_m`` diagonal never moved (a parked vehicle,
+   a median blob, a registration artefact) and is dropped; so is one whose typical footprint is
+   under ``min_size_m`` (a pedestrian, a fragment). A vehicle that waits and then drives is kept
+   whole.
 5. **Standing vehicles** (:func:`hold_stops`, before the steps above): a vehicle that stopped
    where the detector lost it (its sliding-window background absorbs a standing vehicle) is
    reported ``stationary`` at its stop: over a gap between two observations at the same place,

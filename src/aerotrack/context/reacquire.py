@@ -5,7 +5,7 @@ appearance; Yu & Medioni: an appearance threshold on spatio-temporally consisten
 scores a candidate link "earlier tracklet a ends, later tracklet b starts" by a sum of per-cue costs,
 each scaled like a negative log-likelihood ratio (about 0 to 1 for a true link, growing for a wrong
 one), and links all pairs jointly by minimum total cost (see
-:class:`aerotrack.association.linking.GlobalLinker` and docs/CONTEXT.md):
+:class:`aerotrack.association.linking.GlobalLinker` and docs/DESIGN.md ("Persistent identity")):
 
 * motion: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2 + 0.5 (lag / sigma_l)^2`` with d the
   distance, in metres, from b's start to the path the motion context predicted for a (averaged with
