@@ -199,17 +199,18 @@ def test_cli_text_and_json(tmp_path, capsys):
     write_mot(tmp_path / "pred.txt", gt)
     code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
                            str(tmp_path / "pred.txt"), "--json"], capsys)
-    assert code == 0
+    assert code == 0, err
     assert json.loads(out)["MOTA"] == pytest.approx(1.0)
-    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
-                           str(tmp_path / "pred.txt")], capsys)
+    code, out, _ = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                         str(tmp_path / "pred.txt")], capsys)
+    assert code == 0
     assert "HOTA" in out and "IDF1" in out and "1.000" in out
 
 
 def test_cli_missing_file(tmp_path, capsys):
     write_mot(tmp_path / "gt.txt", _two_targets(3))
-    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
-                           str(tmp_path / "nope.txt")], capsys)
+    code, _, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                         str(tmp_path / "nope.txt")], capsys)
     assert code == 2
     assert err.strip().count("\n") == 0 and "nope.txt" in err and "not found" in err
     assert "Traceback" not in err
@@ -218,8 +219,8 @@ def test_cli_missing_file(tmp_path, capsys):
 def test_cli_malformed_row_names_the_line(tmp_path, capsys):
     write_mot(tmp_path / "gt.txt", _two_targets(3))
     (tmp_path / "pred.txt").write_text("1,1,10,10,5,5,1\n2,1,10,abc,5,5,1\n")
-    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
-                           str(tmp_path / "pred.txt")], capsys)
+    code, _, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                         str(tmp_path / "pred.txt")], capsys)
     assert code == 2 and "line 2" in err and err.strip().count("\n") == 0
     assert "Traceback" not in err
 
@@ -230,8 +231,8 @@ def test_cli_negative_size_in_pred_refused_but_accepted_in_gt(tmp_path, capsys):
     neg[0, 4] = -20
     write_mot(tmp_path / "gt.txt", gt)
     write_mot(tmp_path / "neg.txt", neg)
-    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
-                           str(tmp_path / "neg.txt")], capsys)
+    code, _, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                         str(tmp_path / "neg.txt")], capsys)
     assert code == 2 and "negative" in err and err.strip().count("\n") == 0
     code, out, err = _run(["eval", "--gt", str(tmp_path / "neg.txt"), "--pred",
                            str(tmp_path / "gt.txt"), "--json"], capsys)
@@ -250,6 +251,7 @@ def test_cli_folders_pair_by_sequence(tmp_path, capsys):
     write_mot(tmp_path / "pred" / "S2.txt", b[b[:, 1] == 1])
     code, out, err = _run(["eval", "--gt", str(tmp_path / "gt"), "--pred", str(tmp_path / "pred"),
                            "--json"], capsys)
+    assert code == 0, err
     res = json.loads(out)
     assert set(res["sequences"]) == {"S1", "S2"}
     assert res["GT_Dets"] == 60 and res["MOTA"] == pytest.approx(40 / 60)

@@ -436,7 +436,7 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path):
     assert info["features"] == n and info["geometry_type"] == "Point"
     crs = CRS.from_user_input(info["crs"])
     assert crs.to_epsg() == 32611 and crs.axis_info[0].unit_name == "metre"
-    meta, _, geom, fields = pyogrio.raw.read(out["gpkg"], layer="observations")
+    meta, _, geom, _ = pyogrio.raw.read(out["gpkg"], layer="observations")
     names = list(meta["fields"])
     assert "speed_mps" in names and "kind" in names
     x0, y0 = np.frombuffer(geom[0][-16:], "<f8")

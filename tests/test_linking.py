@@ -132,7 +132,7 @@ def test_appearance_decides_when_the_motion_cannot():
 
 def test_gates_refuse_impossible_links_and_ends_are_predicted():
     paths = {1: _line([0, 0], [10, 0], 90), 2: _line([500, 0], [10, 0], 90)}
-    tl, truth = _tracklets(paths, {1: 1, 2: 120}, {}, {1: [1, 0, 0, 0], 2: [1, 0, 0, 0]})
+    tl, _ = _tracklets(paths, {1: 1, 2: 120}, {}, {1: [1, 0, 0, 0], 2: [1, 0, 0, 0]})
     linker = GlobalLinker(LinkingConfig(v_max_mps=40.0), ContextConfig(prediction_horizon_s=2.0), FPS)
     tracks = linker.link(tl)
     assert len(tracks) == 2  # 410 m in 1 s is impossible
@@ -158,7 +158,7 @@ def test_joint_assignment_beats_greedy():
 @pytest.mark.parametrize("method", ["paper", "kalman", "constant-velocity"])
 def test_linker_runs_with_every_motion_method(method):
     paths = {1: _line([0, 0], [10, 0], 200)}
-    tl, truth = _tracklets(paths, {1: 1}, {1: [(80, 120)]}, {1: [1, 0, 0, 0]})
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(80, 120)]}, {1: [1, 0, 0, 0]})
     tracks = GlobalLinker(LinkingConfig(), ContextConfig(method=method), FPS).link(tl)
     assert len(tracks) == 1
 

@@ -190,11 +190,11 @@ def test_chain_worlds_recovers_the_world_change():
     assert np.allclose(A, np.eye(3)) and np.isnan(rms)
 
 
-def _track(tid, frames, xy0, v, A=np.eye(3)):
+def _track(tid, frames, xy0, v, A=None):
     """Points of a target moving at ``v`` px/frame in frame pixels (frame = world 0 here),
-    expressed in a segment world related to world 0 by ``A`` (world_k -> world 0)."""
+    expressed in a segment world related to world 0 by ``A`` (world_k -> world 0; None: identity)."""
     pts = []
-    inv = np.linalg.inv(A)
+    inv = np.eye(3) if A is None else np.linalg.inv(A)
     for f in frames:
         c = np.asarray(xy0, float) + np.asarray(v, float) * f
         pts.append(TrackPoint(f, np.array([c[0] - 5, c[1] - 3, 10, 6]),
@@ -217,7 +217,7 @@ def test_join_stitches_tracklets_across_the_cut_and_keeps_each_frame_once():
              _track(8, range(70, 100), (50, 150), (0.0, -1.0), A1)]
     res = [SegmentResult(a, regs0, [], left, (320, 240)),
            SegmentResult(b, regs1, [], right, (320, 240))]
-    regs, dets, tracklets, report = join_segments(res)
+    regs, _, tracklets, report = join_segments(res)
     assert sorted(regs) == list(range(1, 101))
     assert all(np.allclose(r.H, np.eye(3), atol=1e-5) for r in regs.values())  # world 0 = frame
     assert report.stitched == [1] and report.cut == [0]

@@ -107,7 +107,7 @@ def test_context_follows_the_circle_better_than_cv(scene):
     ("id,last_seen,horizon\n1,10\n", "expected 3 values"),
 ])
 def test_bad_queries_exit_2_with_one_line(scene, capsys, qtext, needle):
-    tmp, rows, tracks, _ = scene
+    tmp, _, tracks, _ = scene
     q = tmp / "bad.csv"
     q.write_text(qtext)
     with pytest.raises(SystemExit) as exc:
@@ -119,7 +119,7 @@ def test_bad_queries_exit_2_with_one_line(scene, capsys, qtext, needle):
 
 
 def test_missing_tracks_and_map_space(scene, capsys):
-    tmp, rows, tracks, q = scene
+    tmp, _, tracks, q = scene
     with pytest.raises(SystemExit) as exc:
         _run(["predict", str(tmp / "nope.csv"), "--queries", str(q), "--out", str(tmp / "o.csv")])
     assert exc.value.code == 2 and "not found" in capsys.readouterr().err

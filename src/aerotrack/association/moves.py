@@ -290,7 +290,7 @@ class WindowSampler:
             hp, lhp, h, lh = s.hist[lp], s.loghist[lp], s.hist[lg], s.loghist[lg]
         else:
             hp = lhp = h = lh = _EMPTY1
-        xs, Ps, d2s, gaps, links, apps, d2, link = append_link(
+        xs, Ps, d2s, gaps, links, apps, d2, _link = append_link(
             base.xs[:keep], base.Ps[:keep], base.d2[:keep], base.gaps[:keep], base.links[:keep],
             base.app[:keep], int(s.frame[lp]), s.z[lg], int(s.frame[lg]), hp, lhp, h, lh,
             self.p.fps, self.p.kf, self.p.gate2, self.p.miss_cost, self.p.app_weight,

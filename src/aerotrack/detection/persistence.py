@@ -253,7 +253,7 @@ def peak_box(evidence: np.ndarray, x: int, y: int, max_side: int,
         return None
     ky, kx = np.unravel_index(int(np.argmax(nb)), nb.shape)
     m = (win >= ratio * top).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     lab = labels[ys0 + ky, xs0 + kx]
     if lab == 0:
         return None
