@@ -1177,7 +1177,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     for it in todo:
         try:
             sources[it.name] = open_source(it.input, fps)
-        except Exception as exc:  # one bad input must not stop the batch
+        except Exception as exc:  # noqa: BLE001  one bad input must not stop the batch
             fail(it, exc)
     if client is not None:
         per = parallel or ParallelConfig(min_segments=1)
@@ -1192,7 +1192,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                    stride=stride, seed=seed, metres_per_unit=metres_per_unit,
                                    hold_after_s=per.hold_after_s)
                 futures[it.name] = (segs, submit_tasks(client, tasks, name=it.name))
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
                 fail(it, exc)
     for it in todo:
         src = sources.get(it.name)
@@ -1214,7 +1214,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                     "wall_time_s": round(time.perf_counter() - t0, 3)}
             summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
             folder.finish()
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
             fail(it, exc)
             continue
         out[it.name] = summary

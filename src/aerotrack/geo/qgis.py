@@ -66,6 +66,7 @@ class ControlPoints:
     def to_target(self, target: Any = None) -> np.ndarray:
         """(N, 2) control points in ``target``: a GeoMap (its map pixels), a CRS, or None (as read)."""
         from pyproj import CRS, Transformer
+        from pyproj.exceptions import CRSError
 
         from .maprast import GeoMap
 
@@ -76,7 +77,7 @@ class ControlPoints:
         else:
             try:
                 dst_crs = CRS.from_user_input(target)
-            except Exception as exc:  # pyproj's CRSError
+            except CRSError as exc:
                 raise InputError(f"{self.label}: target CRS {target!r} not understood ({exc})") from None
         xy = self.crs_xy
         if self.crs is not None and not self.crs.equals(dst_crs):
@@ -127,10 +128,11 @@ def fit_homography(src: np.ndarray, dst: np.ndarray, label: str) -> np.ndarray:
 
 def _parse_crs(text: str, label: str, lineno: int):
     from pyproj import CRS
+    from pyproj.exceptions import CRSError
 
     try:
         return CRS.from_user_input(text.strip())
-    except Exception as exc:  # pyproj's CRSError
+    except CRSError as exc:
         raise FormatError(f"{label} line {lineno}: CRS not understood ({str(exc)[:80]})") from None
 
 

@@ -163,6 +163,7 @@ def read_region(path: str | Path, geomap: Any = None, *, mode: str = "include",
         CSV row (the message names the line).
     """
     from pyproj import CRS
+    from pyproj.exceptions import CRSError
 
     p = Path(path)
     label = f"{option} {p}"
@@ -181,7 +182,7 @@ def read_region(path: str | Path, geomap: Any = None, *, mode: str = "include",
             name = (obj["crs"].get("properties") or {}).get("name")
             try:
                 crs = CRS.from_user_input(name)
-            except Exception:  # pyproj's CRSError
+            except CRSError:
                 raise FormatError(f"{label}: crs {name!r} not understood") from None
             kind = "lonlat" if crs.equals(CRS.from_epsg(4326)) else "crs"
         elif space is None:
@@ -205,6 +206,7 @@ _CSV_KINDS = {("x", "y"): "frame", ("frame_x", "frame_y"): "frame",
 
 def _csv_polygons(text: str, label: str):
     from pyproj import CRS
+    from pyproj.exceptions import CRSError
 
     crs = None
     header = None
@@ -218,7 +220,7 @@ def _csv_polygons(text: str, label: str):
             if body.lower().startswith("crs:"):
                 try:
                     crs = CRS.from_user_input(body[4:].strip())
-                except Exception:  # pyproj's CRSError
+                except CRSError:
                     raise FormatError(f"{label} line {lineno}: CRS not understood") from None
             continue
         cells = [c.strip() for c in next(csv.reader(io.StringIO(s)))]

@@ -189,6 +189,8 @@ def _target_transform(target: Any, lon: float, lat: float):
 
     if isinstance(target, GeoMap):
         return lambda en: target.lonlat_to_pixel(to_lonlat(en))
+    from pyproj.exceptions import ProjError
+
     key = target if isinstance(target, str) else None
     try:
         if key is None:
@@ -196,7 +198,7 @@ def _target_transform(target: Any, lon: float, lat: float):
 
             key = CRS.from_user_input(target).to_wkt()
         t = _lonlat_transformer(key)
-    except Exception as exc:  # pyproj raises CRSError, a subclass of Exception
+    except ProjError as exc:  # CRSError (not a CRS) or a failed transformer
         raise InputError(f"camera target CRS {target!r}: not understood ({exc})") from None
 
     def fn(en):

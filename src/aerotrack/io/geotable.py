@@ -141,6 +141,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         The output CRS as ``AUTH:CODE`` (or WKT if it has no code).
     """
     from pyproj import CRS, Geod, Transformer
+    from pyproj.exceptions import CRSError
 
     if geomap is None:
         raise InputError("observation table: needs a map (--map) for lon/lat and the output CRS")
@@ -173,7 +174,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         out_crs = utm_crs_for(float(med[0]), float(med[1]))
     try:
         ocrs = CRS.from_user_input(out_crs)
-    except Exception as exc:  # pyproj's CRSError
+    except CRSError as exc:
         raise InputError(f"--out-crs {out_crs!r}: not understood ({exc})") from None
     if not ocrs.is_projected:
         raise InputError(f"--out-crs {out_crs!r}: must be a projected CRS (metres), not geographic")
@@ -284,7 +285,7 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
         write(str(tmp), geom, data, names, layer="observations", driver="GPKG",
               geometry_type="Point", crs=crs_name)
         os.replace(tmp, path)
-    except Exception as exc:
+    except (OSError, RuntimeError, ValueError) as exc:  # pyogrio's errors are RuntimeErrors
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise OutputError(f"{path}: cannot write the GeoPackage ({exc})") from None
