@@ -49,8 +49,12 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from common import REPO, WORK, write_results
+
+if TYPE_CHECKING:  # numpy is imported where used (the parent process stays light)
+    import numpy as np
 
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "NUMEXPR_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
@@ -77,7 +81,7 @@ def make_video(folder: Path, n: int, size: tuple[int, int], fps: float,
     cmd = [sys.executable, "-m", "aerotrack", "synth", "--out", str(folder), "--frames", str(n),
            "--size", f"{size[0]}x{size[1]}", "--fps", f"{fps:g}", "--scenario", scenario,
            "--overwrite"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if r.returncode != 0 or not (folder / "frames").is_dir() or not (folder / "gt.txt").is_file():
         # No stand-in scene: a fallback with other content made accuracy columns meaningless.
         sys.exit(f"benchmark: aerotrack synth failed for {folder}: "
@@ -163,7 +167,7 @@ def run_mode(mode: str, frames: Path, fps: float, gsd: float, out: Path, seed: i
                                "join": join, "rows": rows.tolist(), "detections": dets}))
 
 
-def _match_ids(base: "np.ndarray", rows: "np.ndarray", iou_min: float = 0.5) -> dict:
+def _match_ids(base: np.ndarray, rows: np.ndarray, iou_min: float = 0.5) -> dict:
     """(frame, base id) -> id of ``rows`` for boxes matched in the same frame (Hungarian on IoU)."""
     import numpy as np
     from scipy.optimize import linear_sum_assignment

@@ -190,11 +190,11 @@ def lock_on(pos_err_m: float, height_ratio: float, heading_err_deg: float, pitch
                            pitch_deg=-90.0 + pitch_err_deg, hfov_deg=true.hfov_deg)
         H0 = pose_homography(start, size, gm)
 
-        def err_m(H):
+        def err_m(H, H_true=H_true):
             return float(np.mean(np.linalg.norm(_apply(H, corners) - _apply(H_true, corners),
                                                 axis=1))) * gm.metres_per_pixel
 
-        def refine(H):
+        def refine(H, frame=frame):
             r = refine_against_map(frame, H, map_img)
             return None if isinstance(r, Failure) else r[0]
 

@@ -11,7 +11,7 @@ from aerotrack import __version__
 
 def run(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "aerotrack", *map(str, args)],
-                          capture_output=True, text=True, cwd=cwd, timeout=300)
+                          capture_output=True, text=True, cwd=cwd, timeout=300, check=False)
 
 
 def assert_one_line_error(res, *fragments):
@@ -252,7 +252,7 @@ def test_opencv_warnings_silenced_unless_vv(tmp_path):
     def detect(out, *flags):
         return subprocess.run([sys.executable, "-m", "aerotrack", "detect", str(frames), "--out",
                                str(out), *flags], capture_output=True, text=True, env=env,
-                              timeout=300)
+                              timeout=300, check=False)
 
     res = detect(tmp_path / "a")
     assert res.returncode == 0 and "WARN" not in res.stderr, res.stderr

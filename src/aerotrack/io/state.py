@@ -315,7 +315,7 @@ def _aerotrack_class(module: str, qualname: str) -> type:
     for part in qualname.split("."):
         obj = getattr(obj, part)
     if not isinstance(obj, type):
-        raise ValueError(f"{module}.{qualname} is not a class")
+        raise ValueError(f"{module}.{qualname} is not a class")  # noqa: TRY004  bad file content (UNREADABLE)
     return obj
 
 

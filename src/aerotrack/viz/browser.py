@@ -53,7 +53,7 @@ def _run(url_or_path: str | Path, extra: list[str], timeout: float, budget_ms: i
         args = [exe, *FLAGS, f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
                 f"--virtual-time-budget={budget_ms}", *extra, target]
         try:
-            return subprocess.run(args, capture_output=True, text=True, timeout=timeout)
+            return subprocess.run(args, capture_output=True, text=True, timeout=timeout, check=False)
         except subprocess.TimeoutExpired:
             raise StageError(f"chromium did not finish within {timeout:.0f} s") from None
 
