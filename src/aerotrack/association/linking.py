@@ -386,7 +386,7 @@ class GlobalLinker:
                     continue
                 last_obs = pts[-1]
                 if k + 1 < len(chain):
-                    nxt = [p for p in tl[chain[k + 1]].points if p.kind != "predicted"][0]
+                    nxt = next(p for p in tl[chain[k + 1]].points if p.kind != "predicted")
                     gap = nxt.frame - last_obs.frame
                     if gap > 1:
                         pr = self._forward(tl, i, gap, last_obs.frame)

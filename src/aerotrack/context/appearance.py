@@ -51,7 +51,7 @@ class GaussianDiag:
     std: np.ndarray  # (D,)
 
     @classmethod
-    def fit(cls, vectors: np.ndarray, floor: float = 1e-3) -> "GaussianDiag":
+    def fit(cls, vectors: np.ndarray, floor: float = 1e-3) -> GaussianDiag:
         v = np.asarray(vectors, dtype=np.float64).reshape(len(vectors), -1)
         return cls(v.mean(axis=0), np.maximum(v.std(axis=0), floor))
 
@@ -188,7 +188,7 @@ class TrackletDescriptor:
     n_blobs: int
 
     @classmethod
-    def from_stats(cls, stats: np.ndarray, n_blobs: int = 1) -> "TrackletDescriptor | None":
+    def from_stats(cls, stats: np.ndarray, n_blobs: int = 1) -> TrackletDescriptor | None:
         """From summed statistics (6, 8, 8) ``[n, sum_B, sum_G, sum_R, sumsq_B, sumsq_G, sumsq_R,
         n_edge]`` per ring x direction. Summing the 8 directions makes it rotation-invariant; the
         rings are relative to the enclosing circle, so it is scale-invariant."""
@@ -214,7 +214,7 @@ class TrackletDescriptor:
 
     @classmethod
     def from_track(cls, track: Track, from_end: bool | None = None, max_blobs: int | None = None
-                   ) -> "TrackletDescriptor | None":
+                   ) -> TrackletDescriptor | None:
         """Accumulate ``TrackPoint.desc`` over a tracklet's observed points (optionally only the
         last / first ``max_blobs``); None when none carry statistics."""
         d = [p.desc for p in track.points if p.kind == "observed" and p.desc is not None]

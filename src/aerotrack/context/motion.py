@@ -448,9 +448,9 @@ class PaperPredictor(MotionPredictor):
             if j in previous:
                 te = previous[j] + shift
                 e = int(np.searchsorted(jf, te))
-                if e < len(jf) and jf[e] == te and e >= F and jf[e - F] == te - F:
-                    if self._gamma(Z, jf, jxy, np.array([e]))[0] <= self.config.lce_alpha:
-                        chosen[j] = te
+                if (e < len(jf) and jf[e] == te and e >= F and jf[e - F] == te - F
+                        and self._gamma(Z, jf, jxy, np.array([e]))[0] <= self.config.lce_alpha):
+                    chosen[j] = te
                 continue  # a diverged predictor is dropped, not searched again at once
             ends = np.flatnonzero((jf[F:] - jf[:-F]) == F) + F  # sections of F+1 consecutive frames
             if len(ends) == 0:
