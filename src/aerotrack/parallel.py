@@ -1123,10 +1123,9 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     for p in sorted(input_dir.iterdir(), key=lambda p: p.name):
         if p.name.startswith("."):
             continue
-        if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES and p.stat().st_size > 0:
-            found.append(p)
-        elif p.is_dir() and any(q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES
-                                for q in p.iterdir()):
+        video = p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES and p.stat().st_size > 0
+        if video or (p.is_dir() and any(q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES
+                                        for q in p.iterdir())):
             found.append(p)
     stems = [p.stem if p.is_file() else p.name for p in found]
     items = []

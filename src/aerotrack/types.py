@@ -162,10 +162,10 @@ class Detections:
         return b[:, :2] + b[:, 2:] / 2.0
 
     @classmethod
-    def empty(cls, frame: int) -> "Detections":
+    def empty(cls, frame: int) -> Detections:
         return cls(frame=frame, boxes=np.zeros((0, 4)), conf=np.zeros(0), world=np.zeros((0, 2)))
 
-    def subset(self, keep: np.ndarray) -> "Detections":
+    def subset(self, keep: np.ndarray) -> Detections:
         """Rows selected by a boolean mask or index array."""
 
         def sel(a):

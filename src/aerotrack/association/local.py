@@ -27,7 +27,7 @@ from scipy.optimize import linear_sum_assignment
 from ..config import AssociationConfig
 from ..errors import ConfigError, InputError
 from ..kalman import ConstantVelocityKF
-from ..types import Detections, Track, TrackPoint, Tracklet
+from ..types import Detections, Track, Tracklet, TrackPoint
 from .graph import HIST_EPS
 from .moves import Prior, SamplerParams, WindowSampler, WTrack
 from .posterior import iou_xywh_centre, link_step, partial_candidates, score_matrix

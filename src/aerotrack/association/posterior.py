@@ -48,7 +48,6 @@ except ImportError:  # pragma: no cover
             return args[0]
         return lambda f: f
 
-from .graph import HIST_EPS
 
 
 def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -107,7 +107,7 @@ def _parse_frames(text: str | None) -> tuple[int, int] | None:
     return a, b
 
 
-def _fmt(v: float | int, key: str) -> str:
+def _fmt(v: float, key: str) -> str:
     return f"{v:d}" if isinstance(v, int) else f"{v:.3f}"
 
 

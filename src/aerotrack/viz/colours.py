@@ -38,7 +38,7 @@ def id_bgr(track_id: int) -> tuple[int, int, int]:
 def id_hex(track_id: int) -> str:
     """``#rrggbb`` of a track ID (HTML)."""
     r, g, b = id_rgb(track_id)
-    return "#{:02x}{:02x}{:02x}".format(round(r * 255), round(g * 255), round(b * 255))
+    return f"#{round(r * 255):02x}{round(g * 255):02x}{round(b * 255):02x}"
 
 
 def text_colour_on(bgr: tuple[int, int, int]) -> tuple[int, int, int]:

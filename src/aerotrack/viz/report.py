@@ -379,7 +379,7 @@ def _metrics_table(metrics: dict) -> str:
 def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path) -> str:
     full = results.path.resolve()
     name = html.escape("/".join(full.parts[-2:]) if len(full.parts) > 2 else full.name)
-    when = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     what = []
     if input_path is not None:
         what.append(f"input {html.escape(str(input_path))}")

@@ -62,7 +62,7 @@ class RegistrationTable:
         return None if i is None else self.H[i]
 
     @classmethod
-    def read(cls, path: str | Path) -> "RegistrationTable":
+    def read(cls, path: str | Path) -> RegistrationTable:
         """Parse ``registration.csv``.
 
         Raises
@@ -281,7 +281,7 @@ class RunResults:
         return world
 
     @classmethod
-    def load(cls, path: str | Path, *, option: str = "DIR") -> "RunResults":
+    def load(cls, path: str | Path, *, option: str = "DIR") -> RunResults:
         """Read an output folder.
 
         Raises

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import subprocess
 from pathlib import Path
+from typing import Self
 
 import cv2
 import numpy as np
@@ -57,7 +58,7 @@ class VideoEncoder:
         self._proc: subprocess.Popen | None = None
         self._tmp = self.path.with_name(f".{self.path.stem}.partial{suffix}")
 
-    def __enter__(self) -> "VideoEncoder":
+    def __enter__(self) -> Self:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         w, h = self.out_size
         args = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "bgr24",
