@@ -3,6 +3,8 @@ scenes, partition validity under every move, reproducibility."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -191,7 +193,7 @@ def _check_partition(S) -> None:
         assert not (set(nodes) & seen), "a detection is in two tracks"
         seen.update(nodes)
         fr = [S.frame_of(g) for g in nodes]
-        assert all(a < b for a, b in zip(fr, fr[1:])), "two detections of a track in one frame"
+        assert all(a < b for a, b in itertools.pairwise(fr)), "two detections of a track in one frame"
         if t.prior is not None and nodes:
             assert t.prior.frame < fr[0]
         for k, g in enumerate(nodes):

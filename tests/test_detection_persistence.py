@@ -7,6 +7,7 @@ import dataclasses
 import cv2
 import numpy as np
 import pytest
+from test_detection_background import iou  # the tests folder is on sys.path
 
 from aerotrack.config import DetectionConfig
 from aerotrack.detection import MovingObjectDetector
@@ -18,7 +19,6 @@ from aerotrack.detection.persistence import (
 )
 from aerotrack.errors import ConfigError
 from aerotrack.types import Frame, Registration
-from test_detection_background import iou  # noqa: E402  (tests folder is on sys.path)
 
 FPS = 10.0
 TARGET = (10, 8)  # w, h in frame pixels

@@ -18,12 +18,19 @@ from aerotrack.geo import GeoMap, read_map_init
 from aerotrack.geo.lens import Undistorter, read_intrinsics
 from aerotrack.geo.qgis import read_qgis_points, write_qgis_points
 from aerotrack.geo.roi import filter_min_speed, read_region, track_max_speed
-from aerotrack.geo.telemetry import (CameraPose, coarse_align, ground_sample_distance,
-                                     map_pixel_aspect,
-                                     hfov_from_focal, metres_per_unit, pose_homography,
-                                     read_dji_srt, read_telemetry, read_telemetry_csv)
-from aerotrack.io.geotable import (read_registration_csv, utm_crs_for,
-                                   write_observation_table)
+from aerotrack.geo.telemetry import (
+    CameraPose,
+    coarse_align,
+    ground_sample_distance,
+    hfov_from_focal,
+    map_pixel_aspect,
+    metres_per_unit,
+    pose_homography,
+    read_dji_srt,
+    read_telemetry,
+    read_telemetry_csv,
+)
+from aerotrack.io.geotable import read_registration_csv, utm_crs_for, write_observation_table
 from aerotrack.types import Track, TrackPoint, apply_homography
 
 TILE = Path(__file__).resolve().parents[1] / "src" / "aerotrack" / "synth" / "data" / "vegas_tile.tif"

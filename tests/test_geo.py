@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 import rasterio
@@ -7,7 +9,6 @@ from rasterio.transform import from_origin
 
 from aerotrack.errors import FormatError, GeoreferenceError
 from aerotrack.geo import GeoMap, read_map_init
-from pathlib import Path
 
 TILE = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
 
@@ -61,10 +62,9 @@ def test_pixel_centre_convention(utm_map):
 
 def test_no_georeference_is_clear_error(tmp_path):
     p = tmp_path / "plain.tif"
-    with pytest.warns(rasterio.errors.NotGeoreferencedWarning):
-        with rasterio.open(p, "w", driver="GTiff", width=10, height=10, count=1,
-                           dtype="uint8") as ds:
-            ds.write(np.zeros((1, 10, 10), np.uint8))
+    with (pytest.warns(rasterio.errors.NotGeoreferencedWarning),
+          rasterio.open(p, "w", driver="GTiff", width=10, height=10, count=1, dtype="uint8") as ds):
+        ds.write(np.zeros((1, 10, 10), np.uint8))
     with pytest.raises(GeoreferenceError, match="no georeference"):
         GeoMap(p)
 

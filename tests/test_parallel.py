@@ -3,6 +3,7 @@ cluster (worker processes on loopback) against the single process."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -18,9 +19,17 @@ from click.testing import CliRunner
 
 from aerotrack.config import Config
 from aerotrack.errors import InputError
-from aerotrack.parallel import (ParallelConfig, Segment, SegmentResult, chain_worlds,
-                                join_segments, make_tasks, plan_batch, plan_segments,
-                                run_segment, stitch_pairs)
+from aerotrack.parallel import (
+    ParallelConfig,
+    SegmentResult,
+    chain_worlds,
+    join_segments,
+    make_tasks,
+    plan_batch,
+    plan_segments,
+    run_segment,
+    stitch_pairs,
+)
 from aerotrack.types import Registration, Track, TrackPoint, apply_homography
 
 TILE = Path(__file__).resolve().parents[1] / "src/aerotrack/synth/data/vegas_tile.tif"
@@ -85,7 +94,7 @@ def test_plan_partitions_frames_and_cuts_mid_overlap(n, stride, min_segments):
     assert owned == grid  # every frame owned exactly once, in order
     assert segs[0].start == 1 and segs[-1].stop == grid[-1]
     need = overlap_s * fps
-    for a, b in zip(segs, segs[1:]):
+    for a, b in itertools.pairwise(segs):
         shared = len(range(b.start, a.stop + 1, stride)) * stride
         assert shared >= need  # neighbours share at least the overlap
         # the cut is in the middle of the overlap
@@ -103,7 +112,7 @@ def test_plan_starts_segments_on_the_phase_grid(stride, align):
                          min_segments=2, align=align)
     assert len(segs) >= 3
     lead, tail = (len(range(0, 45, stride)) - len(range(0, 23, stride)), len(range(0, 23, stride)))
-    for a, b in zip(segs, segs[1:]):
+    for a, b in itertools.pairwise(segs):
         assert (b.start - 5) % (align * stride) == 0
         assert b.own_start - b.start == lead * stride  # on the grid without reading more
         assert a.stop - a.own_stop == tail * stride
@@ -121,7 +130,7 @@ def test_plan_balances_the_frames_each_segment_reads(n, align):
     owned = [s.own_stop - s.own_start + 1 for s in segs]
     if len(segs) > 2:
         assert owned[0] > owned[1] and owned[-1] > owned[1]
-    for a, b in zip(segs, segs[1:]):
+    for a, b in itertools.pairwise(segs):
         assert a.stop - a.own_stop == 53  # ceil(3.5 s * 15)
         assert b.own_start - b.start == 120 - 53  # the rest of ceil(8 s * 15)
         assert (b.start - 1) % align == 0
@@ -344,9 +353,8 @@ def test_missing_dask_names_the_extra(monkeypatch):
     from aerotrack.parallel import dask_client
 
     monkeypatch.setitem(sys.modules, "distributed", None)  # import now fails
-    with pytest.raises(InputError, match=r"pip install aerotrack\[dask\]"):
-        with dask_client(workers=1):
-            pass
+    with pytest.raises(InputError, match=r"pip install aerotrack\[dask\]"), dask_client(workers=1):
+        pass
 
 
 # -- many videos ----------------------------------------------------------------------------------

@@ -8,11 +8,10 @@ import re
 import cv2
 import numpy as np
 import pytest
+from test_viz import H, W, make_run  # the tests folder is on sys.path
 
 from aerotrack.viz.browser import find_chromium, load_page
 from aerotrack.viz.report import build_report
-
-from test_viz import H, W, make_run  # noqa: E402  (tests folder is on sys.path)
 
 pytestmark = pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed")
 

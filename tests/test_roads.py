@@ -275,7 +275,7 @@ def test_track_with_roads_on_dask_matches_the_single_process(tmp_path, capsys):
     for name, extra in (("one", roads), ("dask", [*roads, "--workers", "1"]), ("plain", [])):
         code, _, err = run_cli(capsys, *args, *extra, "--out", tmp_path / name)
         assert code == 0, err
-    read = lambda run, f: (tmp_path / run / f).read_text()  # noqa: E731
+    read = lambda run, f: (tmp_path / run / f).read_text()
     assert read("dask", "tracks.csv") == read("one", "tracks.csv")
     assert read("dask", "predicted.csv") == read("one", "predicted.csv")
     assert read("plain", "predicted.csv") != read("one", "predicted.csv")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import subprocess
@@ -55,8 +56,7 @@ def make_run(tmp: Path, with_map: bool = True, n_frames: int = 60) -> Path:
     write_mot(out / "predicted.csv", pred)
     with open(out / "registration.csv", "w") as fh:
         fh.write("frame,h00,h01,h02,h10,h11,h12,h20,h21,h22,status,inliers,inlier_ratio,error\n")
-        for r in reg:
-            fh.write(",".join(str(v) for v in r) + "\n")
+        fh.writelines(",".join(str(v) for v in r) + "\n" for r in reg)
     summary = {"fps": FPS, "frames": n_frames, "map": str(VEGAS) if with_map else None,
                "timings": {"registration": 1.5, "detection": 2.0}, "frame_size": [W, H]}
     (out / "summary.json").write_text(json.dumps(summary))
@@ -67,7 +67,7 @@ def test_colours_stable_and_distinct():
     assert id_bgr(7) == id_bgr(7)
     hues = [cv2.cvtColor(np.uint8([[id_bgr(i)]]), cv2.COLOR_BGR2HSV)[0, 0, 0] for i in range(1, 11)]
     # neighbouring IDs get clearly different hues (OpenCV hue is 0..179)
-    d = [min(abs(int(a) - int(b)), 180 - abs(int(a) - int(b))) for a, b in zip(hues, hues[1:])]
+    d = [min(abs(int(a) - int(b)), 180 - abs(int(a) - int(b))) for a, b in itertools.pairwise(hues)]
     assert min(d) > 15
     assert all(0 <= c <= 1 for c in id_rgb(12345))
 
