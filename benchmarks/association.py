@@ -36,11 +36,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import UAVDT_SEQS, WORK, write_results  # noqa: E402
+from common import UAVDT_SEQS, WORK, write_results
 
-from aerotrack.association import LocalAssociator  # noqa: E402
-from aerotrack.config import AssociationConfig, load_config  # noqa: E402
-from aerotrack.types import Detections, Track  # noqa: E402
+from aerotrack.association import LocalAssociator
+from aerotrack.config import AssociationConfig, load_config
+from aerotrack.types import Detections, Track
 
 UAVDT_FPS = 30.0
 
@@ -89,9 +89,10 @@ def run_aerotrack(dets: list[Detections], config: AssociationConfig, fps: float,
 
 
 def uavdt(config: AssociationConfig, seed: int, peers: bool) -> dict:
+    from uavdt_dets import load_uavdt_mot, make_detections
+
     from aerotrack.evaluation import evaluate_sequences
     from aerotrack.io.mot import read_mot, write_mot
-    from uavdt_dets import load_uavdt_mot, make_detections
 
     def runner(seq, dets_file, out_file, fps):
         rows = read_mot(dets_file, strict=False)

@@ -12,6 +12,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Self
 
 REPO = Path(__file__).resolve().parents[1]
 #: ../shared/data beside the checkout (override with AEROTRACK_SHARED=/path/to/shared).
@@ -48,7 +49,7 @@ def write_results(name: str, payload: dict) -> Path:
 class Timer:
     """``with Timer() as t: ...`` then ``t.seconds`` (wall clock, perf_counter)."""
 
-    def __enter__(self) -> "Timer":
+    def __enter__(self) -> Self:
         self._t0 = time.perf_counter()
         return self
 

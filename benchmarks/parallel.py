@@ -290,8 +290,7 @@ def association_parity(frames: int = 450, fps: float = 30.0) -> dict:
     from aerotrack.config import Config
     from aerotrack.evaluation import evaluate
     from aerotrack.outputs import track_rows
-    from aerotrack.parallel import (ParallelConfig, assemble, gather_segments, make_tasks,
-                                    phase_period, plan_segments)
+    from aerotrack.parallel import ParallelConfig, assemble, gather_segments, make_tasks, phase_period, plan_segments
     from aerotrack.pipeline import run
 
     out = {}

@@ -35,8 +35,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
-
-from common import WORK, UAVDT_FPS, UAVDT_SEQS, write_results
+from common import UAVDT_FPS, UAVDT_SEQS, WORK, write_results
 
 #: Registered peer names -> ``trackers`` class names.
 PEERS = {"sort": "SORTTracker", "bytetrack": "ByteTrackTracker", "ocsort": "OCSORTTracker",
@@ -121,6 +120,11 @@ def _can_import_trackers() -> bool:
     return True
 
 
+def _peer_runner(name: str, buf: float | None) -> Runner:
+    """A runner (seq, dets, out, fps) of peer ``name`` with track buffer ``buf`` seconds."""
+    return lambda seq, d, o, fps: run_peer(name, d, o, fps, buf)
+
+
 def run_peer(name: str, dets_file: str | Path, out_file: str | Path, fps: float,
              buffer_s: float | None = None) -> dict:
     """Run a peer tracker on a MOT detections file and write its tracks as MOT rows.
@@ -183,9 +187,10 @@ def uavdt_table(seed: int = 0, *, workdir: Path | None = None,
         ``{label: {"combined": {...}, "sequences": {...}, "fps": frames/s, "seconds": s}}``,
         scores from :func:`aerotrack.evaluation.evaluate_sequences` against ``SEQ_gt.txt``.
     """
+    from uavdt_dets import load_uavdt_mot, make_detections
+
     from aerotrack.evaluation import evaluate_sequences
     from aerotrack.io.mot import read_mot, write_mot
-    from uavdt_dets import load_uavdt_mot, make_detections
 
     workdir = Path(workdir or WORK / "uavdt_peers")
     workdir.mkdir(parents=True, exist_ok=True)
@@ -202,8 +207,7 @@ def uavdt_table(seed: int = 0, *, workdir: Path | None = None,
         for name in PEERS:
             for buf in (None, 2.0):
                 label = f"{PEER_LABELS[name]}" + (" 2s" if buf else "")
-                runners[label] = (lambda n, b: lambda seq, d, o, fps: run_peer(n, d, o, fps, b))(
-                    name, buf)
+                runners[label] = _peer_runner(name, buf)
     runners.update(extra or {})
     for label, fn in runners.items():
         preds, frames, seconds, inner = {}, 0, 0.0, True
@@ -275,8 +279,8 @@ def speed_table(sizes: tuple[int, ...] = (20, 50, 150), n_frames: int = 300, rep
 def format_table(table: Mapping[str, dict], baseline: str = "ByteTrack") -> str:
     """Rows: label, IDF1, HOTA, MOTA, IDSW, frames/s, speed ratio to ``baseline``."""
     base = table.get(baseline, {}).get("fps")
-    lines = [f"{'tracker':16} {'IDF1':>6} {'HOTA':>6} {'MOTA':>6} {'IDSW':>5} {'Frag':>5} "
-             f"{'FP':>5} {'FN':>6} {'fr/s':>8} {'x ' + baseline:>12}"]
+    lines = [(f"{'tracker':16} {'IDF1':>6} {'HOTA':>6} {'MOTA':>6} {'IDSW':>5} {'Frag':>5} "
+              f"{'FP':>5} {'FN':>6} {'fr/s':>8} {'x ' + baseline:>12}")]
     for label, r in table.items():
         c = r["combined"]
         fps = r.get("fps")

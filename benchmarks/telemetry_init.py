@@ -40,10 +40,9 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import SHARED_DATA, Timer, require_data, write_results  # noqa: E402
+from common import SHARED_DATA, Timer, require_data, write_results
 
-from aerotrack.geo.telemetry import (CameraPose, pose_homography,  # noqa: E402
-                                     read_telemetry_csv)
+from aerotrack.geo.telemetry import CameraPose, pose_homography, read_telemetry_csv
 
 DATA = SHARED_DATA / "songdo_geotrax_sample_tracks"
 FRAME_SIZE = (3840, 2160)  # 4K UHD; Geo-trax's largest box centre is at x = 3834

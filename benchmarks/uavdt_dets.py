@@ -33,7 +33,6 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-
 from common import UAVDT_DIR, UAVDT_SEQS, UAVDT_SIZE, WORK, require_data, write_results
 
 #: Generation parameters (fractions of box size, rates per frame); documented in the module text.
