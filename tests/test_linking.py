@@ -537,3 +537,27 @@ def test_a_short_piece_inside_a_linked_gap_joins_the_track_and_a_neighbours_does
     whole = set(range(1, 151)) | set(range(240, 400))
     assert off == [whole]
     assert on == [whole | set(range(152, 164))]
+
+
+def test_appearance_cost_is_truncated_so_a_mixed_tracklet_cannot_veto_its_own_vehicle():
+    from aerotrack.context.reacquire import appearance_cost
+
+    assert appearance_cost(1.5, True, 3.0) == pytest.approx(0.25)
+    assert appearance_cost(1.5, False, 3.0) == pytest.approx(1.25)
+    assert appearance_cost(900.0, False, 3.0) == 3.0
+    assert appearance_cost(900.0, True) == pytest.approx(449.5)
+    # a target whose later tracklet's blobs were merged with another vehicle (half their colour
+    # mass in a bin nearly empty in every earlier observation) is still one track: motion agrees
+    red, blue = [0.7, 0.1, 0.1, 0.1], [0.05, 0.05, 0.1, 0.8]
+    paths = {1: _line([0, 0], [10, 0], 300)}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(91, 111)]}, {1: red})
+    assert len(tl) == 2
+    rng = np.random.default_rng(2)
+    for p in tl[1].points:
+        p.hist = 0.5 * p.hist + 0.5 * _hist(rng, blue)
+    linker = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0)
+    assert len(linker.link(tl)) == 1
+    assert linker.last_costs[(0, 1)][1].appearance == 3.0
+    uncapped = GlobalLinker(LinkingConfig(appearance_max=1e9), ContextConfig(), FPS, metres_per_unit=1.0)
+    assert len(uncapped.link(tl)) == 2
+    assert uncapped.last_costs[(0, 1)][1].appearance > 100

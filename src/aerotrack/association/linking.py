@@ -231,7 +231,7 @@ class GlobalLinker:
                         z2 = app.intra_distance(s, a)
                         ok = app.verify(s, a, [o for o in preds_of[b]
                                                if o in app.X and distinct(o, a)])
-                        ap = appearance_cost(z2, ok)
+                        ap = appearance_cost(z2, ok, c.appearance_max)
                 de = float("nan")
                 if desc[a] is not None and desc[b] is not None:
                     de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
