@@ -378,6 +378,20 @@ def test_region_csv(tmp_path):
         read_region(tri)
 
 
+@pytest.mark.parametrize("crs", [{"type": "name", "properties": {"name": "EPSG:nope"}},
+                                 {"type": "name", "properties": ["EPSG:4326"]},
+                                 {"type": "name"}])
+def test_region_geojson_bad_crs_member_is_a_format_error(tmp_path, crs):
+    """A GeoJSON ``crs`` member that names no CRS (unknown, or ``properties`` not an object) is
+    a one-line FormatError naming the file (a list ``properties`` was an AttributeError)."""
+    p = tmp_path / "roi.geojson"
+    p.write_text(json.dumps({"type": "FeatureCollection", "crs": crs, "features": [
+        {"type": "Feature", "properties": {},
+         "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [1, 0], [1, 1], [0, 0]]]}}]}))
+    with pytest.raises(FormatError, match=r"roi\.geojson: crs .* not understood"):
+        read_region(p)
+
+
 def _track(tid, xy_m, fps, mpu):
     return Track(id=tid, points=[TrackPoint(frame=i + 1, box=np.array([0, 0, 4, 2.0]),
                                             world=np.asarray(p) / mpu, conf=1.0)

@@ -179,7 +179,8 @@ def read_region(path: str | Path, geomap: Any = None, *, mode: str = "include",
         if space in ("frame", "map_pixels"):
             kind = space
         elif isinstance(obj, dict) and isinstance(obj.get("crs"), dict):
-            name = (obj["crs"].get("properties") or {}).get("name")
+            props = obj["crs"].get("properties")
+            name = props.get("name") if isinstance(props, dict) else None
             try:
                 crs = CRS.from_user_input(name)
             except CRSError:
