@@ -389,3 +389,28 @@ def test_a_vehicle_that_drives_off_from_a_standstill_is_held_backwards():
     assert [p.frame for p in out.points if p.kind == "stationary"] == list(range(36, 96))
     with pytest.raises(ConfigError, match="stop_hold_s"):
         TrackFinisher(FinishConfig(stop_hold_s=-1.0))
+
+
+def test_persistence_boxes_take_the_vehicles_size_from_its_regular_observations():
+    """A vehicle seen by the regular detector, then only by persistence (``weak`` points, faint
+    boxes half its size) after a gap: the faint run is reported at the vehicle's size."""
+    car = _stopping(n_drive=60, n_stand=0)  # 45 x 20 boxes, frames 1..60
+    faint = []
+    for p in car.points[40:]:
+        c = p.world + [0.0, 0.0]
+        faint.append(TrackPoint(frame=p.frame + 30, box=np.array([c[0] - 10, c[1] - 5, 20, 10]),
+                                world=c, conf=0.3, kind="observed", weak=True))
+    car.points = car.points[:40] + faint  # frames 1..40 regular, 71..90 weak (a gap between)
+    out = finish_tracks([car], FinishConfig(fill_gaps_s=0.0, stop_hold_s=0.0, stop_radius_m=0.0),
+                        FPS, metres_per_unit=MPU, registrations=IDENT)
+    sizes = np.array([p.box[2:] for p in out[0].points if p.weak])
+    assert len(sizes) == 20
+    assert np.allclose(sizes, [45, 20], atol=1.0)
+    # a track of persistence boxes only keeps its own sizes
+    alone = _stopping(n_drive=60, n_stand=0, tid=2)
+    alone.points = [dataclasses.replace(p, box=np.array([p.world[0] - 10, p.world[1] - 5, 20, 10]),
+                                        weak=True) for p in alone.points[:30]]
+    out = finish_tracks([alone], FinishConfig(fill_gaps_s=0.0, stop_hold_s=0.0, stop_radius_m=0.0,
+                                              min_size_m=0.0), FPS, metres_per_unit=MPU,
+                        registrations=IDENT)
+    assert np.allclose([p.box[2:] for p in out[0].points], [20, 10], atol=1.0)

@@ -126,7 +126,7 @@ def _points(tracks):
         return (str(a.dtype), a.shape, a.tobytes())
 
     return [(t.id, [(p.frame, arr(p.box), arr(p.world), p.conf, p.kind, p.det_index,
-                     arr(p.size_world), arr(p.hist), arr(p.desc)) for p in t.points])
+                     arr(p.size_world), arr(p.hist), arr(p.desc), p.weak) for p in t.points])
             for t in tracks]
 
 
@@ -146,7 +146,8 @@ def test_spilled_tracklets_come_back_exactly(tmp_path):
                 det_index=int(rng.integers(0, 9)) if observed else -1,
                 size_world=rng.normal(size=2) if f % 3 else None,
                 hist=rng.random(12).astype(np.float32) if observed and f % 2 else None,
-                desc=rng.random(20) if observed and k == 3 else None))
+                desc=rng.random(20) if observed and k == 3 else None,
+                weak=observed and f % 5 == 0))
         tracks.append(Track(k + 1, pts))
     spill = TrackletSpill(tmp_path / "spill", chunk=3)
     spill.extend(tracks)

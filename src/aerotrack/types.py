@@ -202,6 +202,7 @@ class TrackPoint:
     size_world: np.ndarray | None = None  # (2,) box width, height in world units
     hist: np.ndarray | None = None  # (B,) colour histogram of the blob (Detections.hist row)
     desc: np.ndarray | None = None  # ring-descriptor statistics (Detections.extra["desc"] row)
+    weak: bool = False  # found by multi-frame persistence: a faint box, its place but not its size
 
 
 @dataclass

@@ -454,8 +454,9 @@ class TrackFinisher:
         # driving along with it stands still
         if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
             return False
-        # a held stop's box is a copy: the size comes from the observations around it
-        full = measured & ~edge & np.array([p.kind == "observed" for p in pts])
+        # a held stop's box is a copy, a persistence box (``weak``) a faint blob's: the size
+        # comes from the regular observations around them
+        full = measured & ~edge & np.array([p.kind == "observed" and not p.weak for p in pts])
         if regs is not None and is_small(sizes[full], mpu, c.min_size_m):
             return False
         J = _jacobian(Hinv, xs[:, :2])
@@ -463,7 +464,16 @@ class TrackFinisher:
         # vehicles must not give one of them the other's size
         new = np.zeros((n, 4))
         cuts = np.flatnonzero(np.diff(frames) > 1) + 1
+        weak = np.array([p.weak for p in pts])
         for run in np.split(np.arange(n), cuts):
+            if mode != "detection" and not full[run].any() and weak[run].any() and full.any():
+                # a run of persistence boxes only (the vehicle went faint, e.g. standing
+                # half-absorbed by the background): its size from the track's regular
+                # observations nearest in time rather than from faint blobs
+                both = np.union1d(run, np.flatnonzero(full))
+                new[run] = self._run_boxes(both, "window", xs, boxes, J, Hinv, times, full,
+                                           mpu)[np.searchsorted(both, run)]
+                continue
             new[run] = self._run_boxes(run, mode, xs, boxes, J, Hinv, times, full, mpu)
         if c.smooth and edge.any():
             # a border-clipped box: its inner edges are right; rebuild its centre with the full

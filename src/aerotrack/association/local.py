@@ -362,6 +362,7 @@ class LocalAssociator:
 def _point(det: Detections, i: int) -> TrackPoint:
     """The observed TrackPoint of row ``i`` of ``det`` (its fields copied)."""
     desc = det.extra.get("desc")
+    weak = det.extra.get("persistent")
     return TrackPoint(
         frame=det.frame,
         box=np.asarray(det.boxes[i], dtype=np.float64).copy(),
@@ -372,6 +373,7 @@ def _point(det: Detections, i: int) -> TrackPoint:
         size_world=None if det.size_world is None else np.asarray(det.size_world[i], float).copy(),
         hist=None if det.hist is None else np.asarray(det.hist[i], float).copy(),
         desc=None if desc is None else np.asarray(desc[i]).copy(),
+        weak=False if weak is None else bool(weak[i]),
     )
 
 

@@ -175,6 +175,7 @@ def pack_tracks(tracks: list[Track]) -> dict[str, np.ndarray]:
         "p_conf": np.array([p.conf for p in pts], dtype=np.float64),
         "p_kind": np.array([code[k] for k in kinds], dtype=np.int16),
         "p_det": np.array([p.det_index for p in pts], dtype=np.int64),
+        "p_weak": np.array([p.weak for p in pts], dtype=bool),
     }
     for name in ("box", "size_world", "hist", "desc"):
         vals = [getattr(p, name) for p in pts]
@@ -191,6 +192,7 @@ def unpack_tracks(z) -> list[Track]:
     names = [str(k) for k in z["kind_names"]]
     frame, world, conf = z["p_frame"], z["p_world"], z["p_conf"]
     kind, det = z["p_kind"], z["p_det"]
+    weak = z["p_weak"] if "p_weak" in z else np.zeros(len(frame), bool)
     opt = {}
     for name in ("box", "size_world", "hist", "desc"):
         shape, f32, flat = z[f"p_{name}_shape"], z[f"p_{name}_f32"], z[f"p_{name}"]
@@ -211,7 +213,7 @@ def unpack_tracks(z) -> list[Track]:
         points = [TrackPoint(frame=int(frame[i]), box=opt["box"][i], world=world[i].copy(),
                              conf=float(conf[i]), kind=names[int(kind[i])],
                              det_index=int(det[i]), size_world=opt["size_world"][i],
-                             hist=opt["hist"][i], desc=opt["desc"][i])
+                             hist=opt["hist"][i], desc=opt["desc"][i], weak=bool(weak[i]))
                   for i in range(start, start + int(count))]
         start += int(count)
         out.append(Track(int(tid), points))
