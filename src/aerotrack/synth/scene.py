@@ -406,11 +406,11 @@ class Scenario:
         shadow = np.zeros(canvas.shape[:2], np.uint8)
         bodies = []
         for v in self.vehicles:
-            fp = world.to_map(self.footprint(v)) - origin
+            fp = world.to_map(self.footprint(v)) - origin - 0.5  # OpenCV pixel centres
             if fp[:, 0].max() < -5 or fp[:, 1].max() < -5 or fp[:, 0].min() > x1 - x0 + 5 \
                     or fp[:, 1].min() > y1 - y0 + 5:
                 continue
-            sh = world.to_map(self.footprint(v) + SUN) - origin
+            sh = world.to_map(self.footprint(v) + SUN) - origin - 0.5
             cv2.fillConvexPoly(shadow, np.round(sh * 8).astype(np.int32), 255, cv2.LINE_AA, 3)
             bodies.append((v, fp))
         # Integer OpenCV arithmetic on the crop (float numpy here cost most of the render time).
@@ -428,8 +428,13 @@ class Scenario:
             keep = _padded(self._occ_keep, cy0, cy1, cx0, cx1, pad)
             over = _padded(self._occ_over, cy0, cy1, cx0, cx1, pad)
             canvas = cv2.add(cv2.multiply(canvas, keep, scale=1.0 / 255.0), over)
-        shift = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]])
-        M = np.linalg.inv(shift @ H)
+        # H maps continuous frame pixels to map pixels in the rasters' convention (pixel [r, c]
+        # covers [c, c+1) x [r, r+1), as detector boxes and GeoTIFF transforms count them);
+        # OpenCV puts pixel centres at integers: frame index i is the point i + 0.5, and map point
+        # m is canvas index m - 0.5 - origin.
+        shift = np.array([[1, 0, -x0 - 0.5], [0, 1, -y0 - 0.5], [0, 0, 1.0]])
+        half = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+        M = np.linalg.inv(shift @ H @ half)
         frame = cv2.warpPerspective(canvas, M, (w, h), flags=cv2.INTER_LINEAR,
                                     borderMode=cv2.BORDER_REPLICATE)
         gain = 1.0 + 0.06 * math.sin(2 * math.pi * t / 17.0 + self._gain_phase)

@@ -177,7 +177,7 @@ class World:
                 ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
                 wob = rad * (1 + 0.12 * rng.standard_normal(24))
                 pts = c + np.column_stack([np.cos(ang) * wob, np.sin(ang) * wob])
-                cv2.fillPoly(poly_mask, [np.round(self.to_map(pts) * 8).astype(np.int32)], 255,
+                cv2.fillPoly(poly_mask, [np.round((self.to_map(pts) - 0.5) * 8).astype(np.int32)], 255,
                              lineType=cv2.LINE_AA, shift=3)
             texture = rng.normal(0, 1, (self.height, self.width)).astype(np.float32)
             texture = cv2.GaussianBlur(texture, (0, 0), 1.6)
@@ -213,7 +213,7 @@ class World:
         corners = np.array([p - n * half_len - t * width_m / 2, p + n * half_len - t * width_m / 2,
                             p + n * half_len + t * width_m / 2, p - n * half_len + t * width_m / 2])
         mask = np.zeros_like(self.occ_mask)
-        cv2.fillPoly(mask, [np.round(self.to_map(corners) * 8).astype(np.int32)], 255,
+        cv2.fillPoly(mask, [np.round((self.to_map(corners) - 0.5) * 8).astype(np.int32)], 255,
                      lineType=cv2.LINE_AA, shift=3)
         noise = cv2.GaussianBlur(rng.normal(0, 1, mask.shape).astype(np.float32), (0, 0), 1.0)
         deck = np.clip(150 + 10 * noise, 0, 255)
@@ -222,7 +222,7 @@ class World:
         for s in (-1, 1):
             a = p + s * t * (width_m / 2 - 0.6)
             line = np.array([a - n * half_len, a + n * half_len])
-            cv2.line(layer, *[tuple(int(v) for v in q) for q in np.round(self.to_map(line))],
+            cv2.line(layer, *[tuple(int(v) for v in q) for q in np.round(self.to_map(line) - 0.5)],
                      (90, 92, 95), 2)
         sel = mask > 127
         self.occ_layer[sel] = layer[sel]
