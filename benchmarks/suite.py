@@ -63,13 +63,6 @@ FPS = 30.0
 
 
 # -- helpers --------------------------------------------------------------------------------------
-def _continuous(Hi: np.ndarray) -> np.ndarray:
-    """The generator's homography (integer pixel centres) in the continuous convention the
-    registrar uses (pixel centres at +0.5), as in tests/test_registration.py."""
-    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
-    return T @ Hi @ np.linalg.inv(T)
-
-
 def _scene(seed: int, n: int, size: tuple[int, int], fps: float):
     """A scenario and its map (the world's own colour image, as ``aerotrack synth`` writes it)."""
     from aerotrack.synth import Scenario
@@ -166,7 +159,7 @@ def child_speed(size: str, n: int, seed: int = 0, repeats: int | None = None) ->
     frames, H1 = [], None
     for frame, Hm, _ in sc.frames():
         frames.append(frame)
-        H1 = _continuous(Hm) if H1 is None else H1
+        H1 = Hm if H1 is None else H1
     render_s = time.perf_counter() - t0
     warm = Pipeline(Config(), FPS, geomap=geomap, H_init=H1)  # imports, numba JIT, caches
     for f in frames[:10]:
@@ -231,7 +224,7 @@ def child_memory(minutes: float, fps: float, seed: int = 0, generator_only: bool
     for frame, Hm, _ in sc.frames():
         if not generator_only:
             if pipe is None:
-                pipe = Pipeline(Config(), fps, geomap=geomap, H_init=_continuous(Hm))
+                pipe = Pipeline(Config(), fps, geomap=geomap, H_init=Hm)
             pipe.step(frame)
         if frame.index % max(1, n // 10) == 0:
             samples.append({"frame": frame.index, "minutes": round(frame.index / fps / 60, 3),
