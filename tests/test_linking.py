@@ -561,3 +561,17 @@ def test_appearance_cost_is_truncated_so_a_mixed_tracklet_cannot_veto_its_own_ve
     uncapped = GlobalLinker(LinkingConfig(appearance_max=1e9), ContextConfig(), FPS, metres_per_unit=1.0)
     assert len(uncapped.link(tl)) == 2
     assert uncapped.last_costs[(0, 1)][1].appearance > 100
+
+
+def test_gap_cost_adds_its_rate_per_second_of_gap():
+    paths = {1: np.vstack([_line([0, 0], [10, 0], 60), np.full((45, 2), np.nan),
+                           _line([31.5, 0], [10, 0], 60)])}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(61, 105)]}, {1: [0.4, 0.3, 0.2, 0.1]})
+    costs = []
+    for rate in (0.0, 1.0):
+        linker = GlobalLinker(LinkingConfig(gap_cost_per_s=rate), ContextConfig(method="kalman"),
+                              FPS, metres_per_unit=1.0)
+        linker.solve(tl)
+        costs.append(linker.last_costs[(0, 1)][0])
+    gap_s = (tl[1].first - tl[0].last) / FPS
+    assert costs[1] - costs[0] == pytest.approx(gap_s, abs=0.1)

@@ -237,7 +237,7 @@ class GlobalLinker:
                     de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
                                          c.descriptor_max)
                 cues = Cues(m, ap, de)
-                cost = link_cost(cues, c)
+                cost = link_cost(cues, c) + c.gap_cost_per_s * gap / self.fps
                 self.last_costs[(a, b)] = (cost, cues)
                 if cost <= c.max_cost:
                     C[a, b] = cost
