@@ -10,7 +10,7 @@ import pytest
 
 from aerotrack.association.linking import GlobalLinker, _assign
 from aerotrack.config import ContextConfig, LinkingConfig
-from aerotrack.types import Track, TrackPoint
+from aerotrack.types import Registration, Track, TrackPoint
 
 FPS = 30.0
 
@@ -563,15 +563,23 @@ def test_appearance_cost_is_truncated_so_a_mixed_tracklet_cannot_veto_its_own_ve
     assert uncapped.last_costs[(0, 1)][1].appearance > 100
 
 
-def test_gap_cost_adds_its_rate_per_second_of_gap():
-    paths = {1: np.vstack([_line([0, 0], [10, 0], 60), np.full((45, 2), np.nan),
-                           _line([31.5, 0], [10, 0], 60)])}
-    tl, _ = _tracklets(paths, {1: 1}, {1: [(61, 105)]}, {1: [0.4, 0.3, 0.2, 0.1]})
-    costs = []
-    for rate in (0.0, 1.0):
+def test_gap_cost_counts_the_seconds_the_prediction_spends_in_view():
+    """A target unseen for 1.5 s: with the whole gap in view each second costs the rate; with a
+    frame it has left (an exit) nothing; without registrations nothing."""
+    paths = {1: np.vstack([_line([0, 10], [10, 0], 60), np.full((45, 2), np.nan),
+                           _line([34.5, 10], [10, 0], 60)])}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(61, 106)]}, {1: [0.4, 0.3, 0.2, 0.1]})
+    regs = {f: Registration(index=f, H=np.eye(3)) for f in range(1, 200)}
+
+    def cost(rate, frame_size, registrations):
         linker = GlobalLinker(LinkingConfig(gap_cost_per_s=rate), ContextConfig(method="kalman"),
                               FPS, metres_per_unit=1.0)
-        linker.solve(tl)
-        costs.append(linker.last_costs[(0, 1)][0])
-    gap_s = (tl[1].first - tl[0].last) / FPS
-    assert costs[1] - costs[0] == pytest.approx(gap_s, abs=0.1)
+        linker.link([Track(0, list(t.points)) for t in tl], frame_size=frame_size,
+                    registrations=registrations)
+        return linker.last_costs[(0, 1)][0]
+
+    gap_s = 46 / FPS  # frames 60 -> 106
+    base = cost(0.0, (1000, 1000), regs)
+    assert cost(1.0, (1000, 1000), regs) - base == pytest.approx(gap_s, abs=0.05)
+    assert cost(1.0, (19, 1000), regs) == pytest.approx(base)  # predicted past x = 19: out of view
+    assert cost(1.0, None, None) == pytest.approx(cost(0.0, None, None))

@@ -641,19 +641,22 @@ class LinkingConfig:
         25/55 -> 26/55, IDF1 0.768 unchanged; ground-truth detections, Santiago (seeds 0-2)
         and UAVDT unchanged (few pieces survive local association's ``min_length_s``).
     gap_cost_per_s : float
-        Cost added per second of a link's gap: a prior against long gaps, which the manoeuvre
-        hypothesis otherwise prices at about ``turn_cost + log(1 + reach / sigma)`` for any
-        tracklet within reach. 0 disables. Measured (0 -> 0.3): generated scenes with the detector
-        (benchmarks/identity.py, 5 scenes) IDF1 0.778 -> 0.782, HOTA 0.595 -> 0.599, ID switches
-        30 -> 22, occlusions <= 4 s re-acquired 15 -> 16 of 31, exits unchanged (4/7); with
-        ground-truth detections unchanged (0.964); the demo scene IDF1 0.803 -> 0.826, 3 -> 1 ID
-        switches; UAVDT HOTA/IDF1 0.754/0.812 -> 0.756/0.817 (4 -> 5 switches); Santiago
-        identical. 0.5 lost exits (detector 4 -> 3 of 7, ground-truth detections 7 -> 5 of 7).
-        Off by default all the same: already at 0.15 a vehicle that leaves the view and comes
-        back 7 s later loses its identity to a look-alike that left 0.37 s before it re-appeared
-        and could not have turned round in that time (tests/test_linking.py::
-        test_a_vehicle_coming_back_into_view_gets_its_identity_not_a_look_alike_that_just_left);
-        a prior on gap length needs to leave exits alone.
+        Cost added per second of a link's gap during which the first tracklet's predicted
+        position lies inside the frame (nothing without registrations and frame size, e.g.
+        ``--detections`` alone, where in view and out of it cannot be told apart): a target in
+        view should be detected again, so the longer it would have stayed unseen there, the less
+        likely the link; time outside the view (an exit) costs nothing. Without it the manoeuvre
+        hypothesis prices any tracklet within reach of a long gap at about ``turn_cost + log(1 +
+        reach / sigma)`` ~ 3, and a look-alike seen 10 s earlier beat a 1 s link whose ends
+        disagreed by a few metres. Measured (benchmarks/identity.py, 5 generated scenes, tracklets
+        of the built-in detector; 0 -> 0.3 / 0.6 / 1.0): IDF1 0.778 -> 0.783 / 0.784 / 0.766, ID
+        switches 30 -> 22 / 18 / 20, occlusions <= 4 s re-acquired 15 -> 16 / 17 / 16 of 31,
+        exits 4/7 throughout; with ground-truth detections unchanged up to 0.6 (IDF1 0.964,
+        30/31), 1.0 lost occlusions (28/31). The demo scene at 0.6: IDF1 0.803 -> 0.826, HOTA
+        0.624 -> 0.633, 3 -> 1 ID switches; Santiago identical (seeds 0-2); UAVDT (no
+        registrations) identical. Charging every second of the gap instead (exits too) lost a
+        returning vehicle's identity to a look-alike that had just left (tests/test_linking.py).
+        0 disables.
     appearance_max : float
         The appearance-context cost (intra-class distance and failed verification, Ali et al. 4.3)
         is truncated here (:func:`aerotrack.context.reacquire.appearance_cost`): a vehicle's own
@@ -696,7 +699,7 @@ class LinkingConfig:
     descriptor_max: float = 3.0
     fill_sigma: float = 3.0
     appearance_max: float = 3.0
-    gap_cost_per_s: float = 0.0
+    gap_cost_per_s: float = 0.6
 
 
 @dataclass(frozen=True)

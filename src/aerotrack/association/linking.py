@@ -151,6 +151,7 @@ class GlobalLinker:
         c = self.config
         n = len(tl)
         self._pred = {}
+        self._in_view_cache = {}
         self._table = None  # built again for these tracklets by _forward when needed
         self._trimmed = None
         F = max(2, int(round(self.ctx.history_s * self.fps)))
@@ -237,12 +238,38 @@ class GlobalLinker:
                     de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
                                          c.descriptor_max)
                 cues = Cues(m, ap, de)
-                cost = link_cost(cues, c) + c.gap_cost_per_s * gap / self.fps
+                cost = link_cost(cues, c)
+                if c.gap_cost_per_s > 0 and a in preds and gap > 0:
+                    unseen = int(self._in_view(a, preds[a], last[a])[min(gap, len(preds[a])) - 1])
+                    cost += c.gap_cost_per_s * unseen / self.fps
                 self.last_costs[(a, b)] = (cost, cues)
                 if cost <= c.max_cost:
                     C[a, b] = cost
         self._pred = preds
         return _assign(C, c.max_cost), C
+
+    def _in_view(self, a: int, pred: np.ndarray, last: int) -> np.ndarray:
+        """Cumulative count of the frames last+1.. in which tracklet a's prediction ``pred``
+        (h, 2) world lies inside the frame (none without registrations or frame size: in view
+        and out of it cannot be told apart), cached per tracklet."""
+        cache = self.__dict__.setdefault("_in_view_cache", {})
+        if (a, len(pred)) in cache:
+            return cache[(a, len(pred))]
+        regs, size = getattr(self, "_regs", None), getattr(self, "_frame_size", None)
+        if not regs or size is None:
+            out = np.zeros(len(pred), int)
+        else:
+            W, H = size
+            inside = np.zeros(len(pred), bool)
+            for k, w in enumerate(pred):
+                reg = regs.get(last + k + 1)
+                if reg is None:
+                    continue
+                q = np.linalg.solve(reg.H, np.array([w[0], w[1], 1.0]))
+                inside[k] = q[2] != 0 and 0 <= q[0] / q[2] < W and 0 <= q[1] / q[2] < H
+            out = np.cumsum(inside)
+        cache[(a, len(pred))] = out
+        return out
 
     def fill_gaps(self, tl: list[Track], links: dict[int, int]) -> dict[int, int]:
         """Links with unlinked tracklets inserted into the gaps of the links they lie on.
