@@ -67,20 +67,34 @@ TILE = REPO / "src/aerotrack/synth/data/vegas_tile.tif"
 
 
 # -- the video ------------------------------------------------------------------------------------
+def _generator_version() -> str:
+    """Hash of the generator's source: a cached scene made by other generator code is remade."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for f in sorted((REPO / "src" / "aerotrack" / "synth").glob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def make_video(folder: Path, n: int, size: tuple[int, int], fps: float,
-               scenario: str = "default") -> dict:
-    """Frames and ground truth in ``folder`` (reused when already there); returns how they
-    were made."""
+               scenario: str = "default", seed: int = 0) -> dict:
+    """Frames and ground truth in ``folder`` (reused when already there and made by the same
+    generator code); returns how they were made."""
     meta = folder / "bench-meta.json"
+    version = _generator_version()
     if meta.exists():
         info = json.loads(meta.read_text())
         if (info.get("frames") == n and info.get("size") == list(size) and info.get("fps") == fps
-                and info.get("scenario", "default") == scenario):
+                and info.get("scenario", "default") == scenario
+                and info.get("scene_seed", 0) == seed and info.get("generator_version") == version):
             return info
+        for f in ("video.mp4",):  # encoded from the old frames
+            (folder / f).unlink(missing_ok=True)
     folder.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "aerotrack", "synth", "--out", str(folder), "--frames", str(n),
            "--size", f"{size[0]}x{size[1]}", "--fps", f"{fps:g}", "--scenario", scenario,
-           "--overwrite"]
+           "--seed", str(seed), "--overwrite"]
     r = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if r.returncode != 0 or not (folder / "frames").is_dir() or not (folder / "gt.txt").is_file():
         # No stand-in scene: a fallback with other content made accuracy columns meaningless.
@@ -88,7 +102,7 @@ def make_video(folder: Path, n: int, size: tuple[int, int], fps: float,
                  + (r.stderr.strip().splitlines() or ["no message"])[-1][:200])
     generator = "aerotrack synth"
     info = {"frames": n, "size": list(size), "fps": fps, "generator": generator,
-            "scenario": scenario}
+            "scenario": scenario, "scene_seed": seed, "generator_version": version}
     meta.write_text(json.dumps(info))
     return info
 
@@ -340,6 +354,11 @@ def main() -> None:
     ap.add_argument("--scenario", default="default",
                     help="aerotrack synth scenario (default, dense, ...); results of another "
                          "scenario go to parallel-SCENARIO.json")
+    ap.add_argument("--scene-seed", type=int, default=0,
+                    help="aerotrack synth --seed of the scene; results of another scene go to "
+                         "parallel[-SCENARIO]-sceneN.json. The segments' accuracy differences come "
+                         "from detections that differ after a segment's warm-up, which MCMC seeds "
+                         "(--vary-seed) do not vary: compare several scenes.")
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--video", choices=("mp4", "frames"), default="mp4",
                     help="Input: an MPEG-4 video encoded from the generated frames (default), or "
@@ -366,9 +385,10 @@ def main() -> None:
     from aerotrack.evaluation import evaluate
 
     size = tuple(int(v) for v in a.size.lower().split("x"))
-    tag = "" if a.scenario == "default" else f"-{a.scenario}"
+    tag = ("" if a.scenario == "default" else f"-{a.scenario}") \
+        + ("" if a.scene_seed == 0 else f"-scene{a.scene_seed}")
     folder = WORK / f"parallel-synth{tag}-{a.frames}-{size[0]}x{size[1]}-{a.fps:g}"
-    info = make_video(folder, a.frames, size, a.fps, a.scenario)
+    info = make_video(folder, a.frames, size, a.fps, a.scenario, a.scene_seed)
     source = folder / "frames"
     if a.video == "mp4":
         source = encode_mp4(source, folder / "video.mp4", a.fps)
