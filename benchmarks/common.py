@@ -38,6 +38,18 @@ def require_data(path: Path) -> Path:
     return path
 
 
+def generator_version() -> str:
+    """Hash of the scenario generator's source (``src/aerotrack/synth``): benchmarks cache the
+    scenes they render, and a scene made by other generator code must be made again (a stale
+    cache once made a prediction figure that the committed code could not reproduce)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for f in sorted((REPO / "src" / "aerotrack" / "synth").rglob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def write_results(name: str, payload: dict) -> Path:
     """Write ``benchmarks/results/NAME.json`` (pretty, sorted keys) and return its path."""
     RESULTS.mkdir(parents=True, exist_ok=True)

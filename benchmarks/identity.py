@@ -57,6 +57,7 @@ import dataclasses
 import hashlib
 import json
 import pickle
+import shutil
 import subprocess
 import sys
 import time
@@ -68,8 +69,11 @@ from scipy.optimize import linear_sum_assignment
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import itertools
+
+from common import generator_version
 
 from aerotrack.cli.track_cmd import load_inputs
 from aerotrack.config import Config, load_config
@@ -96,11 +100,19 @@ TRUCK4 = Path("/work/shared/data/uav123_10fps_truck4")
 # -- scenes ----------------------------------------------------------------------------------------
 
 def make_scene(scenario: str, seed: int, frames: int, fresh: bool) -> Path:
+    """The scene's folder in the cache, rendered unless already there from the same generator
+    code (``NAME.generator`` beside it)."""
     d = CACHE / f"{scenario}{seed}_{frames}"
-    if fresh or not (d / "states.csv").exists():
+    marker = CACHE / f"{d.name}.generator"
+    version = generator_version()
+    stale = not marker.exists() or marker.read_text().strip() != version
+    if fresh or stale or not (d / "states.csv").exists():
+        if d.exists():  # it also holds gtdets.txt, which synth --overwrite would refuse to replace
+            shutil.rmtree(d)
         subprocess.run([sys.executable, "-m", "aerotrack", "synth", "--out", str(d), "--seed", str(seed),
-                        "--frames", str(frames), "--scenario", scenario, "--overwrite"],
+                        "--frames", str(frames), "--scenario", scenario],
                        check=True, capture_output=True)
+        marker.write_text(version + "\n")
     return d
 
 
@@ -138,7 +150,10 @@ def noisy_detections(gt: np.ndarray, seed: int, size: tuple[int, int]) -> np.nda
 
 def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool):
     """Tracklets of local association (cached), with the run's registrations and scale."""
-    key = CACHE / f"{scene.name}_{mode}_{hashlib.sha1(repr(config.association).encode()).hexdigest()[:10]}.pkl"
+    marker = CACHE / f"{scene.name}.generator"
+    made_by = marker.read_text().strip() if marker.exists() else ""
+    key = CACHE / (f"{scene.name}_{mode}_"
+                   f"{hashlib.sha1((repr(config.association) + made_by).encode()).hexdigest()[:10]}.pkl")
     if key.exists() and not fresh:
         return pickle.loads(key.read_bytes())
     dets_path = None

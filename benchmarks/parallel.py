@@ -45,13 +45,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common import REPO, WORK, write_results
+from common import REPO, WORK, generator_version, write_results
 
 if TYPE_CHECKING:  # numpy is imported where used (the parent process stays light)
     import numpy as np
@@ -67,34 +68,24 @@ TILE = REPO / "src/aerotrack/synth/data/vegas_tile.tif"
 
 
 # -- the video ------------------------------------------------------------------------------------
-def _generator_version() -> str:
-    """Hash of the generator's source: a cached scene made by other generator code is remade."""
-    import hashlib
-
-    h = hashlib.sha1()
-    for f in sorted((REPO / "src" / "aerotrack" / "synth").glob("*.py")):
-        h.update(f.read_bytes())
-    return h.hexdigest()[:12]
-
-
 def make_video(folder: Path, n: int, size: tuple[int, int], fps: float,
                scenario: str = "default", seed: int = 0) -> dict:
     """Frames and ground truth in ``folder`` (reused when already there and made by the same
     generator code); returns how they were made."""
     meta = folder / "bench-meta.json"
-    version = _generator_version()
+    version = generator_version()
     if meta.exists():
         info = json.loads(meta.read_text())
         if (info.get("frames") == n and info.get("size") == list(size) and info.get("fps") == fps
                 and info.get("scenario", "default") == scenario
                 and info.get("scene_seed", 0) == seed and info.get("generator_version") == version):
             return info
-        for f in ("video.mp4",):  # encoded from the old frames
-            (folder / f).unlink(missing_ok=True)
+    if folder.exists():  # another scene, or made by other generator code; synth --overwrite
+        shutil.rmtree(folder)  # would refuse the benchmark's own files (video.mp4, run-*.json)
     folder.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "aerotrack", "synth", "--out", str(folder), "--frames", str(n),
            "--size", f"{size[0]}x{size[1]}", "--fps", f"{fps:g}", "--scenario", scenario,
-           "--seed", str(seed), "--overwrite"]
+           "--seed", str(seed)]
     r = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if r.returncode != 0 or not (folder / "frames").is_dir() or not (folder / "gt.txt").is_file():
         # No stand-in scene: a fallback with other content made accuracy columns meaningless.
