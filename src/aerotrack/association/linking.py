@@ -107,6 +107,7 @@ class GlobalLinker:
         self._trimmed: list[tuple[np.ndarray, np.ndarray]] | None = None
         self._regs: dict | None = None  # frame -> Registration, for the partial-box model
         self._frame_size: tuple[int, int] | None = None
+        self._in_view_cache: dict[tuple[int, int], np.ndarray] = {}
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -252,21 +253,23 @@ class GlobalLinker:
         """Cumulative count of the frames last+1.. in which tracklet a's prediction ``pred``
         (h, 2) world lies inside the frame (none without registrations or frame size: in view
         and out of it cannot be told apart), cached per tracklet."""
-        cache = self.__dict__.setdefault("_in_view_cache", {})
+        cache = self._in_view_cache
         if (a, len(pred)) in cache:
             return cache[(a, len(pred))]
-        regs, size = getattr(self, "_regs", None), getattr(self, "_frame_size", None)
+        regs, size = self._regs, self._frame_size
         if not regs or size is None:
             out = np.zeros(len(pred), int)
         else:
             W, H = size
             inside = np.zeros(len(pred), bool)
-            for k, w in enumerate(pred):
-                reg = regs.get(last + k + 1)
-                if reg is None:
-                    continue
-                q = np.linalg.solve(reg.H, np.array([w[0], w[1], 1.0]))
-                inside[k] = q[2] != 0 and 0 <= q[0] / q[2] < W and 0 <= q[1] / q[2] < H
+            ks = [k for k in range(len(pred)) if last + k + 1 in regs]
+            if ks:
+                Hs = np.array([regs[last + k + 1].H for k in ks], dtype=np.float64)
+                w = np.column_stack([pred[ks], np.ones(len(ks))])[:, :, None]
+                q = np.linalg.solve(Hs, w)[:, :, 0]  # world -> frame pixels, all frames at once
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+                inside[ks] = (q[:, 2] != 0) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
             out = np.cumsum(inside)
         cache[(a, len(pred))] = out
         return out
