@@ -13,7 +13,8 @@ across occlusions and exits from the view:
    at a fixed extra cost, a manoeuvre (turn, U-turn, a vehicle coming back into the view the
    other way) that keeps only speed and reach (:meth:`GlobalLinker._motion`); the appearance context of a against b's observations with the
    inter-class verification against the other candidates (Ali et al. 4.3), and the Yu & Medioni
-   tracklet descriptor (eqs. 12-14).
+   tracklet descriptor (eqs. 12-14); plus ``gap_cost_per_s`` for each second a's prediction
+   spends inside the frame unseen (:meth:`GlobalLinker._in_view`; exits are free).
 3. **Joint assignment**: every tracklet may have at most one successor and one predecessor; the
    links minimise the total cost over all consistent pairs at once (Hungarian algorithm on the
    matrix augmented with "no link" at ``max_cost / 2`` per side), not greedily one pair at a time.
