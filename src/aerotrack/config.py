@@ -55,6 +55,24 @@ class RegistrationConfig:
         Frames are registered against a keyframe at most this old (0: against the previous frame).
         Longer keyframes chain fewer homographies (less drift) but track over larger motions and
         see more parallax and appearance change.
+    keyframe_grid : bool
+        Keyframes fall on a fixed time grid (each multiple of ``keyframe_s`` from the video's
+        start) and start from fresh corners, so a frame's registration depends only on the frames
+        since the last grid keyframe, not on the whole history: a Dask segment or a resumed run
+        then registers frames as one uninterrupted process does (an early keyframe, taken when
+        the overlap drops, no longer shifts every later one). False: every ``keyframe_s`` after
+        the previous keyframe, features carried over and topped up. Measured (benchmarks/
+        parallel.py, generated scene 0, 2 segments): a segment's frame-to-frame registrations
+        differed from the single process's by 0.045 px (median; corners of a 5-frame relative
+        homography), 0.032 with this, 2e-13 with this and ``mask_detections`` false, and the
+        segment's frames whose detections differ went 78 -> 72 -> 23. Off by default until it is
+        validated on real moving-camera video (it changes every run's registrations).
+    mask_detections : bool
+        Keep features off the latest final detections (moving vehicles must not pull the
+        estimate). They come from the detector, half a background window behind, so they tie a
+        frame's registration to the run's history: with ``keyframe_grid``, turning this off
+        makes a segment's registrations equal the single process's (see ``keyframe_grid``), at
+        the risk of a queue of vehicles moving together pulling the estimate.
     keyframe_min_overlap : float
         A new keyframe is taken when fewer than this fraction of its features are still inliers.
     ransac_threshold_px : float
@@ -107,6 +125,8 @@ class RegistrationConfig:
     polish: bool = True
     keyframe_s: float = 0.5
     keyframe_min_overlap: float = 0.6
+    keyframe_grid: bool = False
+    mask_detections: bool = True
     ransac_threshold_px: float = 2.0
     estimator: str = "ransac"
     min_inliers: int = 20

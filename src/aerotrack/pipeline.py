@@ -209,6 +209,8 @@ class Pipeline:
         """Boxes of the latest final detections, in the previous frame's pixels (moving vehicles must
         not pull the frame-to-frame estimate)."""
         prev = self.registrations.get(self.last_frame)
+        if not self.config.registration.mask_detections:
+            return None
         if prev is None or self._last_boxes_world is None or not len(self._last_boxes_world):
             return None
         c = self._last_boxes_world

@@ -196,8 +196,13 @@ class FrameRegistrar:
         if self._map_gray is not None:
             due = (cfg.refine_every_s > 0 and frame.time - self._last_refine >= cfg.refine_every_s - 1e-9)
             refine_due = due or est[1].inlier_ratio < cfg.refine_on_inlier_ratio or gap > 1
-        key_due = (gap > 1 or frame.time - self._ref_time >= cfg.keyframe_s - 1e-9
-                   or est[1].inliers < cfg.keyframe_min_overlap * self._key_n)
+        if cfg.keyframe_grid:
+            slot = math.floor(frame.time / cfg.keyframe_s + 1e-6)
+            old = math.floor(self._ref_time / cfg.keyframe_s + 1e-6)
+            timed = slot > old
+        else:
+            timed = frame.time - self._ref_time >= cfg.keyframe_s - 1e-9
+        key_due = gap > 1 or timed or est[1].inliers < cfg.keyframe_min_overlap * self._key_n
         if cfg.polish and lk and (key_due or refine_due):
             # Only a frame that becomes a keyframe (or starts a map refinement) is chained into
             # later frames: the polish, which removes the bias that chaining turns into drift, is
@@ -238,7 +243,7 @@ class FrameRegistrar:
             xi = np.clip(pts[:, 0].astype(int), 0, mask.shape[1] - 1)
             yi = np.clip(pts[:, 1].astype(int), 0, mask.shape[0] - 1)
             pts = pts[mask[yi, xi] > 0]
-        if len(pts) < cfg.keyframe_min_overlap * cfg.max_features:
+        if cfg.keyframe_grid or len(pts) < cfg.keyframe_min_overlap * cfg.max_features:
             pts = detect_features(gray, cfg.max_features, mask).reshape(-1, 2)
         self._ref_gray, self._ref_H, self._points = gray, normalize(H), pts
         self._ref_index, self._ref_time = frame.index, frame.time
