@@ -583,3 +583,19 @@ def test_gap_cost_counts_the_seconds_the_prediction_spends_in_view():
     assert cost(1.0, (1000, 1000), regs) - base == pytest.approx(gap_s, abs=0.05)
     assert cost(1.0, (19, 1000), regs) == pytest.approx(base)  # predicted past x = 19: out of view
     assert cost(1.0, None, None) == pytest.approx(cost(0.0, None, None))
+
+
+@pytest.mark.parametrize("split_gap_s", [0.0, 0.2])
+def test_a_track_split_where_its_speed_changed_is_joined_only_as_a_split(split_gap_s):
+    """Local association splits a vehicle pulling away where its constant-velocity fit breaks;
+    the two pieces' end and start velocities then differ by more than the velocity gate allows
+    over a one-frame gap. ``split_gap_s`` joins them when b starts where a ended."""
+    slow = _line([0, 0], [2, 0], 30)  # 2 m/s for 1 s, then 14 m/s
+    fast = _line(slow[-1] + [14 / FPS, 0], [14, 0], 60)
+    paths = {1: np.vstack([slow, np.full((1, 2), np.nan), fast])}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(31, 32)]}, {1: [0.4, 0.3, 0.2, 0.1]})
+    assert len(tl) == 2
+    linker = GlobalLinker(LinkingConfig(split_gap_s=split_gap_s), ContextConfig(method="kalman"),
+                          FPS, metres_per_unit=1.0)
+    links, _ = linker.solve(tl)
+    assert (links.get(0) == 1) == (split_gap_s > 0)

@@ -187,7 +187,10 @@ class GlobalLinker:
                 if gap_s <= self.turn_max_gap_s:
                     # a turn may hide in the gap and in the velocity windows: only the speed
                     dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
-                    gap_s += self.ctx.history_s
+                    # a split of one track (a vehicle pulling away, braking): both ends'
+                    # velocities are fitted over history_s while it accelerates
+                    split = self._is_split(pos[a], pos[b], ends[a], gaps[b])
+                    gap_s += self.ctx.history_s * (2.0 if split else 1.0)
                 if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
                         dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
                     cand.setdefault(a, []).append(int(b))
@@ -249,6 +252,17 @@ class GlobalLinker:
                     C[a, b] = cost
         self._pred = preds
         return _assign(C, c.max_cost), C
+
+    def _is_split(self, pos_a, pos_b, end_a, gap: int) -> bool:
+        """Whether b continues a as a split of one track: a gap of at most ``split_gap_s`` and b's
+        first point where a's last one would be after the gap at a's speed, within
+        ``split_dist_m`` (a neighbour in a queue starts a vehicle length away)."""
+        c = self.config
+        if c.split_gap_s <= 0 or gap / self.fps > c.split_gap_s:
+            return False
+        step = _speed(end_a[1]) * gap
+        d = float(np.hypot(*(np.asarray(pos_b[1][0]) - np.asarray(pos_a[1][-1]))))
+        return d <= step + c.split_dist_m / self.mpu
 
     def _in_view(self, a: int, pred: np.ndarray, last: int) -> np.ndarray:
         """Cumulative count of the frames last+1.. in which tracklet a's prediction ``pred``
@@ -389,8 +403,11 @@ class GlobalLinker:
         noise_m = k * float(np.sqrt(noise_a[0] ** 2 + noise_b[0] ** 2
                                     + (0.5 * (noise_a[1] + noise_b[1]) * gap_s) ** 2))
         noise_mps = k * float(np.hypot(noise_a[1], noise_b[1]))
+        split = self._is_split((None, np.asarray(a_end)[None]), (None, np.asarray(b_start)[None]),
+                               end_state, gap)
         return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn,
-                           noise_m, noise_mps)
+                           noise_m, noise_mps,
+                           windows_s=self.ctx.history_s * (2.0 if split else 1.0))
 
     # -- output -----------------------------------------------------------------------------------
 

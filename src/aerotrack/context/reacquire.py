@@ -47,7 +47,7 @@ class Cues:
 def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
                 speed_change_mps: float = 0.0, lag_m: float = 0.0,
                 turn: tuple[float, ...] | None = None, noise_m: float = 0.0,
-                noise_mps: float = 0.0) -> float:
+                noise_mps: float = 0.0, windows_s: float = 1.0) -> float:
     """Motion cost of a candidate link: the cheaper of two hypotheses.
 
     * **along the prediction**: ``0.5 (d / sigma_p)^2 + 0.5 (dv / sigma_v)^2 + 0.5 (lag / sigma_l)^2``
@@ -84,6 +84,10 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
     noise_m, noise_mps : float
         The two tracklets' own end-state uncertainty (position, metres, including the velocity
         uncertainty carried over the gap; velocity, m/s), added in quadrature to the sigmas.
+    windows_s : float
+        Seconds of velocity windows around the gap over which the manoeuvre may change the
+        velocity (1: half a second each side; a split of one accelerating track: both whole
+        windows).
     """
     g = max(gap_s, 0.0)
     sp = math.hypot(config.motion_sigma_m + config.motion_sigma_growth_mps * g, noise_m)
@@ -95,7 +99,7 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
         return straight
     excess, dspeed, reach, dvel = (tuple(turn) + (0.0, 0.0))[:4]
     # a turn slows the target; its speed is averaged over windows of up to history_s each side
-    window = g + 1.0
+    window = g + windows_s
     st = sv + 0.5 * config.a_max_mps2 * window
     too_fast = max(0.0, dvel - config.a_max_mps2 * window)
     manoeuvre = config.turn_cost + math.log(1.0 + reach / sp) + 0.5 * (excess / sp) ** 2 \
