@@ -226,10 +226,6 @@ class GlobalLinker:
         for a, bs in cand.items():
             for b in bs:
                 gap = int(first[b] - last[a])
-                m = float("nan")
-                if a in preds:
-                    m = self._motion(preds[a][:gap], pos[a][1][-1], pos[b][1][0], ends[a],
-                                     starts[b], gap, self._noise[a][0], self._noise[b][1])
                 ap = float("nan")
                 if c.weight_appearance > 0 and a in app.intra:
                     s = track_histograms(tl[b], max_obs=5)
@@ -242,6 +238,13 @@ class GlobalLinker:
                 if desc[a] is not None and desc[b] is not None:
                     de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
                                          c.descriptor_max)
+                m = float("nan")
+                if a in preds:
+                    # a split needs the appearance's agreement too (a false fragment right
+                    # after a vehicle's tracklet also starts where it ended)
+                    m = self._motion(preds[a][:gap], pos[a][1][-1], pos[b][1][0], ends[a],
+                                     starts[b], gap, self._noise[a][0], self._noise[b][1],
+                                     allow_split=not ap > c.split_max_appearance)
                 cues = Cues(m, ap, de)
                 cost = link_cost(cues, c)
                 if c.gap_cost_per_s > 0 and a in preds and gap > 0:
@@ -370,7 +373,8 @@ class GlobalLinker:
         return out
 
     def _motion(self, pred: np.ndarray, a_end: np.ndarray, b_start: np.ndarray, end_state,
-                start_state, gap: int, noise_a=(0.0, 0.0), noise_b=(0.0, 0.0)) -> float:
+                start_state, gap: int, noise_a=(0.0, 0.0), noise_b=(0.0, 0.0),
+                allow_split: bool = True) -> float:
         """Motion cost of linking a (ending at ``a_end``, predicted ``pred`` (gap, 2) world) to b
         (starting at ``b_start`` ``gap`` frames later), :func:`~aerotrack.context.reacquire.motion_cost`.
 
@@ -403,8 +407,8 @@ class GlobalLinker:
         noise_m = k * float(np.sqrt(noise_a[0] ** 2 + noise_b[0] ** 2
                                     + (0.5 * (noise_a[1] + noise_b[1]) * gap_s) ** 2))
         noise_mps = k * float(np.hypot(noise_a[1], noise_b[1]))
-        split = self._is_split((None, np.asarray(a_end)[None]), (None, np.asarray(b_start)[None]),
-                               end_state, gap)
+        split = allow_split and self._is_split(
+            (None, np.asarray(a_end)[None]), (None, np.asarray(b_start)[None]), end_state, gap)
         return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn,
                            noise_m, noise_mps,
                            windows_s=self.ctx.history_s * (2.0 if split else 1.0))
