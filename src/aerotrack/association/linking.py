@@ -189,7 +189,7 @@ class GlobalLinker:
                     dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
                     # a split of one track (a vehicle pulling away, braking): both ends'
                     # velocities are fitted over history_s while it accelerates
-                    split = self._is_split(pos[a], pos[b], ends[a], gaps[b])
+                    split = self._is_split(pos[a][1][-1], pos[b][1][0], ends[a][1], int(gaps[b]))
                     gap_s += self.ctx.history_s * (2.0 if split else 1.0)
                 if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
                         dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
@@ -256,15 +256,17 @@ class GlobalLinker:
         self._pred = preds
         return _assign(C, c.max_cost), C
 
-    def _is_split(self, pos_a, pos_b, end_a, gap: int) -> bool:
-        """Whether b continues a as a split of one track: a gap of at most ``split_gap_s`` and b's
-        first point where a's last one would be after the gap at a's speed, within
-        ``split_dist_m`` (a neighbour in a queue starts a vehicle length away)."""
+    def _is_split(self, a_last: np.ndarray, b_first: np.ndarray, a_velocity: np.ndarray,
+                  gap: int) -> bool:
+        """Whether b continues a as a split of one track: a gap of at most ``split_gap_s`` frames'
+        time and b's first point (world) where a's last one would be after the gap at a's speed
+        (world units per frame), within ``split_dist_m`` (a neighbour in a queue starts a
+        vehicle length away)."""
         c = self.config
         if c.split_gap_s <= 0 or gap / self.fps > c.split_gap_s:
             return False
-        step = _speed(end_a[1]) * gap
-        d = float(np.hypot(*(np.asarray(pos_b[1][0]) - np.asarray(pos_a[1][-1]))))
+        step = _speed(a_velocity) * gap
+        d = float(np.hypot(*(np.asarray(b_first, float) - np.asarray(a_last, float))))
         return d <= step + c.split_dist_m / self.mpu
 
     def _in_view(self, a: int, pred: np.ndarray, last: int) -> np.ndarray:
@@ -407,8 +409,7 @@ class GlobalLinker:
         noise_m = k * float(np.sqrt(noise_a[0] ** 2 + noise_b[0] ** 2
                                     + (0.5 * (noise_a[1] + noise_b[1]) * gap_s) ** 2))
         noise_mps = k * float(np.hypot(noise_a[1], noise_b[1]))
-        split = allow_split and self._is_split(
-            (None, np.asarray(a_end)[None]), (None, np.asarray(b_start)[None]), end_state, gap)
+        split = allow_split and self._is_split(a_end, b_start, end_state[1], gap)
         return motion_cost(0.5 * (d_f + d_b), gap_s, c, dv, 0.5 * (lag_f + lag_b), turn,
                            noise_m, noise_mps,
                            windows_s=self.ctx.history_s * (2.0 if split else 1.0))
