@@ -26,6 +26,7 @@ synth``, else the bundled file it comes from; :mod:`aerotrack.context.roads`), i
 
 Run: /tmp/venv/bin/python benchmarks/prediction.py [--scenes deathCircle/video4 ...] [--stride 15]
      /tmp/venv/bin/python benchmarks/prediction.py --synth [--synth-scenes occlusion:1 exits:2 ...]
+     [--set context.KEY=VALUE ...]
 Writes benchmarks/results/prediction.json (the SDD part under ``sdd``, the generated scenes under
 ``synth``; a run of one part keeps the other's last results).
 """
@@ -45,7 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from aerotrack.config import ContextConfig
+from aerotrack.config import ContextConfig, load_config
 from aerotrack.context.motion import PREDICTION_METHODS, TrackTable, get_predictor
 from aerotrack.evaluation.prediction import prediction_errors, summarise
 
@@ -287,9 +288,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--synth-frames", type=int, default=900)
     ap.add_argument("--fragment", action="store_true",
                     help="--synth: one id per visible stretch (tracklets), stored as synth_fragmented")
+    ap.add_argument("--set", dest="overrides", action="append", default=[],
+                    help="context.KEY=VALUE (as aerotrack's --set), repeatable")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "prediction.json"))
     args = ap.parse_args(argv)
-    config = ContextConfig()
+    config = load_config(None, args.overrides).context if args.overrides else ContextConfig()
     out = Path(args.out)
     old = json.loads(out.read_text()) if out.exists() else {}
     if old and "sdd" not in old and "synth" not in old:

@@ -97,15 +97,37 @@ def test_at_a_junction_the_learned_road_beats_the_straightest_branch():
                   np.column_stack([np.full_like(s, 100.0), -(s - 80)]))
     earlier = (np.full(len(f), 2), f, xy)
     table = table_of(target, earlier)
-    q = predict(table, net, horizon=180)
+    constant = ContextConfig(road_turn_speed_mps=0.0)  # no braking for the turn
+    q = predict(table, net, horizon=180, config=constant)
     assert np.hypot(*(q[-1] - (100.0, -20.0))) < 1.5, q[-1]
     # the linker's view: both branches (and the third) are hypotheses, the chosen one first
-    pred = get_predictor("context", ContextConfig(), FPS, roads=net)
+    pred = get_predictor("context", constant, FPS, roads=net)
     hyps = pred.hypotheses(table, 1, int(target[1][-1]), 180)
     ends = np.array([h[-1] for h in hyps])
     assert np.array_equal(hyps[0], q)
     for want in [(100.0, -20.0), (120.0, 0.0), (100.0, 20.0)]:
         assert np.hypot(*(ends - want).T).min() < 1.5, want
+
+
+def test_a_vehicle_brakes_for_a_sharp_turn_and_not_for_straight_on():
+    net = cross_network()
+    target = straight_track((60.0, 0.0), (10.0, 0.0), first=600)
+    f = np.arange(1, 301)
+    s = 10.0 * (f - 1) / FPS
+    turned = np.where((s < 80)[:, None], np.column_stack([20 + s, 0 * s]),
+                      np.column_stack([np.full_like(s, 100.0), -(s - 80)]))
+    table = table_of(target, (np.full(len(f), 2), f, turned))
+    c = ContextConfig(road_turn_speed_mps=5.0, road_turn_decel_mps2=3.0, road_turn_accel_mps2=2.5)
+    q = predict(table, net, horizon=180, config=c)
+    # 10 -> 5 m/s at 3 m/s^2 brakes over 12.5 m, so from 27.5 m (2.75 s) to the crossing 40 m
+    # ahead (at 2.75 + 5/3 s); then 2.5 m/s^2 for the rest of the 6 s
+    after = 6.0 - (2.75 + 5.0 / 3.0)
+    want_y = -(5.0 * after + 0.5 * 2.5 * after ** 2)
+    assert abs(q[-1][0] - 100.0) < 0.5 and abs(q[-1][1] - want_y) < 0.5, (q[-1], want_y)
+    assert np.hypot(*(q[int(2.5 * FPS) - 1] - (85.0, 0.0))) < 0.5  # full speed before braking
+    # straight on through the crossing keeps the speed
+    alone = predict(table_of(target), net, horizon=180, config=c)
+    assert np.hypot(*(alone[-1] - (120.0, 0.0))) < 1.0, alone[-1]
 
 
 def test_a_road_ending_near_another_becomes_a_t_junction():

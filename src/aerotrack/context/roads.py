@@ -408,6 +408,7 @@ class _Route:
     centre: list[np.ndarray] = field(default_factory=list)  # pieces of centre-line, world units
     uturns: list[float] = field(default_factory=list)  # arc lengths where it turns back
     choices: list[tuple[int, int]] = field(default_factory=list)
+    turns: list[tuple[float, float]] = field(default_factory=list)  # (arc length, degrees) at junctions
     length: float = 0.0
 
     def add(self, pts: np.ndarray) -> None:
@@ -419,7 +420,8 @@ class _Route:
             self.centre.append(pts)
 
     def copy(self) -> _Route:
-        return _Route(list(self.centre), list(self.uturns), list(self.choices), self.length)
+        return _Route(list(self.centre), list(self.uturns), list(self.choices), list(self.turns),
+                      self.length)
 
 
 @dataclass(frozen=True)
@@ -541,8 +543,35 @@ def _routes(net: RoadNetwork, e: int, s: float, direction: int, need: float, ord
                 break
             r2 = route.copy() if k < len(exits) - 1 else route
             r2.choices.append((e2, d2))
+            if e2 != e:  # (a dead end's U-turn costs road_uturn_s instead)
+                u2 = net.tangent_out(e2, d2, 2 * net.snap)
+                angle = math.degrees(math.acos(float(np.clip(u_in @ u2, -1, 1))))
+                r2.turns.append((route.length, angle))
             todo.insert(k, (r2, e2, 0.0 if d2 > 0 else net.edges[e2].length, d2))
     return done
+
+
+def _travel(speed: float, turns: list[tuple[float, float]], h: int, turn_speed: float,
+            decel: float, accel: float, min_angle: float = 45.0) -> np.ndarray:
+    """Arc length driven after each of ``h`` frames at ``speed`` (units per frame), slowing down
+    at ``decel`` (units per frame^2) to ``turn_speed`` for each junction turn sharper than
+    ``min_angle`` degrees and speeding up again at ``accel`` after it.
+
+    A vehicle brakes for a turn it is about to take; constant speed through a right-angle turn
+    overshoots it by the braking distance. Straight on (or a slight bend) keeps the speed.
+    """
+    sharp = sorted(a for a, angle in turns if angle > min_angle)
+    if not sharp or turn_speed <= 0 or decel <= 0 or speed <= turn_speed:
+        return speed * np.arange(1, h + 1, dtype=np.float64)
+    out = np.empty(h)
+    s, v = 0.0, speed
+    for i in range(h):
+        ahead = [a - s for a in sharp if a > s]
+        cap = math.sqrt(turn_speed ** 2 + 2.0 * decel * ahead[0]) if ahead else speed
+        v = min(v + accel, speed, cap)
+        s += v
+        out[i] = s
+    return out
 
 
 def _drive(route: _Route, lengths: np.ndarray, offset: np.ndarray, width: float) -> np.ndarray:
@@ -575,7 +604,7 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
     fps : float
     config : ContextConfig
         ``road_snap_m``, ``road_heading_deg``, ``road_lane_m``, ``road_offset_tau_s``,
-        ``road_uturn_s``, ``road_vote_radius_m``, ``min_speed_mps``.
+        ``road_uturn_s``, ``road_vote_radius_m``, ``road_turn_*``, ``min_speed_mps``.
     index : PathIndex, optional
         Other objects' rows (:class:`aerotrack.context.motion.PathIndex`): at each junction the
         branch most earlier objects from the same approach took (rows seen no later than
@@ -590,7 +619,8 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
 
     Notes
     -----
-    Speed is kept constant except for ``road_uturn_s`` lost at each dead-end U-turn. The lateral
+    Speed is kept constant except for ``road_uturn_s`` lost at each dead-end U-turn and braking
+    to ``road_turn_speed_mps`` for a junction turn sharper than 45 degrees (:func:`_travel`). The lateral
     offset is kept up to ``road_lane_m`` (the lane; right of travel stays right through turns and
     U-turns, as in right- or left-hand traffic alike) and the excess decays with
     ``road_offset_tau_s``.
@@ -632,8 +662,10 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
     offset = kept + (off - kept) * np.exp(-t / max(c.road_offset_tau_s, 1e-9))
     width = max(abs(off), 2.0 / net.mpu)
     out = []
+    mps = fps * net.mpu  # world units per frame -> m/s
     for r in routes:
-        lengths = speed * k
+        lengths = _travel(speed, r.turns, h, c.road_turn_speed_mps / mps,
+                          c.road_turn_decel_mps2 / (mps * fps), c.road_turn_accel_mps2 / (mps * fps))
         for a in r.uturns:
             lengths = np.where(lengths > a, np.maximum(a, lengths - speed * c.road_uturn_s * fps),
                                lengths)
