@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from aerotrack.detection.blobs import edge_extent, hysteresis_blobs
+from aerotrack.detection.blobs import Blob, edge_extent, hysteresis_blobs, regrow_small
 from aerotrack.detection.shadows import remove_shadows, shadow_mask
 
 ROAD = (70, 72, 74)  # grey asphalt, BGR
@@ -177,3 +177,33 @@ def test_seeds_out_of_the_noise_let_a_dark_vehicle_be_found_whole():
     img = np.clip(90 + np.random.default_rng(1).normal(0, 4.0, img.shape), 0, 255).astype(np.uint8)
     small = cv2.resize(img, (80, 60), interpolation=cv2.INTER_AREA)
     assert len(detect_moving(img, small, bg, testable, low, 0.5, gates).boxes) == 0
+
+
+def rect_blob(x: int, y: int, w: int, h: int) -> Blob:
+    return Blob((x, y, w, h), np.ones((h, w), bool), w * h)
+
+
+def test_a_dark_vehicles_fragment_regrows_into_the_vehicle_and_a_leak_is_refused():
+    # five 20x10 vehicles; a 4x4 fragment (a dark car's windscreen) inside a 20x10 faint body;
+    # another fragment whose faint region runs on as a 60x30 sheet (a cast shadow, road texture)
+    blobs = [rect_blob(10 + 30 * i, 10, 20, 10) for i in range(5)]
+    frag, leak = rect_blob(18, 43, 4, 4), rect_blob(98, 53, 4, 4)
+    faint = np.zeros((120, 170), bool)
+    faint[40:50, 10:30] = True
+    faint[50:80, 90:150] = True
+    for b in blobs:  # the vehicles' own pixels are above the low threshold too
+        x, y, w, h = b.box
+        faint[y:y + h, x:x + w] = True
+    out, grown = regrow_small(blobs + [frag, leak], faint, area_ratio=0.4, close_radius=1.0,
+                              min_ratio=0.7)
+    assert grown == [False] * 5 + [True, False]
+    assert out[5].box == (10, 40, 20, 10) and out[5].area == 200
+    assert out[6] is leak and out[:5] == blobs
+    # the grown body never takes another blob's pixels: a vehicle parked in the faint body
+    # (bumper to bumper) keeps its own, and the fragment grows only up to the ring around it
+    other = rect_blob(26, 40, 4, 10)
+    out, grown = regrow_small(blobs + [frag, other], faint, area_ratio=0.4, close_radius=0.0)
+    x, y, w, h = out[5].box
+    assert grown[5] and x + w <= 25
+    # too few blobs for a typical size: nothing regrown
+    assert regrow_small([frag, blobs[0]], faint, area_ratio=0.4, close_radius=1.0)[1] == [False, False]

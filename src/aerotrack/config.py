@@ -280,6 +280,15 @@ class DetectionConfig:
         detection P/R@IoU0.5 0.668/0.868 -> 0.756/0.863, tracking HOTA/IDF1 over seeds 0-2
         0.632/0.825 -> 0.636/0.838; generated scenes P/R 0.845/0.829 -> 0.882/0.816,
         identity benchmark (5 scenes x 300 frames) IDF1/HOTA 0.795/0.583 -> 0.840/0.601.
+    regrow_ratio : float
+        A blob that ``drop_small_ratio`` would drop is first regrown through the residual above
+        this fraction of the threshold (``blobs.regrow_small``), inside one typical blob length
+        and never into another blob; when it becomes one typical-sized vehicle it is kept (its
+        box refined at the lower threshold). Dark vehicles on dark asphalt leave only their
+        contrasting parts above the threshold. 0 disables (the default): 0.5 raised per-frame
+        detection recall (Santiago P/R 0.759/0.865 -> 0.763/0.885, generated scenes
+        0.910/0.841 -> 0.909/0.868) but not tracking (Santiago seeds 0-2 HOTA 0.642 -> 0.643,
+        IDF1 0.862 -> 0.850; identity benchmark IDF1 0.784 -> 0.781), so it stays an option.
     drop_small_near : float
         With > 0, such a small blob is dropped only within this many typical blob lengths of a
         bigger blob (leftover fragments only); 0 drops small blobs anywhere.
@@ -406,6 +415,7 @@ class DetectionConfig:
     ghost_ratio: float = 0.6
     drop_small_ratio: float = 0.4
     drop_small_near: float = 0.0
+    regrow_ratio: float = 0.0
     box_edge_level: float = 0.5
     min_conf: float = 0.05
     persist: bool = False

@@ -8,6 +8,7 @@ a boolean mask cropped to the box.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -320,6 +321,91 @@ def drop_small(blobs: list[Blob], *, area_ratio: float, near: float = 0.0,
     reach = near * typical_sides(blobs, min_count)[0]
     return [b for b in blobs if b.area >= limit
             or not any(box_gap(b.box, o.box) <= reach for o in big)]
+
+
+def regrow_small(blobs: list[Blob], faint: np.ndarray, *, area_ratio: float,
+                 close_radius: float, min_ratio: float = 0.0, max_ratio: float = 1.5,
+                 min_count: int = 5) -> tuple[list[Blob], list[bool]]:
+    """Small blobs regrown through a lower threshold when they grow into one whole vehicle.
+
+    A dark vehicle on dark asphalt differs from the road by little more than the threshold: its
+    bright or contrasting parts (windows, rims) seed a blob, its body stays below, and the blob
+    is a fragment that :func:`drop_small` would drop. Each blob under ``area_ratio`` x the
+    frame's median area is grown inside ``faint`` (pixels above a lower threshold, opened and
+    closed as the main mask), within one typical blob length of its box and never into another
+    blob (nor the pixel ring around it). The grown blob replaces the fragment only when it is no
+    longer small and its oriented sides stay within ``max_ratio`` x the typical blob's and its
+    area within ``max_ratio`` x the median: a cast shadow or a road texture that leaks keeps
+    growing and is refused. Everything else is returned unchanged.
+
+    Parameters
+    ----------
+    blobs : list of Blob
+        One frame's blobs after splitting and joining.
+    faint : ndarray, shape (H, W) bool
+        Pixels above the lower threshold, same pixel frame as the blobs.
+    area_ratio : float
+        As :func:`drop_small`: blobs under this fraction of the median area are candidates.
+    close_radius : float
+        Closing radius applied to ``faint`` before growing (the main mask's).
+    min_ratio : float
+        Smallest grown area relative to the median (at least ``area_ratio``).
+    max_ratio : float
+        Largest grown size relative to the typical blob (sides and area).
+    min_count : int
+        Fewest blobs for a median to be trusted (nothing is regrown below it).
+
+    Returns
+    -------
+    blobs : list of Blob
+    grown : list of bool
+        True where the blob was regrown (its pixels need the lower threshold at full resolution).
+    """
+    blobs = list(blobs)
+    grown = [False] * len(blobs)
+    if area_ratio <= 0 or len(blobs) < min_count:
+        return blobs, grown
+    median = float(np.median([b.area for b in blobs]))
+    limit = area_ratio * median
+    long_t, short_t = typical_sides(blobs, min_count)
+    H, W = faint.shape
+    reach = int(math.ceil(long_t))
+    taken = np.zeros((H, W), np.uint8)
+    for b in blobs:
+        x, y, w, h = b.box
+        taken[y:y + h, x:x + w] |= b.mask.astype(np.uint8)
+    taken = cv2.dilate(taken, np.ones((3, 3), np.uint8))
+    for i, b in enumerate(blobs):
+        if b.area >= limit:
+            continue
+        x, y, w, h = b.box
+        x0, y0 = max(0, x - reach), max(0, y - reach)
+        x1, y1 = min(W, x + w + reach), min(H, y + h + reach)
+        own = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        own[y - y0:y - y0 + h, x - x0:x - x0 + w] = b.mask
+        others = taken[y0:y1, x0:x1] & (cv2.dilate(own, np.ones((3, 3), np.uint8)) == 0)
+        m = open2(faint[y0:y1, x0:x1].astype(np.uint8))
+        m = (m | own) & (others == 0)
+        if close_radius >= 0.5:
+            m = close(m, close_radius) & (others == 0)
+        _, labels = cv2.connectedComponents(m, connectivity=8)
+        ids = np.unique(labels[own > 0])
+        ids = ids[ids > 0]
+        if len(ids) == 0:
+            continue
+        region = np.isin(labels, ids)
+        area = int(region.sum())
+        if area < max(limit, min_ratio * median) or area > max_ratio * median:
+            continue
+        ys, xs = np.nonzero(region)
+        cand = Blob((int(xs.min()) + x0, int(ys.min()) + y0,
+                     int(xs.max() - xs.min()) + 1, int(ys.max() - ys.min()) + 1),
+                    region[ys.min():ys.max() + 1, xs.min():xs.max() + 1].copy(), area)
+        lo, sh = oriented_sides(cand)
+        if lo > max_ratio * long_t or sh > max_ratio * short_t:
+            continue
+        blobs[i], grown[i] = cand, True
+    return blobs, grown
 
 
 def merge_blobs(a: Blob, b: Blob) -> Blob:

@@ -40,6 +40,7 @@ from .blobs import (
     join_fragments,
     join_vehicle_parts,
     open2,
+    regrow_small,
     split_blob,
 )
 from .persistence import PersistenceTracker
@@ -358,6 +359,13 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         blobs = join_vehicle_parts(blobs, gap=2 * gates.join_gap_px * scale,
                                    max_long=config.join_parts_ratio * long_t,
                                    max_short=config.join_parts_ratio * short_t)
+    faint_ids: set[int] = set()
+    if config.regrow_ratio > 0:
+        blobs, grown = regrow_small(blobs, res > config.regrow_ratio * thr,
+                                    area_ratio=config.drop_small_ratio,
+                                    close_radius=gates.close_px * scale,
+                                    min_ratio=0.7)
+        faint_ids = {id(b) for b, g in zip(blobs, grown) if g}
     blobs = drop_small(blobs, area_ratio=config.drop_small_ratio, near=config.drop_small_near)
 
     H, W = image.shape[:2]
@@ -387,7 +395,9 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         mm[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw] = b.mask.astype(np.uint8) * 255
         mm = cv2.dilate(mm, np.ones((3, 3), np.uint8))
         region = cv2.resize(mm, size, interpolation=cv2.INTER_NEAREST) > 0
-        fg = (res_full > 0.8 * thr) & region
+        # a regrown fragment's pixels are only above the lower threshold
+        thr_b = config.regrow_ratio * thr if id(b) in faint_ids else thr
+        fg = (res_full > 0.8 * thr_b) & region
         if config.shadow_suppression:
             fg = remove_shadows(fg, crop, bg_crop, alpha=config.shadow_alpha,
                                 beta=config.shadow_beta, tau_s=config.shadow_tau_s,
@@ -429,7 +439,7 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
             continue
         if config.box_edge_level > 0:
             # the box at the vehicle's half-contrast edge, not at the noise threshold
-            ext = edge_extent(res_full, fgm, level=config.box_edge_level, floor=0.5 * thr)
+            ext = edge_extent(res_full, fgm, level=config.box_edge_level, floor=0.5 * thr_b)
             if ext is not None:
                 x0, y0, x1, y1 = ext
         boxes.append([fx0 + x0, fy0 + y0, x1 - x0, y1 - y0])
@@ -1001,6 +1011,7 @@ def _validate(c: DetectionConfig) -> None:
         ("min_conf", 0 <= c.min_conf <= 1),
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
+        ("regrow_ratio", 0 <= c.regrow_ratio < 1),
         ("box_edge_level", 0 <= c.box_edge_level < 1),
     ]
     for name, ok in checks:
