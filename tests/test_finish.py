@@ -18,6 +18,7 @@ from aerotrack.association.finish import (
     oriented_size,
     robust_smooth,
     rts_smooth,
+    suppress_overlaps,
     window_sizes,
 )
 from aerotrack.config import Config, FinishConfig, load_config
@@ -414,3 +415,40 @@ def test_persistence_boxes_take_the_vehicles_size_from_its_regular_observations(
                                               min_size_m=0.0), FPS, metres_per_unit=MPU,
                         registrations=IDENT)
     assert np.allclose([p.box[2:] for p in out[0].points], [20, 10], atol=1.0)
+
+
+def _box_track(tid: int, boxes: dict[int, tuple], observed: set[int]) -> Track:
+    pts = [TrackPoint(frame=f, box=np.array(b, float), world=np.array([b[0] + b[2] / 2, b[1] + b[3] / 2]),
+                      conf=1.0, kind="observed" if f in observed else "bridged")
+           for f, b in sorted(boxes.items())]
+    return Track(id=tid, points=pts)
+
+
+def test_a_fragments_track_bridged_beside_the_whole_vehicle_is_suppressed():
+    frames = range(1, 41)
+    truck = _box_track(1, {f: (100 + f, 50, 30, 18) for f in frames}, set(frames))
+    # a fragment of the truck's front, observed every 10th frame and bridged between
+    front = _box_track(2, {f: (118 + f, 54, 10, 10) for f in frames}, {1, 10, 20, 30, 40})
+    # a car right behind the truck: touching boxes are two vehicles
+    car = _box_track(3, {f: (82 + f, 52, 19, 12) for f in frames}, set(frames))
+    tracks = [front, truck, car]
+    removed = suppress_overlaps(tracks, 0.6)
+    assert removed == 40 and front.points == []
+    assert len(truck.points) == 40 and len(car.points) == 40
+    # one identity per object: the loser gives up all its overlapping frames, including those
+    # where it was observed and the winner too
+    a = _box_track(1, {f: (0, 0, 20, 10) for f in frames}, set(range(1, 31)))
+    b = _box_track(2, {f: (1, 0, 20, 10) for f in frames}, set(range(20, 41)))
+    suppress_overlaps([a, b], 0.6)
+    assert len(a.points) == 40 and b.points == []
+    # 1 disables; through the finisher only on registered frames
+    c, d = (_box_track(1, {f: (0, 0, 20, 10) for f in frames}, set(frames)),
+            _box_track(2, {f: (2, 0, 8, 8) for f in frames}, {1}))
+    assert suppress_overlaps([c, d], 1.0) == 0 and len(d.points) == 40
+    kept = finish_tracks([c, d], FinishConfig(smooth=False, static_extent_m=0, min_size_m=0), FPS,
+                         metres_per_unit=MPU)
+    assert len(kept) == 2
+    regs = {f: Registration(index=f, H=np.eye(3)) for f in frames}
+    kept = finish_tracks([c, d], FinishConfig(smooth=False, static_extent_m=0, min_size_m=0), FPS,
+                         metres_per_unit=MPU, registrations=regs)
+    assert [t.id for t in kept] == [1]

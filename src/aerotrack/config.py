@@ -1030,6 +1030,17 @@ class FinishConfig:
         Observations at a track's end (start) that give its speed and its stop's position and
         box (``size_quantile`` of their sizes). Longer is steadier, shorter reacts to a stop
         that was short before the detector lost it.
+    max_overlap : float
+        Two tracks' in-view boxes in one frame that overlap by more than this fraction of the
+        smaller box are one object seen twice (seen from above, vehicles do not overlap): the
+        weaker point (bridged or held before observed, then the track with fewer observations)
+        is removed (:func:`aerotrack.association.finish.suppress_overlaps`). It catches a
+        fragment's tracklet kept alive by bridging beside the whole vehicle's (a long truck
+        the detector splits now and then). Registered frames only (in an oblique camera's image
+        vehicles do overlap). 1 disables. Measured against 1: identity benchmark (5 generated
+        scenes) IDF1 0.784 -> 0.800, HOTA 0.597 -> 0.609, ID switches 20 -> 20 (local
+        association alone 0.569 -> 0.598); Santiago seeds 0-2 HOTA 0.642 -> 0.643, IDF1
+        0.862 -> 0.863, MOTA 0.712 -> 0.723.
     """
 
     enabled: bool = True
@@ -1055,6 +1066,7 @@ class FinishConfig:
     stop_decel_mps2: float = 2.0
     stop_radius_m: float = 2.0
     stop_window_s: float = 1.0
+    max_overlap: float = 0.6
 
 
 @dataclass(frozen=True)

@@ -88,6 +88,7 @@ __all__ = [
     "oriented_size",
     "robust_smooth",
     "rts_smooth",
+    "suppress_overlaps",
     "window_sizes",
 ]
 
@@ -418,6 +419,10 @@ class TrackFinisher:
                 keep = True
             if keep:
                 out.append(t)
+        if registrations and c.max_overlap < 1.0:  # (an oblique camera's image has overlaps)
+            n = suppress_overlaps(out, c.max_overlap)
+            log.debug("finish: %d points on another track's object removed", n)
+            out = [t for t in out if any(p.kind in IN_VIEW for p in t.points)]
         return out
 
     # -- one track --------------------------------------------------------------------------------
@@ -801,6 +806,70 @@ def _clip(boxes: np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
     x1 = np.clip(boxes[:, 0] + boxes[:, 2], 0, W)
     y1 = np.clip(boxes[:, 1] + boxes[:, 3], 0, H)
     return np.column_stack([x0, y0, x1 - x0, y1 - y0])
+
+
+def suppress_overlaps(tracks: list[Track], max_overlap: float) -> int:
+    """Remove in-view points that lie on another track's object in the same frame (in place).
+
+    Seen from above, two vehicles never overlap; two in-view boxes of one frame that overlap by
+    more than ``max_overlap`` of the smaller box (intersection over the smaller area) are one
+    object reported twice: typically a tracklet started on a fragment of a long vehicle and kept
+    alive by bridging between the frames where the detector split the vehicle again, beside
+    the whole vehicle's own. Local association's overlap penalty (Yu & Medioni eq. 10) covers
+    observations only; bridged points escape it. The decision is per pair of tracks, not per
+    frame (alternating would hand the object back and forth between the two identities): the
+    track with fewer observed points in the frames where the two overlap (ties: fewer observed
+    points in all, then the later track) loses its points in those frames.
+
+    Returns
+    -------
+    int
+        Points removed.
+    """
+    rows = []
+    for ti, t in enumerate(tracks):
+        for pi, p in enumerate(t.points):
+            if p.kind in IN_VIEW and p.box is not None and np.all(np.isfinite(p.box)):
+                rows.append((p.frame, ti, pi))
+    if len(rows) < 2:
+        return 0
+    rows.sort()
+    R = np.array(rows)
+    B = np.array([tracks[ti].points[pi].box for _, ti, pi in rows], dtype=np.float64)
+    pairs: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    # rows r and r + d share a frame for every d up to the busiest frame's count
+    d = 1
+    while d < len(R):
+        r = np.flatnonzero(R[:-d, 0] == R[d:, 0])
+        if not len(r):
+            break
+        a, b = B[r], B[r + d]
+        iw = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2]) - np.maximum(a[:, 0], b[:, 0])
+        ih = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3]) - np.maximum(a[:, 1], b[:, 1])
+        inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+        small = np.minimum(a[:, 2] * a[:, 3], b[:, 2] * b[:, 3])
+        hit = r[inter > max_overlap * np.maximum(small, 1e-9)]
+        for i, j in zip(hit.tolist(), (hit + d).tolist()):
+            (ti, pi), (tj, pj) = R[i, 1:].tolist(), R[j, 1:].tolist()
+            if ti == tj:
+                continue
+            if ti > tj:
+                ti, pi, tj, pj = tj, pj, ti, pi
+            pairs.setdefault((ti, tj), []).append((pi, pj))
+        d += 1
+    n_obs = [sum(p.kind == "observed" for p in t.points) for t in tracks]
+    drop: dict[int, set[int]] = {}
+    for (ti, tj), pts in sorted(pairs.items(), key=lambda kv: -len(kv[1])):
+        obs_i = sum(tracks[ti].points[pi].kind == "observed" for pi, _ in pts)
+        obs_j = sum(tracks[tj].points[pj].kind == "observed" for _, pj in pts)
+        loser, k = (tj, 1) if (obs_i, n_obs[ti]) >= (obs_j, n_obs[tj]) else (ti, 0)
+        winner = ti if loser == tj else tj
+        gone = drop.get(winner, set())
+        drop.setdefault(loser, set()).update(
+            pp[k] for pp in pts if pp[1 - k] not in gone)  # (not if the winner's point went)
+    for ti, idx in drop.items():
+        tracks[ti].points = [p for k, p in enumerate(tracks[ti].points) if k not in idx]
+    return sum(len(v) for v in drop.values())
 
 
 def finish_tracks(tracks: list[Track], config: FinishConfig | None = None, fps: float = 30.0, *,
