@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from aerotrack.detection.blobs import Blob, edge_extent, hysteresis_blobs, regrow_small
+from aerotrack.detection.blobs import Blob, edge_extent, hysteresis_blobs, join_cabs, regrow_small
 from aerotrack.detection.shadows import remove_shadows, shadow_mask
 
 ROAD = (70, 72, 74)  # grey asphalt, BGR
@@ -207,3 +207,20 @@ def test_a_dark_vehicles_fragment_regrows_into_the_vehicle_and_a_leak_is_refused
     assert grown[5] and x + w <= 25
     # too few blobs for a typical size: nothing regrown
     assert regrow_small([frag, blobs[0]], faint, area_ratio=0.4, close_radius=1.0)[1] == [False, False]
+
+
+def test_an_articulated_vehicles_cab_joins_its_trailer_and_queued_cars_stay_apart():
+    # typical car 10 x 5 px; a 12 x 6 trailer with a 4 x 5 cab one pixel ahead, in line
+    trailer, cab = rect_blob(20, 10, 12, 6), rect_blob(33, 10, 4, 6)
+    joined = join_cabs([trailer, cab], gap=2, long_t=10, max_long=40, cab_ratio=0.9)
+    assert len(joined) == 1 and joined[0].box == (20, 10, 17, 6)
+    # two cars bumper to bumper: both about the typical length
+    a, b = rect_blob(20, 30, 10, 5), rect_blob(31, 30, 10, 5)
+    assert len(join_cabs([a, b], gap=2, long_t=10, max_long=40, cab_ratio=0.9)) == 2
+    # a small blob beside a vehicle (next lane, a pedestrian) widens the union: apart
+    side = rect_blob(24, 46, 4, 4)
+    car = rect_blob(20, 40, 10, 5)
+    assert len(join_cabs([car, side], gap=2, long_t=10, max_long=40, cab_ratio=0.9)) == 2
+    # too far apart, or the union longer than a vehicle can be
+    assert len(join_cabs([trailer, rect_blob(36, 10, 4, 6)], gap=2, long_t=10, max_long=40)) == 2
+    assert len(join_cabs([trailer, cab], gap=2, long_t=10, max_long=15)) == 2

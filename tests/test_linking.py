@@ -391,6 +391,24 @@ def test_a_partial_fragment_beside_the_whole_vehicle_is_merged_not_a_second_iden
     assert len(off) == 3
 
 
+def test_a_cab_tracklet_starting_before_the_whole_vehicles_is_merged_into_it():
+    """Target 1 (a 9 x 2.5 m articulated truck) is seen whole from frame 20; the detector saw
+    only its cab (2.5 x 2.5 m at the front) in frames 1-19 and split it off again now and then,
+    so local association kept a cab tracklet over frames 1-200, mostly bridged. The cab's
+    tracklet starts before the whole one's: merged all the same, one identity."""
+    rng = np.random.default_rng(7)
+    white = [0.1, 0.1, 0.1, 0.7]
+    whole = Track(0, _box_track(range(20, 301), lambda f: (8 * f / FPS, 0.0), (9.0, 2.5), white, rng))
+    cab = Track(0, _box_track(range(1, 201), lambda f: (8 * f / FPS + 3.25, 0.0), (2.5, 2.5), white,
+                              rng, kind="bridged"))
+    for k in (0, 10, 19, 60, 120, 199):
+        cab.points[k].kind = "observed"
+    tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0).link([whole, cab])
+    assert len(tracks) == 1
+    seen = [p.frame for p in tracks[0].points if p.kind in ("observed", "bridged")]
+    assert seen[0] == 1 and seen[-1] == 300 and len(seen) == len(set(seen))
+
+
 def test_a_tracklet_that_takes_over_while_both_are_seen_continues_the_identity():
     """Local association loses the whole box of target 1 at frame 150 while a tracklet on the
     same vehicle started at frame 141 (boxes overlapping for 10 frames): a hand-over, not a gap.

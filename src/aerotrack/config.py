@@ -235,6 +235,14 @@ class DetectionConfig:
         Two blobs within twice the join gap are joined, closest first, when their union's
         oriented extent is at most this multiple of the frame's median blob length and width
         (needs 5 blobs): the bonnet and boot of a car whose roof matches the road. 0 disables.
+    join_cab_ratio : float
+        A blob shorter than this multiple of the median blob length within the join gap of a
+        longer blob, in line with it (``blobs.join_cabs``), is an articulated vehicle's cab and
+        is joined to its trailer. 0 disables. Measured against 0: Santiago detection P/R@IoU0.5
+        0.759/0.865 -> 0.778/0.872 (fragments 75 -> 39), tracking over seeds 0-2 HOTA 0.643 ->
+        0.650, IDF1 0.863 -> 0.871, MOTA 0.723 -> 0.728; generated scenes P/R unchanged
+        (0.910/0.841); identity benchmark IDF1 0.811 -> 0.814, HOTA 0.613 -> 0.620, ID switches
+        15 -> 21; demo HOTA 0.630 -> 0.647, IDF1 0.823 -> 0.818. 0.8 scored alike per frame.
     shadow_suppression : bool
         Remove moving cast shadows (Prati et al.'s deterministic non-model-based HSV test) from
         blobs before boxing them.
@@ -401,6 +409,7 @@ class DetectionConfig:
     split_blobs: bool = True
     split_area_ratio: float = 1.7
     join_parts_ratio: float = 1.5
+    join_cab_ratio: float = 0.9
     shadow_suppression: bool = True
     shadow_alpha: float = 0.4
     shadow_beta: float = 0.9

@@ -621,11 +621,16 @@ def merge_duplicates(tracklets: list[Track], min_overlap: float) -> list[Track]:
     Local association sometimes keeps two tracklets on one vehicle for a while: a partial blob
     beside the whole one, or a second tracklet through a turn while the first is bridged across
     it. Neither can be *linked* (they coexist), and the shorter one becomes a spurious identity
-    that also competes for the object's later tracklets. A tracklet whose in-view frames all lie
-    within a longer one's span, and whose box overlaps that one's by at least ``min_overlap`` of
-    the smaller box on average over its frames (a frame where they do not touch counts 0), is
-    merged into it: in each frame the better point is kept (:func:`_one_per_frame`); the merged
-    points carry no appearance (``hist``, ``desc``), so the host's appearance models stay its own.
+    that also competes for the object's later tracklets. A tracklet whose box overlaps a longer
+    one's by at least ``min_overlap`` of the smaller box on average over all its in-view frames
+    (a frame where they do not touch, or where the longer one is not seen, counts 0) is merged
+    into it: in each frame the better point is kept (:func:`_one_per_frame`); the merged points
+    carry no appearance (``hist``, ``desc``), so the host's appearance models stay its own.
+    The shorter one need not lie within the longer one's span: a fragment's tracklet (a long
+    vehicle's cab, bridged between the frames where the detector splits it off) often starts a
+    little before the whole vehicle's. Dropping that requirement (the frames outside still count
+    0) raised the identity benchmark's IDF1 0.800 -> 0.811 (ID switches 20 -> 15) and left
+    Santiago and UAVDT unchanged.
 
     Parameters
     ----------
@@ -650,8 +655,7 @@ def merge_duplicates(tracklets: list[Track], min_overlap: float) -> list[Track]:
         for small, big in ((i, j), (j, i)):
             ts, tb = tracklets[small], tracklets[big]
             nf = len(frames[small])
-            if not nf or not (tb.first <= ts.first and ts.last <= tb.last) or \
-                    (tb.last - tb.first, big) <= (ts.last - ts.first, small):
+            if not nf or (tb.last - tb.first, big) <= (ts.last - ts.first, small):
                 continue
             score = m * n / nf  # frames of the small one without the big one count 0
             if score >= min_overlap and score > host.get(small, (-1.0, -1))[0]:

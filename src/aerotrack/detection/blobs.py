@@ -283,6 +283,45 @@ def join_vehicle_parts(blobs: list[Blob], *, gap: float, max_long: float,
     return blobs
 
 
+def join_cabs(blobs: list[Blob], *, gap: float, long_t: float, max_long: float,
+              cab_ratio: float = 0.8, width_tol: float = 1.25) -> list[Blob]:
+    """Join an articulated vehicle's cab to its trailer.
+
+    Seen from above a tractor-trailer is a short cab and a long trailer one gap apart; the gap
+    splits the residual into two blobs, and the pair is longer than :func:`join_vehicle_parts`
+    admits for one vehicle. A blob shorter than ``cab_ratio`` x the typical length ``long_t``
+    (a cab is shorter than a car) within ``gap`` pixels of a longer blob is joined to it when
+    the two are in line, one behind the other: the union's oriented width at most ``width_tol``
+    x the wider part's, and its length at most ``max_long``. Two cars in a queue are both about
+    the typical length and stay apart; a small blob beside a vehicle widens the union and stays.
+    """
+    blobs = list(blobs)
+    sides = [oriented_sides(b) for b in blobs]
+    changed = True
+    while changed and len(blobs) > 1:
+        changed = False
+        best = None
+        for i in range(len(blobs)):
+            if sides[i][0] >= cab_ratio * long_t:
+                continue
+            for j in range(len(blobs)):
+                if j == i or sides[j][0] <= sides[i][0]:
+                    continue
+                g = box_gap(blobs[i].box, blobs[j].box)
+                if g > gap or (best is not None and g >= best[0]):
+                    continue
+                u = merge_blobs(blobs[i], blobs[j])
+                lo, sh = oriented_sides(u)
+                if lo <= max_long and sh <= width_tol * max(sides[i][1], sides[j][1]):
+                    best = (g, i, j, u)
+        if best is not None:
+            _, i, j, u = best
+            blobs[j], sides[j] = u, oriented_sides(u)
+            del blobs[i], sides[i]
+            changed = True
+    return blobs
+
+
 def drop_small(blobs: list[Blob], *, area_ratio: float, near: float = 0.0,
                min_count: int = 5) -> list[Blob]:
     """Blobs without those much smaller than the frame's typical one.

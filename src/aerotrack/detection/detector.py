@@ -37,6 +37,7 @@ from .blobs import (
     drop_small,
     edge_extent,
     hysteresis_blobs,
+    join_cabs,
     join_fragments,
     join_vehicle_parts,
     open2,
@@ -359,6 +360,9 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         blobs = join_vehicle_parts(blobs, gap=2 * gates.join_gap_px * scale,
                                    max_long=config.join_parts_ratio * long_t,
                                    max_short=config.join_parts_ratio * short_t)
+        if config.join_cab_ratio > 0:
+            blobs = join_cabs(blobs, gap=gates.join_gap_px * scale, long_t=long_t,
+                              max_long=max_len_model, cab_ratio=config.join_cab_ratio)
     faint_ids: set[int] = set()
     if config.regrow_ratio > 0:
         blobs, grown = regrow_small(blobs, res > config.regrow_ratio * thr,
@@ -1011,7 +1015,7 @@ def _validate(c: DetectionConfig) -> None:
         ("min_conf", 0 <= c.min_conf <= 1),
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
-        ("regrow_ratio", 0 <= c.regrow_ratio < 1),
+        ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("join_cab_ratio", c.join_cab_ratio >= 0),
         ("box_edge_level", 0 <= c.box_edge_level < 1),
     ]
     for name, ok in checks:
