@@ -297,6 +297,12 @@ class DetectionConfig:
         detection recall (Santiago P/R 0.759/0.865 -> 0.763/0.885, generated scenes
         0.910/0.841 -> 0.909/0.868) but not tracking (Santiago seeds 0-2 HOTA 0.642 -> 0.643,
         IDF1 0.862 -> 0.850; identity benchmark IDF1 0.784 -> 0.781), so it stays an option.
+        With the cab joining and duplicate handling of 2026-11-26 the generated scenes gain
+        (identity benchmark IDF1 0.814 -> 0.833, HOTA 0.620 -> 0.627, occlusions re-acquired
+        16 -> 20 of 31) but Santiago still loses (seeds 0-2 HOTA 0.650 -> 0.645, IDF1 0.871 ->
+        0.848, 0 -> 3 ID switches per run: regrown fragments of queued cars take in the faint
+        residual between them); capping the regrown size at 1.25 x the typical blob made
+        Santiago worse (IDF1 0.838).
     drop_small_near : float
         With > 0, such a small blob is dropped only within this many typical blob lengths of a
         bigger blob (leftover fragments only); 0 drops small blobs anywhere.
