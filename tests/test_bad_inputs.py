@@ -406,6 +406,22 @@ def test_track_negative_config_value(tmp_path, capsys, dets, setting):
 
 
 @pytest.mark.parametrize("setting,frag", [
+    ("finish.max_overlap=0", "finish.max_overlap"),
+    ("finish.size_mode=magic", "finish.size_mode"),
+    ("linking.partial_model=magic", "linking.partial_model"),
+])
+def test_last_stages_config_errors_come_before_any_frame(tmp_path, capsys, dets, setting, frag):
+    """Linking and finishing run after the whole video: their configuration is checked when the
+    pipeline is built, so a mistake costs no processing (the association-only run here would
+    otherwise associate every frame first)."""
+    expect_error(capsys, [frag], "track", "--detections", dets, "--out", tmp_path / "o", "--set",
+                 setting, out_dir=tmp_path / "o")
+    _, _, err = run_cli(capsys, "-v", "track", "--detections", dets, "--out", tmp_path / "o",
+                        "--set", setting)
+    assert "frames/s" not in err  # no progress line: no frame was processed
+
+
+@pytest.mark.parametrize("setting,frag", [
     ("registration.method=magic", "registration.method"),
     ("context.method=magic", "context.method"),
 ])

@@ -141,6 +141,11 @@ class Pipeline:
         self.associator = LocalAssociator(config.association, self.fps,
                                           metres_per_unit=self.metres_per_unit, seed=seed)
         self._built_assoc = as_built(self.associator)
+        # the last stages' configuration errors surface now, not after the whole video
+        from .association.finish import TrackFinisher
+        from .association.linking import GlobalLinker
+        GlobalLinker(config.linking, config.context, self.fps, metres_per_unit=self.metres_per_unit)
+        TrackFinisher(config.finish, self.fps, metres_per_unit=self.metres_per_unit)
         self.registrations: dict[int, Registration] = {}
         self.detections: list[Detections] = []
         # finished tracklets (on disk with ``spill``; a list again after finish_local)

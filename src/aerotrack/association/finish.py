@@ -376,6 +376,9 @@ class TrackFinisher:
                      "stop_radius_m", "stop_window_s"):
             if not getattr(self.config, name) >= 0:
                 raise ConfigError(f"config finish.{name}: must be >= 0")
+        if not 0.0 < self.config.max_overlap <= 1.0:
+            raise ConfigError(f"config finish.max_overlap: {self.config.max_overlap} "
+                              "must be in (0, 1]")
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.object_size_m = object_size_m
