@@ -250,7 +250,8 @@ class DetectionConfig:
         0.759/0.865 -> 0.778/0.872 (fragments 75 -> 39), tracking over seeds 0-2 HOTA 0.643 ->
         0.650, IDF1 0.863 -> 0.871, MOTA 0.723 -> 0.728; generated scenes P/R unchanged
         (0.910/0.841); identity benchmark IDF1 0.811 -> 0.814, HOTA 0.613 -> 0.620, ID switches
-        15 -> 21; demo HOTA 0.630 -> 0.647, IDF1 0.823 -> 0.818. 0.8 scored alike per frame.
+        15 -> 21 (over MCMC seeds 0-2: IDF1 0.819 -> 0.818, HOTA 0.618 -> 0.620, switches 13.7 ->
+        18 per run); demo HOTA 0.630 -> 0.647, IDF1 0.823 -> 0.818. 0.8 scored alike per frame.
     shadow_suppression : bool
         Remove moving cast shadows (Prati et al.'s deterministic non-model-based HSV test) from
         blobs before boxing them.
