@@ -76,6 +76,7 @@ from ..kalman import (
     update_nb,
 )
 from ..types import Registration, Track, TrackPoint, apply_homography
+from .linking import same_frame_overlaps
 
 __all__ = [
     "SIZE_MODES",
@@ -829,37 +830,20 @@ def suppress_overlaps(tracks: list[Track], max_overlap: float) -> int:
     int
         Points removed.
     """
-    rows = []
-    for ti, t in enumerate(tracks):
-        for pi, p in enumerate(t.points):
-            if p.kind in IN_VIEW and p.box is not None and np.all(np.isfinite(p.box)):
-                rows.append((p.frame, ti, pi))
+    rows = [(p.frame, ti, pi) for ti, t in enumerate(tracks) for pi, p in enumerate(t.points)
+            if p.kind in IN_VIEW and p.box is not None and np.all(np.isfinite(p.box))]
     if len(rows) < 2:
         return 0
-    rows.sort()
     R = np.array(rows)
     B = np.array([tracks[ti].points[pi].box for _, ti, pi in rows], dtype=np.float64)
     pairs: dict[tuple[int, int], list[tuple[int, int]]] = {}
-    # rows r and r + d share a frame for every d up to the busiest frame's count
-    d = 1
-    while d < len(R):
-        r = np.flatnonzero(R[:-d, 0] == R[d:, 0])
-        if not len(r):
-            break
-        a, b = B[r], B[r + d]
-        iw = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2]) - np.maximum(a[:, 0], b[:, 0])
-        ih = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3]) - np.maximum(a[:, 1], b[:, 1])
-        inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
-        small = np.minimum(a[:, 2] * a[:, 3], b[:, 2] * b[:, 3])
-        hit = r[inter > max_overlap * np.maximum(small, 1e-9)]
-        for i, j in zip(hit.tolist(), (hit + d).tolist()):
-            (ti, pi), (tj, pj) = R[i, 1:].tolist(), R[j, 1:].tolist()
-            if ti == tj:
-                continue
-            if ti > tj:
-                ti, pi, tj, pj = tj, pj, ti, pi
-            pairs.setdefault((ti, tj), []).append((pi, pj))
-        d += 1
+    for i, j, o in zip(*same_frame_overlaps(R[:, 0], B)):
+        (ti, pi), (tj, pj) = R[i, 1:].tolist(), R[j, 1:].tolist()
+        if o <= max_overlap or ti == tj:
+            continue
+        if ti > tj:
+            ti, pi, tj, pj = tj, pj, ti, pi
+        pairs.setdefault((ti, tj), []).append((pi, pj))
     n_obs = [sum(p.kind == "observed" for p in t.points) for t in tracks]
     drop: dict[int, set[int]] = {}
     for (ti, tj), pts in sorted(pairs.items(), key=lambda kv: -len(kv[1])):

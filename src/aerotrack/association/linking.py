@@ -577,6 +577,32 @@ def _boxes(t: Track) -> dict[int, np.ndarray]:
     return out
 
 
+def same_frame_overlaps(frames: np.ndarray, boxes: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair of rows of one frame whose boxes touch: (row i, row j, overlap of the smaller
+    box, :func:`_box_overlap`), rows indexing ``frames`` (n,) and ``boxes`` (n, 4) as given."""
+    order = np.argsort(np.asarray(frames), kind="stable")
+    fr = np.asarray(frames)[order]
+    B = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)[order]
+    out_i, out_j, out_o = [], [], []
+    # rows r and r + d share a frame for every d up to the busiest frame's count: one vectorised
+    # pass per d instead of a loop over frames
+    d = 1
+    while d < len(fr):
+        r = np.flatnonzero(fr[:-d] == fr[d:])
+        if not len(r):
+            break
+        ov = _box_overlap(B[r], B[r + d])
+        touch = ov > 0
+        out_i.append(order[r[touch]])
+        out_j.append(order[r[touch] + d])
+        out_o.append(ov[touch])
+        d += 1
+    if not out_i:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_o)
+
+
 def coexisting_overlaps(tracklets: list[Track]) -> dict[tuple[int, int], tuple[float, int]]:
     """For every pair of tracklets whose in-view boxes touch in some frame, (i < j): (mean overlap
     of the smaller box over their common frames, frames where they touch counting their overlap
@@ -590,24 +616,12 @@ def coexisting_overlaps(tracklets: list[Track]) -> dict[tuple[int, int], tuple[f
         boxes.extend(bx.values())
     if not idx:
         return {}
-    order = np.argsort(np.asarray(fr), kind="stable")
-    idx, fr = np.asarray(idx)[order], np.asarray(fr)[order]
-    B = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)[order]
+    idx = np.asarray(idx)
     acc: dict[tuple[int, int], float] = {}
-    # rows r and r + d share a frame for every d up to the busiest frame's count: one vectorised
-    # pass per d instead of a loop over frames
-    d = 1
-    while d < len(fr):
-        r = np.flatnonzero(fr[:-d] == fr[d:])
-        if not len(r):
-            break
-        ov = _box_overlap(B[r], B[r + d])
-        touch = ov > 0
-        a, b = idx[r][touch], idx[r + d][touch]
-        for lo, hi, o in zip(np.minimum(a, b).tolist(), np.maximum(a, b).tolist(),
-                             ov[touch].tolist()):
-            acc[(lo, hi)] = acc.get((lo, hi), 0.0) + o
-        d += 1
+    r1, r2, ov = same_frame_overlaps(np.asarray(fr), np.asarray(boxes, dtype=np.float64))
+    a, b = idx[r1], idx[r2]
+    for lo, hi, o in zip(np.minimum(a, b).tolist(), np.maximum(a, b).tolist(), ov.tolist()):
+        acc[(lo, hi)] = acc.get((lo, hi), 0.0) + o
     out = {}
     for (a, b), total in acc.items():
         n = len(frames[a] & frames[b])
