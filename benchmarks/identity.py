@@ -148,11 +148,12 @@ def noisy_detections(gt: np.ndarray, seed: int, size: tuple[int, int]) -> np.nda
     return r[np.argsort(r[:, 0], kind="stable")]
 
 
-def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool):
-    """Tracklets of local association (cached), with the run's registrations and scale."""
+def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool, seed: int = 0):
+    """Tracklets of local association (cached), with the run's registrations and scale; ``seed``
+    is the pipeline's (the MCMC's) seed."""
     marker = CACHE / f"{scene.name}.generator"
     made_by = marker.read_text().strip() if marker.exists() else ""
-    key = CACHE / (f"{scene.name}_{mode}_"
+    key = CACHE / (f"{scene.name}_{mode}{f'_s{seed}' if seed else ''}_"
                    f"{hashlib.sha1((repr(config.association) + made_by).encode()).hexdigest()[:10]}.pkl")
     if key.exists() and not fresh:
         return pickle.loads(key.read_bytes())
@@ -168,7 +169,7 @@ def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool):
     if dets is not None:
         per_frame = {int(f): dets[dets[:, 0] == f] for f in np.unique(dets[:, 0])}
     t0 = time.perf_counter()
-    pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init, seed=0, detections=per_frame)
+    pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init, seed=seed, detections=per_frame)
     for frame in source.frames():
         pipe.step(frame)
     tl = pipe.finish_local()
@@ -341,8 +342,8 @@ def tail_stats(states, gt, tracks, predicted) -> dict:
 
 # -- main ------------------------------------------------------------------------------------------
 
-def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool) -> dict:
-    run = local_tracklets(scene, mode, config, fresh)
+def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool, seed: int = 0) -> dict:
+    run = local_tracklets(scene, mode, config, fresh, seed)
     _, _, geomap, _, _, _ = load_inputs(scene / "frames", None, scene / "map.tif",
                                         scene / "map_init.txt", None, None, None, None)
     info = json.loads((scene / "scenario.json").read_text())
@@ -501,6 +502,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="+", default=DEFAULT_SCENES, help="scenario:seed ...")
     ap.add_argument("--frames", type=int, default=900)
+    ap.add_argument("--seed", type=int, default=0, help="the pipeline's --seed (MCMC)")
     ap.add_argument("--modes", nargs="+", default=["gt-dets", "full"])
     ap.add_argument("--fresh", action="store_true", help="rebuild cached scenes and tracklets")
     ap.add_argument("--cache", type=Path, default=CACHE,
@@ -524,7 +526,7 @@ def main(argv=None) -> None:
         for spec in args.scenes:
             scen, seed = spec.split(":")
             scene = make_scene(scen, int(seed), args.frames, args.fresh)
-            per_scene[spec] = evaluate_scene(scene, mode, config, args.fresh)
+            per_scene[spec] = evaluate_scene(scene, mode, config, args.fresh, args.seed)
             r = per_scene[spec]
             print(f"  [{mode}] {spec}: " + "  ".join(
                 f"{v}: IDF1 {r[v]['IDF1']:.3f} occl {r[v]['reacq_occlusion_le4s']:.2f}/"
@@ -558,7 +560,8 @@ def main(argv=None) -> None:
         old = json.loads(args.out.read_text()).get("results", {}).get("truck4")
         if old:
             results["truck4"] = old
-    payload = {"protocol": {"scenes": args.scenes, "frames": args.frames, "overrides": args.overrides, "fps": FPS, "min_gap_frames": MIN_GAP,
+    payload = {"protocol": {"scenes": args.scenes, "frames": args.frames, "seed": args.seed,
+                            "overrides": args.overrides, "fps": FPS, "min_gap_frames": MIN_GAP,
                                  "code": code_version(),
                                  "source": "aerotrack.synth scenes; gt-dets = gt.txt with 10% dropped, "
                                         "1 px / 5% jitter, 0.1 false alarm per frame"},

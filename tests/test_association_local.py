@@ -445,3 +445,39 @@ def test_a_partial_link_keeps_the_predicted_state():
     # without partial links allowed the same observation is a (failing) whole-box link
     _, _, d2_whole, _ = link_step(x, P, dt, part, params, False)
     assert d2_whole > cfg.gate_chi2
+
+
+def _handover(split: float):
+    """Vehicle 1 goes under an occluder at frame 30; vehicle 2, another colour, comes out where
+    and when vehicle 1 would have (frame 51); vehicle 1 never comes back."""
+    a = _line(0.0, 0.0, 10.0, 0.0, range(1, 31), np.random.default_rng(1))
+    b = _line(0.0, 0.0, 10.0, 0.0, range(51, 91), np.random.default_rng(2))
+    hists = {1: np.array([.7, .1, .1, .1]), 2: np.array([.1, .1, .1, .7])}
+    frames, truth = _frames({1: a, 2: b}, 90, hist_of=lambda i: hists[i])
+    cfg = AssociationConfig(split_appearance=split)
+    return _identities(associate(frames, cfg, FPS, metres_per_unit=1.0, seed=0), truth)
+
+
+def test_a_handover_across_a_bridged_gap_is_cut_by_colour():
+    mixed = _handover(0.0)
+    assert any(len(set(seq)) > 1 for seq in mixed.values())  # the sampler bridges 1 -> 2
+    split = _handover(0.3)
+    assert sorted(sorted(set(seq)) for seq in split.values()) == [[1], [2]]
+
+
+def test_split_appearance_jumps_keeps_one_colour_whole():
+    from aerotrack.association.local import split_appearance_jumps
+    from aerotrack.types import TrackPoint
+
+    def pt(f, h, kind="observed"):
+        return TrackPoint(frame=f, box=np.zeros(4), world=np.zeros(2), conf=1.0, kind=kind,
+                          hist=None if kind != "observed" else np.asarray(h, float))
+    red, blue = [.7, .1, .1, .1], [.1, .1, .1, .7]
+    pts = ([pt(f, red) for f in range(1, 6)] + [pt(f, None, "bridged") for f in range(6, 16)]
+           + [pt(f, red) for f in range(16, 21)])
+    assert split_appearance_jumps(pts, min_gap=3, side=6, threshold=0.3) == [pts]
+    pts[-5:] = [pt(f, blue) for f in range(16, 21)]
+    pieces = split_appearance_jumps(pts, min_gap=3, side=6, threshold=0.3)
+    assert [[p.frame for p in q] for q in pieces] == [list(range(1, 6)), list(range(16, 21))]
+    # a gap shorter than min_gap is not checked
+    assert split_appearance_jumps(pts, min_gap=12, side=6, threshold=0.3) == [pts]
