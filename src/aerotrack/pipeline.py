@@ -300,7 +300,23 @@ class Pipeline:
                 if self.checkpoint_dir is not None:  # full detections, appearance included: only
                     self._pending_dets.append(dets)  # kept until the next checkpoint empties them
                 self._remember_boxes(dets)
+                if self.config.association.split_merged and len(dets):
+                    dets = self._split_merged(dets)
                 self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
+
+    def _split_merged(self, dets: Detections) -> Detections:
+        """``dets`` with detections holding several tracked vehicles split (merged.py)."""
+        from .association.merged import split_merged
+
+        c = self.config.association
+        reg = self.registrations.get(dets.frame)
+        H = np.eye(3) if reg is None else np.asarray(reg.H, dtype=np.float64)
+        centres, sizes, hists = self.associator.predictions(
+            dets.frame, c.split_merged_max_age_s, max(2, round(c.split_merged_min_obs_s * self.fps)))
+        out, n = split_merged(dets, centres, sizes, H, hists=hists, geomap=self.geomap,
+                              area_ratio=c.split_merged_area_ratio)
+        self.stats_split_merged = getattr(self, "stats_split_merged", 0) + n
+        return out
 
     def _remember_boxes(self, dets: Detections | None) -> None:
         """Keep the latest final detections' world boxes (kept out of registration)."""

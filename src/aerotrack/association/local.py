@@ -179,6 +179,37 @@ class LocalAssociator:
         S.store.drop_before(S.now + 1)
         return out
 
+    def predictions(self, frame: int, max_age_s: float, min_obs: int
+                    ) -> tuple[np.ndarray, np.ndarray, list]:
+        """Where the live tracks expect their targets in ``frame``: constant-velocity
+        predictions of tracks observed at least ``min_obs`` times, the last time within
+        ``max_age_s`` seconds. Returns world centres (K, 2) and sizes (K, 2), world units, and
+        each track's latest colour histogram (None without histograms)."""
+        S = self.sampler
+        if S is None or not self.mpu:
+            return np.zeros((0, 2)), np.zeros((0, 2)), []
+        centres, sizes, hists = [], [], []
+        for tid, tr in S.tracks.items():
+            if len(tr):
+                x, f = tr.xs[-1], int(S.frame_of(int(tr.nodes[-1])))
+                h = S.hist_of(int(tr.nodes[-1]))
+            elif tr.prior is not None:
+                x, f, h = tr.prior.x, int(tr.prior.frame), tr.prior.hist
+            else:
+                continue
+            dt = (frame - f) / self.fps
+            if dt <= 0 or dt > max_age_s:
+                continue
+            n_obs = len(tr) + sum(p.kind == "observed" for p in self.points.get(tid, ()))
+            if n_obs < min_obs:
+                continue
+            centres.append((x[0] + x[4] * dt, x[1] + x[5] * dt))
+            sizes.append((x[2], x[3]))
+            hists.append(h)
+        if not centres:
+            return np.zeros((0, 2)), np.zeros((0, 2)), []
+        return np.asarray(centres) / self.mpu, np.abs(np.asarray(sizes)) / self.mpu, hists
+
     # ------------------------------------------------------------------ per frame
     def _add(self, det: Detections) -> list[Tracklet]:
         S = self.sampler
