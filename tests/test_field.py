@@ -471,6 +471,15 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path):
         assert t.schema.metadata[b"crs"] == UTM11.encode()
         assert t.column("speed_mps")[10].as_py() == pytest.approx(float(r["speed_mps"]), abs=1e-3)
         assert t.column("kind").to_pylist().count("predicted") == 10
+    # What each tracks.csv row is, when the caller knows (bridged and held rows are not seen)
+    kinds = {(i + 1, 7): ("bridged" if 5 <= i < 8 else "stationary" if i >= 15 else "observed")
+             for i in range(20)}
+    out3 = write_observation_table(tmp_path / "k.csv", obs, geomap, fps, predicted=pred,
+                                   homographies=homs, formats=("csv",), kinds=kinds)
+    with open(out3["csv"], newline="") as fh:
+        got = [t["kind"] for t in csv.DictReader(fh)]
+    assert got == ["observed"] * 5 + ["bridged"] * 3 + ["observed"] * 7 + ["stationary"] * 5 \
+        + ["predicted"] * 10
     # --out-crs: any projected CRS; geographic is refused.
     out2 = write_observation_table(tmp_path / "o2.csv", obs, geomap, fps, "EPSG:3857",
                                    formats=("csv",))

@@ -124,8 +124,10 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
             from .io.geotable import write_observation_table
 
             homs = {i: r.H for i, r in result.registrations.items()}
+            kinds = {(p.frame, t.id): p.kind for t in result.tracks for p in t.points
+                     if p.kind in IN_VIEW}
             write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
-                                    out_crs, predicted=predicted, homographies=homs)
+                                    out_crs, predicted=predicted, homographies=homs, kinds=kinds)
     out.write_text("config.toml", dumps_config(config))
     failures = [
         {"frame": i, "status": r.status, "reason": r.reason}

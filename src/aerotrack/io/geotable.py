@@ -14,7 +14,9 @@ heading_deg     direction of travel, degrees clockwise from true north (geodesic
                 empty when the target moves less than ``min_heading_speed_mps``
 length_m        ground size of the box's longer side, metres
 width_m         ground size of the box's shorter side, metres
-kind            ``observed`` (rows of ``tracks.csv``) or ``predicted`` (rows of ``predicted.csv``)
+kind            rows of ``tracks.csv``: ``observed`` (a detection), ``bridged`` (interpolated
+                across a short run of missed detections) or ``stationary`` (standing still
+                where the detector lost it); rows of ``predicted.csv``: ``predicted``
 ==============  ==============================================================================
 
 Box sizes: the box (frame pixels) is measured on the ground by mapping the midpoints of its sides
@@ -108,7 +110,9 @@ def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
 def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *,
                       predicted: Any = None, homographies: dict[int, np.ndarray] | None = None,
                       frame_gsd: float | None = None, smooth_s: float = 0.5,
-                      min_heading_speed_mps: float = 0.5) -> tuple[dict[str, np.ndarray], str]:
+                      min_heading_speed_mps: float = 0.5,
+                      kinds: dict[tuple[int, int], str] | None = None
+                      ) -> tuple[dict[str, np.ndarray], str]:
     """Compute the table's columns (see the module docstring) without writing anything.
 
     Parameters
@@ -132,6 +136,9 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         through turns and stops.
     min_heading_speed_mps : float
         Below this speed the heading is left empty (the direction of jitter is meaningless).
+    kinds : dict {(frame, id): str}, optional
+        What each ``tracks.csv`` row is (``observed``, ``bridged``, ``stationary``); rows not
+        in it are ``observed``.
 
     Returns
     -------
@@ -149,7 +156,9 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         raise InputError(f"--fps {fps}: must be positive")
     obs, pred = _rows(rows, "tracks"), _rows(predicted, "predicted")
     a = np.vstack([obs, pred])
-    kind = np.array(["observed"] * len(obs) + ["predicted"] * len(pred), dtype=object)
+    kinds = kinds or {}
+    kind = np.array([kinds.get((int(r[0]), int(r[1])), "observed") for r in obs]
+                    + ["predicted"] * len(pred), dtype=object)
     order = np.lexsort((kind == "predicted", a[:, 0], a[:, 1]))
     a, kind = a[order], kind[order]
     n = len(a)
