@@ -83,6 +83,10 @@ class LocalAssociator:
         if config.split_appearance < 0 or config.split_min_gap_s < 0 or config.split_side_obs < 1:
             raise ConfigError("config association.split_appearance and split_min_gap_s must be "
                               ">= 0, split_side_obs >= 1")
+        if (config.split_merged_area_ratio < 1 or config.split_merged_min_obs_s < 0
+                or config.split_merged_max_age_s <= 0):
+            raise ConfigError("config association.split_merged_area_ratio must be >= 1, "
+                              "split_merged_min_obs_s >= 0 and split_merged_max_age_s > 0")
         self.fps = float(fps)
         self.mpu = metres_per_unit
         if isinstance(seed, np.random.Generator):
