@@ -26,6 +26,7 @@ import numpy as np
 
 from ..detection.detector import local_scales
 from ..types import Detections, apply_homography
+from .posterior import iou_xywh_centre
 
 __all__ = ["split_merged"]
 
@@ -38,13 +39,6 @@ def _inside_fraction(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     y1 = np.minimum(a[:, 1] + a[:, 3], b[1] + b[3])
     inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
     return inter / np.maximum(a[:, 2] * a[:, 3], 1e-9)
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
-    x1, y1 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
-    inter = max(0.0, x1 - x0) * max(0.0, y1 - y0)
-    return inter / max(a[2] * a[3] + b[2] * b[3] - inter, 1e-9)
 
 
 def split_merged(dets: Detections, centres_world: np.ndarray, sizes_world: np.ndarray,
@@ -90,16 +84,17 @@ def split_merged(dets: Detections, centres_world: np.ndarray, sizes_world: np.nd
     boxes = np.asarray(dets.boxes, float)
     rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []
     n_split = 0
+    centred = np.column_stack([pred[:, :2] + pred[:, 2:] / 2, pred[:, 2:]])  # centre x, y, w, h
+    mutual = np.triu(iou_xywh_centre(centred, centred), 1)  # (K, K), pairs once
     for i, b in enumerate(boxes):
-        c = pred[:, :2] + pred[:, 2:] / 2
+        c = centred[:, :2]
         centre_in = ((c[:, 0] >= b[0]) & (c[:, 0] <= b[0] + b[2])
                      & (c[:, 1] >= b[1]) & (c[:, 1] <= b[1] + b[3]))
         members = np.flatnonzero(centre_in & (_inside_fraction(pred, b) >= min_inside))
         parts = pred[members]
         if (len(parts) < 2
                 or b[2] * b[3] < area_ratio * float(np.max(parts[:, 2] * parts[:, 3]))
-                or any(_iou(parts[j], parts[k]) >= max_mutual_iou
-                       for j in range(len(parts)) for k in range(j + 1, len(parts)))):
+                or mutual[np.ix_(members, members)].max() >= max_mutual_iou):
             rows.append((i, b, None))
             continue
         n_split += 1
