@@ -481,3 +481,15 @@ def test_split_appearance_jumps_keeps_one_colour_whole():
     assert [[p.frame for p in q] for q in pieces] == [list(range(1, 6)), list(range(16, 21))]
     # a gap shorter than min_gap is not checked
     assert split_appearance_jumps(pts, min_gap=12, side=6, threshold=0.3) == [pts]
+
+
+def test_split_appearance_jumps_cuts_once_per_change():
+    """A colour change seen from several neighbouring boundaries is cut once, where it is."""
+    from aerotrack.association.local import split_appearance_jumps
+    from aerotrack.types import TrackPoint
+
+    red, blue = np.array([.7, .1, .1, .1]), np.array([.1, .1, .1, .7])
+    pts = [TrackPoint(frame=f, box=np.zeros(4), world=np.zeros(2), conf=1.0,
+                      hist=red if f <= 10 else blue) for f in range(1, 21)]
+    pieces = split_appearance_jumps(pts, min_gap=1, side=4, threshold=0.3)
+    assert [[p.frame for p in q] for q in pieces] == [list(range(1, 11)), list(range(11, 21))]

@@ -307,7 +307,8 @@ class LocalAssociator:
         c = self.config
         pieces = [pts]
         if c.split_appearance > 0 and pts:
-            pieces = split_appearance_jumps(pts, min_gap=max(2, round(c.split_min_gap_s * self.fps)),
+            pieces = split_appearance_jumps(pts, min_gap=(max(2, round(c.split_min_gap_s * self.fps))
+                                                         if c.split_min_gap_s > 0 else 1),
                                             side=c.split_side_obs, threshold=c.split_appearance)
         out = []
         for piece in pieces:
@@ -441,8 +442,9 @@ def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
     Here, for every bridged run of at least ``min_gap`` frames, the mean colour histograms of up
     to ``side`` observations before and after it are compared (Bhattacharyya distance, means
     of several blobs being far steadier than one); above ``threshold`` the tracklet is cut
-    there and its bridged points dropped. Global linking then decides, with its whole-tracklet
-    appearance, whether the pieces are one vehicle. Our addition, not the paper's.
+    there and its bridged points dropped; of cuts closer than ``side`` observations only the
+    strongest is made. Global linking then decides, with its whole-tracklet appearance, whether
+    the pieces are one vehicle. Our addition, not the paper's.
 
     Measured on the generated identity scenes' tracklets (own detector, 432 bridged runs of
     >= 3 frames): same vehicle on both sides p50 / p99 = 0.04 / 0.21; 8 of the 11 hand-overs
@@ -465,7 +467,7 @@ def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
         The pieces in time order (``[points]`` when nothing is cut).
     """
     obs = [i for i, p in enumerate(points) if p.kind == "observed"]
-    cuts = []
+    found = []  # (distance, k): observation k starts a new piece
     for k in range(1, len(obs)):
         i, j = obs[k - 1], obs[k]
         if points[j].frame - points[i].frame < min_gap:
@@ -474,8 +476,15 @@ def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
         after = [points[m].hist for m in obs[k:k + side] if points[m].hist is not None]
         if not before or not after:
             continue
-        if bhattacharyya(np.mean(before, axis=0), np.mean(after, axis=0)) > threshold:
-            cuts.append((i, j))
+        d = bhattacharyya(np.mean(before, axis=0), np.mean(after, axis=0))
+        if d > threshold:
+            found.append((d, k))
+    # the strongest change first; none within ``side`` observations of a kept one
+    kept: list[int] = []
+    for _, k in sorted(found, reverse=True):
+        if all(abs(k - q) >= side for q in kept):
+            kept.append(k)
+    cuts = [(obs[k - 1], obs[k]) for k in sorted(kept)]
     if not cuts:
         return [points]
     pieces, start = [], 0
