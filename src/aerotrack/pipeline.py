@@ -313,9 +313,8 @@ class Pipeline:
         H = np.eye(3) if reg is None else np.asarray(reg.H, dtype=np.float64)
         centres, sizes, hists = self.associator.predictions(
             dets.frame, c.split_merged_max_age_s, max(2, round(c.split_merged_min_obs_s * self.fps)))
-        out, n = split_merged(dets, centres, sizes, H, hists=hists, geomap=self.geomap,
+        out, _ = split_merged(dets, centres, sizes, H, hists=hists, geomap=self.geomap,
                               area_ratio=c.split_merged_area_ratio)
-        self.stats_split_merged = getattr(self, "stats_split_merged", 0) + n
         return out
 
     def _remember_boxes(self, dets: Detections | None) -> None:

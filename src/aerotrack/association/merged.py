@@ -26,19 +26,9 @@ import numpy as np
 
 from ..detection.detector import local_scales
 from ..types import Detections, apply_homography
-from .posterior import iou_xywh_centre
+from .posterior import inside_fraction, iou_xywh_centre
 
 __all__ = ["split_merged"]
-
-
-def _inside_fraction(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Fraction of each box of ``a`` (K, 4) inside box ``b`` (4,), boxes ``x, y, w, h``."""
-    x0 = np.maximum(a[:, 0], b[0])
-    y0 = np.maximum(a[:, 1], b[1])
-    x1 = np.minimum(a[:, 0] + a[:, 2], b[0] + b[2])
-    y1 = np.minimum(a[:, 1] + a[:, 3], b[1] + b[3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    return inter / np.maximum(a[:, 2] * a[:, 3], 1e-9)
 
 
 def split_merged(dets: Detections, centres_world: np.ndarray, sizes_world: np.ndarray,
@@ -90,7 +80,9 @@ def split_merged(dets: Detections, centres_world: np.ndarray, sizes_world: np.nd
         c = centred[:, :2]
         centre_in = ((c[:, 0] >= b[0]) & (c[:, 0] <= b[0] + b[2])
                      & (c[:, 1] >= b[1]) & (c[:, 1] <= b[1] + b[3]))
-        members = np.flatnonzero(centre_in & (_inside_fraction(pred, b) >= min_inside))
+        bc = np.array([b[0] + b[2] / 2, b[1] + b[3] / 2, b[2], b[3]])
+        inside = np.array([inside_fraction(z, bc, np.inf) for z in centred])
+        members = np.flatnonzero(centre_in & (inside >= min_inside))
         parts = pred[members]
         if (len(parts) < 2
                 or b[2] * b[3] < area_ratio * float(np.max(parts[:, 2] * parts[:, 3]))
