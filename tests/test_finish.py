@@ -407,13 +407,15 @@ def test_persistence_boxes_take_the_vehicles_size_from_its_regular_observations(
     sizes = np.array([p.box[2:] for p in out[0].points if p.weak])
     assert len(sizes) == 20
     assert np.allclose(sizes, [45, 20], atol=1.0)
-    # a track of persistence boxes only keeps its own sizes
+    # a track of persistence boxes only (no regular detection ever saw it) is dropped; one
+    # regular observation keeps it, with its own sizes
     alone = _stopping(n_drive=60, n_stand=0, tid=2)
     alone.points = [dataclasses.replace(p, box=np.array([p.world[0] - 10, p.world[1] - 5, 20, 10]),
                                         weak=True) for p in alone.points[:30]]
-    out = finish_tracks([alone], FinishConfig(fill_gaps_s=0.0, stop_hold_s=0.0, stop_radius_m=0.0,
-                                              min_size_m=0.0), FPS, metres_per_unit=MPU,
-                        registrations=IDENT)
+    cfg = FinishConfig(fill_gaps_s=0.0, stop_hold_s=0.0, stop_radius_m=0.0, min_size_m=0.0)
+    assert finish_tracks([alone], cfg, FPS, metres_per_unit=MPU, registrations=IDENT) == []
+    alone.points[0] = dataclasses.replace(alone.points[0], weak=False)
+    out = finish_tracks([alone], cfg, FPS, metres_per_unit=MPU, registrations=IDENT)
     assert np.allclose([p.box[2:] for p in out[0].points], [20, 10], atol=1.0)
 
 

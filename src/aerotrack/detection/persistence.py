@@ -53,6 +53,15 @@ box is under half the typical detection's area, ``persist_min_area_ratio``, the 
 being a nearer, larger car) and GT 24 while it waits (covered in 55 instead of 44 frames).
 GT 10, standing in frames 1-23, is not found by persistence either (not investigated why).
 
+Since 2026-11-26 a track made of persistence boxes only (no regular detection ever saw it) is
+dropped when tracks are finished (``association.finish``): persistence extends vehicles, it does
+not start them. Santiago with persistence, HOTA/IDF1 mean of seeds 0-2: 0.638/0.853 ->
+0.643/0.861 (default, persistence off: 0.650/0.871); truck4 unchanged. Measured then too: the
+colour check of local association (``association.split_appearance``) cuts truck4's truck where
+its boxes trail road behind it and where it passes a palm tree, and linking does not rejoin
+every cut (the box centre jumps by half the trail): its best ID with persistence is
+0.461/0.755/0.458 over seeds 0-2, 0.767/0.755/0.753 with the check off.
+
 Tried and not kept (truck4's best ID over seeds 0-2 is the most sensitive check: it moved by
 0.1-0.3 with small changes of the detections):
 
