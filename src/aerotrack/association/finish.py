@@ -468,7 +468,7 @@ class TrackFinisher:
         full = measured & ~edge & np.array([p.kind == "observed" and not p.weak for p in pts])
         if regs is not None and is_small(sizes[full], mpu, c.min_size_m):
             return False
-        if not any(p.kind == "observed" and not p.weak for p in pts):
+        if any(p.weak for p in pts) and not any(p.kind == "observed" and not p.weak for p in pts):
             # persistence boxes only: track-before-detect evidence extends a vehicle that the
             # regular detector saw at some point; alone it is a slow, small mover (on Santiago
             # mostly pedestrians)
