@@ -493,3 +493,25 @@ def test_split_appearance_jumps_cuts_once_per_change():
                       hist=red if f <= 10 else blue) for f in range(1, 21)]
     pieces = split_appearance_jumps(pts, min_gap=1, side=4, threshold=0.3)
     assert [[p.frame for p in q] for q in pieces] == [list(range(1, 11)), list(range(11, 21))]
+
+
+def test_split_appearance_jumps_skips_a_change_of_box_size():
+    """A colour change where the box also changes size (a trail of road, half behind a tree) is
+    not a hand-over when ``max_size_ratio`` says so; at a steady size it is cut."""
+    from aerotrack.association.local import split_appearance_jumps
+    from aerotrack.types import TrackPoint
+
+    red, blue = np.array([.7, .1, .1, .1]), np.array([.1, .1, .1, .7])
+    small, large = np.array([0, 0, 20, 10.0]), np.array([0, 0, 40, 10.0])
+
+    def pts(after_box):
+        return ([TrackPoint(frame=f, box=small, world=np.zeros(2), conf=1.0, hist=red)
+                 for f in range(1, 6)]
+                + [TrackPoint(frame=f, box=after_box, world=np.zeros(2), conf=1.0, hist=blue)
+                   for f in range(10, 15)])
+
+    assert len(split_appearance_jumps(pts(large), min_gap=3, side=6, threshold=0.3)) == 2
+    assert len(split_appearance_jumps(pts(large), min_gap=3, side=6, threshold=0.3,
+                                      max_size_ratio=1.5)) == 1
+    assert len(split_appearance_jumps(pts(small * 1.1), min_gap=3, side=6, threshold=0.3,
+                                      max_size_ratio=1.5)) == 2

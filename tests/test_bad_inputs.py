@@ -410,6 +410,7 @@ def test_track_negative_config_value(tmp_path, capsys, dets, setting):
     ("finish.size_mode=magic", "finish.size_mode"),
     ("linking.partial_model=magic", "linking.partial_model"),
     ("association.split_side_obs=0", "association.split_appearance"),
+    ("association.split_max_size_ratio=0.5", "association.split_max_size_ratio"),
     ("association.split_merged_area_ratio=0.5", "association.split_merged_area_ratio"),
 ])
 def test_last_stages_config_errors_come_before_any_frame(tmp_path, capsys, dets, setting, frag):

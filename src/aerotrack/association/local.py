@@ -83,6 +83,8 @@ class LocalAssociator:
         if config.split_appearance < 0 or config.split_min_gap_s < 0 or config.split_side_obs < 1:
             raise ConfigError("config association.split_appearance and split_min_gap_s must be "
                               ">= 0, split_side_obs >= 1")
+        if config.split_max_size_ratio != 0 and not config.split_max_size_ratio >= 1:
+            raise ConfigError("config association.split_max_size_ratio: must be 0 (off) or >= 1")
         if (config.split_merged_area_ratio < 1 or config.split_merged_min_obs_s < 0
                 or config.split_merged_max_age_s <= 0):
             raise ConfigError("config association.split_merged_area_ratio must be >= 1, "
@@ -309,7 +311,8 @@ class LocalAssociator:
         if c.split_appearance > 0 and pts:
             pieces = split_appearance_jumps(pts, min_gap=(max(2, round(c.split_min_gap_s * self.fps))
                                                          if c.split_min_gap_s > 0 else 1),
-                                            side=c.split_side_obs, threshold=c.split_appearance)
+                                            side=c.split_side_obs, threshold=c.split_appearance,
+                                            max_size_ratio=c.split_max_size_ratio)
         out = []
         for piece in pieces:
             n_obs = sum(p.kind == "observed" for p in piece)
@@ -432,7 +435,8 @@ def bhattacharyya(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
-                           threshold: float) -> list[list[TrackPoint]]:
+                           threshold: float, max_size_ratio: float = 0.0
+                           ) -> list[list[TrackPoint]]:
     """A tracklet cut where it bridges a gap across which its colour changes: two vehicles.
 
     The sampler scores each link by the colour of the two blobs it joins (eq. 9), one noisy
@@ -460,6 +464,10 @@ def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
         Observations (with a histogram) averaged on each side.
     threshold : float
         Bhattacharyya distance above which the tracklet is cut.
+    max_size_ratio : float
+        A run is checked only when the median box areas of the two sides differ by at most this
+        factor (0: always): where the box changes size its blob holds other pixels (a trail of
+        road, a vehicle half behind a tree), so its colour changes with no other vehicle.
 
     Returns
     -------
@@ -476,6 +484,11 @@ def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
         after = [points[m].hist for m in obs[k:k + side] if points[m].hist is not None]
         if not before or not after:
             continue
+        if max_size_ratio > 0:
+            a = np.median([points[m].box[2] * points[m].box[3] for m in obs[max(0, k - side):k]])
+            b = np.median([points[m].box[2] * points[m].box[3] for m in obs[k:k + side]])
+            if max(a, b) > max_size_ratio * max(min(a, b), 1e-9):
+                continue
         d = bhattacharyya(np.mean(before, axis=0), np.mean(after, axis=0))
         if d > threshold:
             found.append((d, k))

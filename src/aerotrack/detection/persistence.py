@@ -60,7 +60,9 @@ not start them. Santiago with persistence, HOTA/IDF1 mean of seeds 0-2: 0.638/0.
 colour check of local association (``association.split_appearance``) cuts truck4's truck where
 its boxes trail road behind it and where it passes a palm tree, and linking does not rejoin
 every cut (the box centre jumps by half the trail): its best ID with persistence is
-0.461/0.755/0.458 over seeds 0-2, 0.767/0.755/0.753 with the check off.
+0.461/0.755/0.458 over seeds 0-2, 0.767/0.755/0.753 with the check off. The check now skips
+runs across which the box changes size by more than ``association.split_max_size_ratio`` (1.5),
+which gives 0.767/0.755/0.753 with it on.
 
 Tried and not kept (truck4's best ID over seeds 0-2 is the most sensitive check: it moved by
 0.1-0.3 with small changes of the detections):
