@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from conftest import run_cli
 
 from aerotrack.config import ContextConfig
-from aerotrack.context.motion import TrackTable, get_predictor
-from aerotrack.context.roads import RoadNetwork, read_roads, road_prediction
-from aerotrack.errors import InputError
+from aerotrack.context.motion import PathIndex, TrackTable, get_predictor
+from aerotrack.context.roads import RoadNetwork, branch_probabilities, read_roads, road_prediction
+from aerotrack.errors import ConfigError, InputError
 
 FPS = 30.0
 
@@ -87,9 +88,13 @@ def test_at_a_junction_the_learned_road_beats_the_straightest_branch():
     net = cross_network()
     assert len(net.nodes) == 5 and len(net.adjacency[int(np.argmin(np.hypot(*(net.nodes - (100, 0)).T)))]) == 4
     target = straight_track((60.0, 0.0), (10.0, 0.0), first=600)
-    # without earlier objects: straight on
-    p = predict(table_of(target), net, horizon=180)
+    # without earlier objects the most likely route is straight on ...
+    p = predict(table_of(target), net, horizon=180, config=ContextConfig(road_hedge="none"))
     assert np.hypot(*(p[-1] - (120.0, 0.0))) < 1.0
+    # ... but not likelier than the turns: the hedged prediction stays between the three branches
+    # (on the straight road's axis by symmetry, past the crossing but short of straight on)
+    m = predict(table_of(target), net, horizon=180, config=ContextConfig(road_hedge="median"))
+    assert abs(m[-1][1]) < 1e-6 and 100.0 < m[-1][0] < 115.0, m[-1]
     # an earlier car came the same way and turned left (to -y) at the crossing
     f = np.arange(1, 301)
     s = 10.0 * (f - 1) / FPS  # 10 m/s from x = 20
@@ -126,8 +131,87 @@ def test_a_vehicle_brakes_for_a_sharp_turn_and_not_for_straight_on():
     assert abs(q[-1][0] - 100.0) < 0.5 and abs(q[-1][1] - want_y) < 0.5, (q[-1], want_y)
     assert np.hypot(*(q[int(2.5 * FPS) - 1] - (85.0, 0.0))) < 0.5  # full speed before braking
     # straight on through the crossing keeps the speed
-    alone = predict(table_of(target), net, horizon=180, config=c)
+    alone = predict(table_of(target), net, horizon=180, config=replace(c, road_hedge="none"))
     assert np.hypot(*(alone[-1] - (120.0, 0.0))) < 1.0, alone[-1]
+
+
+def test_branch_probabilities_are_votes_smoothed_by_the_turn_prior():
+    cos = np.array([0.0, 1.0, 0.0])  # left, straight on, right
+    p = branch_probabilities(np.array([3.0, 1.0, 0.0]), cos, prior_weight=1.0, kappa=0.0)
+    assert np.allclose(p, np.array([3 + 1 / 3, 1 + 1 / 3, 1 / 3]) / 5)
+    # no votes: the prior alone, uniform for kappa 0, e^kappa : 1 : 1 otherwise
+    assert np.allclose(branch_probabilities(np.zeros(3), cos, 1.0, 0.0), 1 / 3)
+    assert np.allclose(branch_probabilities(np.zeros(3), cos, 1.0, np.log(3.0)), [0.2, 0.6, 0.2])
+    # no prior weight: the voters' frequencies
+    assert np.allclose(branch_probabilities(np.array([3.0, 1.0, 0.0]), cos, 0.0, 2.0), [0.75, 0.25, 0])
+
+
+def drove(track_id, turn):
+    """An earlier car at 10 m/s along y = 0 from x = 20 that at the crossing (100, 0) went
+    ``turn`` (-1 to -y, 0 straight on, +1 to +y)."""
+    f = np.arange(1, 301)
+    s = 10.0 * (f - 1) / FPS
+    after = np.column_stack([20 + s, 0 * s]) if turn == 0 else \
+        np.column_stack([np.full_like(s, 100.0), turn * (s - 80)])
+    return np.full(len(f), track_id), f, np.where((s < 80)[:, None], np.column_stack([20 + s, 0 * s]), after)
+
+
+def test_hedged_prediction_lies_at_the_weighted_centre_of_the_voted_branches():
+    from scipy.optimize import minimize
+
+    net = cross_network()
+    target = straight_track((60.0, 0.0), (10.0, 0.0), first=600)
+    table = table_of(target, drove(2, -1), drove(3, 0))  # one turned left, one went straight on
+    p0, v0 = np.array([60.0, 0.0]), np.array([10.0 / FPS, 0.0])
+    c = ContextConfig(road_turn_speed_mps=0.0, road_vote_prior=1.0, road_straight_kappa=0.0)
+    index = PathIndex(table, FPS, 1.0, c)
+
+    def drive(hedge):
+        return road_prediction(net, p0, v0, 180, FPS, replace(c, road_hedge=hedge), index=index,
+                               frame=630, exclude_id=1)
+
+    rp = drive("none")
+    # votes 1:1 (straight first on the tie), 0 for right; uniform prior worth one vote
+    ends = np.array([h[-1] for h in rp.hypotheses])
+    assert np.allclose(ends, [(120.0, 0.0), (100.0, -20.0), (100.0, 20.0)], atol=1e-6), ends
+    w = np.array([4 / 9, 4 / 9, 1 / 9])
+    assert np.allclose(rp.weights, w)
+    assert np.array_equal(rp.positions, rp.hypotheses[0])
+    assert np.allclose(drive("mean").positions[-1], w @ ends)
+
+    def cost(x):  # expected distance to the truth if it is on one of the branches
+        return float(w @ np.hypot(*(ends - x).T))
+
+    best = minimize(cost, w @ ends, method="Nelder-Mead", options={"xatol": 1e-8, "fatol": 1e-10}).x
+    med = drive("median").positions
+    assert np.hypot(*(med[-1] - best)) < 1e-3, (med[-1], best)
+    # off every branch (no branch has half the weight), and cheaper than any
+    assert np.hypot(*(ends - med[-1]).T).min() > 2.0 and cost(med[-1]) < min(cost(e) for e in ends)
+    # before the crossing (4 s at 10 m/s) every branch is at the same place: no hedge there
+    assert np.allclose(med[: int(4 * FPS) - 1], rp.hypotheses[0][: int(4 * FPS) - 1])
+    # a majority branch is the median: two left, one straight on -> left
+    table = table_of(target, drove(2, -1), drove(3, 0), drove(4, -1))
+    index = PathIndex(table, FPS, 1.0, c)
+    assert np.allclose(drive("median").positions[-1], (100.0, -20.0), atol=1e-6)
+
+
+def test_route_weights_multiply_per_junction_and_sum_to_one():
+    # a second crossing 15 m past the first on the straight road: the straight route splits
+    # again, and its three continuations share its third instead of counting as routes of their own
+    net = RoadNetwork([np.array([[0.0, 0.0], [200.0, 0.0]]), np.array([[100.0, -100.0], [100.0, 100.0]]),
+                       np.array([[115.0, -100.0], [115.0, 100.0]])], bounds=(-50, -150, 250, 150))
+    c = ContextConfig(road_vote_prior=1.0, road_straight_kappa=0.0)
+    rp = road_prediction(net, np.array([60.0, 0.0]), np.array([10.0 / FPS, 0.0]), 180, FPS, c)
+    assert np.allclose(sorted(rp.weights), [1 / 9, 1 / 9, 1 / 9, 1 / 3, 1 / 3])
+    # fewer routes enumerated than there are: the kept ways of a junction share its probability
+    few = road_prediction(net, np.array([60.0, 0.0]), np.array([10.0 / FPS, 0.0]), 180, FPS, c,
+                          max_routes=3)
+    assert len(few.hypotheses) == 3 and abs(few.weights.sum() - 1.0) < 1e-12
+
+
+def test_an_unknown_hedge_is_refused_naming_the_valid_ones():
+    with pytest.raises(ConfigError, match="road_hedge.*valid: none, mean, median"):
+        get_predictor("context", ContextConfig(road_hedge="average"), FPS, roads=cross_network())
 
 
 def test_a_road_ending_near_another_becomes_a_t_junction():

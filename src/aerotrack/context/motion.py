@@ -318,7 +318,10 @@ class MotionPredictor:
         rp = road_prediction(self.roads, p0, v0, int(horizon), self.fps, self.config,
                              index=self.index_for(table), frame=int(last_seen),
                              exclude_id=track_id)
-        return [first] if rp is None else [first, *rp.hypotheses[1:]]
+        if rp is None:
+            return [first]
+        # hedged, the prediction is between the routes: every route is another place to look
+        return [first, *(rp.hypotheses[1:] if self.config.road_hedge == "none" else rp.hypotheses)]
 
     def _predict(self, table, track_id, fr, xy, T, h) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError
@@ -873,8 +876,9 @@ class ContextPredictor(MotionPredictor):
     With a road network (``roads``), a target that snaps to a road (within ``road_snap_m``,
     heading within ``road_heading_deg``) has estimate 1 driven along the road instead of on a
     straight line (:func:`~aerotrack.context.roads.road_prediction`: its lane kept, at junctions
-    the branch earlier objects took else the straightest, U-turns at dead ends), with the same
-    variance; off the roads nothing changes.
+    the weighted centre of the branches, each as likely as earlier objects' choices make it
+    (``road_hedge``), U-turns at dead ends), with the same variance; off the roads nothing
+    changes.
 
     Where neither context estimate exists the prediction is the Kalman filter's, so the method is
     never worse than it by construction of the weights (up to their calibration). Raising
@@ -885,6 +889,9 @@ class ContextPredictor(MotionPredictor):
 
     def __init__(self, config=None, fps=30.0, metres_per_unit=None, roads=None) -> None:
         super().__init__(config, fps, metres_per_unit, roads)
+        from .roads import check_hedge
+
+        check_hedge(self.config.road_hedge)
         self._index_table: TrackTable | None = None  # held, so its id cannot be reused
         self._index: PathIndex | None = None
 

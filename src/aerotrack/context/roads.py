@@ -10,11 +10,15 @@ centre-lines (a GeoJSON file, ``--roads``) the road geometry itself says where a
 * :func:`road_prediction` snaps a target's last state (position, heading, speed) to the best edge
   (distance and heading agreement, either direction of travel), then drives along the centre-line
   at the target's speed, keeping its lateral offset (its lane; any excess decays). At a junction
-  the branch is the one earlier vehicles took from the same approach (the learned road, a
-  :class:`~aerotrack.context.motion.PathIndex`), else the straightest; at a dead end inside the
-  map it U-turns; at an end on the map's edge (the road goes on beyond) it goes straight on.
-  Every branch hypothesis is returned too (:attr:`RoadPrediction.hypotheses`), so a linker can
-  gate a re-appearing object on the nearest one.
+  each way on has a probability from the votes of earlier vehicles from the same approach (the
+  learned road, a :class:`~aerotrack.context.motion.PathIndex`) smoothed by a prior
+  (:func:`branch_probabilities`); a route's probability is the product of its junction choices'.
+  At a dead end inside the map it U-turns; at an end on the map's edge (the road goes on beyond)
+  it goes straight on. The prediction is the routes' weighted centre (``road_hedge``,
+  :func:`hedge`: where the branch is uncertain, the point of least expected error lies between
+  the branches, not on the likeliest). Every route is returned too
+  (:attr:`RoadPrediction.hypotheses`, most likely first), so a linker can gate a re-appearing
+  object on the nearest one.
 
 Coordinates: one planar "world" frame (map pixels in the pipeline, the tracks' map CRS in
 ``aerotrack predict``, metres in the benchmark); ``metres_per_unit`` converts the configuration's
@@ -33,9 +37,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import ContextConfig
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 
-__all__ = ["RoadNetwork", "RoadPrediction", "read_roads", "road_prediction"]
+__all__ = ["HEDGES", "RoadNetwork", "RoadPrediction", "branch_probabilities", "hedge", "read_roads",
+           "road_prediction"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -410,6 +415,7 @@ class _Route:
     choices: list[tuple[int, int]] = field(default_factory=list)
     turns: list[tuple[float, float]] = field(default_factory=list)  # (arc length, degrees) at junctions
     length: float = 0.0
+    prob: float = 1.0  # product of its junction choices' probabilities
 
     def add(self, pts: np.ndarray) -> None:
         if self.centre and len(pts) and np.allclose(self.centre[-1][-1], pts[0]):
@@ -421,7 +427,7 @@ class _Route:
 
     def copy(self) -> _Route:
         return _Route(list(self.centre), list(self.uturns), list(self.choices), list(self.turns),
-                      self.length)
+                      self.length, self.prob)
 
 
 @dataclass(frozen=True)
@@ -431,10 +437,15 @@ class RoadPrediction:
     Attributes
     ----------
     positions : ndarray, shape (h, 2)
-        World units, frames ``T+1 .. T+h``: the chosen route (learned road, else straightest).
+        World units, frames ``T+1 .. T+h``: the routes' centre under their ``weights``
+        (``road_hedge``, :func:`hedge`; ``none``: the most likely route, ``hypotheses[0]``).
     hypotheses : list of ndarray, each (h, 2)
-        Every route through the junctions within reach (the chosen one first), for gating a
+        Every route through the junctions within reach (the most likely one first: at each
+        junction the branch most earlier objects took, else the straightest), for gating a
         re-appearing object on the nearest (:meth:`nearest`).
+    weights : ndarray, shape (len(hypotheses),)
+        Each route's probability: the product of its junction choices'
+        (:func:`branch_probabilities`); they sum to 1.
     edge, direction : int
         The edge the target snapped to and its direction of travel along it.
     offset : float
@@ -445,6 +456,7 @@ class RoadPrediction:
 
     positions: np.ndarray
     hypotheses: list[np.ndarray]
+    weights: np.ndarray
     edge: int
     direction: int
     offset: float
@@ -456,6 +468,133 @@ class RoadPrediction:
         d = [float(np.hypot(*(hyp[k] - xy))) for hyp in self.hypotheses]
         i = int(np.argmin(d))
         return self.hypotheses[i], d[i]
+
+
+def branch_probabilities(votes: np.ndarray, cos: np.ndarray, prior_weight: float,
+                         kappa: float) -> np.ndarray:
+    """Probability of each way on at a junction from earlier objects' votes and a turn prior.
+
+    ``p_b = (votes_b + a * prior_b) / (sum(votes) + a)`` (the posterior mean of a Dirichlet with
+    concentration ``a * prior``), with ``prior_b`` proportional to ``exp(kappa * cos_b)``: von
+    Mises in the turn angle, uniform for ``kappa`` 0, more on straight on the larger it is.
+
+    Parameters
+    ----------
+    votes : ndarray, shape (n,)
+        Earlier objects that left by each branch (:func:`_branch_votes`).
+    cos : ndarray, shape (n,)
+        Cosine of each branch's turn angle (1 straight on, 0 a right angle, -1 back).
+    prior_weight : float
+        ``a``, the prior's worth in votes (``road_vote_prior``); 0 with votes is their frequency.
+    kappa : float
+        ``road_straight_kappa``.
+
+    Returns
+    -------
+    ndarray, shape (n,), summing to 1.
+    """
+    votes = np.asarray(votes, dtype=np.float64)
+    z = kappa * np.asarray(cos, dtype=np.float64)
+    prior = np.exp(z - z.max())
+    prior /= prior.sum()
+    n = votes.sum()
+    if n <= 0:
+        return prior
+    return (votes + prior_weight * prior) / (n + prior_weight)
+
+
+def _geometric_median(points: np.ndarray, w: np.ndarray, iters: int = 30) -> np.ndarray:
+    """Weighted geometric median per step: (R, h, 2) points, (R,) weights -> (h, 2).
+
+    Weiszfeld's iteration from the weighted mean, then damped Newton steps (a step is kept only
+    where it lowers the objective ``sum_r w_r |x_r - y|``): Weiszfeld alone creeps towards a
+    median near a point. Where a point itself is the median (a branch with enough of the weight)
+    a step ends there if that is strictly cheaper (at a tie between two branches the iterate,
+    their midpoint, stays)."""
+    steps = np.arange(points.shape[1])
+
+    def cost(y):
+        return np.einsum("r,rh->h", w, np.hypot(*(points - y[None]).transpose(2, 0, 1)))
+
+    y = np.einsum("r,rhk->hk", w, points)
+    for _ in range(iters):
+        q = w[:, None] / np.maximum(np.hypot(*(points - y[None]).transpose(2, 0, 1)), 1e-12)
+        y = np.einsum("rh,rhk->hk", q, points) / q.sum(axis=0)[:, None]
+    f = cost(y)
+    for _ in range(iters):
+        D = points - y[None]  # (R, h, 2)
+        d = np.maximum(np.hypot(D[..., 0], D[..., 1]), 1e-12)
+        g = -np.einsum("r,rhk->hk", w, D / d[..., None])
+        c3 = w[:, None] / d ** 3
+        hxx = (c3 * D[..., 1] ** 2).sum(0)
+        hyy = (c3 * D[..., 0] ** 2).sum(0)
+        hxy = -(c3 * D[..., 0] * D[..., 1]).sum(0)
+        det = hxx * hyy - hxy ** 2
+        ok = det > 1e-12 * np.maximum(hxx * hyy, 1e-300)  # singular: points on a line
+        det = np.where(ok, det, 1.0)
+        step = -np.column_stack([hyy * g[:, 0] - hxy * g[:, 1], hxx * g[:, 1] - hxy * g[:, 0]]) / det[:, None]
+        step[~ok] = 0.0
+        moved = False
+        for t in (1.0, 0.5, 0.25, 0.125):
+            y_t = y + t * step
+            f_t = cost(y_t)
+            better = f_t < f
+            y[better], f[better] = y_t[better], f_t[better]
+            step[better] = 0.0
+            moved |= bool(better.any())
+        if not moved:
+            break
+    cand = np.concatenate([y[None], points])  # (R + 1, h, 2)
+    c = np.stack([f, *(cost(p) for p in points)])
+    best = 1 + np.argmin(c[1:], axis=0)
+    better = c[best, steps] < c[0] - 1e-9 * (1.0 + c[0])
+    return np.where(better[:, None], cand[best, steps], y)
+
+
+#: ``road_hedge`` values: how one point prediction is made of the weighted routes.
+HEDGES = ("none", "mean", "median")
+
+
+def check_hedge(kind: str) -> None:
+    """Raise ConfigError for an unknown ``road_hedge``, listing the valid ones."""
+    if kind not in HEDGES:
+        raise ConfigError(f"config context.road_hedge: unknown {kind!r} (valid: {', '.join(HEDGES)})")
+
+
+def hedge(points: np.ndarray, weights: np.ndarray, kind: str) -> np.ndarray:
+    """One point prediction per step from weighted route hypotheses.
+
+    Parameters
+    ----------
+    points : ndarray, shape (R, h, 2)
+        Routes' positions (world units), the most likely first.
+    weights : ndarray, shape (R,)
+        Their probabilities (sum 1).
+    kind : str
+        ``none``: the first route (winner takes all); ``mean``: the weighted mean (least expected
+        squared error); ``median``: the weighted geometric median (least expected distance, the
+        benchmark's error; of two branches it is the heavier one, and at a tie, where every point
+        between them is as good, the midpoint). Routes that share the road up to a junction
+        coincide there, so the choice only matters after it, and routes that part beyond the
+        horizon (or differ only in braking for a later turn) are weighted by their common
+        junction choices, not counted twice.
+
+    Raises
+    ------
+    ConfigError
+        An unknown ``kind`` (listing the valid ones).
+    """
+    check_hedge(kind)
+    if kind == "none" or len(points) == 1:
+        return points[0]
+    w = np.asarray(weights, dtype=np.float64)
+    if kind == "mean":
+        return np.einsum("r,rhk->hk", w, points)
+    out = points[0].copy()
+    split = np.flatnonzero(np.abs(points - points[:1]).max(axis=(0, 2)) > 0)  # steps past a junction
+    if len(split):
+        out[split] = _geometric_median(points[:, split], w)
+    return out
 
 
 def _branch_votes(net: RoadNetwork, index, node: int, u_in: np.ndarray, cands, frame: int,
@@ -512,7 +651,10 @@ def _routes(net: RoadNetwork, e: int, s: float, direction: int, need: float, ord
             max_routes: int) -> list[_Route]:
     """Routes of at least ``need`` units from (edge, arc length, direction), the preferred first.
 
-    ``order_exits(node, e_in, dir_in, u_in, exits) -> exits`` ranks the ways on at a junction."""
+    ``order_exits(node, e_in, dir_in, u_in, exits) -> (exits, probabilities)`` ranks the ways on at
+    a junction and says how likely each is. A route's ``prob`` is the product of its choices'; when
+    ``max_routes`` cuts the less likely ways of a junction, the kept ones share its probability
+    (renormalised), so the routes' probabilities always sum to 1."""
     start = _Route()
     todo = [(start, e, s, direction)]
     done: list[_Route] = []
@@ -535,13 +677,19 @@ def _routes(net: RoadNetwork, e: int, s: float, direction: int, need: float, ord
                 done.append(route)
                 continue
             route.uturns.append(route.length)  # dead end: back the way it came
-            exits = [(e, -d)]
+            exits, probs = [(e, -d)], [1.0]
         else:
-            exits = order_exits(node, e, d, u_in, exits)
-        for k, (e2, d2) in enumerate(exits):
-            if k > 0 and len(done) + len(todo) >= max_routes:
+            exits, probs = order_exits(node, e, d, u_in, exits)
+        n = len(exits)
+        for k in range(1, len(exits)):
+            if len(done) + len(todo) + k >= max_routes:
+                n = k
                 break
+        exits, probs = exits[:n], np.asarray(probs[:n], dtype=np.float64)
+        probs = probs / probs.sum() if probs.sum() > 0 else np.full(n, 1.0 / n)
+        for k, (e2, d2) in enumerate(exits):
             r2 = route.copy() if k < len(exits) - 1 else route
+            r2.prob = route.prob * float(probs[k])
             r2.choices.append((e2, d2))
             if e2 != e:  # (a dead end's U-turn costs road_uturn_s instead)
                 u2 = net.tangent_out(e2, d2, 2 * net.snap)
@@ -604,13 +752,16 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
     fps : float
     config : ContextConfig
         ``road_snap_m``, ``road_heading_deg``, ``road_lane_m``, ``road_offset_tau_s``,
-        ``road_uturn_s``, ``road_vote_radius_m``, ``road_turn_*``, ``min_speed_mps``.
+        ``road_uturn_s``, ``road_vote_radius_m``, ``road_turn_*``, ``road_hedge``,
+        ``road_vote_prior``, ``road_straight_kappa``, ``min_speed_mps``.
     index : PathIndex, optional
         Other objects' rows (:class:`aerotrack.context.motion.PathIndex`): at each junction the
-        branch most earlier objects from the same approach took (rows seen no later than
-        ``frame``, not ``exclude_id``'s) is chosen; without votes, the straightest branch.
+        ways on earlier objects from the same approach took (rows seen no later than ``frame``,
+        not ``exclude_id``'s) are voted for (:func:`_branch_votes`, :func:`branch_probabilities`);
+        the most likely route goes by the most votes, then the straightest.
     max_routes : int
-        Most branch hypotheses enumerated.
+        Most branch hypotheses enumerated; the less likely ways of a junction beyond it are
+        dropped and the kept ones share its probability.
 
     Returns
     -------
@@ -641,17 +792,16 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
     voted = [False]
 
     def order_exits(node, e_in, d_in, u_in, exits):
-        turn = []
-        for e2, d2 in exits:
-            u2 = net.tangent_out(e2, d2, look)
-            turn.append(-float(u_in @ u2))  # straightest first
-        order = np.argsort(turn, kind="stable")
+        cos = np.array([float(u_in @ net.tangent_out(e2, d2, look)) for e2, d2 in exits])
+        order = np.argsort(-cos, kind="stable")  # straightest first
+        votes = np.zeros(len(exits))
         if index is not None and frame is not None:
             votes = _branch_votes(net, index, node, u_in, exits, T, exclude_id, radius, look)
             if votes.sum() > 0:
                 voted[0] = True
-                order = np.lexsort((np.array(turn), -votes))
-        return [exits[i] for i in order]
+                order = np.lexsort((-cos, -votes))
+        p = branch_probabilities(votes, cos, c.road_vote_prior, c.road_straight_kappa)
+        return [exits[i] for i in order], p[order]
 
     k = np.arange(1, h + 1, dtype=np.float64)
     need = speed * h + look
@@ -670,4 +820,7 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
             lengths = np.where(lengths > a, np.maximum(a, lengths - speed * c.road_uturn_s * fps),
                                lengths)
         out.append(_drive(r, lengths, offset, width))
-    return RoadPrediction(out[0], out, e, direction, off, voted[0])
+    weights = np.array([r.prob for r in routes])
+    weights = weights / weights.sum()
+    positions = hedge(np.stack(out), weights, c.road_hedge)
+    return RoadPrediction(positions, out, weights, e, direction, off, voted[0])
