@@ -153,8 +153,13 @@ def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool, seed: i
     is the pipeline's (the MCMC's) seed."""
     marker = CACHE / f"{scene.name}.generator"
     made_by = marker.read_text().strip() if marker.exists() else ""
+    # every setting the run before linking depends on (not only association's: a --set of a
+    # detection or registration setting must not be answered from another run's cache)
+    stages = repr(config.association) + made_by + repr(config.registration)
+    if mode != "gt-dets":
+        stages += repr(config.detection)
     key = CACHE / (f"{scene.name}_{mode}{f'_s{seed}' if seed else ''}_"
-                   f"{hashlib.sha1((repr(config.association) + made_by).encode()).hexdigest()[:10]}.pkl")
+                   f"{hashlib.sha1(stages.encode()).hexdigest()[:10]}.pkl")
     if key.exists() and not fresh:
         return pickle.loads(key.read_bytes())
     dets_path = None
