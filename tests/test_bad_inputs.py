@@ -407,6 +407,7 @@ def test_track_negative_config_value(tmp_path, capsys, dets, setting):
 
 @pytest.mark.parametrize("setting,frag", [
     ("finish.max_overlap=0", "finish.max_overlap"),
+    ("finish.absorbed_ratio=1.5", "finish.absorbed_ratio"),
     ("finish.size_mode=magic", "finish.size_mode"),
     ("linking.partial_model=magic", "linking.partial_model"),
     ("association.split_side_obs=0", "association.split_appearance"),

@@ -454,3 +454,34 @@ def test_a_fragments_track_bridged_beside_the_whole_vehicle_is_suppressed():
     kept = finish_tracks([c, d], FinishConfig(smooth=False, static_extent_m=0, min_size_m=0), FPS,
                          metres_per_unit=MPU, registrations=regs)
     assert [t.id for t in kept] == [1]
+
+
+def test_a_waiting_vehicle_half_absorbed_keeps_its_size():
+    """A car that stops and is then detected only as a fragment (the background window took most
+    of it in) is reported at the size it had while it drove; not without registrations (speeds
+    in a moving camera's image say nothing), and not when it shrinks while still driving fast."""
+    def shrunk(track, frames):
+        for k, p in enumerate(track.points):
+            if p.frame in frames:
+                track.points[k] = dataclasses.replace(
+                    p, box=np.array([p.world[0] - 9, p.world[1] - 5, 18, 10]))
+        return track
+
+    cfg = FinishConfig(fill_gaps_s=0.0, stop_hold_s=0.0, stop_radius_m=0.0)
+    waits = range(70, 106)  # standing from frame 61, a fragment from frame 70
+    out = finish_tracks([shrunk(_stopping(), waits)], cfg, FPS, metres_per_unit=MPU,
+                        registrations=IDENT)
+    sizes = np.array([p.box[2:] for p in out[0].points if p.frame in waits])
+    assert len(sizes) == len(waits) and np.allclose(sizes, [45, 20], atol=1.0)
+    off = finish_tracks([shrunk(_stopping(), waits)],
+                        dataclasses.replace(cfg, absorbed_ratio=0.0), FPS, metres_per_unit=MPU,
+                        registrations=IDENT)
+    assert np.allclose([p.box[2:] for p in off[0].points if p.frame in waits][-10:], [18, 10],
+                       atol=1.0)
+    image = finish_tracks([shrunk(_stopping(), waits)], cfg, FPS, metres_per_unit=MPU)
+    assert np.allclose([p.box[2:] for p in image[0].points if p.frame in waits][-10:], [18, 10],
+                       atol=1.0)
+    fast = finish_tracks([shrunk(_stopping(n_drive=120, n_stand=0), range(20, 50))], cfg, FPS,
+                         metres_per_unit=MPU, registrations=IDENT)
+    assert np.allclose([p.box[2:] for p in fast[0].points if p.frame in range(20, 50)][5:-5],
+                       [18, 10], atol=1.0)

@@ -377,6 +377,9 @@ class TrackFinisher:
                      "stop_radius_m", "stop_window_s"):
             if not getattr(self.config, name) >= 0:
                 raise ConfigError(f"config finish.{name}: must be >= 0")
+        if not (0.0 <= self.config.absorbed_ratio < 1.0 and self.config.absorbed_speed > 0):
+            raise ConfigError("config finish.absorbed_ratio must be in [0, 1) and "
+                              "finish.absorbed_speed > 0")
         if not 0.0 < self.config.max_overlap <= 1.0:
             raise ConfigError(f"config finish.max_overlap: {self.config.max_overlap} "
                               "must be in (0, 1]")
@@ -488,7 +491,8 @@ class TrackFinisher:
                 new[run] = self._run_boxes(both, "window", xs, boxes, J, Hinv, times, full,
                                            mpu)[np.searchsorted(both, run)]
                 continue
-            new[run] = self._run_boxes(run, mode, xs, boxes, J, Hinv, times, full, mpu)
+            new[run] = self._run_boxes(run, mode, xs, boxes, J, Hinv, times, full, mpu,
+                                       absorbed=regs is not None)
         if c.smooth and edge.any():
             # a border-clipped box: its inner edges are right; rebuild its centre with the full
             # size, and smooth again with the rebuilt centres
@@ -507,8 +511,41 @@ class TrackFinisher:
             pts[i].world = xs[i, :2].copy()
         return True
 
-    def _run_boxes(self, run, mode, xs, boxes, J, Hinv, times, full, mpu) -> np.ndarray:
-        """(len(run), 4) frame-pixel boxes of one run of consecutive frames (see ``size_mode``)."""
+    def _unabsorbed(self, wh, norm, times, valid, vel) -> np.ndarray:
+        """Window sizes ``wh`` (N, 2, world units) with a vehicle that the background half absorbed
+        while it crept or waited given the size it had while it moved.
+
+        A vehicle slower than ``absorbed_speed`` of its own sizes per second (the square root of
+        its median box area while faster) stays over much of its own footprint for much of the
+        background window, so the window median takes it in and only a fragment is detected: where
+        the track is that slow and its window size's area is under ``absorbed_ratio`` of that
+        moving area, its size comes from its other observations (nearest in time). Speeds in
+        sizes per second need no scale (a map or ``--gsd``), which the metre thresholds would.
+        ``vel`` (N, 2): smoothed velocity, world units per second."""
+        c = self.config
+        speed = np.hypot(vel[:, 0], vel[:, 1])
+        area = np.prod(norm, axis=1)
+        if valid.sum() < 3:
+            return wh
+        # the unit from every observation first, then from those that move by it
+        moving = valid & (speed >= c.absorbed_speed * math.sqrt(float(np.median(area[valid]))))
+        if moving.sum() < 3:
+            return wh
+        ref = float(np.median(area[moving]))
+        unit = math.sqrt(ref)
+        low = (speed < c.absorbed_speed * unit) & (np.prod(np.nan_to_num(wh), axis=1)
+                                                   < c.absorbed_ratio * ref)
+        if not low.any() or (valid & ~low).sum() < 3:
+            return wh
+        out = wh.copy()
+        out[low] = window_sizes(times, norm, valid & ~low, c.size_window_s, c.size_quantile)[low]
+        return out
+
+    def _run_boxes(self, run, mode, xs, boxes, J, Hinv, times, full, mpu,
+                   absorbed: bool = False) -> np.ndarray:
+        """(len(run), 4) frame-pixel boxes of one run of consecutive frames (see ``size_mode``);
+        ``absorbed``: check for a vehicle half absorbed by the background (:meth:`_unabsorbed`;
+        only on registered frames, where the world is the ground and speeds are real)."""
         c = self.config
         if mode == "oriented":
             head = _headings(xs[run, 4:6], c.min_heading_speed_mps / mpu)
@@ -522,6 +559,8 @@ class TrackFinisher:
             scale = np.sqrt(np.abs(np.linalg.det(J[run])))
             norm = boxes[run, 2:4] / scale[:, None]
             wh = window_sizes(times[run], norm, full[run], c.size_window_s, c.size_quantile)
+            if absorbed and c.absorbed_ratio > 0:
+                wh = self._unabsorbed(wh, norm, times[run], full[run], xs[run, 4:6])
             wh = np.where(np.isfinite(wh), wh, norm) * scale[:, None]
         else:
             wh = boxes[run, 2:4]
