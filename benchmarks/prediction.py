@@ -26,11 +26,20 @@ protocol, observe F frames then predict; "all" also has targets glimpsed for a f
 the default method with the scene's road centre-lines (``roads.geojson`` written by ``aerotrack
 synth``, else the bundled file it comes from; :mod:`aerotrack.context.roads`), in the same metres.
 
+Pedestrians (``--ethucy``): the ETH (eth, hotel) and UCY (zara01, zara02) trajectories of
+``../shared/data/eth_ucy_pedestrians/`` (metres, annotated every 0.4 s) under the field's standard
+protocol: every window of 8 observed and 12 predicted consecutive steps of each pedestrian (2.5
+frames/s; the other pedestrians' rows up to each predicted step are the context), ADE (mean error
+over the 12 steps, MPE_12) and FDE (error at the last step, 4.8 s). A check out of sample: the
+context's parameters were chosen on the SDD scenes (vehicles, bikes, 30 fps) and are not changed
+here. ``cv-last`` is the last step's velocity, the "constant velocity model" of that literature.
+
 Run: /tmp/venv/bin/python benchmarks/prediction.py [--scenes deathCircle/video4 ...] [--stride 15]
      /tmp/venv/bin/python benchmarks/prediction.py --synth [--synth-scenes occlusion:1 exits:2 ...]
      [--set context.KEY=VALUE ...]
+     /tmp/venv/bin/python benchmarks/prediction.py --ethucy
 Writes benchmarks/results/prediction.json (the SDD part under ``sdd``, the generated scenes under
-``synth``; a run of one part keeps the other's last results).
+``synth``, the pedestrians under ``ethucy``; a run of one part keeps the others' last results).
 """
 
 from __future__ import annotations
@@ -291,12 +300,84 @@ def synth_report(specs, frames, methods, config, fragment=False) -> dict:
     return res
 
 
+ETHUCY = ROOT.parent / "shared" / "data" / "eth_ucy_pedestrians"
+#: Video frames between two annotations (SOURCE.md): every annotation is 0.4 s apart.
+ETHUCY_STEP = {"seq_eth": 6, "seq_hotel": 10, "zara01": 10, "zara02": 10}
+ETHUCY_OBS, ETHUCY_PRED, ETHUCY_FPS = 8, 12, 2.5
+
+
+def load_obsmat(path: Path, step: int) -> TrackTable:
+    """An ETH/UCY ``obsmat.txt`` as a table of annotation steps (frame 1, 2, ... 0.4 s apart).
+
+    Video frame numbers are mapped to steps by rounding the differences between the annotated
+    frames to multiples of ``step`` (seq_eth's annotated frames have three offsets modulo 6)."""
+    a = np.loadtxt(path, ndmin=2)
+    u = np.unique(a[:, 0])
+    idx = 1 + np.concatenate([[0], np.cumsum(np.round(np.diff(u) / step))]).astype(int)
+    return TrackTable.from_arrays(a[:, 1].astype(int), idx[np.searchsorted(u, a[:, 0])], a[:, [2, 4]])
+
+
+def ethucy_report(methods, config) -> dict:
+    """ADE / FDE per sequence and over all windows (8 observed, 12 predicted steps)."""
+    warm_up(config)
+    methods = list(dict.fromkeys(["constant-velocity", "kalman", *methods, "cv-last"]))
+    per = {m: {} for m in methods}
+    timing = {m: 0.0 for m in methods}
+    counts = {}
+    OBS_PRED = ETHUCY_OBS + ETHUCY_PRED
+    n_all = 0
+    for seq, step in ETHUCY_STEP.items():
+        table = load_obsmat(ETHUCY / seq / "obsmat.txt", step)
+        queries = []
+        for i in table.track_ids():
+            fr, xy = table.track(int(i))
+            for k in range(len(fr) - OBS_PRED + 1):
+                if fr[k + OBS_PRED - 1] - fr[k] == OBS_PRED - 1:
+                    queries.append((int(i), int(fr[k + ETHUCY_OBS - 1]),
+                                    xy[k + ETHUCY_OBS - 2:k + OBS_PRED]))
+        counts[seq] = len(queries)
+        n_all += len(queries)
+        steps = np.arange(1, ETHUCY_PRED + 1, dtype=np.float64)[:, None]
+        for m in methods:
+            t0 = time.perf_counter()
+            if m == "cv-last":
+                out = [w[1] + steps * (w[1] - w[0]) for _, _, w in queries]
+            else:
+                pred = get_predictor(m, config, ETHUCY_FPS, metres_per_unit=1.0)
+                out = [pred.predict(table, i, T, ETHUCY_PRED) for i, T, _ in queries]
+            timing[m] += time.perf_counter() - t0
+            per[m][seq] = np.array([prediction_errors(p, w[2:]) for p, (_, _, w) in zip(out, queries)])
+    res = {"protocol": {"fps": ETHUCY_FPS, "observed_steps": ETHUCY_OBS,
+                        "predicted_steps": ETHUCY_PRED, "windows": counts,
+                        "source": "ETH/UCY obsmat.txt (metres), every window of 20 consecutive steps"},
+           "ADE_m": {}, "FDE_m": {}, "ratio_to_cv_last": {},
+           "seconds_per_query": {m: t / max(n_all, 1) for m, t in timing.items()}}
+    print(f"ETH/UCY windows: {counts}")
+    print(f"{'method':<18} " + " ".join(f"{s:>13}" for s in [*ETHUCY_STEP, "all"]) + "   (ADE/FDE m)")
+    for m in methods:
+        ade = {s: float(e.mean()) for s, e in per[m].items()}
+        fde = {s: float(e[:, -1].mean()) for s, e in per[m].items()}
+        allv = np.concatenate(list(per[m].values()))
+        ade["all"], fde["all"] = float(allv.mean()), float(allv[:, -1].mean())
+        res["ADE_m"][m], res["FDE_m"][m] = ade, fde
+        print(f"{m:<18} " + " ".join(f"{ade[s]:5.3f}/{fde[s]:5.3f}" for s in ade))
+    ref = res["ADE_m"]["cv-last"]["all"], res["FDE_m"]["cv-last"]["all"]
+    for m in methods:
+        res["ratio_to_cv_last"][m] = {"ADE": res["ADE_m"][m]["all"] / ref[0],
+                                      "FDE": res["FDE_m"][m]["all"] / ref[1]}
+    print("predict time per query: " + ", ".join(
+        f"{m} {t * 1e3:.2f} ms" for m, t in res["seconds_per_query"].items()))
+    return res
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=list(SCALES))
     ap.add_argument("--stride", type=int, default=15, help="frames between queries (15 = 0.5 s)")
     ap.add_argument("--methods", nargs="+", default=list(PREDICTION_METHODS))
     ap.add_argument("--synth", action="store_true", help="generated scenes instead of SDD")
+    ap.add_argument("--ethucy", action="store_true",
+                    help="ETH/UCY pedestrians (8 observed / 12 predicted steps) instead of SDD")
     ap.add_argument("--synth-scenes", nargs="+", default=SYNTH_SCENES, help="scenario:seed ...")
     ap.add_argument("--synth-frames", type=int, default=900)
     ap.add_argument("--fragment", action="store_true",
@@ -310,7 +391,12 @@ def main(argv=None) -> dict:
     old = json.loads(out.read_text()) if out.exists() else {}
     if old and "sdd" not in old and "synth" not in old:
         old = {"sdd": old}
-    if args.synth:
+    if args.ethucy:
+        if not ETHUCY.is_dir():
+            sys.exit(f"prediction.py: {ETHUCY} not found (the shared data sits beside the checkout)")
+        old["ethucy"] = ethucy_report(args.methods, config)
+        old["ethucy"]["config"] = {k: getattr(config, k) for k in config.__dataclass_fields__}
+    elif args.synth:
         methods = list(dict.fromkeys(["kalman", "constant-velocity", *args.methods, ROAD_VARIANT]))
         key = "synth_fragmented" if args.fragment else "synth"
         old[key] = synth_report(args.synth_scenes, args.synth_frames, methods, config, args.fragment)

@@ -43,6 +43,13 @@ def test_malformed_rows_name_the_line(text, msg):
         parse_mot_text(text, "f.txt")
 
 
+def test_a_header_row_is_skipped_only_first():
+    arr = parse_mot_text("frame,id,bb_left,bb_top,bb_width,bb_height,conf\n2,-1,1,1,4,4,0.5\n")
+    assert arr.shape == (1, 10) and arr[0, 0] == 2 and arr[0, 6] == 0.5
+    with pytest.raises(FormatError, match="line 2: non-numeric"):
+        parse_mot_text("2,-1,1,1,4,4,0.5\nframe,id,x,y,w,h,conf\n")
+
+
 def test_strict_refuses_negative_and_duplicates(tmp_path):
     p = tmp_path / "neg.txt"
     p.write_text("1,1,1,1,-5,3,1\n")

@@ -6,6 +6,7 @@ Frames are 1-based in every file aerotrack reads or writes. Rows may have 6 to 1
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import numpy as np
 from ..errors import FormatError, InputError
 from .output import atomic_write
 
+_HEADER_FIELD = re.compile(r"^[A-Za-z_][\w.()\-]*$")
 MOT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "conf", "x", "y", "z")
 
 
@@ -21,7 +23,8 @@ def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6) -> 
     """Parse MOT rows into an (N, 10) float64 array.
 
     Blank lines and lines starting with ``#`` are skipped; fields are comma- or
-    whitespace-separated.
+    whitespace-separated. A first row whose every field is a word (a header such as
+    ``frame,id,x,y,w,h,conf``, as exported by pandas and most detector scripts) is skipped too.
 
     Raises
     ------
@@ -30,11 +33,16 @@ def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6) -> 
         cell, or a frame number that is not a positive integer. The message names the line.
     """
     rows: list[list[float]] = []
+    first = True
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         parts = [p for p in s.replace(",", " ").split()]
+        if first and all(_HEADER_FIELD.match(p) for p in parts):
+            first = False
+            continue
+        first = False
         if not (min_columns <= len(parts) <= 10):
             raise FormatError(
                 f"{name} line {lineno}: expected {min_columns} to 10 columns, found {len(parts)}"
