@@ -380,11 +380,14 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         bx, by, bw, bh = b.box
         mx0, my0 = max(0, bx - margin), max(0, by - margin)
         mx1, my1 = min(w, bx + bw + margin), min(h, by + bh + margin)
-        if config.ghost_ratio > 0:
+        if config.ghost_ratio > 0 or (faint_ids and config.regrow_ghost_ratio > 0):
             gm = np.zeros((my1 - my0, mx1 - mx0), np.uint8)
             gm[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw] = b.mask
             gm = cv2.dilate(gm, np.ones((3, 3), np.uint8)) > 0
-            if ghost_score(small[my0:my1, mx0:mx1], bgn[my0:my1, mx0:mx1], gm) < config.ghost_ratio:
+            # a regrown blob is mostly faint residual: it must show its outline in the frame
+            ratio = max(config.ghost_ratio, config.regrow_ghost_ratio) if id(b) in faint_ids \
+                else config.ghost_ratio
+            if ghost_score(small[my0:my1, mx0:mx1], bgn[my0:my1, mx0:mx1], gm) < ratio:
                 continue
         fx0, fy0 = int(round(mx0 / scale)), int(round(my0 / scale))
         fx1, fy1 = min(W, int(round(mx1 / scale))), min(H, int(round(my1 / scale)))
@@ -1015,7 +1018,8 @@ def _validate(c: DetectionConfig) -> None:
         ("min_conf", 0 <= c.min_conf <= 1),
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
-        ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("join_cab_ratio", c.join_cab_ratio >= 0),
+        ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("regrow_ghost_ratio", c.regrow_ghost_ratio >= 0),
+        ("join_cab_ratio", c.join_cab_ratio >= 0),
         ("box_edge_level", 0 <= c.box_edge_level < 1),
     ]
     for name, ok in checks:
