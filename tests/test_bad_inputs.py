@@ -301,6 +301,23 @@ def test_detect_output_holds_results(tmp_path, capsys, video):
     expect_error(capsys, ["--overwrite"], "detect", video, "--out", o)
 
 
+@pytest.mark.parametrize("extra,needle", [
+    (["--map", "MAP"], "--map needs --map-init"),
+    (["--map", "MAP", "--map-init", "INIT", "--stabilised"], "--stabilised"),
+    (["--frames", "500:"], "--frames 500:"),
+    (["--gsd", "0"], "--gsd"),
+])
+def test_detect_bad_options(tmp_path, capsys, video, extra, needle):
+    """detect takes track's input options and refuses them as track does, leaving no folder."""
+    m = tmp_path / "m.tif"
+    m.write_bytes(b"not a tiff")
+    init = tmp_path / "init.txt"
+    init.write_text("1 0 0\n0 1 0\n0 0 1\n")
+    extra = [str(m) if e == "MAP" else str(init) if e == "INIT" else e for e in extra]
+    expect_error(capsys, [needle], "detect", video, "--out", tmp_path / "o", *extra)
+    assert not (tmp_path / "o").exists()
+
+
 # -- eval -----------------------------------------------------------------------------------------
 def test_eval_missing_gt(tmp_path, capsys, dets):
     expect_error(capsys, ["nope.txt"], "eval", "--gt", tmp_path / "nope.txt", "--pred", dets)

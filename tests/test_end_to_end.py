@@ -80,3 +80,17 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
           str(scene / "map.tif"), "--map-init", str(scene / "map_init.txt"), "--seed", "1"])
     assert (again / "tracks.csv").read_text() == (out / "tracks.csv").read_text()
 
+
+
+def test_cli_detect_with_map_equals_the_detections_of_track(scene, tmp_path):
+    """``aerotrack detect`` runs the same registration and detection stages, with the same input
+    options, as ``track``: on a map (size gates in metres, registration to the map) and a frame
+    range its detections.csv and registration.csv are byte-identical to track's."""
+    common = [str(scene / "frames"), "--map", str(scene / "map.tif"), "--map-init",
+              str(scene / "map_init.txt"), "--frames", "20:110", "--stride", "2"]
+    main(["-q", "track", *common, "--out", str(tmp_path / "t")])
+    main(["-q", "detect", *common, "--out", str(tmp_path / "d")])
+    for name in ("detections.csv", "registration.csv"):
+        assert (tmp_path / "d" / name).read_bytes() == (tmp_path / "t" / name).read_bytes(), name
+    rows = io.read_mot(tmp_path / "d" / "detections.csv")
+    assert len(rows) and set(rows[:, 0].astype(int)) <= set(range(20, 111, 2))

@@ -108,6 +108,15 @@ class Pipeline:
         Keep finished tracklets on disk until global linking (``checkpoint_dir/tracklets`` with a
         checkpoint folder, else a temporary folder): memory then does not grow with the number of
         tracklets. The tracks are the same either way.
+    associate : bool
+        False runs registration and detection only (``aerotrack detect``): detections are kept
+        (regions applied) and boxes kept out of registration as in a full run, so the detections
+        equal those of ``aerotrack track`` with the same inputs, but no tracklet is made.
+    debug : bool
+        The detector keeps ``debug_frames`` (``aerotrack detect --debug-video``).
+    stabilised : bool
+        The frames are already registered to each other (``aerotrack detect --stabilised``):
+        identity homographies instead of the registrar (not with a map).
     opencv_threads : int or None
         OpenCV worker threads while the pipeline works on a frame (set for each step and restored
         after it); None leaves OpenCV's own setting. One by default: the stages call OpenCV on
@@ -124,7 +133,8 @@ class Pipeline:
                  checkpoint_dir: Path | None = None, checkpoint_every: int = 300,
                  undistort: Callable[[Frame], Frame] | None = None,
                  regions: list | None = None, min_speed_mps: float | None = None,
-                 spill: bool = True, roads=None, opencv_threads: int | None = 1) -> None:
+                 spill: bool = True, roads=None, opencv_threads: int | None = 1,
+                 associate: bool = True, debug: bool = False, stabilised: bool = False) -> None:
         from .association import LocalAssociator
         from .io.checkpoint import TrackletSpill
         from .io.state import as_built
@@ -138,9 +148,15 @@ class Pipeline:
         self.registrar = None
         self.detector = None
         self._H_init = H_init
+        self.debug = debug
+        if stabilised and geomap is not None:
+            raise InputError("stabilised frames (identity homographies) cannot be placed on a map")
+        self.stabilised = stabilised
         self.associator = LocalAssociator(config.association, self.fps,
                                           metres_per_unit=self.metres_per_unit, seed=seed)
         self._built_assoc = as_built(self.associator)
+        if not associate:
+            self.associator = None
         # the last stages' configuration errors surface now, not after the whole video
         from .association.finish import TrackFinisher
         from .association.linking import GlobalLinker
@@ -198,13 +214,14 @@ class Pipeline:
         from .registration import FrameRegistrar
 
         self.frame_size = frame_size
-        self.registrar = FrameRegistrar(self.config.registration, self.fps, geomap=self.geomap,
-                                        H_init=self._H_init)
+        self.registrar = _Stabilised() if self.stabilised else FrameRegistrar(
+            self.config.registration, self.fps, geomap=self.geomap, H_init=self._H_init)
         if self.external is None:
             from .detection import MovingObjectDetector
 
             self.detector = MovingObjectDetector(self.config.detection, self.fps, geomap=self.geomap,
                                                  metres_per_unit=self.metres_per_unit)
+            self.detector.keep_debug = self.debug
         # what the constructors made: save_state leaves it out (the resumed run makes it again)
         self._built = {"registrar": as_built(self.registrar)}
         if self.detector is not None:
@@ -300,6 +317,8 @@ class Pipeline:
                 if self.checkpoint_dir is not None:  # full detections, appearance included: only
                     self._pending_dets.append(dets)  # kept until the next checkpoint empties them
                 self._remember_boxes(dets)
+                if self.associator is None:  # detection only
+                    continue
                 if self.config.association.split_merged and len(dets):
                     dets = self._split_merged(dets)
                 self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
@@ -551,6 +570,13 @@ class Pipeline:
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
                     frame_size=self.frame_size, registrations=self.registrations, roads=self.roads)
+
+
+class _Stabilised:
+    """Registrar of frames already registered to each other: identity homographies."""
+
+    def step(self, frame: Frame, exclude_boxes=None) -> Registration:
+        return Registration(frame.index, np.eye(3))
 
 
 class _Ended:

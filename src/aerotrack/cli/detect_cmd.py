@@ -25,86 +25,133 @@ log = logging.getLogger("aerotrack")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder (new, or empty; see --overwrite).")
+@click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
+              help="Georeferenced raster (GeoTIFF) of the area: size gates in metres, as in "
+                   "`track`.")
+@click.option("--map-init", "map_init_path", type=click.Path(path_type=Path), default=None,
+              help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
+@click.option("--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
+              help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
+@click.option("--gsd", type=float, default=None,
+              help="Metres per frame pixel when no map is given (size gates in metres).")
 @fps_option
 @config_option
 @set_option
+@click.option("--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
+              help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are "
+                   "undistorted.")
+@click.option("--roi", "roi_paths", multiple=True, type=click.Path(path_type=Path),
+              help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
+@click.option("--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
+              help="Region whose detections are ignored (same formats as --roi).")
+@click.option("--frames", "frame_range", default=None, metavar="A:B",
+              help="Process frames A..B only (1-based, inclusive; either end may be empty).")
+@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Use every N-th frame.")
 @click.option("--stabilised", is_flag=True,
               help="Frames are already registered to each other (a stabilised video): skip "
-                   "registration and use identity homographies.")
+                   "registration and use identity homographies (not with --map).")
 @click.option("--debug-video", is_flag=True,
               help="Also write debug.mp4: each frame with its boxes beside the residual image.")
 @click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
 @click.pass_context
-def detect_command(ctx, input_path, out_dir, fps, config_path, overrides, stabilised, debug_video,
-                   overwrite):
+def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_path, gsd, fps,
+                   config_path, overrides, intrinsics_path, roi_paths, ignore_paths, frame_range,
+                   stride, stabilised, debug_video, overwrite):
     """Detect moving vehicles (Yu & Medioni section 3) and write DIR/detections.csv.
 
-    Frames are registered to each other, a sliding-window background is built on the registered
-    frames and moving blobs become boxes. detections.csv has MOTChallenge rows
-    ``frame,-1,x,y,w,h,conf,-1,-1,-1`` (1-based frames, frame pixels); config.toml beside it
-    repeats the run.
+    Frames are registered to each other (and to --map), a sliding-window background is built on
+    the registered frames and moving blobs become boxes: the same stages, with the same options,
+    as in `aerotrack track`, whose detections.csv this equals. detections.csv has MOTChallenge
+    rows ``frame,-1,x,y,w,h,conf,-1,-1,-1`` (1-based frames, frame pixels); registration.csv and
+    config.toml go beside it.
 
     \b
     Examples:
       aerotrack detect clip.mp4 --out det/ --debug-video
       aerotrack detect frames/ --out det/ --fps 10 --set detection.window_s=2
+      aerotrack detect clip.mp4 --out det/ --map ortho.tif --map-init h.txt --frames 1:900
     """
     from ..config import load_config
-    from ..io import open_source
+    from ..errors import InputError
     from ..io.output import OutputDir
+    from .track_cmd import load_inputs, parse_frame_range
 
     config = load_config(config_path, overrides)
-    source = open_source(input_path, fps)
+    if stabilised and map_path is not None:
+        raise InputError("--stabilised: not with --map (frames are registered to the map)")
+    start, stop = parse_frame_range(frame_range)
+    source, _, geomap, H_init, undistort, _ = load_inputs(
+        input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path)
+    if frame_range is not None and source.count and start > source.count:
+        raise InputError(f"--frames {frame_range}: starts after the input's last frame "
+                         f"({source.count})")
+    regions = []
+    if roi_paths or ignore_paths:
+        from ..geo.roi import read_region
+
+        regions += [read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
+        regions += [read_region(p, geomap, mode="ignore", option="--ignore-region")
+                    for p in ignore_paths]
     check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
     with cleanup:
-        _detect(ctx, source, out, config, stabilised, debug_video)
+        _detect(ctx, source, out, config, geomap=geomap, H_init=H_init,
+                gsd=None if geomap else gsd, undistort=undistort, regions=regions,
+                start=start, stop=stop, stride=stride, stabilised=stabilised,
+                debug_video=debug_video)
 
 
-def _detect(ctx, source, out, config, stabilised: bool, debug_video: bool) -> None:
-    import numpy as np
+def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions, start, stop,
+            stride, stabilised: bool, debug_video: bool) -> None:
 
     from ..config import dumps_config
-    from ..detection import MovingObjectDetector
     from ..io.mot import write_mot
-    from ..types import Registration
+    from ..outputs import detection_rows, registration_rows
+    from ..pipeline import Pipeline, Result
+    from ..registration import write_registration_csv
 
-    detector = MovingObjectDetector(config.detection, source.fps)
-    detector.keep_debug = debug_video
-    registrar = None
-    if not stabilised:
-        from ..registration import FrameRegistrar
-
-        registrar = FrameRegistrar(config.registration, source.fps)
+    pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init, metres_per_unit=gsd,
+                    undistort=undistort, regions=regions, spill=False, associate=False,
+                    debug=debug_video, stabilised=stabilised)
     writer = None
     debug_tmp = out.partial / "debug.mp4"
-    rows: list[list[float]] = []
     t0 = time.perf_counter()
     n = 0
+    detector = None
 
-    def consume(final) -> None:
+    def drain() -> None:
         nonlocal writer
-        for d in final:
-            for (x, y, w, h), c in zip(d.boxes, d.conf):
-                rows.append([d.frame, -1, x, y, w, h, c, -1, -1, -1])
-        if debug_video:
+        if detector is not None and debug_video:
             for item in detector.debug_frames:
                 writer = _write_debug(writer, debug_tmp, source.fps, *item)
             detector.debug_frames.clear()
 
-    progress, close = make_progress(source.count, "detect", *root_flags(ctx))
+    total = source.count
+    if total:
+        total = len(range(start, min(stop or total, total) + 1, stride))
+    progress, close = make_progress(total, "detect", *root_flags(ctx))
     try:
-        for frame in source:
-            reg = (registrar.step(frame) if registrar is not None
-                   else Registration(frame.index, np.eye(3)))
-            consume(detector.step(frame, reg))
+        for frame in source.frames(start=start, stop=stop, stride=stride):
+            pipe.step(frame)
+            detector = pipe.detector
+            drain()
             n += 1
             progress(n)
     finally:
         close()
-    consume(detector.flush())
-    write_mot(out.file("detections.csv"), np.asarray(rows, np.float64).reshape(-1, 10))
+    pipe.finish_local()  # flushes the detector's window
+    drain()
+    result = Result(tracks=[], registrations=pipe.registrations, detections=pipe.detections,
+                    fps=pipe.fps, frame_size=pipe.frame_size, metres_per_unit=pipe.metres_per_unit,
+                    timings=dict(pipe.timings), cpu_timings=dict(pipe.cpu_timings),
+                    frames=pipe.n_frames, first_frame=pipe.first_frame or 1,
+                    last_frame=pipe.last_frame)
+    rows = detection_rows(result)
+    write_mot(out.file("detections.csv"), rows)
+    if not stabilised:
+        write_registration_csv(out.file("registration.csv"), registration_rows(result))
     out.write_text("config.toml", dumps_config(config))
     if writer is not None:
         writer.release()
