@@ -798,8 +798,17 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer variants and frames")
     ap.add_argument("--only", choices=("santiago", "speed", "truck4", "synth"), default=None)
+    ap.add_argument("--set", dest="overrides", action="append", default=[],
+                    help="detection.KEY=VALUE (as aerotrack's --set), repeatable: every run of the "
+                         "benchmark starts from this configuration instead of the defaults")
+    ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "detection.json"))
     args = ap.parse_args(argv)
-    out = REPO / "benchmarks" / "results" / "detection.json"
+    if args.overrides:
+        from aerotrack.config import load_config
+
+        start = load_config(None, args.overrides).detection
+        globals()["DetectionConfig"] = lambda **kw: dataclasses.replace(start, **kw)
+    out = Path(args.out)
     results: dict = json.loads(out.read_text()) if (args.only and out.exists()) else {}
     results["config"] = dataclasses.asdict(DetectionConfig())
     for name, fn in (("santiago", santiago), ("speed", speed), ("truck4", truck4), ("synth", synth)):
