@@ -529,3 +529,20 @@ def test_a_regrown_ghost_is_dropped_and_a_regrown_dark_vehicle_kept():
     r = detect_moving(img, small, bg_small, testable,
                       dataclasses.replace(cfg, regrow_ratio=0.0), 0.5, gates)
     assert not found(r, dark) and not found(r, ghost)
+
+
+def test_pixel_gates_grow_with_frames_larger_than_1080p():
+    from aerotrack.detection.detector import pixel_gate_scale
+
+    assert pixel_gate_scale((1080, 1920), 2203.0) == 1.0
+    assert pixel_gate_scale((720, 1280), 2203.0) == 1.0
+    assert pixel_gate_scale((2160, 3840), 2203.0) == pytest.approx(2.0, abs=1e-3)
+    assert pixel_gate_scale((2160, 3840), 0.0) == 1.0
+    det = MovingObjectDetector(DetectionConfig(), FPS)
+    g = det._gates(np.eye(3), (2160, 3840))
+    c = DetectionConfig()
+    assert g.max_length_px == pytest.approx(2 * c.max_length_px, rel=1e-3)
+    assert g.min_area_px == pytest.approx(4 * c.min_area_px, rel=1e-3)
+    # with a scale the gates are metres, whatever the frame size
+    det = MovingObjectDetector(DetectionConfig(), FPS, metres_per_unit=0.1)
+    assert det._gates(np.eye(3), (2160, 3840)).max_length_px == pytest.approx(c.max_length_m / 0.1)

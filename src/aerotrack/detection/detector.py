@@ -299,6 +299,15 @@ class SizeGates:
     min_width_px: float = 0.0
 
 
+def pixel_gate_scale(shape: tuple[int, ...], reference_px: float) -> float:
+    """Factor of the pixel size gates (used without a scale) for a frame of ``shape`` (H, W, ...):
+    1 up to a diagonal of ``reference_px``, the diagonal / ``reference_px`` beyond (0 disables).
+    The same flight filmed at 4K shows every vehicle twice as long, in pixels, as at 1080p."""
+    if reference_px <= 0:
+        return 1.0
+    return max(1.0, math.hypot(shape[0], shape[1]) / reference_px)
+
+
 def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
                   testable: np.ndarray, config: DetectionConfig, scale: float,
                   gates: SizeGates) -> FrameResult:
@@ -712,8 +721,9 @@ class MovingObjectDetector:
                               max_length_px=c.max_length_m / mpp,
                               close_px=c.close_m / mpp, join_gap_px=c.join_gap_m / mpp,
                               min_width_px=c.min_width_m / mpp)
-        return SizeGates(c.min_area_px, c.max_length_px, c.close_px, c.join_gap_px,
-                         c.min_width_px)
+        k = pixel_gate_scale(shape, c.pixel_gates_reference_px)
+        return SizeGates(c.min_area_px * k * k, c.max_length_px * k, c.close_px * k,
+                         c.join_gap_px * k, c.min_width_px * k)
 
     def _window(self, c: int) -> tuple[int, int]:
         """Frames ``[lo, hi]`` whose samples build frame ``c``'s background.
@@ -1013,6 +1023,7 @@ def _validate(c: DetectionConfig) -> None:
         ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
         ("max_length_px", c.max_length_px > 0), ("min_width_m", c.min_width_m >= 0),
         ("min_width_px", c.min_width_px >= 0),
+        ("pixel_gates_reference_px", c.pixel_gates_reference_px >= 0),
         ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),
