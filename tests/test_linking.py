@@ -434,6 +434,23 @@ def test_a_tracklet_that_takes_over_while_both_are_seen_continues_the_identity()
                             metres_per_unit=1.0).link([a, b, c])) == 3
 
 
+def test_a_merged_blob_that_swallows_a_vehicle_is_not_a_hand_over():
+    """Vehicle a (5 x 2) drives into a blob that holds it and its neighbour (b: 12 x 4, from
+    frame 141 while a is still seen). b holds a's box, so the boxes overlap entirely, but b is a
+    merge, not a's object taken over: with ``handover_max_area_ratio`` (b's box 4.8x a's) the pair
+    is no hand-over; with the limit off it is."""
+    from aerotrack.association.linking import handover_pairs
+
+    rng = np.random.default_rng(6)
+    grey = [0.25, 0.25, 0.25, 0.25]
+    a = Track(0, _box_track(range(1, 151), lambda f: (10 * f / FPS, 0.0), (5.0, 2.0), grey, rng))
+    b = Track(0, _box_track(range(141, 301), lambda f: (10 * f / FPS + 0.5, 0.0), (12.0, 4.0), grey,
+                            rng))
+    assert set(handover_pairs([a, b], 0.5, 60, 0.0)) == {(0, 1)}
+    assert handover_pairs([a, b], 0.5, 60, 3.0) == {}
+    assert set(handover_pairs([a, b], 0.5, 60, 5.0)) == {(0, 1)}
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_appearance_verification_ignores_the_targets_own_earlier_tracklets(seed):
     """Ali et al.'s verification compares a re-detected object with the *other* unobserved

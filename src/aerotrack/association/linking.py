@@ -196,7 +196,8 @@ class GlobalLinker:
                     cand.setdefault(a, []).append(int(b))
         C = np.full((n, n), np.inf)
         self.last_costs = {}
-        handovers = handover_pairs(tl, c.duplicate_overlap, int(round(c.handover_max_s * self.fps)))
+        handovers = handover_pairs(tl, c.duplicate_overlap, int(round(c.handover_max_s * self.fps)),
+                                   c.handover_max_area_ratio)
         for (a, b), ov in handovers.items():
             cost = c.handover_cost * (1.0 - ov) / max(1e-9, 1.0 - c.duplicate_overlap)
             self.last_costs[(a, b)] = (cost, Cues())
@@ -699,12 +700,15 @@ def merge_duplicates(tracklets: list[Track], min_overlap: float) -> list[Track]:
     return out
 
 
-def handover_pairs(tracklets: list[Track], min_overlap: float, max_overlap_frames: int
-                   ) -> dict[tuple[int, int], float]:
+def handover_pairs(tracklets: list[Track], min_overlap: float, max_overlap_frames: int,
+                   max_area_ratio: float = 0.0) -> dict[tuple[int, int], float]:
     """Pairs (a, b) where b takes over a's object while both are seen: b starts during a, after
     a's first frame, and ends after a's last; they coexist for at most ``max_overlap_frames``
     and their boxes overlap by at least ``min_overlap`` of the smaller on average over a's frames
-    from b's start (:func:`merge_duplicates`). Returns {(a, b): mean overlap}."""
+    from b's start (:func:`merge_duplicates`). With ``max_area_ratio`` > 0, b's boxes in the
+    frames both are seen must not be larger than that many times a's (median of the frame
+    ratios): a box that holds a's whole box and much more is a blob of a's vehicle merged with
+    another one, which b may go on following. Returns {(a, b): mean overlap}."""
     out: dict[tuple[int, int], float] = {}
     if min_overlap >= 1.0:
         return out
@@ -713,12 +717,20 @@ def handover_pairs(tracklets: list[Track], min_overlap: float, max_overlap_frame
             ta, tb = tracklets[a], tracklets[b]
             if not (ta.first < tb.first <= ta.last < tb.last):
                 continue
-            span = [f for f in _boxes(ta) if f >= tb.first]
+            boxes_a = _boxes(ta)
+            span = [f for f in boxes_a if f >= tb.first]
             if not span or ta.last - tb.first + 1 > max_overlap_frames:
                 continue
             score = m * n / len(span)
-            if score >= min_overlap:
-                out[(a, b)] = score
+            if score < min_overlap:
+                continue
+            if max_area_ratio > 0:
+                boxes_b = _boxes(tb)
+                ratios = [boxes_b[f][2] * boxes_b[f][3] / (boxes_a[f][2] * boxes_a[f][3])
+                          for f in span if f in boxes_b and boxes_a[f][2] * boxes_a[f][3] > 0]
+                if ratios and float(np.median(ratios)) > max_area_ratio:
+                    continue
+            out[(a, b)] = score
     return out
 
 
