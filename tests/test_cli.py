@@ -144,8 +144,9 @@ def test_bare_command_shows_the_help():
     assert "Traceback" not in res.stderr
 
 
-def test_sigterm_during_detect_leaves_nothing(tmp_path):
-    """Commands without --resume clean up after an interruption: the same command works again."""
+def test_sigterm_during_detect_keeps_the_finished_frames(tmp_path):
+    """detect cannot resume, but an interruption keeps what was final: detections.csv holds the
+    frames the detector had finished, written whole (no .partial left), exit 128 + signal."""
     import signal
     import time
 
@@ -171,8 +172,14 @@ def test_sigterm_during_detect_leaves_nothing(tmp_path):
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM, err
-    assert "Traceback" not in err and "interrupted" in err
-    assert not out.exists()
+    assert "Traceback" not in err and "interrupted" in err and "finished frames" in err
+    assert not (out / ".partial").exists()
+    from aerotrack.io.mot import read_mot
+
+    rows = read_mot(out / "detections.csv")
+    assert (out / "config.toml").exists() and (out / "registration.csv").exists()
+    if len(rows):
+        assert rows[:, 0].max() < 1500
 
 
 def test_detections_alone_write_identity_registrations(tmp_path, capsys):

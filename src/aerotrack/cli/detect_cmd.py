@@ -10,6 +10,7 @@ import click
 
 from .common import (
     CleanupOnBadInput,
+    Interrupted,
     check_overwrite,
     config_option,
     fps_option,
@@ -111,6 +112,7 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
     from ..outputs import detection_rows, registration_rows
     from ..pipeline import Pipeline, Result
     from ..registration import write_registration_csv
+    from .track_cmd import GracefulStop
 
     pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init, metres_per_unit=gsd,
                     undistort=undistort, regions=regions, spill=False, associate=False,
@@ -132,31 +134,49 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
     if total:
         total = len(range(start, min(stop or total, total) + 1, stride))
     progress, close = make_progress(total, "detect", *root_flags(ctx))
-    try:
-        for frame in source.frames(start=start, stop=stop, stride=stride):
-            pipe.step(frame)
-            detector = pipe.detector
+    stopper = GracefulStop()
+    stopper.NOTE = ""
+    interrupted = None
+    with stopper:
+        step = stopper.wrap(progress)
+        try:
+            for frame in source.frames(start=start, stop=stop, stride=stride):
+                pipe.step(frame)
+                detector = pipe.detector
+                drain()
+                n += 1
+                step(n)
+        except Interrupted as exc:  # keep what is final: the frames the detector finished
+            interrupted = exc
+        finally:
+            close()
+        if interrupted is None:
+            stopper.writing()
+        else:
+            stopper.phase = "writing"  # hold further signals off until the files are in place
+        if interrupted is None:
+            pipe.finish_local()  # flushes the detector's window
             drain()
-            n += 1
-            progress(n)
-    finally:
-        close()
-    pipe.finish_local()  # flushes the detector's window
-    drain()
-    result = Result(tracks=[], registrations=pipe.registrations, detections=pipe.detections,
-                    fps=pipe.fps, frame_size=pipe.frame_size, metres_per_unit=pipe.metres_per_unit,
-                    timings=dict(pipe.timings), cpu_timings=dict(pipe.cpu_timings),
-                    frames=pipe.n_frames, first_frame=pipe.first_frame or 1,
-                    last_frame=pipe.last_frame)
-    rows = detection_rows(result)
-    write_mot(out.file("detections.csv"), rows)
-    if not stabilised:
-        write_registration_csv(out.file("registration.csv"), registration_rows(result))
-    out.write_text("config.toml", dumps_config(config))
-    if writer is not None:
-        writer.release()
-        debug_tmp.replace(out.file("debug.mp4"))
-    out.finish()
+        result = Result(tracks=[], registrations=pipe.registrations, detections=pipe.detections,
+                        fps=pipe.fps, frame_size=pipe.frame_size,
+                        metres_per_unit=pipe.metres_per_unit, timings=dict(pipe.timings),
+                        cpu_timings=dict(pipe.cpu_timings), frames=pipe.n_frames,
+                        first_frame=pipe.first_frame or 1, last_frame=pipe.last_frame)
+        rows = detection_rows(result)
+        write_mot(out.file("detections.csv"), rows)
+        if not stabilised:
+            write_registration_csv(out.file("registration.csv"), registration_rows(result))
+        out.write_text("config.toml", dumps_config(config))
+        if writer is not None:
+            writer.release()
+            debug_tmp.replace(out.file("debug.mp4"))
+        out.finish()
+    if interrupted is not None:
+        done = max((d.frame for d in pipe.detections), default=None)
+        kept = f"frames up to {done}" if done is not None else "no frame finished"
+        raise Interrupted(interrupted.signum,
+                          f"; {out.path}/detections.csv holds the finished frames ({kept}: the "
+                          "last half background window was not final yet)")
     dt = time.perf_counter() - t0
     log.info("detect: %d frames, %d detections, %.1f frames/s -> %s", n, len(rows),
              n / max(dt, 1e-9), out.path)
