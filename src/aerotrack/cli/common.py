@@ -31,6 +31,32 @@ set_option = click.option("--set", "overrides", multiple=True, metavar="SECTION.
                           help="Override one config parameter (repeatable).")
 
 
+map_init_option = click.option(
+    "--map-init", "map_init_path", type=click.Path(path_type=Path), default=None,
+    help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
+gsd_option = click.option(
+    "--gsd", type=float, default=None,
+    help="Metres per frame pixel when no map is given (speeds and gates become metric).")
+telemetry_option = click.option(
+    "--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
+    help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
+intrinsics_option = click.option(
+    "--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
+    help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are undistorted.")
+roi_option = click.option(
+    "--roi", "roi_paths", multiple=True, type=click.Path(path_type=Path),
+    help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
+ignore_option = click.option(
+    "--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
+    help="Region whose detections are ignored (same formats as --roi).")
+frames_option = click.option(
+    "--frames", "frame_range", default=None, metavar="A:B",
+    help="Process frames A..B only (1-based, inclusive; either end may be empty).")
+stride_option = click.option(
+    "--stride", type=click.IntRange(min=1), default=1, show_default=True,
+    help="Use every N-th frame.")
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM, turned into an exception at a safe point of a run.
 

@@ -14,9 +14,17 @@ from .common import (
     check_overwrite,
     config_option,
     fps_option,
+    frames_option,
+    gsd_option,
+    ignore_option,
+    intrinsics_option,
     make_progress,
+    map_init_option,
+    roi_option,
     root_flags,
     set_option,
+    stride_option,
+    telemetry_option,
 )
 
 log = logging.getLogger("aerotrack")
@@ -29,26 +37,17 @@ log = logging.getLogger("aerotrack")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: size gates in metres, as in "
                    "`track`.")
-@click.option("--map-init", "map_init_path", type=click.Path(path_type=Path), default=None,
-              help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
-@click.option("--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
-              help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
-@click.option("--gsd", type=float, default=None,
-              help="Metres per frame pixel when no map is given (size gates in metres).")
+@map_init_option
+@telemetry_option
+@gsd_option
 @fps_option
 @config_option
 @set_option
-@click.option("--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
-              help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are "
-                   "undistorted.")
-@click.option("--roi", "roi_paths", multiple=True, type=click.Path(path_type=Path),
-              help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
-@click.option("--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
-              help="Region whose detections are ignored (same formats as --roi).")
-@click.option("--frames", "frame_range", default=None, metavar="A:B",
-              help="Process frames A..B only (1-based, inclusive; either end may be empty).")
-@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Use every N-th frame.")
+@intrinsics_option
+@roi_option
+@ignore_option
+@frames_option
+@stride_option
 @click.option("--stabilised", is_flag=True,
               help="Frames are already registered to each other (a stabilised video): skip "
                    "registration and use identity homographies (not with --map).")

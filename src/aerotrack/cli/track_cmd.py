@@ -15,10 +15,18 @@ from .common import (
     check_overwrite,
     check_positive,
     config_option,
+    frames_option,
+    gsd_option,
+    ignore_option,
+    intrinsics_option,
     make_progress,
+    map_init_option,
+    roi_option,
     root_flags,
     seed_option,
     set_option,
+    stride_option,
+    telemetry_option,
     track_fps_option,
 )
 
@@ -231,22 +239,16 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
                    "detector. Without INPUT: association alone in image coordinates.")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
-@click.option("--map-init", "map_init_path", type=click.Path(path_type=Path), default=None,
-              help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
-@click.option("--gsd", type=float, default=None,
-              help="Metres per frame pixel when no map is given (speeds and gates become metric).")
+@map_init_option
+@gsd_option
 @track_fps_option
 @seed_option
 @config_option
 @set_option
-@click.option("--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
-              help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
-@click.option("--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
-              help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are undistorted.")
-@click.option("--roi", "roi_paths", multiple=True, type=click.Path(path_type=Path),
-              help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
-@click.option("--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
-              help="Region whose detections are ignored (same formats as --roi).")
+@telemetry_option
+@intrinsics_option
+@roi_option
+@ignore_option
 @click.option("--roads", "roads_path", type=click.Path(path_type=Path), default=None,
               help="Road centre-lines (GeoJSON LineStrings, any CRS; needs --map): unobserved "
                    "vehicles are predicted along the roads.")
@@ -254,10 +256,8 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Drop tracks never faster than this many m/s (parked vehicles).")
 @click.option("--out-crs", "out_crs", default=None,
               help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
-@click.option("--frames", "frame_range", default=None, metavar="A:B",
-              help="Process frames A..B only (1-based, inclusive; either end may be empty).")
-@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Use every N-th frame.")
+@frames_option
+@stride_option
 @click.option("--from", "from_dir", type=click.Path(path_type=Path), default=None,
               help="Reuse the registrations and detections cached by an earlier run in this folder "
                    "(its stages/): only association and linking run again.")
