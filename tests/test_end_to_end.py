@@ -94,3 +94,16 @@ def test_cli_detect_with_map_equals_the_detections_of_track(scene, tmp_path):
         assert (tmp_path / "d" / name).read_bytes() == (tmp_path / "t" / name).read_bytes(), name
     rows = io.read_mot(tmp_path / "d" / "detections.csv")
     assert len(rows) and set(rows[:, 0].astype(int)) <= set(range(20, 111, 2))
+
+
+def test_python_detect_equals_the_detections_of_run(scene):
+    """``pipeline.detect`` is ``pipeline.run`` without association: the same detections."""
+    source = io.open_source(scene / "frames")
+    geomap = GeoMap(scene / "map.tif")
+    H = read_map_init(scene / "map_init.txt", geomap)
+    a = pipeline.detect(source, geomap=geomap, H_init=H, stop=60)
+    b = pipeline.run(source, geomap=geomap, H_init=H, stop=60)
+    assert not a.tracks and [d.frame for d in a.detections] == [d.frame for d in b.detections]
+    for da, db in zip(a.detections, b.detections):
+        np.testing.assert_array_equal(da.boxes, db.boxes)
+        np.testing.assert_allclose(da.world, db.world)

@@ -3,7 +3,8 @@
 Two APIs over one implementation:
 
 * push: ``Pipeline(...).step(frame)`` for each frame, then ``.finish()``;
-* pull: ``run(source, ...)`` iterates a frame source (or runs association alone on a detections file).
+* pull: ``run(source, ...)`` iterates a frame source (or runs association alone on a detections file);
+  ``detect(source, ...)`` runs registration and detection alone.
 
 Both return a :class:`Result` holding the tracks (in world coordinates, with each point's box in its
 frame's pixels), the registrations and the detections; :func:`aerotrack.outputs.write_outputs` writes
@@ -747,6 +748,77 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
             pipe.save_state()
         raise
     return pipe.finish()
+
+
+def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None,
+           H_init: np.ndarray | None = None, metres_per_unit: float | None = None,
+           start: int = 1, stop: int | None = None, stride: int = 1,
+           undistort: Callable[[Frame], Frame] | None = None, regions: list | None = None,
+           stabilised: bool = False, progress: Callable[[int], None] | None = None,
+           debug: Callable[[tuple], None] | None = None) -> Result:
+    """Registration and detection alone (``aerotrack detect``): the stages of :func:`run`, with the
+    same options, so the detections equal those of a full run; no tracklet is made.
+
+    Parameters
+    ----------
+    source : FrameSource
+    stabilised : bool
+        The frames are registered to each other already: identity homographies (no map).
+    progress : callable, optional
+        Called with the number of frames done after each frame. An exception it raises (an
+        interruption) stops the run: the result then holds the frames the detector had finished
+        (all but the last half background window) and is attached to the exception as
+        ``partial_result``.
+    debug : callable, optional
+        Called with ``(index, image, residual, boxes, stationary)`` of every finished frame
+        (``MovingObjectDetector.debug_frames``).
+
+    Returns
+    -------
+    Result
+        ``tracks`` empty; ``registrations`` and ``detections`` (frame pixels, world coordinates)
+        of every frame.
+
+    Examples
+    --------
+    >>> from aerotrack import io, pipeline
+    >>> result = pipeline.detect(io.open_source("flight.mp4"))       # doctest: +SKIP
+    >>> sum(len(d) for d in result.detections)                      # doctest: +SKIP
+    """
+    config = config or Config()
+    pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init,
+                    metres_per_unit=metres_per_unit, undistort=undistort, regions=regions,
+                    spill=False, associate=False, debug=debug is not None, stabilised=stabilised)
+    detector = None
+
+    def drain() -> None:
+        if detector is not None and debug is not None:
+            for item in detector.debug_frames:
+                debug(item)
+            detector.debug_frames.clear()
+
+    def result() -> Result:
+        return Result(tracks=[], registrations=pipe.registrations, detections=pipe.detections,
+                      fps=pipe.fps, frame_size=pipe.frame_size,
+                      metres_per_unit=pipe.metres_per_unit, timings=dict(pipe.timings),
+                      cpu_timings=dict(pipe.cpu_timings), frames=pipe.n_frames,
+                      first_frame=pipe.first_frame or 1, last_frame=pipe.last_frame)
+
+    done = 0
+    try:
+        for frame in source.frames(start=start, stop=stop, stride=stride):
+            pipe.step(frame)
+            detector = pipe.detector
+            drain()
+            done += 1
+            if progress:
+                progress(done)
+    except BaseException as exc:
+        exc.partial_result = result()
+        raise
+    pipe.finish_local()  # flushes the detector's window
+    drain()
+    return result()
 
 
 def run_cached(stages: Path, *, config: Config | None = None, fps: float,

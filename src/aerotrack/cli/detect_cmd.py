@@ -105,30 +105,21 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
 
 def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions, start, stop,
             stride, stabilised: bool, debug_video: bool) -> None:
-
     from ..config import dumps_config
     from ..io.mot import write_mot
     from ..outputs import detection_rows, registration_rows
-    from ..pipeline import Pipeline, Result
+    from ..pipeline import detect
     from ..registration import write_registration_csv
     from .track_cmd import GracefulStop
 
-    pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init, metres_per_unit=gsd,
-                    undistort=undistort, regions=regions, spill=False, associate=False,
-                    debug=debug_video, stabilised=stabilised)
     writer = None
     debug_tmp = out.partial / "debug.mp4"
-    t0 = time.perf_counter()
-    n = 0
-    detector = None
 
-    def drain() -> None:
+    def debug(item) -> None:
         nonlocal writer
-        if detector is not None and debug_video:
-            for item in detector.debug_frames:
-                writer = _write_debug(writer, debug_tmp, source.fps, *item)
-            detector.debug_frames.clear()
+        writer = _write_debug(writer, debug_tmp, source.fps, *item)
 
+    t0 = time.perf_counter()
     total = source.count
     if total:
         total = len(range(start, min(stop or total, total) + 1, stride))
@@ -137,30 +128,20 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
     stopper.NOTE = ""
     interrupted = None
     with stopper:
-        step = stopper.wrap(progress)
         try:
-            for frame in source.frames(start=start, stop=stop, stride=stride):
-                pipe.step(frame)
-                detector = pipe.detector
-                drain()
-                n += 1
-                step(n)
+            result = detect(source, config=config, geomap=geomap, H_init=H_init,
+                            metres_per_unit=gsd, start=start, stop=stop, stride=stride,
+                            undistort=undistort, regions=regions, stabilised=stabilised,
+                            progress=stopper.wrap(progress),
+                            debug=debug if debug_video else None)
         except Interrupted as exc:  # keep what is final: the frames the detector finished
-            interrupted = exc
+            interrupted, result = exc, exc.partial_result
         finally:
             close()
         if interrupted is None:
             stopper.writing()
         else:
             stopper.phase = "writing"  # hold further signals off until the files are in place
-        if interrupted is None:
-            pipe.finish_local()  # flushes the detector's window
-            drain()
-        result = Result(tracks=[], registrations=pipe.registrations, detections=pipe.detections,
-                        fps=pipe.fps, frame_size=pipe.frame_size,
-                        metres_per_unit=pipe.metres_per_unit, timings=dict(pipe.timings),
-                        cpu_timings=dict(pipe.cpu_timings), frames=pipe.n_frames,
-                        first_frame=pipe.first_frame or 1, last_frame=pipe.last_frame)
         rows = detection_rows(result)
         write_mot(out.file("detections.csv"), rows)
         if not stabilised:
@@ -171,14 +152,14 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
             debug_tmp.replace(out.file("debug.mp4"))
         out.finish()
     if interrupted is not None:
-        done = max((d.frame for d in pipe.detections), default=None)
+        done = max((d.frame for d in result.detections), default=None)
         kept = f"frames up to {done}" if done is not None else "no frame finished"
         raise Interrupted(interrupted.signum,
                           f"; {out.path}/detections.csv holds the finished frames ({kept}: the "
                           "last half background window was not final yet)")
     dt = time.perf_counter() - t0
-    log.info("detect: %d frames, %d detections, %.1f frames/s -> %s", n, len(rows),
-             n / max(dt, 1e-9), out.path)
+    log.info("detect: %d frames, %d detections, %.1f frames/s -> %s", result.frames, len(rows),
+             result.frames / max(dt, 1e-9), out.path)
 
 
 def _write_debug(writer, path: Path, fps: float, index, image, residual, boxes, stationary):
