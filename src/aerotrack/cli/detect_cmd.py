@@ -75,7 +75,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     from ..config import load_config
     from ..errors import InputError
     from ..io.output import OutputDir
-    from .track_cmd import load_inputs, parse_frame_range
+    from .track_cmd import check_frame_range, load_inputs, load_regions, parse_frame_range
 
     config = load_config(config_path, overrides)
     if stabilised and map_path is not None:
@@ -83,16 +83,8 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     start, stop = parse_frame_range(frame_range)
     source, _, geomap, H_init, undistort, _ = load_inputs(
         input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path)
-    if frame_range is not None and source.count and start > source.count:
-        raise InputError(f"--frames {frame_range}: starts after the input's last frame "
-                         f"({source.count})")
-    regions = []
-    if roi_paths or ignore_paths:
-        from ..geo.roi import read_region
-
-        regions += [read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
-        regions += [read_region(p, geomap, mode="ignore", option="--ignore-region")
-                    for p in ignore_paths]
+    check_frame_range(frame_range, start, source.count)
+    regions = load_regions(roi_paths, ignore_paths, geomap)
     check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
@@ -124,8 +116,7 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
     if total:
         total = len(range(start, min(stop or total, total) + 1, stride))
     progress, close = make_progress(total, "detect", *root_flags(ctx))
-    stopper = GracefulStop()
-    stopper.NOTE = ""
+    stopper = GracefulStop(note="")
     interrupted = None
     with stopper:
         try:
@@ -138,10 +129,7 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
             interrupted, result = exc, exc.partial_result
         finally:
             close()
-        if interrupted is None:
-            stopper.writing()
-        else:
-            stopper.phase = "writing"  # hold further signals off until the files are in place
+        stopper.writing(partial=interrupted is not None)
         rows = detection_rows(result)
         write_mot(out.file("detections.csv"), rows)
         if not stabilised:

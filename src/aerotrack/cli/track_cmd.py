@@ -48,7 +48,9 @@ class GracefulStop:
     NOTE = ("; finished work is kept in the output folder's .partial/ "
             "(continue with --resume)")
 
-    def __init__(self) -> None:
+    def __init__(self, note: str | None = None) -> None:
+        #: completes the line ``aerotrack: interrupted`` of a second, immediate signal
+        self.note = self.NOTE if note is None else note
         self.stop_signal: int | None = None
         self.phase = "frames"
         self._previous: dict[int, object] = {}
@@ -77,7 +79,7 @@ class GracefulStop:
             self.stop_signal = signum
             return
         if self.stop_signal is not None:
-            raise Interrupted(signum, self.NOTE)
+            raise Interrupted(signum, self.note)
         self.stop_signal = signum
         log.warning("interrupt: stopping after this frame (Ctrl-C again to stop at once)")
 
@@ -87,13 +89,14 @@ class GracefulStop:
         def wrapped(n: int) -> None:
             progress(n)
             if self.stop_signal is not None:
-                raise Interrupted(self.stop_signal, self.NOTE)
+                raise Interrupted(self.stop_signal, self.note)
 
         return wrapped
 
-    def writing(self) -> None:
-        """From now on hold signals off: the run is complete and its files are being written."""
-        if self.stop_signal is not None:
+    def writing(self, partial: bool = False) -> None:
+        """From now on hold signals off: the files are being written (the complete results, or
+        with ``partial`` those of the frames finished before an interruption)."""
+        if self.stop_signal is not None and not partial:
             log.warning("interrupt came after the last frame: writing the complete results")
         self.phase = "writing"
 
@@ -213,6 +216,25 @@ def _check_overlap(size, H_init, geomap, map_init_path) -> None:
         )
 
 
+def load_regions(roi_paths, ignore_paths, geomap) -> list:
+    """The ``--roi`` (include) and ``--ignore-region`` regions, in that order."""
+    if not roi_paths and not ignore_paths:
+        return []
+    from ..geo.roi import read_region
+
+    return ([read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
+            + [read_region(p, geomap, mode="ignore", option="--ignore-region")
+               for p in ignore_paths])
+
+
+def check_frame_range(frame_range: str | None, start: int, last: int) -> None:
+    """Refuse a ``--frames`` range that starts after the input's ``last`` frame (0: unknown)."""
+    from ..errors import InputError
+
+    if frame_range is not None and last and start > last:
+        raise InputError(f"--frames {frame_range}: starts after the input's last frame ({last})")
+
+
 def parse_frame_range(text: str | None) -> tuple[int, int | None]:
     """``A:B`` -> (A, B) 1-based inclusive; empty ends mean the first / last frame."""
     from ..errors import InputError
@@ -308,13 +330,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
         intrinsics_path)
     roads = load_roads(roads_path, geomap, config)
-    regions = []
-    if roi_paths or ignore_paths:
-        from ..geo.roi import read_region
-
-        regions += [read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
-        regions += [read_region(p, geomap, mode="ignore", option="--ignore-region")
-                    for p in ignore_paths]
+    regions = load_regions(roi_paths, ignore_paths, geomap)
     if out_crs is not None:
         from pyproj import CRS
         from pyproj.exceptions import CRSError
@@ -325,8 +341,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         except CRSError:
             raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
-    if frame_range is not None and last and start > last:
-        raise InputError(f"--frames {frame_range}: starts after the input's last frame ({last})")
+    check_frame_range(frame_range, start, last)
 
     def where(path):
         return str(Path(path).resolve()) if path is not None else None
