@@ -3,6 +3,7 @@ rejoined; look-alikes must be told apart by motion, different-looking targets by
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -634,3 +635,40 @@ def test_a_track_split_where_its_speed_changed_is_joined_only_as_a_split(split_g
                           FPS, metres_per_unit=1.0)
     links, _ = linker.solve(tl)
     assert (links.get(0) == 1) == (split_gap_s > 0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_chain_ending_in_a_partial_piece_is_linked_again_as_a_whole(seed):
+    """Target 1 (5 x 2 m, 10 m/s, red) is seen whole until frame 150; a tracklet on its visible
+    rear (shrinking into an occluder, centre at half speed, colours mixed with the occluder's)
+    takes over at frame 146 and ends at 163; the vehicle comes out at frame 250, 2 m further on
+    than constant velocity says. The first round links the whole tracklet to the piece (a
+    hand-over, nearly free) and the piece cannot reach the re-acquisition (its speed, colours
+    and descriptor are the occluder's): two identities. The second round links the chain as one
+    tracklet (its end state from the whole boxes, its appearance mostly the vehicle's): one."""
+    rng = np.random.default_rng(seed)
+    red, mixed = [0.7, 0.1, 0.1, 0.1], [0.3, 0.1, 0.5, 0.1]
+
+    def x(f):
+        return 10 * f / FPS
+
+    a = Track(0, _box_track(range(1, 151), lambda f: (x(f), 0.0), (5.0, 2.0), red, rng))
+    edge, pts = x(150) + 2.5, []
+    for f in range(146, 164):
+        back = x(f) - 2.5
+        length = min(x(f) + 2.5, edge) - back
+        w = np.array([back + length / 2, 0.0]) + rng.normal(0, 0.05, 2)
+        pts.append(TrackPoint(f, np.array([w[0] - length / 2, -1.0, length, 2.0]), w, 1.0,
+                              hist=_hist(rng, mixed), size_world=np.array([length, 2.0])))
+    piece = Track(0, pts)
+    c = Track(0, _box_track(range(250, 400), lambda f: (x(f) + 2.0, 0.0), (5.0, 2.0), red, rng))
+    for t, colour in ((a, red), (piece, mixed), (c, red)):
+        t.points = [dataclasses.replace(p, desc=_desc(rng, colour)) for p in t.points]
+
+    def observed(rounds):
+        tracks = GlobalLinker(LinkingConfig(rounds=rounds), ContextConfig(), FPS,
+                              metres_per_unit=1.0).link([a, piece, c])
+        return [{p.frame for p in t.points if p.kind == "observed"} for t in tracks]
+
+    assert observed(1) == [set(range(1, 164)), set(range(250, 400))]
+    assert observed(2) == [set(range(1, 164)) | set(range(250, 400))]

@@ -18,6 +18,8 @@ across occlusions and exits from the view:
 3. **Joint assignment**: every tracklet may have at most one successor and one predecessor; the
    links minimise the total cost over all consistent pairs at once (Hungarian algorithm on the
    matrix augmented with "no link" at ``max_cost / 2`` per side), not greedily one pair at a time.
+   Then the chains are linked again, each as one tracklet (``rounds``, :meth:`GlobalLinker.relink`):
+   a chain that ends in a short partial piece gets its whole history's motion and colours.
 4. **Output**: one track per chain with the observed, bridged and stationary points of its
    tracklets, and ``predicted`` points for every unobserved frame: across each linked gap (the
    forward prediction, corrected linearly to land on the re-acquired position) and after the
@@ -146,7 +148,48 @@ class GlobalLinker:
         self._frame_size = frame_size
         links, _ = self.solve(tl)
         links = self.fill_gaps(tl, links)
+        for _ in range(max(0, self.config.rounds - 1)):
+            more = self.relink(tl, links)
+            if more == links:
+                break
+            links = self.fill_gaps(tl, more)
         return self.build_tracks(tl, links, registrations, frame_size)
+
+    def relink(self, tl: list[Track], links: dict[int, int]) -> dict[int, int]:
+        """``links`` with the chains they make linked again, as tracklets of their own.
+
+        A chain's end is often a short piece (partial boxes where the vehicle went under an
+        occluder, a hand-over, a split) whose own end state is poor, so its onward link costs too
+        much though its predecessor's motion and appearance would have made it. Here each chain
+        becomes one tracklet (its points in frame order), :meth:`solve` links the chains, and a
+        chain link a -> b becomes a link from a's last tracklet to b's first. The predictions
+        :meth:`solve` made for ``tl`` are kept (:meth:`build_tracks` uses them)."""
+        has_pred = set(links.values())
+        chains = []
+        for head in range(len(tl)):
+            if head in has_pred:
+                continue
+            chain = [head]
+            while chain[-1] in links:
+                chain.append(links[chain[-1]])
+            chains.append(chain)
+        if len(chains) == len(tl) or len(chains) < 2:
+            return links
+        merged = [tl[ch[0]] if len(ch) == 1 else
+                  Track(id=0, points=_one_per_frame(sorted(
+                      (p for i in ch for p in tl[i].points if p.kind != "predicted"),
+                      key=lambda p: p.frame)))
+                  for ch in chains]
+        saved = (self._pred, self._trimmed, self._table, self._table_key, self.last_costs)
+        try:
+            chain_links, _ = self.solve(merged)
+        finally:
+            self._pred, self._trimmed, self._table, self._table_key, self.last_costs = saved
+        out = dict(links)
+        for a, b in chain_links.items():
+            if len(chains[a]) > 1 or len(chains[b]) > 1:  # two single tracklets were judged
+                out[chains[a][-1]] = chains[b][0]
+        return out
 
     def solve(self, tl: list[Track]) -> tuple[dict[int, int], np.ndarray]:
         """Links as {index of a: index of b} and the (n, n) cost matrix (inf where inconsistent)."""
