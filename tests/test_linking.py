@@ -640,12 +640,12 @@ def test_a_track_split_where_its_speed_changed_is_joined_only_as_a_split(split_g
 @pytest.mark.parametrize("seed", range(3))
 def test_a_chain_ending_in_a_partial_piece_is_linked_again_as_a_whole(seed):
     """Target 1 (5 x 2 m, 10 m/s, red) is seen whole until frame 150; a tracklet on its visible
-    rear (shrinking into an occluder, centre at half speed, colours mixed with the occluder's)
-    takes over at frame 146 and ends at 163; the vehicle comes out at frame 250, 2 m further on
+    rear (shrinking into an occluder, centre at half speed, descriptor mixed with the occluder's)
+    takes over at frame 146 and ends at 163; the vehicle comes out at frame 250, 5 m further on
     than constant velocity says. The first round links the whole tracklet to the piece (a
-    hand-over, nearly free) and the piece cannot reach the re-acquisition (its speed, colours
-    and descriptor are the occluder's): two identities. The second round links the chain as one
-    tracklet (its end state from the whole boxes, its appearance mostly the vehicle's): one."""
+    hand-over, nearly free) and the piece cannot reach the re-acquisition (its speed is half,
+    its descriptor the occluder's): two identities. The second round links the chain as one
+    tracklet (its end state from the whole boxes, its descriptor mostly the vehicle's): one."""
     rng = np.random.default_rng(seed)
     red, mixed = [0.7, 0.1, 0.1, 0.1], [0.3, 0.1, 0.5, 0.1]
 
@@ -659,9 +659,9 @@ def test_a_chain_ending_in_a_partial_piece_is_linked_again_as_a_whole(seed):
         length = min(x(f) + 2.5, edge) - back
         w = np.array([back + length / 2, 0.0]) + rng.normal(0, 0.05, 2)
         pts.append(TrackPoint(f, np.array([w[0] - length / 2, -1.0, length, 2.0]), w, 1.0,
-                              hist=_hist(rng, mixed), size_world=np.array([length, 2.0])))
+                              hist=_hist(rng, red), size_world=np.array([length, 2.0])))
     piece = Track(0, pts)
-    c = Track(0, _box_track(range(250, 400), lambda f: (x(f) + 2.0, 0.0), (5.0, 2.0), red, rng))
+    c = Track(0, _box_track(range(250, 400), lambda f: (x(f) + 5.0, 0.0), (5.0, 2.0), red, rng))
     for t, colour in ((a, red), (piece, mixed), (c, red)):
         t.points = [dataclasses.replace(p, desc=_desc(rng, colour)) for p in t.points]
 
@@ -672,3 +672,23 @@ def test_a_chain_ending_in_a_partial_piece_is_linked_again_as_a_whole(seed):
 
     assert observed(1) == [set(range(1, 164)), set(range(250, 400))]
     assert observed(2) == [set(range(1, 164)) | set(range(250, 400))]
+
+
+def test_a_hand_over_needs_the_appearance_to_agree():
+    """As the hand-over above, but the later tracklet is a blue vehicle whose box covers the red
+    one's while it passes: not the red vehicle handed over. With the appearance's agreement
+    required (``split_max_appearance``) the two stay apart; without it they are joined."""
+    rng = np.random.default_rng(6)
+    red, blue = [0.7, 0.1, 0.1, 0.1], [0.1, 0.1, 0.1, 0.7]
+    a = Track(0, _box_track(range(1, 151), lambda f: (10 * f / FPS, 0.0), (5.0, 2.0), red, rng))
+    b = Track(0, _box_track(range(141, 301), lambda f: (10 * f / FPS + 0.8, 0.0), (4.0, 2.0), blue,
+                            rng))
+
+    def joined(max_appearance):
+        tracks = GlobalLinker(LinkingConfig(split_max_appearance=max_appearance), ContextConfig(),
+                              FPS, metres_per_unit=1.0).link([a, b])
+        return any({1, 300} <= {p.frame for p in t.points if p.kind == "observed"}
+                   for t in tracks)
+
+    assert not joined(LinkingConfig().split_max_appearance)
+    assert joined(1e9)

@@ -808,7 +808,10 @@ class LinkingConfig:
         right behind does not count as a split.
     split_max_appearance : float
         ... and a split's motion cost is only relaxed when the appearance context agrees (its
-        cost at most this; unknown appearance counts as agreeing).
+        cost at most this; unknown appearance counts as agreeing). A hand-over needs the same
+        agreement: on 11 generated scenes (own detector) the 20 true hand-overs scored 0-0.09,
+        a vehicle whose box covered another's while passing it 461 (the identity benchmark's
+        five scenes unchanged; six others IDF1 0.779 -> 0.784, one switch less).
     gap_cost_per_s : float
         Cost added per second of a link's gap during which the first tracklet's predicted
         position lies inside the frame (nothing without registrations and frame size, e.g.

@@ -241,7 +241,19 @@ class GlobalLinker:
         self.last_costs = {}
         handovers = handover_pairs(tl, c.duplicate_overlap, int(round(c.handover_max_s * self.fps)),
                                    c.handover_max_area_ratio)
-        for (a, b), ov in handovers.items():
+        app = None
+        if handovers or cand:
+            hists_end = {i: track_histograms(t) for i, t in enumerate(tl)}
+            app = AppearanceContext({i: h for i, h in hists_end.items() if h.size})
+        for (a, b), ov in list(handovers.items()):
+            if c.weight_appearance > 0 and a in app.intra:
+                # like a split, a hand-over needs the appearance's agreement: two vehicles whose
+                # boxes overlap while one passes the other are not one handed over
+                s = track_histograms(tl[b], max_obs=5)
+                if s.size and s.shape[1] == app.X[a].shape[1] and \
+                        appearance_cost(app.intra_distance(s, a), True) > c.split_max_appearance:
+                    del handovers[(a, b)]
+                    continue
             cost = c.handover_cost * (1.0 - ov) / max(1e-9, 1.0 - c.duplicate_overlap)
             self.last_costs[(a, b)] = (cost, Cues())
             C[a, b] = cost
@@ -254,8 +266,6 @@ class GlobalLinker:
             for a, bs in cand.items():
                 h = int(max(first[b] - last[a] for b in bs))
                 preds[a] = self.predictor.predict(table, a, int(last[a]), h)
-        hists_end = {i: track_histograms(t) for i, t in enumerate(tl)}
-        app = AppearanceContext({i: h for i, h in hists_end.items() if h.size})
         desc = [TrackletDescriptor.from_track(t) for t in tl] if c.weight_descriptor > 0 else [None] * n
         preds_of: dict[int, list[int]] = {}
         for a, bs in cand.items():
