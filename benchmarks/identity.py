@@ -33,6 +33,8 @@ Metrics (contract definitions, ``issues show 2``):
   should have stopped);
 * the cue ablation (``ABLATION``): the same tracklets linked with the motion cue, the appearance
   context or the descriptor switched off (weight 0), and with motion alone;
+* ``linked + roads``: the same tracklets linked with the scene's road centre-lines
+  (``roads.geojson``, as ``aerotrack track --roads``) given to the motion context;
 * ``oracle links``: the same tracklets chained by their ground-truth identity (majority of their
   observed boxes matched at IoU >= 0.3, in time order, overlapping ones left unlinked), then
   built and finished like the linker's: the ceiling of linking on these tracklets. What it
@@ -93,7 +95,7 @@ ABLATION = {
     "no descriptor": {"weight_descriptor": 0.0},
     "motion only": {"weight_appearance": 0.0, "weight_descriptor": 0.0},
 }
-VARIANTS = ("local only", "linked", "linked (kalman)", *ABLATION, "oracle links")
+VARIANTS = ("local only", "linked", "linked (kalman)", "linked + roads", *ABLATION, "oracle links")
 TRUCK4 = Path("/work/shared/data/uav123_10fps_truck4")
 
 
@@ -365,6 +367,12 @@ def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool, seed: in
     for name, fields in ABLATION.items():
         variants[name] = dataclasses.replace(config, linking=dataclasses.replace(config.linking, **fields))
     variants["oracle links"] = "oracle"
+    roads = None
+    if (scene / "roads.geojson").exists():
+        from aerotrack.context.roads import read_roads
+
+        roads = read_roads(scene / "roads.geojson", geomap=geomap)
+        variants["linked + roads"] = "roads"
     out = {}
     for name, cfg in variants.items():
         tl = copy.deepcopy(run["tracklets"])
@@ -378,8 +386,9 @@ def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool, seed: in
                 metres_per_unit=run["mpu"], frame_size=run["frame_size"],
                 registrations=run["registrations"])
         else:
-            tracks = link(tl, cfg, run["fps"], metres_per_unit=run["mpu"],
-                          frame_size=run["frame_size"], registrations=run["registrations"])
+            tracks = link(tl, config if cfg == "roads" else cfg, run["fps"],
+                          metres_per_unit=run["mpu"], frame_size=run["frame_size"],
+                          registrations=run["registrations"], roads=roads if cfg == "roads" else None)
         secs = time.perf_counter() - t0
         rows, pred = rows_of(run, tracks, geomap)
         sc = evaluate(gt, rows)
