@@ -164,15 +164,7 @@ class GlobalLinker:
         becomes one tracklet (its points in frame order), :meth:`solve` links the chains, and a
         chain link a -> b becomes a link from a's last tracklet to b's first. The predictions
         :meth:`solve` made for ``tl`` are kept (:meth:`build_tracks` uses them)."""
-        has_pred = set(links.values())
-        chains = []
-        for head in range(len(tl)):
-            if head in has_pred:
-                continue
-            chain = [head]
-            while chain[-1] in links:
-                chain.append(links[chain[-1]])
-            chains.append(chain)
+        chains = _chains(len(tl), links)
         if len(chains) == len(tl) or len(chains) < 2:
             return links
         merged = [tl[ch[0]] if len(ch) == 1 else
@@ -474,17 +466,11 @@ class GlobalLinker:
                      frame_size: tuple[int, int] | None = None) -> list[Track]:
         """One track per chain of links, with predicted points in gaps and after the end (cut
         short by :meth:`_tail_length` when ``registrations`` and ``frame_size`` are given)."""
-        has_pred = set(links.values())
         video_end = max(t.last for t in tl)
         horizon = int(round(self.ctx.prediction_horizon_s * self.fps))
         min_len = self.config.min_tracklet_s * self.fps
         out = []
-        for head in range(len(tl)):
-            if head in has_pred:
-                continue
-            chain = [head]
-            while chain[-1] in links:
-                chain.append(links[chain[-1]])
+        for chain in _chains(len(tl), links):
             points: list[TrackPoint] = []
             for k, i in enumerate(chain):
                 pts = [p for p in tl[i].points if p.kind != "predicted"]
@@ -603,6 +589,20 @@ class GlobalLinker:
         while hi - lo > keep and small[lo] and fr[lo] - fr[0] < span:
             lo += 1
         return fr[lo:hi], xy[lo:hi]
+
+
+def _chains(n: int, links: dict[int, int]) -> list[list[int]]:
+    """The chains of ``links`` ({a: b}) over tracklets 0..n-1, each in order, by its head."""
+    has_pred = set(links.values())
+    out = []
+    for head in range(n):
+        if head in has_pred:
+            continue
+        chain = [head]
+        while chain[-1] in links:
+            chain.append(links[chain[-1]])
+        out.append(chain)
+    return out
 
 
 def _box_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
