@@ -515,3 +515,41 @@ def test_split_appearance_jumps_skips_a_change_of_box_size():
                                       max_size_ratio=1.5)) == 1
     assert len(split_appearance_jumps(pts(small * 1.1), min_gap=3, side=6, threshold=0.3,
                                       max_size_ratio=1.5)) == 2
+
+
+def test_a_short_piece_at_a_turn_starts_the_track_that_goes_on_from_it():
+    """A vehicle (4.8 x 2.4 m, 10 m/s) turns: for 10 frames its box is square (rotating), then
+    it drives on rotated (2.4 x 4.8 m). The size model cannot follow the box, so the sampler cuts
+    the vehicle into three; the middle piece (10 frames, under ``min_length_s``) would be dropped.
+    It starts the track that goes on from it instead; with stitching off it is lost."""
+    def run(config):
+        la = LocalAssociator(config, FPS, metres_per_unit=1.0, seed=0)
+        out, x, y = [], 0.0, 0.0
+        for f in range(1, 121):
+            if f <= 40:
+                x, size = x + 10 / FPS, (4.8, 2.4)
+            elif f <= 50:
+                x, y, size = x + 2 / FPS, y + 10 / FPS, (3.6, 3.6)
+            else:
+                y, size = y + 10 / FPS, (2.4, 4.8)
+            w, s = np.array([[x, y]]), np.array([size])
+            out += la.step(Detections(frame=f, boxes=np.column_stack([w - s / 2, s]),
+                                      conf=np.ones(1), world=w, size_world=s))
+        out += la.flush()
+        return [(t.first, t.last) for t in out]
+
+    assert run(AssociationConfig()) == [(1, 40), (41, 120)]
+    assert run(AssociationConfig(stitch_dist_m=0.0)) == [(1, 40), (51, 120)]
+
+
+def test_stitching_compares_headings():
+    from aerotrack.association.local import _same_heading, _velocity
+
+    v = _velocity([(1, np.array([0.0, 0.0])), (2, np.array([0.5, 0.1])), (3, np.array([1.0, 0.2]))])
+    assert v == pytest.approx([0.5, 0.1])
+    assert _velocity([(1, np.array([3.0, 4.0]))]).tolist() == [0.0, 0.0]
+    east, north, west = np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([-1.0, 0.0])
+    assert _same_heading(east, np.array([1.0, 0.5]), 60.0, 0.1)  # 27 degrees
+    assert not _same_heading(east, north, 60.0, 0.1)
+    assert not _same_heading(east, west, 60.0, 0.1)  # an oncoming vehicle
+    assert _same_heading(east, 0.01 * west, 60.0, 0.1)  # standing: no heading

@@ -107,6 +107,7 @@ class LocalAssociator:
         self.sampler: WindowSampler | None = None
         self.last_frame: int | None = None
         self.points: dict[int, list[TrackPoint]] = {}  # final points of each internal track
+        self.lead_in: dict[int, list[TrackPoint]] = {}  # short pieces to put before a live track
         self.next_id = 1
         self.stats = {"frames": 0, "mcmc_iters": 0}
 
@@ -306,6 +307,9 @@ class LocalAssociator:
         tr = S.tracks[tid]
         S.swap([tr], [])
         pts = self.points.pop(tid, [])
+        lead = self.lead_in.pop(tid, None)
+        if lead and pts and lead[-1].frame < pts[0].frame:
+            pts = [*lead, *_bridge(lead[-1], pts[0]), *pts]
         c = self.config
         pieces = [pts]
         if c.split_appearance > 0 and pts:
@@ -314,13 +318,54 @@ class LocalAssociator:
                                             side=c.split_side_obs, threshold=c.split_appearance,
                                             max_size_ratio=c.split_max_size_ratio)
         out = []
-        for piece in pieces:
+        for k, piece in enumerate(pieces):
             n_obs = sum(p.kind == "observed" for p in piece)
             if n_obs < 2 or (piece[-1].frame - piece[0].frame) / self.fps < c.min_length_s:
+                if k == len(pieces) - 1 and piece:
+                    self._lead_into(piece)
                 continue
             out.append(Track(id=self.next_id, points=piece))
             self.next_id += 1
         return out
+
+    def _lead_into(self, piece: list[TrackPoint]) -> None:
+        """Keep a piece too short to be a tracklet as the start of a live track that begins
+        right after it, close to where it ended (``stitch_gap_s``, ``stitch_dist_m``) and heading
+        the same way (within ``stitch_max_turn_deg``).
+
+        The sampler cuts a vehicle where its box changes faster than the size model follows (a
+        sharp turn rotates it) into pieces; each alone is under ``min_length_s`` and would be
+        dropped as a false positive. Put before the track that goes on from it, the piece makes
+        that track start where the vehicle re-appeared. The heading check keeps a piece of one
+        vehicle off another that starts where it ended (two vehicles passing each other leave a
+        merged blob between them). aerotrack's own step."""
+        c = self.config
+        obs = [p for p in piece if p.kind == "observed"]
+        if c.stitch_dist_m <= 0 or len(obs) < 2 or self.sampler is None:
+            return
+        end = obs[-1]
+        v_piece = _velocity([(p.frame, p.world) for p in obs[-STITCH_OBS:]])
+        gap = max(1, int(round(c.stitch_gap_s * self.fps)))
+        S = self.sampler
+        best, best_d = None, c.stitch_dist_m / self.mpu
+        for tid, tr in S.tracks.items():
+            if tid in self.lead_in:
+                continue
+            head = [(p.frame, p.world) for p in self.points.get(tid, ())
+                    if p.kind == "observed"][:STITCH_OBS]
+            for g in tr.nodes[:max(0, STITCH_OBS - len(head))].tolist():
+                det, i = S.store.payload[g - S.store.base]
+                head.append((det.frame, det.world[i]))
+            if not head or not 0 < head[0][0] - end.frame <= gap:
+                continue
+            d = float(np.hypot(*(np.asarray(head[0][1], float) - np.asarray(end.world, float))))
+            if d > best_d or not _same_heading(v_piece, _velocity(head), c.stitch_max_turn_deg,
+                                               self.config.stitch_min_speed_mps / self.mpu
+                                               / self.fps):
+                continue
+            best, best_d = tid, d
+        if best is not None:
+            self.lead_in[best] = [p for p in piece if p.frame <= end.frame]
 
     # ------------------------------------------------------------------ initialisation
     def _initialise(self, gids: np.ndarray) -> int:
@@ -506,6 +551,31 @@ def split_appearance_jumps(points: list[TrackPoint], *, min_gap: int, side: int,
         start = j
     pieces.append(points[start:])
     return pieces
+
+
+#: Observations at the end of a piece and the start of a track whose velocities
+#: :meth:`LocalAssociator._lead_into` compares.
+STITCH_OBS = 8
+
+
+def _velocity(pts: list[tuple[int, np.ndarray]]) -> np.ndarray:
+    """Least-squares velocity (world units per frame) of (frame, world xy) pairs; zero for one."""
+    if len(pts) < 2:
+        return np.zeros(2)
+    f = np.array([p[0] for p in pts], dtype=np.float64)
+    xy = np.array([np.asarray(p[1], dtype=np.float64).reshape(2) for p in pts])
+    f -= f.mean()
+    den = float((f * f).sum())
+    return (f[:, None] * (xy - xy.mean(axis=0))).sum(axis=0) / den if den > 0 else np.zeros(2)
+
+
+def _same_heading(u: np.ndarray, v: np.ndarray, max_turn_deg: float, min_speed: float) -> bool:
+    """Whether velocities ``u`` and ``v`` point within ``max_turn_deg`` of each other; true when
+    either is slower than ``min_speed`` (a standing vehicle has no heading)."""
+    nu, nv = float(np.hypot(*u)), float(np.hypot(*v))
+    if nu < min_speed or nv < min_speed:
+        return True
+    return float(np.dot(u, v)) / (nu * nv) >= np.cos(np.radians(max_turn_deg))
 
 
 def _bridge(a: TrackPoint, b: TrackPoint) -> list[TrackPoint]:
