@@ -360,7 +360,7 @@ class LocalAssociator:
                 continue
             d = float(np.hypot(*(np.asarray(head[0][1], float) - np.asarray(end.world, float))))
             if d > best_d or not _same_heading(v_piece, _velocity(head), c.stitch_max_turn_deg,
-                                               self.config.stitch_min_speed_mps / self.mpu
+                                               c.stitch_min_speed_mps / self.mpu
                                                / self.fps):
                 continue
             best, best_d = tid, d
@@ -560,13 +560,10 @@ STITCH_OBS = 8
 
 def _velocity(pts: list[tuple[int, np.ndarray]]) -> np.ndarray:
     """Least-squares velocity (world units per frame) of (frame, world xy) pairs; zero for one."""
-    if len(pts) < 2:
-        return np.zeros(2)
-    f = np.array([p[0] for p in pts], dtype=np.float64)
-    xy = np.array([np.asarray(p[1], dtype=np.float64).reshape(2) for p in pts])
-    f -= f.mean()
-    den = float((f * f).sum())
-    return (f[:, None] * (xy - xy.mean(axis=0))).sum(axis=0) / den if den > 0 else np.zeros(2)
+    from ..context.motion import fit_constant_velocity
+
+    return fit_constant_velocity(np.array([p[0] for p in pts]),
+                                 np.array([np.asarray(p[1], float).reshape(2) for p in pts]))[1]
 
 
 def _same_heading(u: np.ndarray, v: np.ndarray, max_turn_deg: float, min_speed: float) -> bool:
