@@ -172,11 +172,15 @@ class GlobalLinker:
                       (p for i in ch for p in tl[i].points if p.kind != "predicted"),
                       key=lambda p: p.frame)))
                   for ch in chains]
-        saved = (self._pred, self._trimmed, self._table, self._table_key, self.last_costs)
+        # solve's per-call state (indexed by tracklet) is the first round's again afterwards
+        names = ("_pred", "_trimmed", "_table", "_table_key", "last_costs", "_noise",
+                 "_in_view_cache")
+        saved = {k: getattr(self, k, None) for k in names}
         try:
             chain_links, _ = self.solve(merged)
         finally:
-            self._pred, self._trimmed, self._table, self._table_key, self.last_costs = saved
+            for k, v in saved.items():
+                setattr(self, k, v)
         out = dict(links)
         for a, b in chain_links.items():
             if len(chains[a]) > 1 or len(chains[b]) > 1:  # two single tracklets were judged
