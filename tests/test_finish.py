@@ -380,6 +380,32 @@ def test_no_hold_for_a_track_that_ends_moving_or_never_moved():
     assert not any(p.kind == "stationary" for p in out.points)
 
 
+def test_no_hold_for_two_creeping_pieces_linked_over_a_long_gap():
+    """Two pieces of a false alarm that creeps (the parallax of a canopy's edge), each within
+    a few metres, linked over 3 s: the track spreads over more than ``static_extent_m`` but was
+    never seen driving into its stop, so its end is not held; the same end after a continuous
+    drive is."""
+    def piece(f0: int, n: int, x0: float) -> list[TrackPoint]:
+        return [TrackPoint(frame=f0 + k, box=np.array([x0 + 0.2 * k - 22.5, 390, 45, 20]),
+                           world=np.array([x0 + 0.2 * k, 400.0]), conf=0.8)
+                for k in range(n)]
+    first, second = piece(1, 40, 100.0), piece(131, 40, 140.0)  # 0.8 m each, 4.8 m in all
+    gap = [TrackPoint(frame=f, box=np.full(4, np.nan), world=np.array([120.0, 400.0]), conf=0.0,
+                      kind="predicted") for f in range(41, 131)]
+    false = Track(id=1, points=first + gap + second)
+    _predict_after(false, 60)
+    assert np.ptp([p.world[0] for p in first + second]) * MPU > FinishConfig().static_extent_m
+    (out,) = finish_tracks([false], FinishConfig(), FPS, metres_per_unit=MPU, registrations=IDENT)
+    assert not any(p.kind == "stationary" for p in out.points)
+    (out,) = finish_tracks([false], FinishConfig(stop_run_gap_s=0.0), FPS, metres_per_unit=MPU,
+                           registrations=IDENT)  # the whole track's spread: held
+    assert any(p.kind == "stationary" for p in out.points)
+    car = _stopping()
+    _predict_after(car, 60)
+    (out,) = finish_tracks([car], FinishConfig(), FPS, metres_per_unit=MPU, registrations=IDENT)
+    assert any(p.kind == "stationary" for p in out.points)
+
+
 def test_a_vehicle_that_drives_off_from_a_standstill_is_held_backwards():
     car = _stopping()
     for k, p in enumerate(car.points):  # time reversed: stands, then accelerates away

@@ -374,7 +374,7 @@ class TrackFinisher:
             raise ConfigError(f"config finish.size_quantile: {self.config.size_quantile} "
                               "must be in [0, 1]")
         for name in ("stop_hold_s", "stop_hold_back_s", "stop_speed_mps", "stop_decel_mps2",
-                     "stop_radius_m", "stop_window_s"):
+                     "stop_radius_m", "stop_window_s", "stop_run_gap_s"):
             if not getattr(self.config, name) >= 0:
                 raise ConfigError(f"config finish.{name}: must be >= 0")
         if not (0.0 <= self.config.absorbed_ratio < 1.0 and self.config.absorbed_speed > 0):
@@ -820,17 +820,27 @@ def _hold_track(t: Track, fps: float, mpu: float, registrations: dict[int, Regis
             q = by_frame.get(f)
             if q is None or q.kind == "predicted":
                 put(f, w, wh, ref)
-    # the ends of a track that moved
-    if float(np.hypot(*np.ptp(ow, axis=0))) * mpu >= c.static_extent_m:
-        if c.stop_hold_s > 0 and inside(obs[-1]) and standing(len(obs) - 1, True):
-            hold(obs[-1].frame + 1, 1, round(c.stop_hold_s * fps), len(obs) - 1)
-        if c.stop_hold_back_s > 0 and inside(obs[0]) and standing(0, False):
-            hold(obs[0].frame - 1, -1, round(c.stop_hold_back_s * fps), 0)
+    # the ends of a track that drove into its stop (or off from it)
+    run_gap = max(1, round(c.stop_run_gap_s * fps)) if c.stop_run_gap_s > 0 else int(of[-1] - of[0])
+    if c.stop_hold_s > 0 and inside(obs[-1]) and standing(len(obs) - 1, True) \
+            and _run_extent(of, ow, run_gap, True) * mpu >= c.static_extent_m:
+        hold(obs[-1].frame + 1, 1, round(c.stop_hold_s * fps), len(obs) - 1)
+    if c.stop_hold_back_s > 0 and inside(obs[0]) and standing(0, False) \
+            and _run_extent(of, ow, run_gap, False) * mpu >= c.static_extent_m:
+        hold(obs[0].frame - 1, -1, round(c.stop_hold_back_s * fps), 0)
     if new:
         merged = {p.frame: p for p in t.points}
         merged.update(new)
         t.points = [merged[f] for f in sorted(merged)]
     return len(new)
+
+
+def _run_extent(frames: np.ndarray, world: np.ndarray, max_gap: int, last: bool) -> float:
+    """Diagonal (world units) of the ground points of the run of observations at the track's
+    end (``last``) or start: consecutive observations at most ``max_gap`` frames apart."""
+    cut = np.flatnonzero(np.diff(frames) > max_gap)
+    sel = world[cut[-1] + 1:] if last and len(cut) else world[:cut[0] + 1] if len(cut) else world
+    return float(np.hypot(*np.ptp(sel, axis=0)))
 
 
 def _fill_gaps(track: Track, max_frames: int) -> None:
