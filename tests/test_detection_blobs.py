@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from aerotrack.detection.blobs import Blob, edge_extent, hysteresis_blobs, join_cabs, regrow_small
-from aerotrack.detection.shadows import remove_shadows, shadow_mask
+from aerotrack.detection.shadows import remove_shadows, shadow_mask, trim_shadow_side
 
 ROAD = (70, 72, 74)  # grey asphalt, BGR
 
@@ -53,6 +53,39 @@ def test_shadow_rule_is_per_region():
     out = remove_shadows(fg, img, bg)
     assert not out[20:24].any()
     assert out[28:36, 42:56].all()
+
+
+def test_remove_shadows_reports_what_it_removed_and_kept():
+    img, bg, fg = scene((200, 205, 210), shadow=True)
+    info: dict = {}
+    remove_shadows(fg, img, bg, info=info)
+    assert info == {"removed": 4 * 20, "kept_shaded": 0}
+    img, bg, fg = scene((45, 47, 48), shadow=True)
+    remove_shadows(fg, img, bg, info=info)
+    assert info["removed"] == 0 and info["kept_shaded"] > 0.9 * fg.sum()
+
+
+def test_a_coloured_vehicles_shadow_passes_with_chroma_tolerance():
+    """4:2:0 video: the shadow row next to a blue car takes the car's colour; with a one-pixel
+    colour tolerance it is still a shadow, without it it is part of the car."""
+    img, bg, fg = scene((160, 70, 30), shadow=True)
+    img[20, 17:35] = (45, 34, 28)  # the shadow (35, 36, 37) with the car's colour bled in
+    assert not shadow_mask(img, bg)[20, 17:35].any()
+    assert shadow_mask(img, bg, chroma_tolerance_px=1)[20, 17:35].all()
+    out = remove_shadows(fg, img, bg, chroma_tolerance_px=1)
+    assert not out[20:24].any() and out[10:20, 15:35].all()
+    assert out[20].sum() < remove_shadows(fg, img, bg)[20].sum()
+
+
+def test_dark_vehicles_lose_the_growth_their_shadow_adds():
+    boxes = np.array([[100.0, 50, 20, 13], [10, 10, 18, 10]])  # dark (with shadow), light
+    growth = [np.array([0.0, 0, 2, 3]), np.array([0.0, 0, 2, 3]), np.array([0.0, 1, 3, 3])]
+    out = trim_shadow_side(boxes, np.array([True, False]), growth)
+    assert np.allclose(out[0], [100, 50, 18, 10]) and np.allclose(out[1], boxes[1])
+    # too few vehicles to measure the sun's offset: unchanged; never below half a side
+    assert np.allclose(trim_shadow_side(boxes, np.array([True, False]), growth[:1]), boxes)
+    tiny = trim_shadow_side(np.array([[0.0, 0, 4, 4]]), np.array([True]), growth)
+    assert np.allclose(tiny, [[0, 0, 2, 2]])
 
 
 def two_part_vehicle() -> tuple[np.ndarray, np.ndarray]:

@@ -45,7 +45,7 @@ from .blobs import (
     split_blob,
 )
 from .persistence import PersistenceTracker
-from .shadows import remove_shadows
+from .shadows import remove_shadows, trim_shadow_side
 
 #: Registration statuses after which earlier frames no longer relate to this one.
 RESTART_STATUSES = ("reset", "reanchored")
@@ -384,6 +384,8 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     H, W = image.shape[:2]
     h, w = small.shape[:2]
     boxes, confs, masks, crops, kept, contrasts = [], [], [], [], [], []
+    dark: list[bool] = []  # a dark vehicle kept whole with its shadow (shadows.trim_shadow_side)
+    shadow_growth: list[np.ndarray] = []  # growth of the box sides by a removed shadow
     margin = 2
     for b in blobs:
         bx, by, bw, bh = b.box
@@ -414,11 +416,19 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         # a regrown fragment's pixels are only above the lower threshold
         thr_b = config.regrow_ratio * thr if id(b) in faint_ids else thr
         fg = (res_full > 0.8 * thr_b) & region
+        is_dark, growth = False, None
         if config.shadow_suppression:
+            whole, info = fg, {}
             fg = remove_shadows(fg, crop, bg_crop, alpha=config.shadow_alpha,
                                 beta=config.shadow_beta, tau_s=config.shadow_tau_s,
                                 tau_h=config.shadow_tau_h,
-                                min_core=config.shadow_min_core)
+                                min_core=config.shadow_min_core,
+                                chroma_tolerance_px=config.shadow_chroma_px, info=info)
+            if config.shadow_trim:
+                n_fg = max(1, int(whole.sum()))
+                is_dark = info["kept_shaded"] >= config.shadow_trim_share * n_fg
+                if 0.1 * n_fg <= info["removed"] <= 0.6 * n_fg:
+                    growth = _box_growth(whole, fg)
         fg8 = open2(fg.astype(np.uint8))
         close_full = max(1.0, gates.close_px)
         fg8 = close(fg8, close_full)
@@ -459,17 +469,34 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
             if ext is not None:
                 x0, y0, x1, y1 = ext
         boxes.append([fx0 + x0, fy0 + y0, x1 - x0, y1 - y0])
+        dark.append(is_dark)
+        if growth is not None:
+            shadow_growth.append(growth)
         confs.append(conf)
         contrasts.append(contrast)
         masks.append(fgm[y0:y1, x0:x1])
         crops.append((fx0 + int(x0), fy0 + int(y0), fx0 + int(x1), fy0 + int(y1)))
         kept.append(b)
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    if config.shadow_suppression and config.shadow_trim:
+        boxes = trim_shadow_side(boxes, np.asarray(dark, bool), shadow_growth)
     return FrameResult(
-        boxes=np.asarray(boxes, np.float64).reshape(-1, 4),
+        boxes=boxes,
         conf=np.asarray(confs, np.float64),
         masks=masks, crops=crops, model_blobs=kept,
         contrast=np.asarray(contrasts, np.float64), threshold=thr, residual=res,
     )
+
+
+def _box_growth(whole: np.ndarray, core: np.ndarray) -> np.ndarray | None:
+    """How far the box of mask ``whole`` reaches past the box of its part ``core`` on the left,
+    top, right and bottom, pixels (4,); None when ``core`` is empty."""
+    if not core.any():
+        return None
+    ys, xs = np.nonzero(whole)
+    yc, xc = np.nonzero(core)
+    return np.array([xc.min() - xs.min(), yc.min() - ys.min(), xs.max() - xc.max(),
+                     ys.max() - yc.max()], np.float64)
 
 
 def _outline_ratio(small: np.ndarray, bg: np.ndarray, blob: Blob, mask: np.ndarray) -> float:
@@ -1025,6 +1052,8 @@ def _validate(c: DetectionConfig) -> None:
         ("min_width_px", c.min_width_px >= 0),
         ("pixel_gates_reference_px", c.pixel_gates_reference_px >= 0),
         ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
+        ("shadow_trim_share", 0 < c.shadow_trim_share <= 1),
+        ("shadow_chroma_px", c.shadow_chroma_px >= 0),
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),

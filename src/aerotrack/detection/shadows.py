@@ -18,7 +18,8 @@ import numpy as np
 
 
 def shadow_mask(image_bgr: np.ndarray, background_bgr: np.ndarray, *, alpha: float = 0.4,
-                beta: float = 0.9, tau_s: float = 0.15, tau_h: float = 50.0) -> np.ndarray:
+                beta: float = 0.9, tau_s: float = 0.15, tau_h: float = 50.0,
+                chroma_tolerance_px: int = 0) -> np.ndarray:
     """Pixels of ``image_bgr`` that look like a cast shadow on ``background_bgr``.
 
     Parameters
@@ -32,6 +33,9 @@ def shadow_mask(image_bgr: np.ndarray, background_bgr: np.ndarray, *, alpha: flo
         Largest saturation difference, on a [0, 1] scale.
     tau_h : float
         Largest hue difference, degrees.
+    chroma_tolerance_px : int
+        The saturation and hue tests pass when they pass at any pixel within this distance
+        (chroma subsampling of compressed video); 0 tests each pixel alone, as Prati et al.
 
     Returns
     -------
@@ -45,12 +49,20 @@ def shadow_mask(image_bgr: np.ndarray, background_bgr: np.ndarray, *, alpha: flo
     dh = np.minimum(dh, 360.0 - dh)
     # Hue is undefined for grey pixels: do not let it veto a shadow on grey asphalt.
     grey = (hi[..., 1] < 40) & (hb[..., 1] < 40)
-    return (ratio >= alpha) & (ratio <= beta) & (ds <= tau_s) & ((dh <= tau_h) | grey)
+    chroma = ((ds <= tau_s) & ((dh <= tau_h) | grey)).astype(np.uint8)
+    if chroma_tolerance_px > 0:
+        # compressed video keeps colour at half resolution (4:2:0): next to a coloured vehicle
+        # its shadow takes the vehicle's colour for a pixel or two and would fail the colour
+        # test; the colour may match anywhere within the tolerance, the brightness must here
+        k = 2 * int(chroma_tolerance_px) + 1
+        chroma = cv2.dilate(chroma, np.ones((k, k), np.uint8))
+    return (ratio >= alpha) & (ratio <= beta) & (chroma > 0)
 
 
 def remove_shadows(fg: np.ndarray, image_bgr: np.ndarray, background_bgr: np.ndarray, *,
                    alpha: float = 0.4, beta: float = 0.9, tau_s: float = 0.15, tau_h: float = 50.0,
-                   min_core: float = 0.4) -> np.ndarray:
+                   min_core: float = 0.4, chroma_tolerance_px: int = 0,
+                   info: dict | None = None) -> np.ndarray:
     """Foreground without cast shadows, decided per connected region.
 
     Prati et al.'s test is per pixel, and a dark grey vehicle on lighter grey asphalt passes it
@@ -70,27 +82,81 @@ def remove_shadows(fg: np.ndarray, image_bgr: np.ndarray, background_bgr: np.nda
         Foreground pixels.
     image_bgr, background_bgr : ndarray, shape (h, w, 3) uint8
         Frame and background, same pixels as ``fg``.
-    alpha, beta, tau_s, tau_h : float
+    alpha, beta, tau_s, tau_h, chroma_tolerance_px
         As in :func:`shadow_mask`.
     min_core : float
         Smallest fraction of a region that must remain for its shadow to be removed. Raising it
         keeps more dark vehicles but leaves more vehicles with long shadows unseparated; 0 is
         Prati et al.'s pixel test alone.
+    info : dict, optional
+        Filled with ``removed`` (pixels removed as shadow) and ``kept_shaded`` (shadow-like
+        pixels left in regions kept whole: a dark vehicle with its shadow).
 
     Returns
     -------
     ndarray, shape (h, w) bool
     """
     fg = np.asarray(fg, bool)
+    if info is not None:
+        info.update(removed=0, kept_shaded=0)
     if not fg.any():
         return fg
     shadow = fg & shadow_mask(image_bgr, background_bgr, alpha=alpha, beta=beta, tau_s=tau_s,
-                              tau_h=tau_h)
+                              tau_h=tau_h, chroma_tolerance_px=chroma_tolerance_px)
     if min_core <= 0:
+        if info is not None:
+            info["removed"] = int(shadow.sum())
         return fg & ~shadow
     n, labels = cv2.connectedComponents(fg.astype(np.uint8), connectivity=8)
     total = np.bincount(labels.ravel(), minlength=n)
     shaded = np.bincount(labels[shadow], minlength=n)
     remove = (total - shaded) >= min_core * total
     remove[0] = False
+    if info is not None:
+        info["removed"] = int(shaded[remove].sum())
+        info["kept_shaded"] = int(shaded[1:][~remove[1:]].sum())
     return fg & ~(shadow & remove[labels])
+
+
+def trim_shadow_side(boxes: np.ndarray, dark: np.ndarray, samples: list, *, min_samples: int = 2,
+                     min_px: float = 0.5, keep: float = 0.5) -> np.ndarray:
+    """Boxes of dark vehicles without the part their own shadow adds.
+
+    A dark vehicle is shadow-like itself (:func:`remove_shadows` keeps its region whole), so its
+    box is the box of the vehicle and its shadow. The shadow is the vehicle's footprint moved by
+    the sun's offset, the same for every vehicle in the frame, so the box of the union is the
+    vehicle's box grown by that offset on the shadow's sides. Where :func:`remove_shadows` did
+    separate a lighter vehicle from its shadow, the difference of the two boxes measures the
+    growth on each side; the frame's median growth (``min_samples`` or more vehicles) is taken
+    off the boxes of the dark ones, on the sides where it exceeds ``min_px``, never shrinking a
+    side of a box below ``keep`` of its length. Without such vehicles (overcast, no shadows
+    removed) nothing changes. This is ours, not Prati et al.'s.
+
+    Parameters
+    ----------
+    boxes : ndarray, shape (N, 4)
+        x, y, w, h (frame pixels).
+    dark : ndarray, shape (N,) bool
+        Which boxes hold a dark vehicle with its shadow.
+    samples : list of (4,) arrays
+        Growth of the left, top, right and bottom sides by a removed shadow, pixels (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (N, 4)
+    """
+    boxes = np.array(boxes, dtype=np.float64).reshape(-1, 4)
+    if len(samples) < min_samples or not np.any(dark):
+        return boxes
+    grow = np.median(np.asarray(samples, np.float64).reshape(-1, 4), axis=0)
+    grow = np.where(grow > min_px, grow, 0.0)
+    if not grow.any():
+        return boxes
+    for i in np.flatnonzero(dark):
+        x, y, w, h = boxes[i]
+        cut_x = min(grow[0] + grow[2], (1.0 - keep) * w)
+        cut_y = min(grow[1] + grow[3], (1.0 - keep) * h)
+        fx = cut_x / max(grow[0] + grow[2], 1e-9)
+        fy = cut_y / max(grow[1] + grow[3], 1e-9)
+        boxes[i] = [x + grow[0] * fx, y + grow[1] * fy, w - cut_x, h - cut_y]
+    return boxes
