@@ -683,8 +683,9 @@ def hold_stops(tracks: list[Track], fps: float, mpu: float, registrations: dict[
     * **a gap** between two in-view points whose ground points lie within ``stop_radius_m`` of
       each other, where the track arrived at under ``stop_speed_mps`` (or left at under it),
       is filled with ``stationary`` points at the stop;
-    * **the end**: a track that moved (its points spread over more than ``static_extent_m``)
-      and whose last ``stop_window_s`` of observations stand still (speed under
+    * **the end**: a track seen driving into its stop (the run of observations before it,
+      consecutive ones at most ``stop_run_gap_s`` apart, spreads over ``static_extent_m`` or
+      more) and whose last ``stop_window_s`` of observations stand still (speed under
       ``stop_speed_mps``), with its last box inside the frame, stays at its stop for up to
       ``stop_hold_s`` (and the end of the video), after braking from its end speed at
       ``stop_decel_mps2`` (a few centimetres at the default ``stop_speed_mps``);
