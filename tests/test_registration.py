@@ -365,6 +365,49 @@ def test_registrar_resets_after_a_cut_to_another_place(map_img):
     assert all(np.all(np.isfinite(r.H)) for r in out)
 
 
+
+def _cut_run(map_img, cfg, places):
+    """Statuses of 20 frames at 10 fps: 8 along the camera path, then each frame k at
+    ``places(k)`` (a homography applied to the path)."""
+    reg = FrameRegistrar(cfg, 10.0)
+    rng = np.random.default_rng(7)
+    out = []
+    for k in range(20):
+        Hm = camera(k / 10.0)
+        if k >= 8:
+            Hm = places(k) @ Hm
+        out.append(reg.step(Frame(k + 1, render(map_img, Hm, rng), k / 10.0)))
+    return [r.status for r in out], [r.reason for r in out]
+
+
+def test_scene_change_resets_at_once(map_img):
+    """After a cut the new frames register against each other but not the old reference: the
+    third such frame (``cut_frames`` 3) is a new reference at once, not after ``reset_after_s``
+    (3 s, longer than the clip); with ``cut_frames`` 0 the frames are carried to the end."""
+    away = np.array([[1, 0, -450.0], [0, 1, 420.0], [0, 0, 1]])
+    statuses, reasons = _cut_run(map_img, RegistrationConfig(), lambda k: away)
+    assert statuses[:8] == ["ok"] * 8
+    assert statuses[8:10] == ["carried", "carried"]
+    assert statuses[10] == "reset" and "scene change" in reasons[10]
+    assert statuses[11:] == ["ok"] * 9
+    statuses, _ = _cut_run(map_img, RegistrationConfig(cut_frames=0), lambda k: away)
+    assert statuses[8:] == ["carried"] * 12
+
+
+def test_unrelated_failed_frames_are_not_a_scene_change(map_img):
+    """Frames that fail against the reference and against each other (every frame somewhere
+    else) are carried: no new reference before ``reset_after_s``."""
+    statuses, _ = _cut_run(map_img, RegistrationConfig(), lambda k: np.array(
+        [[1, 0, -450.0 if k % 2 else 400.0], [0, 1, 420.0 if k % 2 else -380.0], [0, 0, 1]]))
+    assert statuses[8:] == ["carried"] * 12
+
+
+def test_cut_frames_is_checked():
+    with pytest.raises(ConfigError, match="cut_frames"):
+        FrameRegistrar(RegistrationConfig(cut_frames=1), 10.0)
+    with pytest.raises(ConfigError, match="cut_frames"):
+        FrameRegistrar(RegistrationConfig(cut_frames=-2), 10.0)
+
 def _continuous(Hi: np.ndarray) -> np.ndarray:
     T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
     return T @ Hi @ np.linalg.inv(T)

@@ -66,6 +66,12 @@ def check_config(config: RegistrationConfig) -> None:
     for name in ("refine_every_s", "carry_s", "reset_after_s", "keyframe_s"):
         if getattr(config, name) < 0:
             raise ConfigError(f"config registration.{name}: must not be negative")
+    if not (isinstance(config.cut_frames, int) and config.cut_frames >= 0):
+        raise ConfigError(f"config registration.cut_frames: {config.cut_frames!r} must be an "
+                          "integer >= 0")
+    if config.cut_frames == 1:
+        raise ConfigError("config registration.cut_frames: 1 would reset on every failed frame; "
+                          "use 0 (off) or >= 2")
 
 
 class FrameRegistrar:
@@ -93,8 +99,10 @@ class FrameRegistrar:
     obtained: ``ok`` (frame-to-frame, chained), ``refined`` (corrected against the map),
     ``carried`` (the frame could not be registered; the last motion is carried forward for up to
     ``carry_s`` seconds, then the position is held; the next good frame is registered against the
-    last good one), ``reset`` (nothing registered for ``reset_after_s``: this frame becomes the new
-    reference at its carried position, so later positions may be offset) or ``reanchored`` (same,
+    last good one), ``reset`` (nothing registered for ``reset_after_s``, or a scene change:
+    ``cut_frames`` consecutive frames that fail against the reference but register against each
+    other; this frame becomes the new reference at its carried position, so later positions may
+    be offset) or ``reanchored`` (same,
     but placed by a map refinement with a wider search).
     """
 
@@ -125,6 +133,8 @@ class FrameRegistrar:
         self._motion = np.eye(3)  # last frame-to-frame motion, full-res frame pixels
         self._H_last: np.ndarray | None = None
         self._last_refine = -math.inf
+        self._lost_gray: np.ndarray | None = None  # the previous frame, when it failed too
+        self._lost_run = 0  # consecutive failed frames that registered against their predecessor
 
     # -- public ---------------------------------------------------------------------------------
     def step(self, frame: Frame, exclude_boxes: np.ndarray | None = None) -> Registration:
@@ -172,10 +182,10 @@ class FrameRegistrar:
                 return Registration(frame.index, self.H_init.copy(), "reset", 0, float("nan"),
                                     float("nan"), f"{bad.reason}; no reference frame yet")
             return self._anchor(frame, gray, self.H_init, "ok", mask=mask)
-        if bad is not None:
-            return self._carry(frame, bad.reason, bad=True)
-        if gray.shape != self._ref_gray.shape:
-            return self._carry(frame, "frame size changed", bad=True)
+        if bad is not None or gray.shape != self._ref_gray.shape:
+            self._lost_gray, self._lost_run = None, 0
+            return self._carry(frame, bad.reason if bad is not None else "frame size changed",
+                               bad=True)
         fit = dict(ransac_threshold=cfg.ransac_threshold_px * scale,
                    estimator=cfg.estimator, min_inliers=cfg.min_inliers,
                    min_inlier_ratio=cfg.min_inlier_ratio,
@@ -190,7 +200,8 @@ class FrameRegistrar:
         if not est and cfg.method != "orb":  # too large a motion for optical flow
             est = estimate_homography(self._ref_gray, gray, method="orb", **common)
         if not est:
-            return self._carry(frame, est.reason, bad=False)
+            return self._lost(frame, gray, est.reason, common)
+        self._lost_gray, self._lost_run = None, 0
         gap = frame.index - self._good_index
         refine_due = False
         if self._map_gray is not None:
@@ -279,15 +290,35 @@ class FrameRegistrar:
             return H, "ok", r.reason
         return r[0], "refined", ""
 
-    def _carry(self, frame: Frame, reason: str, *, bad: bool) -> Registration:
+    def _lost(self, frame: Frame, gray: np.ndarray, reason: str, common: dict) -> Registration:
+        """A frame of good quality that did not register against the reference: carried, or
+        the new reference when it ends a run of ``cut_frames`` failed frames that each register
+        against the one before (a scene change)."""
+        cfg = self.config
+        prev, self._lost_gray = self._lost_gray, gray
+        if cfg.cut_frames < 2:
+            return self._carry(frame, reason, bad=False)
+        if prev is not None and prev.shape == gray.shape and \
+                estimate_homography(prev, gray, method="lk", **common):
+            self._lost_run += 1
+        else:
+            self._lost_run = 0
+        if self._lost_run + 1 >= cfg.cut_frames:
+            self._lost_gray, self._lost_run = None, 0
+            return self._carry(frame, f"{reason}; scene change", bad=False, reset=True)
+        return self._carry(frame, reason, bad=False)
+
+    def _carry(self, frame: Frame, reason: str, *, bad: bool, reset: bool = False
+               ) -> Registration:
         cfg = self.config
         H_last = self._H_last if self._H_last is not None else self._ref_H
         if frame.time - self._good_time <= cfg.carry_s + 1e-9:
             H = normalize(H_last @ np.linalg.inv(self._motion))
         else:
             H = H_last.copy()
-        if not bad and frame.time - self._good_time >= cfg.reset_after_s - 1e-9:
+        if not bad and (reset or frame.time - self._good_time >= cfg.reset_after_s - 1e-9):
             gray = to_gray(frame.image, self._scale(frame.image.shape[1]))
+            self._lost_gray, self._lost_run = None, 0
             log.warning("frame %d: no registration for %.1f s (%s); new reference",
                         frame.index, frame.time - self._good_time, reason)
             self._motion = np.eye(3)
