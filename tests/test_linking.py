@@ -242,6 +242,25 @@ def test_final_prediction_stops_after_the_in_view_horizon():
     assert len([p for p in first.points if p.kind == "predicted"]) == int(10 * FPS)
 
 
+
+def test_nothing_is_linked_across_a_reset_registration():
+    """A ``reset`` (scene change) starts an unrelated world: a tracklet before it and one after
+    it are never one target, however well they line up; a ``reanchored`` one (placed on the
+    map again) is the same world and is linked across."""
+    paths = {1: _line([0, 0], [10, 0], 200)}
+    tl, _ = _tracklets(paths, {1: 1}, {1: [(80, 110)]}, {1: [0.25] * 4})
+    assert len(tl) == 2
+
+    def linked(status):
+        regs = {f: Registration(f, np.eye(3), status if f == 95 else "ok") for f in range(1, 201)}
+        tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0).link(
+            [dataclasses.replace(t) for t in tl], registrations=regs)
+        return len(tracks)
+
+    assert linked("ok") == 1
+    assert linked("reanchored") == 1
+    assert linked("reset") == 2
+
 # -- manoeuvre hypothesis and partly visible ends ------------------------------------------------
 
 def test_manoeuvre_cost_grows_with_reach_and_refuses_an_instant_reversal():

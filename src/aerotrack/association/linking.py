@@ -215,11 +215,18 @@ class GlobalLinker:
         raw_first = np.array([fr[0] for fr, _ in raw])
         raw_last = np.array([fr[-1] for fr, _ in raw])
         max_gap = int(round(c.max_gap_s * self.fps))
+        # a ``reset`` registration (a scene change, or a loss too long to bridge without a map)
+        # starts an unrelated world: nothing is linked across it
+        resets = np.array(sorted(f for f, r in (self._regs or {}).items() if r.status == "reset"),
+                          dtype=np.int64)
+        epoch_first = np.searchsorted(resets, raw_first, side="right")
+        epoch_last = np.searchsorted(resets, raw_last, side="right")
         cand: dict[int, list[int]] = {}
         for a in range(n):
             gaps = first - last[a]
             order = raw_first - raw_last[a]
-            for b in np.flatnonzero((order > 0) & (gaps <= max_gap)):
+            same = epoch_first == epoch_last[a]
+            for b in np.flatnonzero((order > 0) & (gaps <= max_gap) & same):
                 gap_s = gaps[b] / self.fps
                 d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
                 dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
