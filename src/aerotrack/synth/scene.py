@@ -43,6 +43,9 @@ COLOUR_P = np.array([0.2, 0.12, 0.14, 0.1, 0.12, 0.08, 0.07, 0.07, 0.03, 0.04, 0
 SUPERSAMPLE = 8  # vehicles are drawn at this many times the resolution (Scenario._draw_vehicle)
 SUN = np.array([0.9, 0.7])  # shadow offset on the ground, metres (sun in the north-west)
 MAX_SWITCH_OFFSET_M = 5.0  # a junction switch further than this from the new lane is not taken
+YIELD_MARGIN_M = 0.4  # lateral clearance a vehicle keeps from one ahead in its path (yield rule)
+YIELD_LOOKAHEAD_S = (0.0, 0.5, 1.0, 1.5)  # where other vehicles will be, for the yield rule
+YIELD_GIVE_UP_S = 4.0  # held up this long by cross traffic, a vehicle creeps on (no gridlock)
 
 
 @dataclass
@@ -63,6 +66,7 @@ class Vehicle:
     heading: float | None = None
     pos: np.ndarray = field(default_factory=lambda: np.zeros(2))
     last_junction: tuple = ()
+    held_s: float = 0.0  # how long it has been held up by cross traffic (Scenario._yield_limits)
 
 
 def _padded(img: np.ndarray, y0: int, y1: int, x0: int, x1: int, pad: tuple) -> np.ndarray:
@@ -287,9 +291,60 @@ class Scenario:
         right = np.array([-math.sin(v.heading), math.cos(v.heading)])
         v.pos = p + right * (1.8 if r.lanes > 1 else 1.4) + v.offset
 
+    def _yield_limits(self) -> np.ndarray:
+        """Speed limit of every vehicle from the vehicles in its path, on any road (m/s).
+
+        Car following (below) only sees the vehicle ahead in the same lane of the same road, so
+        vehicles turning at a junction, merging onto a road or crossing it drove through each
+        other: on default:1, 6.2% of visible vehicle-frames had footprints overlapping another's
+        (half the detector's "merged with a neighbour" misses were such pairs, which no camera
+        can see apart). Here a vehicle slows for any vehicle whose footprint lies ahead of it in
+        its corridor (its width plus ``YIELD_MARGIN_M`` each side, along its heading), with the
+        car-following law on the gap between them. When two vehicles are in each other's
+        corridors (crossing paths) the lower id goes first; a vehicle held by cross traffic for
+        ``YIELD_GIVE_UP_S`` creeps on, so that a cycle of waits cannot stop the scene.
+        """
+        vs = self.vehicles
+        n = len(vs)
+        limit = np.full(n, np.inf)
+        if n < 2:
+            return limit
+        P = np.array([v.pos for v in vs], float)
+        th = np.array([v.heading if v.heading is not None else 0.0 for v in vs], float)
+        L = np.array([v.length for v in vs], float)
+        Wd = np.array([v.width for v in vs], float)
+        ids = np.array([v.id for v in vs])
+        h = np.column_stack([np.cos(th), np.sin(th)])
+        nrm = np.column_stack([-np.sin(th), np.cos(th)])
+        vel = h * np.array([v.speed for v in vs], float)[:, None]
+        rel = th[None, :] - th[:, None]
+        c, s_ = np.abs(np.cos(rel)), np.abs(np.sin(rel))
+        ext_long = 0.5 * (L[None, :] * c + Wd[None, :] * s_)  # j's half extent along i's heading
+        ext_lat = 0.5 * (L[None, :] * s_ + Wd[None, :] * c)
+        ahead = np.zeros((n, n), bool)
+        gap = np.full((n, n), np.inf)
+        # where each other vehicle is now and will be shortly: crossing traffic is seen before it
+        # is in front (braking at 4 m/s^2 needs the warning)
+        for tau in YIELD_LOOKAHEAD_S:
+            D = (P + vel * tau)[None, :, :] - P[:, None, :]  # D[i, j] = pos_j(t + tau) - pos_i
+            fwd = np.einsum("ijk,ik->ij", D, h)
+            lat = np.einsum("ijk,ik->ij", D, nrm)
+            g = fwd - L[:, None] / 2 - ext_long
+            a = (fwd > 0) & (np.abs(lat) < Wd[:, None] / 2 + ext_lat + YIELD_MARGIN_M) & (g < 30.0)
+            ahead |= a
+            gap = np.where(a, np.minimum(gap, g), gap)
+        np.fill_diagonal(ahead, False)
+        mutual = ahead & ahead.T
+        ahead &= ~(mutual & (ids[:, None] < ids[None, :]))  # crossing: the lower id goes first
+        for i in np.flatnonzero(ahead.any(axis=1)):
+            g = float(gap[i, ahead[i]].min())
+            limit[i] = max(0.0, (g - 3.0) / 1.1)
+        return limit
+
     def _advance(self, t: float, dt: float) -> None:
         world, roads = self.world, self.world.roads
-        for v in self.vehicles:
+        cross = self._yield_limits()
+        for i, v in enumerate(self.vehicles):
             # car following: slow down behind the nearest vehicle ahead in the same lane
             limit = v.cruise
             for u in self.vehicles:
@@ -298,6 +353,12 @@ class Scenario:
                 gap = (u.s - v.s) * v.direction - (u.length + v.length) / 2
                 if 0 <= gap < 30:
                     limit = min(limit, max(0.0, (gap - 3.0) / 1.1))
+            # and for anything else in its path (junctions, merges, crossing traffic)
+            if cross[i] < limit and v.held_s < YIELD_GIVE_UP_S:
+                limit = float(cross[i])
+                v.held_s = v.held_s + dt if limit < 0.5 else 0.0
+            elif cross[i] >= 0.5:
+                v.held_s = 0.0
             if t < v.stop_until:
                 limit = 0.0
             # brake for the end of the road (a junction or a dead end: U-turn) so speed stays
