@@ -257,3 +257,33 @@ def test_an_articulated_vehicles_cab_joins_its_trailer_and_queued_cars_stay_apar
     # too far apart, or the union longer than a vehicle can be
     assert len(join_cabs([trailer, rect_blob(36, 10, 4, 6)], gap=2, long_t=10, max_long=40)) == 2
     assert len(join_cabs([trailer, cab], gap=2, long_t=10, max_long=15)) == 2
+
+
+def test_two_vehicles_a_few_pixels_apart_are_separated_and_one_vehicle_is_not():
+    from aerotrack.detection.detector import Blob as DBlob
+    from aerotrack.detection.detector import pieces_of, separate_pieces
+
+    m = np.zeros((40, 60), np.uint8)
+    m[5:15, 5:35] = 1  # two cars passing in opposite lanes, 3 px of road between their bodies
+    m[18:28, 20:50] = 1
+    m[17, 30] = 1  # a stray pixel between them goes to the nearer car
+    pieces = separate_pieces(m, min_area=150, min_width=5)
+    assert pieces is not None and len(pieces) == 2
+    assert sorted(int(p.sum()) for p in pieces) == [300, 301]
+    assert pieces[1][17, 30] == 1
+    # a car with a hood cut off by its windshield: the hood is too small to be a vehicle
+    one = np.zeros((40, 60), np.uint8)
+    one[5:15, 5:30] = 1
+    one[5:15, 32:38] = 1
+    assert separate_pieces(one, min_area=150, min_width=5) is None
+    # a thin line (a parallax edge) beside a car is not a second vehicle
+    line = np.zeros((40, 60), np.uint8)
+    line[5:15, 5:35] = 1
+    line[20:22, 0:60] = 1
+    assert separate_pieces(line, min_area=100, min_width=5) is None
+    # each piece gets its part of the model-resolution blob (scale 0.5)
+    small = cv2.resize(m, (30, 20), interpolation=cv2.INTER_AREA) > 0
+    blob = DBlob((0, 0, 30, 20), small)
+    out = pieces_of(m, pieces, blob, (0, 0, 30, 20), 0.5)
+    assert len(out) == 2 and all(b.mask.any() for _, b in out)
+    assert (out[0][1].mask & out[1][1].mask).sum() <= 2

@@ -347,13 +347,13 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
     blobs = hysteresis_blobs(low, high, close_radius=gates.close_px * scale,
                              min_area=model_min_area)
     max_len_model = gates.max_length_px * scale
+    # Without a vehicle model, the frame's typical blob is the best guess of one vehicle's size.
+    areas = np.array([b.area for b in blobs], np.float64)
+    typical = float(np.median(areas)) if len(areas) >= 5 else 0.0
     if config.split_blobs:
         split: list[Blob] = []
         r_max = max(1, int(round(gates.close_px * scale)) + 1)
-        # Only blobs much bigger than the frame's typical blob are candidates: without a
-        # vehicle model, the typical blob is the best guess of one vehicle's size.
-        areas = np.array([b.area for b in blobs], np.float64)
-        typical = float(np.median(areas)) if len(areas) >= 5 else 0.0
+        # Only blobs much bigger than the frame's typical blob are candidates.
         for b in blobs:
             if typical > 0 and b.area >= config.split_area_ratio * typical:
                 split.extend(split_blob(b, min_area=0.5 * typical, max_radius=r_max))
@@ -431,52 +431,62 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
                     growth = _box_growth(whole, fg)
         fg8 = open2(fg.astype(np.uint8))
         close_full = max(1.0, gates.close_px)
-        fg8 = close(fg8, close_full)
-        fg8 &= region.astype(np.uint8)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg8, connectivity=8)
-        if n <= 1:
-            continue
-        # Keep the components that carry most of the blob (drop stray noise pixels).
-        areas = stats[1:, cv2.CC_STAT_AREA]
-        keep = np.flatnonzero(areas >= max(2.0, 0.15 * areas.max())) + 1
-        lut = np.zeros(n, bool)
-        lut[keep] = True
-        fgm = lut[labels]
-        area = int(fgm.sum())
-        if area < gates.min_area_px:
-            continue
-        if gates.min_width_px > 0:
-            # Thickness = twice the largest inscribed radius: the residual of a parallax edge
-            # (a wall or overpass side the ground homography does not register) is a thin
-            # line however long; a vehicle is at least about its width thick.
-            dist = cv2.distanceTransform(_pad0(fgm.astype(np.uint8), 1), cv2.DIST_L2, 3)
-            if 2.0 * float(dist.max()) < gates.min_width_px:
+        # Vehicles side by side or nose to tail are separate pieces before the closing joins
+        # them (their gap is a few pixels of road); each piece is a detection.
+        pieces = None
+        full_typical = typical / scale ** 2
+        if config.split_full_ratio > 0 and typical > 0 \
+                and int(np.count_nonzero(fg8)) >= config.split_area_ratio * full_typical:
+            pieces = separate_pieces(fg8, max(gates.min_area_px,
+                                              config.split_full_ratio * full_typical),
+                                     gates.min_width_px)
+        for piece, pb in pieces_of(fg8, pieces, b, (mx0, my0, mx1, my1), scale):
+            fg8p = close(piece, close_full)
+            fg8p &= region.astype(np.uint8)
+            n, labels, stats, _ = cv2.connectedComponentsWithStats(fg8p, connectivity=8)
+            if n <= 1:
                 continue
-        ys, xs = np.nonzero(fgm)
-        x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
-        if max(x1 - x0, y1 - y0) > gates.max_length_px:
-            continue
-        contrast = float(res_full[fgm].mean()) / thr
-        fill = area / float((x1 - x0) * (y1 - y0))
-        c_contrast = 1.0 - math.exp(-1.5 * max(0.0, contrast - 0.8))
-        c_shape = min(1.0, fill / 0.5)
-        conf = float(np.clip(c_contrast * (0.5 + 0.5 * c_shape), 0.0, 1.0))
-        if conf < config.min_conf:
-            continue
-        if config.box_edge_level > 0:
-            # the box at the vehicle's half-contrast edge, not at the noise threshold
-            ext = edge_extent(res_full, fgm, level=config.box_edge_level, floor=0.5 * thr_b)
-            if ext is not None:
-                x0, y0, x1, y1 = ext
-        boxes.append([fx0 + x0, fy0 + y0, x1 - x0, y1 - y0])
-        dark.append(is_dark)
-        if growth is not None:
-            shadow_growth.append(growth)
-        confs.append(conf)
-        contrasts.append(contrast)
-        masks.append(fgm[y0:y1, x0:x1])
-        crops.append((fx0 + int(x0), fy0 + int(y0), fx0 + int(x1), fy0 + int(y1)))
-        kept.append(b)
+            # Keep the components that carry most of the blob (drop stray noise pixels).
+            areas = stats[1:, cv2.CC_STAT_AREA]
+            keep = np.flatnonzero(areas >= max(2.0, 0.15 * areas.max())) + 1
+            lut = np.zeros(n, bool)
+            lut[keep] = True
+            fgm = lut[labels]
+            area = int(fgm.sum())
+            if area < gates.min_area_px:
+                continue
+            if gates.min_width_px > 0:
+                # Thickness = twice the largest inscribed radius: the residual of a parallax edge
+                # (a wall or overpass side the ground homography does not register) is a thin
+                # line however long; a vehicle is at least about its width thick.
+                dist = cv2.distanceTransform(_pad0(fgm.astype(np.uint8), 1), cv2.DIST_L2, 3)
+                if 2.0 * float(dist.max()) < gates.min_width_px:
+                    continue
+            ys, xs = np.nonzero(fgm)
+            x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+            if max(x1 - x0, y1 - y0) > gates.max_length_px:
+                continue
+            contrast = float(res_full[fgm].mean()) / thr
+            fill = area / float((x1 - x0) * (y1 - y0))
+            c_contrast = 1.0 - math.exp(-1.5 * max(0.0, contrast - 0.8))
+            c_shape = min(1.0, fill / 0.5)
+            conf = float(np.clip(c_contrast * (0.5 + 0.5 * c_shape), 0.0, 1.0))
+            if conf < config.min_conf:
+                continue
+            if config.box_edge_level > 0:
+                # the box at the vehicle's half-contrast edge, not at the noise threshold
+                ext = edge_extent(res_full, fgm, level=config.box_edge_level, floor=0.5 * thr_b)
+                if ext is not None:
+                    x0, y0, x1, y1 = ext
+            boxes.append([fx0 + x0, fy0 + y0, x1 - x0, y1 - y0])
+            dark.append(is_dark)
+            if growth is not None:
+                shadow_growth.append(growth)
+            confs.append(conf)
+            contrasts.append(contrast)
+            masks.append(fgm[y0:y1, x0:x1])
+            crops.append((fx0 + int(x0), fy0 + int(y0), fx0 + int(x1), fy0 + int(y1)))
+            kept.append(pb)
     boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
     if config.shadow_suppression and config.shadow_trim:
         boxes = trim_shadow_side(boxes, np.asarray(dark, bool), shadow_growth)
@@ -486,6 +496,56 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         masks=masks, crops=crops, model_blobs=kept,
         contrast=np.asarray(contrasts, np.float64), threshold=thr, residual=res,
     )
+
+
+def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list[np.ndarray] | None:
+    """Masks of the vehicles in one refined blob, when it holds two or more, else None.
+
+    A blob found at the model's resolution can hold two vehicles whose bodies are a few pixels
+    apart at full resolution: two cars passing in opposite lanes, a queue, a crossing at a
+    junction (their shadows and the model's coarser pixels bridge the gap; the full-resolution
+    closing that joins a vehicle's own fragments would bridge it again). Components of
+    ``mask`` (full resolution, before the closing) of at least ``min_area`` pixels that are at
+    least ``min_width`` thick are vehicles; the other pixels go to the nearest of them.
+    """
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    big = []
+    for k in range(1, n):
+        if stats[k, cv2.CC_STAT_AREA] < min_area:
+            continue
+        comp = (labels == k).astype(np.uint8)
+        if min_width > 0:
+            dist = cv2.distanceTransform(_pad0(comp, 1), cv2.DIST_L2, 3)
+            if 2.0 * float(dist.max()) < min_width:
+                continue
+        big.append(k)
+    if len(big) < 2:
+        return None
+    seeds = np.zeros(labels.shape, np.int32)
+    for i, k in enumerate(big, start=1):
+        seeds[labels == k] = i
+    _, nearest = cv2.distanceTransformWithLabels((seeds == 0).astype(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, np.int32)
+    lut[nearest[seeds > 0]] = seeds[seeds > 0]
+    owner = lut[nearest] * (mask > 0)
+    return [(owner == i).astype(np.uint8) for i in range(1, len(big) + 1)]
+
+
+def pieces_of(mask: np.ndarray, pieces: list[np.ndarray] | None, blob: Blob,
+              model_crop: tuple[int, int, int, int], scale: float):
+    """(full-resolution piece, its model-resolution blob) for each vehicle of a refined blob:
+    ``[(mask, blob)]`` when it was not separated (:func:`separate_pieces`)."""
+    if not pieces:
+        return [(mask, blob)]
+    mx0, my0, mx1, my1 = model_crop
+    bx, by, bw, bh = blob.box
+    out = []
+    for pc in pieces:
+        small = cv2.resize(pc, (mx1 - mx0, my1 - my0), interpolation=cv2.INTER_AREA) > 0
+        sub = blob.mask & small[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw]
+        out.append((pc, Blob(blob.box, sub) if sub.any() else blob))
+    return out
 
 
 def _box_growth(whole: np.ndarray, core: np.ndarray) -> np.ndarray | None:
@@ -1059,7 +1119,7 @@ def _validate(c: DetectionConfig) -> None:
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
         ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("regrow_ghost_ratio", c.regrow_ghost_ratio >= 0),
-        ("join_cab_ratio", c.join_cab_ratio >= 0),
+        ("join_cab_ratio", c.join_cab_ratio >= 0), ("split_full_ratio", c.split_full_ratio >= 0),
         ("box_edge_level", 0 <= c.box_edge_level < 1),
     ]
     for name, ok in checks:
