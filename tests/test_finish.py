@@ -323,6 +323,9 @@ def _predict_after(track: Track, n: int) -> None:
 
 
 IDENT = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 301)}
+#: Holding a track's end at its stop is off by default (``FinishConfig.stop_hold_s``); the tests
+#: of the rule turn it on.
+HOLD = FinishConfig(stop_hold_s=30.0)
 
 
 def test_a_vehicle_that_stopped_is_held_at_its_stop_until_seen_elsewhere():
@@ -370,13 +373,13 @@ def test_no_hold_for_a_track_that_ends_moving_or_never_moved():
     moving.points = moving.points[:40]  # lost while still at full speed
     _predict_after(moving, 30)
     parked = _stopping(n_drive=0, n_stand=90, tid=2, y=600.0)
-    out = finish_tracks([moving, parked], FinishConfig(), FPS, metres_per_unit=MPU,
+    out = finish_tracks([moving, parked], HOLD, FPS, metres_per_unit=MPU,
                         registrations=IDENT)
     assert [t.id for t in out] == [1]  # the parked car is static: dropped, not held
     assert not any(p.kind == "stationary" for p in out[0].points)
     # and nothing is held without registered frames (image of a moving camera)
     car = _stopping()
-    (out,) = finish_tracks([car], FinishConfig(), FPS, metres_per_unit=MPU)
+    (out,) = finish_tracks([car], HOLD, FPS, metres_per_unit=MPU)
     assert not any(p.kind == "stationary" for p in out.points)
 
 
@@ -395,14 +398,14 @@ def test_no_hold_for_two_creeping_pieces_linked_over_a_long_gap():
     false = Track(id=1, points=first + gap + second)
     _predict_after(false, 60)
     assert np.ptp([p.world[0] for p in first + second]) * MPU > FinishConfig().static_extent_m
-    (out,) = finish_tracks([false], FinishConfig(), FPS, metres_per_unit=MPU, registrations=IDENT)
+    (out,) = finish_tracks([false], HOLD, FPS, metres_per_unit=MPU, registrations=IDENT)
     assert not any(p.kind == "stationary" for p in out.points)
-    (out,) = finish_tracks([false], FinishConfig(stop_run_gap_s=0.0), FPS, metres_per_unit=MPU,
-                           registrations=IDENT)  # the whole track's spread: held
+    (out,) = finish_tracks([false], dataclasses.replace(HOLD, stop_run_gap_s=0.0), FPS,
+                           metres_per_unit=MPU, registrations=IDENT)  # the whole track's spread: held
     assert any(p.kind == "stationary" for p in out.points)
     car = _stopping()
     _predict_after(car, 60)
-    (out,) = finish_tracks([car], FinishConfig(), FPS, metres_per_unit=MPU, registrations=IDENT)
+    (out,) = finish_tracks([car], HOLD, FPS, metres_per_unit=MPU, registrations=IDENT)
     assert any(p.kind == "stationary" for p in out.points)
 
 

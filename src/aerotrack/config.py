@@ -1253,8 +1253,16 @@ class FinishConfig:
         Measured (mean of seeds 0-2 on Santiago, seed 0 on generated scenes default:0, dense:1,
         convoy:2 and two scenes with a stop at most junctions): no track of them ends standing
         (the detector's ``hold_stopped`` keeps standing vehicles; it loses them earlier, while
-        they still creep at 2-4 m/s), so 30 s and 0 score the same. No clip here has a long
-        stop: 30 s is a red light's order of magnitude, not a measured optimum.
+        they still creep at 2-4 m/s), so 30 s and 0 scored the same. Off by default since
+        2026-11-26: the holds that did happen were false, a track whose last second sat still
+        for another reason held for the full 30 s (a vehicle driving under a tree canopy left
+        its track on the canopy's edge: 475 false rows on a generated 1800-frame scene, MOTA
+        0.683 -> 0.569 from a one-feature change of the registration; convoy:12 HOTA/MOTA
+        0.711/0.788 at 30 s, 0.760/0.896 at 0). Measured 30 -> 0 s: eighteen held-out scenes
+        (yielding traffic) HOTA/IDF1/MOTA 0.681/0.835/0.765 -> 0.684/0.838/0.771; identity
+        scenes (detector and ground-truth detections), Santiago seeds 0-2 and UAVDT unchanged.
+        Standing vehicles are kept by the detector (``detection.hold_stopped``); this is for
+        footage where it loses them standing (30 s is a red light's order of magnitude).
     stop_hold_back_s : float
         The same backwards from a track's start: a vehicle that stood from before its first
         detection and then drove off. 0 disables. Measured: on Santiago it held only the
@@ -1328,7 +1336,7 @@ class FinishConfig:
     static_extent_m: float = 4.0
     min_size_m: float = 1.5
     fill_gaps_s: float = 0.5
-    stop_hold_s: float = 30.0
+    stop_hold_s: float = 0.0
     stop_hold_back_s: float = 0.0
     stop_speed_mps: float = 1.0
     stop_decel_mps2: float = 2.0

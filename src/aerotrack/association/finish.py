@@ -47,8 +47,9 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
    where the detector lost it (its sliding-window background absorbs a standing vehicle) is
    reported ``stationary`` at its stop: over a gap between two observations at the same place,
    after the end of a track that came to a standstill, and before the start of one that drove
-   off from one, until another track is seen at that place or ``stop_hold_s`` has passed.
-   Registered frames only.
+   off from one, until another track is seen at that place or ``stop_hold_s`` has passed
+   (ends and starts are held only when ``stop_hold_s`` / ``stop_hold_back_s`` > 0; both are off
+   by default, see ``FinishConfig``). Registered frames only.
 
 Coordinates: ``TrackPoint.world`` in world units (map pixels or reference pixels),
 ``TrackPoint.box`` in the pixels of the point's own frame; ``Registration.H`` maps frame pixels to
