@@ -102,8 +102,7 @@ class FrameRegistrar:
     last good one), ``reset`` (nothing registered for ``reset_after_s``, or a scene change:
     ``cut_frames`` consecutive frames that fail against the reference but register against each
     other; this frame becomes the new reference at its carried position, so later positions may
-    be offset) or ``reanchored`` (same,
-    but placed by a map refinement with a wider search).
+    be offset) or ``reanchored`` (same, but placed by a map refinement with a wider search).
     """
 
     def __init__(self, config: RegistrationConfig, fps: float, geomap=None,
