@@ -45,7 +45,7 @@ SUN = np.array([0.9, 0.7])  # shadow offset on the ground, metres (sun in the no
 MAX_SWITCH_OFFSET_M = 5.0  # a junction switch further than this from the new lane is not taken
 YIELD_MARGIN_M = 0.4  # lateral clearance a vehicle keeps from one ahead in its path (yield rule)
 YIELD_LOOKAHEAD_S = (0.0, 0.5, 1.0, 1.5)  # where other vehicles will be, for the yield rule
-YIELD_GIVE_UP_S = 4.0  # held up this long by cross traffic, a vehicle creeps on (no gridlock)
+YIELD_GIVE_UP_S = 4.0  # held up this long by cross traffic, a vehicle goes on (no gridlock)
 
 
 @dataclass
@@ -302,7 +302,8 @@ class Scenario:
         its corridor (its width plus ``YIELD_MARGIN_M`` each side, along its heading), with the
         car-following law on the gap between them. When two vehicles are in each other's
         corridors (crossing paths) the lower id goes first; a vehicle held by cross traffic for
-        ``YIELD_GIVE_UP_S`` creeps on, so that a cycle of waits cannot stop the scene.
+        ``YIELD_GIVE_UP_S`` goes on (at its own lane's car-following limit, ignoring cross traffic
+        until its path is clear), so that a cycle of waits cannot stop the scene.
         """
         vs = self.vehicles
         n = len(vs)
