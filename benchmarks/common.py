@@ -50,6 +50,19 @@ def generator_version() -> str:
     return h.hexdigest()[:12]
 
 
+def source_version() -> str:
+    """Hash of the whole package's source (``src/aerotrack``): a cache of a stage's output (the
+    identity benchmark's tracklets) is valid only for the code that made it; keying it on the
+    configuration alone once answered a detector change from tracklets of the code before."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for f in sorted((REPO / "src" / "aerotrack").rglob("*.py")):
+        h.update(f.relative_to(REPO).as_posix().encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def write_results(name: str, payload: dict) -> Path:
     """Write ``benchmarks/results/NAME.json`` (pretty, sorted keys) and return its path."""
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -75,7 +75,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import itertools
 
-from common import generator_version
+from common import generator_version, source_version
 
 from aerotrack.cli.track_cmd import load_inputs
 from aerotrack.config import Config, load_config
@@ -156,8 +156,9 @@ def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool, seed: i
     marker = CACHE / f"{scene.name}.generator"
     made_by = marker.read_text().strip() if marker.exists() else ""
     # every setting the run before linking depends on (not only association's: a --set of a
-    # detection or registration setting must not be answered from another run's cache)
-    stages = repr(config.association) + made_by + repr(config.registration)
+    # detection or registration setting must not be answered from another run's cache), and the
+    # code that made them
+    stages = repr(config.association) + made_by + repr(config.registration) + source_version()
     if mode != "gt-dets":
         stages += repr(config.detection)
     key = CACHE / (f"{scene.name}_{mode}{f'_s{seed}' if seed else ''}_"
