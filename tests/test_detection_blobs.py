@@ -34,6 +34,23 @@ def test_bright_vehicle_loses_its_shadow():
     assert not out[20:24].any()
 
 
+def test_a_sky_lit_shadow_on_warm_asphalt_is_a_shadow():
+    """Sunlit asphalt is a little warm (saturated enough for a hue); its shadow, lit by the blue
+    sky alone, is grey-blue: the hues differ by ~150 degrees though neither pixel has much colour
+    (UAV123 truck4's truck and the shadow it casts on the road)."""
+    rng = np.random.default_rng(0)
+    bg = np.clip(np.array((80, 92, 100), float) + rng.normal(0, 2, (40, 60, 3)), 0, 255)
+    bg = bg.astype(np.uint8)
+    img = bg.copy()
+    img[10:20, 15:35] = (60, 150, 210)  # an orange truck
+    img[10:20, 35:45] = (46, 41, 39)  # its shadow beside it
+    fg = np.zeros((40, 60), bool)
+    fg[10:20, 15:45] = True
+    assert shadow_mask(img, bg)[10:20, 35:45].all()
+    out = remove_shadows(fg, img, bg)
+    assert out[10:20, 15:35].all() and not out[10:20, 35:45].any()
+
+
 def test_dark_vehicle_is_kept_whole():
     # A dark grey vehicle darkens the road by ~0.65 without changing hue or saturation:
     # every one of its pixels passes Prati et al.'s test, yet it is no shadow.
