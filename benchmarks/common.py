@@ -50,15 +50,21 @@ def generator_version() -> str:
     return h.hexdigest()[:12]
 
 
-def source_version() -> str:
-    """Hash of the whole package's source (``src/aerotrack``): a cache of a stage's output (the
-    identity benchmark's tracklets) is valid only for the code that made it; keying it on the
-    configuration alone once answered a detector change from tracklets of the code before."""
+def source_version(exclude: tuple[str, ...] = ()) -> str:
+    """Hash of the package's source (``src/aerotrack``) but the files and folders in ``exclude``
+    (paths relative to the package, e.g. ``"context"``, ``"association/linking.py"``): a cache of
+    a stage's output (the identity benchmark's tracklets) is valid only for the code that made
+    it; keying it on the configuration alone once answered a detector change from tracklets of
+    the code before. Excluding the stages after it keeps their experiments cheap."""
     import hashlib
 
+    pkg = REPO / "src" / "aerotrack"
     h = hashlib.sha1()
-    for f in sorted((REPO / "src" / "aerotrack").rglob("*.py")):
-        h.update(f.relative_to(REPO).as_posix().encode())
+    for f in sorted(pkg.rglob("*.py")):
+        rel = f.relative_to(pkg).as_posix()
+        if any(rel == e or rel.startswith(e.rstrip("/") + "/") for e in exclude):
+            continue
+        h.update(rel.encode())
         h.update(f.read_bytes())
     return h.hexdigest()[:12]
 

@@ -150,6 +150,13 @@ def noisy_detections(gt: np.ndarray, seed: int, size: tuple[int, int]) -> np.nda
     return r[np.argsort(r[:, 0], kind="stable")]
 
 
+# the code that runs after local association (not part of a cached run's key)
+# (local association itself uses context/motion.py)
+AFTER_TRACKLETS = ("association/linking.py", "association/finish.py", "context/reacquire.py",
+                   "context/roads.py", "context/predict.py", "context/appearance.py",
+                   "evaluation", "viz", "cli", "outputs.py", "parallel.py", "synth")
+
+
 def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool, seed: int = 0):
     """Tracklets of local association (cached), with the run's registrations and scale; ``seed``
     is the pipeline's (the MCMC's) seed."""
@@ -158,7 +165,8 @@ def local_tracklets(scene: Path, mode: str, config: Config, fresh: bool, seed: i
     # every setting the run before linking depends on (not only association's: a --set of a
     # detection or registration setting must not be answered from another run's cache), and the
     # code that made them
-    stages = repr(config.association) + made_by + repr(config.registration) + source_version()
+    stages = repr(config.association) + made_by + repr(config.registration) + \
+        source_version(AFTER_TRACKLETS)
     if mode != "gt-dets":
         stages += repr(config.detection)
     key = CACHE / (f"{scene.name}_{mode}{f'_s{seed}' if seed else ''}_"
