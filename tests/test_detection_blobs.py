@@ -304,3 +304,25 @@ def test_two_vehicles_a_few_pixels_apart_are_separated_and_one_vehicle_is_not():
     out = pieces_of(m, pieces, blob, (0, 0, 30, 20), 0.5)
     assert len(out) == 2 and all(b.mask.any() for _, b in out)
     assert (out[0][1].mask & out[1][1].mask).sum() <= 2
+
+
+def test_persistence_gets_no_evidence_from_a_detected_vehicles_shadow_only():
+    from aerotrack.config import DetectionConfig
+    from aerotrack.detection.detector import shadows_beside_detections_removed
+
+    # model pixels (scale 0.5): a detected truck with its shadow beside it, and far away a small
+    # undetected mover's shadow; the residual is high on all three
+    bg = np.full((60, 100, 3), (80, 92, 100), np.uint8)
+    small = bg.copy()
+    small[10:16, 10:20] = (60, 150, 210)  # the truck
+    small[10:16, 20:25] = (46, 41, 39)  # its shadow
+    small[40:44, 80:84] = (46, 41, 39)  # a shadow far from any detection
+    residual = np.zeros((60, 100), np.uint8)
+    residual[10:16, 10:25] = 50
+    residual[40:44, 80:84] = 50
+    boxes = np.array([[20.0, 20.0, 20.0, 12.0]])  # the truck's regular box, full resolution
+    out = shadows_beside_detections_removed(residual, small, bg, boxes, 0.5, DetectionConfig())
+    assert out[10:16, 10:20].min() == 50  # the truck keeps its evidence
+    assert out[10:16, 20:25].max() == 0  # its shadow gives none
+    assert out[40:44, 80:84].min() == 50  # a shadow away from detections still counts
+    assert out.dtype == residual.dtype

@@ -116,6 +116,26 @@ class FrameResult:
     persistent: np.ndarray | None = None
 
 
+def shadows_beside_detections_removed(residual: np.ndarray, small: np.ndarray,
+                                      bg_small: np.ndarray, boxes: np.ndarray, scale: float,
+                                      config: DetectionConfig) -> np.ndarray:
+    """``residual`` (model pixels) with the cast-shadow pixels (:func:`.shadows.shadow_mask`)
+    within one box size of a regular detection (``boxes``, full-resolution ``x, y, w, h``) set to
+    0: the persistence step's evidence (see ``MovingObjectDetector._add_persistent``)."""
+    h, w = residual.shape
+    near = np.zeros((h, w), bool)
+    for bx, by, bw, bh in np.asarray(boxes, np.float64).reshape(-1, 4) * scale:
+        g = max(bw, bh)
+        x0, y0 = max(0, int(bx - g)), max(0, int(by - g))
+        x1, y1 = min(w, int(math.ceil(bx + bw + g))), min(h, int(math.ceil(by + bh + g)))
+        near[y0:y1, x0:x1] = True
+    bgn = _gain_normalise(small, bg_small, config.gain_block_px * scale)
+    shade = shadow_mask(small, bgn, alpha=config.shadow_alpha, beta=config.shadow_beta,
+                        tau_s=config.shadow_tau_s, tau_h=config.shadow_tau_h,
+                        chroma_tolerance_px=config.shadow_chroma_px)
+    return np.where(shade & near, 0, residual).astype(residual.dtype)
+
+
 def _gain_normalise(image: np.ndarray, bg: np.ndarray, block: float) -> np.ndarray:
     """Background rescaled by the frame's local gain (illumination, auto-exposure).
 
@@ -959,18 +979,8 @@ class MovingObjectDetector:
         H = np.asarray(p.reg.H, dtype=np.float64)
         residual = r.residual
         if self.config.shadow_suppression and len(r.boxes):
-            h, w = residual.shape
-            near = np.zeros((h, w), bool)
-            for bx, by, bw, bh in np.asarray(r.boxes, np.float64) * self.scale:
-                g = max(bw, bh)
-                x0, y0 = max(0, int(bx - g)), max(0, int(by - g))
-                near[y0:min(h, int(math.ceil(by + bh + g))), x0:min(w, int(math.ceil(bx + bw + g)))] = True
-            bgn = _gain_normalise(p.small, bg, self.config.gain_block_px * self.scale)
-            shade = shadow_mask(p.small, bgn, alpha=self.config.shadow_alpha,
-                                beta=self.config.shadow_beta, tau_s=self.config.shadow_tau_s,
-                                tau_h=self.config.shadow_tau_h,
-                                chroma_tolerance_px=self.config.shadow_chroma_px)
-            residual = np.where(shade & near, 0, residual).astype(residual.dtype)
+            residual = shadows_beside_detections_removed(residual, p.small, bg, r.boxes,
+                                                         self.scale, self.config)
         image = p.frame.image
         mpp = None
         if self.metres_per_unit:

@@ -70,7 +70,7 @@ benchmark (5 generated scenes, own detector, MCMC seeds 0-2) goes IDF1 0.826/0.8
 Since the shadow test skips the hue of nearly grey pixels (``detection/shadows.py``) the regular
 detector takes truck4's truck's cast shadow off its box, and persistence found the shadow beside it
 as a mover of its own (best ID 0.33 over seeds 0-2); shadow pixels near a regular detection now
-carry no evidence (``Detector._add_persistent``): 0.653 (x3). Removing shadow evidence everywhere
+carry no evidence (``MovingObjectDetector._add_persistent``): 0.653 (x3). Removing shadow evidence everywhere
 gave 0.599/0.599/0.618 (the tiny truck of the first half is found with its shadow). With the
 truck's boxes now tight, its track in the first half takes a box of 6x5 px (the truck is 13x10)
 and is cut at frame 113 (not investigated further). ``benchmarks/persistence.py`` then (off / on):

@@ -13,8 +13,8 @@ background pixel is nearly grey (saturation under 40 of 255), whose hue is noise
 is a little warm and its shadow, lit by the blue sky alone, a little blue, so their hues differ by
 up to 150 degrees although neither has much colour. Prati et al. test the hue everywhere, and an
 earlier version here skipped it only where both pixels were grey: the shadow of UAV123 truck4's
-truck stayed in its box (detection box IoU with the annotation 0.646 -> 0.692 over the 229 frames
-of part 2; Santiago and generated scenes unchanged, see benchmarks/detection.py).
+truck stayed in its box (mean IoU of its detections with the annotation 0.646 -> 0.691 in part
+2; Santiago and generated scenes unchanged, see benchmarks/detection.py).
 """
 
 from __future__ import annotations
