@@ -553,3 +553,42 @@ def test_stitching_compares_headings():
     assert not _same_heading(east, north, 60.0, 0.1)
     assert not _same_heading(east, west, 60.0, 0.1)  # an oncoming vehicle
     assert _same_heading(east, 0.01 * west, 60.0, 0.1)  # standing: no heading
+
+
+def _motion_points(xy, first=1):
+    from aerotrack.types import TrackPoint
+
+    return [TrackPoint(frame=first + k, box=np.zeros(4), world=np.asarray(p, float), conf=1.0)
+            for k, p in enumerate(xy)]
+
+
+def test_split_motion_jumps_cuts_a_tracklet_that_turns_round_at_speed():
+    """Two vehicles passing in opposite lanes: west at 9 m/s, 10 frames on their merged blob
+    (half-way between them, standing), then east at 9 m/s on the other vehicle: cut where it
+    leaves the first vehicle and where it takes the second (the merged stretch may be a piece of
+    its own); one vehicle braking, turning or turning round slowly is left whole."""
+    from aerotrack.association.local import split_motion_jumps
+
+    rng = np.random.default_rng(0)
+    kw = dict(fps=30.0, metres_per_unit=1.0, side=15, accel_mps2=6.0, slack_mps=2.0)
+    west = np.c_[100 - 0.3 * np.arange(60), np.zeros(60)]
+    merged = np.tile([west[-1, 0], 1.75], (10, 1))
+    east = np.c_[west[-1, 0] + 0.3 * np.arange(60), np.full(60, 3.5)]
+    pts = _motion_points(np.vstack([west, merged, east]) + rng.normal(0, 0.1, (130, 2)))
+    pieces = split_motion_jumps(pts, **kw)
+    assert len(pieces) in (2, 3)
+    assert 50 <= pieces[0][-1].frame <= 70 and 61 <= pieces[-1][0].frame <= 85
+    assert [p for q in pieces for p in q] == pts
+    # braking at 4 m/s^2 from 12 m/s to a stop, then standing
+    t = np.arange(150) / 30.0
+    s = np.where(t < 3.0, 12 * t - 2 * t * t, 18.0)
+    braking = _motion_points(np.c_[s, np.zeros(150)] + rng.normal(0, 0.1, (150, 2)))
+    assert len(split_motion_jumps(braking, **kw)) == 1
+    # a 90-degree turn at 6 m/s over 1.5 s (60 deg/s)
+    heading = np.clip((t - 1.0) / 1.5, 0, 1) * np.pi / 2
+    turn = np.cumsum(np.c_[np.cos(heading), np.sin(heading)] * 6 / 30.0, axis=0)
+    assert len(split_motion_jumps(_motion_points(turn + rng.normal(0, 0.1, (150, 2))), **kw)) == 1
+    # a U-turn at 3 m/s, turning at 150 deg/s (the generator's dead ends)
+    heading = np.clip((t - 1.0) / 1.2, 0, 1) * np.pi
+    uturn = np.cumsum(np.c_[np.cos(heading), np.sin(heading)] * 3 / 30.0, axis=0)
+    assert len(split_motion_jumps(_motion_points(uturn + rng.normal(0, 0.1, (150, 2))), **kw)) == 1

@@ -232,11 +232,18 @@ class GlobalLinker:
                 dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
                 if gap_s <= self.turn_max_gap_s:
                     # a turn may hide in the gap and in the velocity windows: only the speed
+                    # (and the whole velocity, with the windows' time, ``turn_a_max_mps2``)
+                    dv_turn = dv
                     dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
                     # a split of one track (a vehicle pulling away, braking): both ends'
                     # velocities are fitted over history_s while it accelerates
                     split = self._is_split(pos[a][1][-1], pos[b][1][0], ends[a][1], int(gaps[b]))
                     gap_s += self.ctx.history_s * (2.0 if split else 1.0)
+                    if c.turn_a_max_mps2 > 0 and \
+                            dv_turn > c.turn_a_max_mps2 * gap_s + c.speed_slack_mps:
+                        log.debug("linking: %d -> %d refused, velocity change %.1f m/s in %.2f s",
+                                  a, b, dv_turn, gap_s)
+                        continue
                 if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
                         dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
                     cand.setdefault(a, []).append(int(b))
