@@ -315,6 +315,9 @@ class GlobalLinker:
                     unseen = int(self._in_view(a, preds[a], last[a])[min(gap, len(preds[a])) - 1])
                     cost += c.gap_cost_per_s * unseen / self.fps
                 self.last_costs[(a, b)] = (cost, cues)
+                log.debug("linking: %d (ends %d) -> %d (starts %d): cost %.2f, motion %.2f, "
+                          "appearance %.2f, descriptor %.2f", a, last[a], b, first[b], cost,
+                          m, ap, de)
                 if cost <= c.max_cost:
                     C[a, b] = cost
         self._pred = preds
