@@ -120,6 +120,21 @@ def test_faint_small_mover_is_detected_with_persistence_and_not_without():
     assert _hits(_detect(frames, False), truth)[20:].mean() >= 0.9
 
 
+def test_persistent_detections_are_not_kept_out_of_the_background():
+    """A target faint enough to need persistence changes few pixels above the single-frame
+    threshold, so the stationary test would call it stopped and hold its box out of the
+    background samples; its detections must leave the samples whole."""
+    frames, truth = _scene(60, 12.0)
+    det = MovingObjectDetector(dataclasses.replace(DetectionConfig(), persist=True), FPS)
+    out, held = [], 0
+    for f in frames:
+        out += det.step(f, Registration(f.index, np.eye(3)))
+        held += sum(s.holes is not None and len(s.holes) > 0 for s in det._samples.values())
+    out += det.flush()
+    assert _hits(out, truth)[20:].mean() >= 0.8  # found by persistence alone
+    assert held == 0
+
+
 def test_flicker_noise_is_not_detected():
     frames, _ = _scene(60, 12.0, flicker=True)
     out = _detect(frames, True)
