@@ -19,6 +19,7 @@ from aerotrack.association.finish import (
     robust_smooth,
     rts_smooth,
     suppress_overlaps,
+    wanders,
     window_sizes,
 )
 from aerotrack.config import Config, FinishConfig, load_config
@@ -194,6 +195,44 @@ def test_static_tracks_are_dropped_and_waiting_vehicles_kept():
     assert len(out) == 1
     assert not is_static(np.array([[0, 0], [50, 0]]), MPU, 4.0)
     assert is_static(np.array([[0, 0], [30, 0]]), MPU, 4.0)
+
+
+def _walk(xs_m: np.ndarray, seed: int = 0, jitter_m: float = 0.3, tid: int = 3) -> Track:
+    """A track along x (metres per frame in ``xs_m``) with observation jitter."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    for k, x in enumerate(xs_m, start=1):
+        c = np.array([500.0 + x / MPU, 500.0]) + rng.normal(0, jitter_m / MPU, 2)
+        pts.append(TrackPoint(frame=k, box=np.array([c[0] - 22, c[1] - 10, 45, 20]), world=c,
+                              conf=1.0, kind="observed"))
+    return Track(id=tid, points=pts)
+
+
+def test_a_track_that_goes_back_and_forth_over_a_few_metres_is_dropped():
+    """The parallax of a tree's edge under a moving camera sweeps over a few metres of ground and
+    back; a vehicle creeping in a queue, or waiting and then driving off, covers about as much
+    ground but goes one way."""
+    identity = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 400)}
+    t = np.arange(240) / FPS  # 8 s
+    parallax = _walk(3.0 * np.sin(2 * np.pi * t / 4.0), tid=3)  # 6 m sweeps, 4 s period
+    creeping = _walk(0.8 * t, tid=4)  # 6.4 m in 8 s
+    waiting = _walk(np.where(t < 5, 0.0, 3.0 * (t - 5)), tid=5)  # 5 s standing, then 9 m
+    cfg = FinishConfig()
+    out = finish_tracks([parallax, creeping, waiting], cfg, FPS, metres_per_unit=MPU,
+                        registrations=identity)
+    assert sorted(tr.id for tr in out) == [4, 5]
+    off = finish_tracks([parallax], dataclasses.replace(cfg, wander_extent_m=0.0), FPS,
+                        metres_per_unit=MPU, registrations=identity)
+    assert len(off) == 1
+    # without registrations the world is the image of a moving camera: kept
+    assert len(finish_tracks([parallax], cfg, FPS, metres_per_unit=MPU)) == 1
+    line = np.c_[np.linspace(0, 60, 50), np.zeros(50)]
+    times = np.arange(50) / 10.0
+    assert not wanders(line, times, MPU, 10.0, 2.0, 0.5)  # 6 m one way
+    back = np.r_[line, line[::-1], line]
+    assert wanders(back, np.arange(150) / 10.0, MPU, 10.0, 2.0, 0.5)  # 6 m there, back, there
+    assert not wanders(back[:100], np.arange(100) / 10.0, MPU, 10.0, 2.0, 0.5)  # once back: 2x
+    assert not wanders(back * 3, np.arange(150) / 10.0, MPU, 10.0, 2.0, 0.5)  # 18 m: a vehicle
 
 
 def test_border_boxes_are_rebuilt_and_clipped():

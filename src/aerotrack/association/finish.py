@@ -38,11 +38,13 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
    is rebuilt from its inner edges and the track's size before the final smoothing. Reported
    boxes keep the whole vehicle past the border unless ``clip_to_frame`` (off by default, as
    ground truths draw them).
-4. **Static and small tracks** (:func:`is_static`, :func:`is_small`): a track whose smoothed
-   ground points stay within a box of ``static_extent_m`` diagonal never moved (a parked vehicle,
-   a median blob, a registration artefact) and is dropped; so is one whose typical footprint is
-   under ``min_size_m`` (a pedestrian, a fragment). A vehicle that waits and then drives is kept
-   whole.
+4. **Static, wandering and small tracks** (:func:`is_static`, :func:`wanders`,
+   :func:`is_small`): a track whose smoothed ground points stay within a box of
+   ``static_extent_m`` diagonal never moved (a parked vehicle, a median blob, a registration
+   artefact) and is dropped; so is one that went back and forth within ``wander_extent_m`` (the
+   parallax of a tree's or a wall's edge under a moving camera), and one whose typical footprint
+   is under ``min_size_m`` (a pedestrian, a fragment). A vehicle that waits and then drives is
+   kept whole.
 5. **Standing vehicles** (:func:`hold_stops`, before the steps above): a vehicle that stopped
    where the detector lost it (its sliding-window background absorbs a standing vehicle) is
    reported ``stationary`` at its stop: over a gap between two observations at the same place,
@@ -322,6 +324,25 @@ def is_static(world: np.ndarray, metres_per_unit: float, extent_m: float) -> boo
     return float(np.hypot(*ext)) * metres_per_unit < extent_m
 
 
+def wanders(world: np.ndarray, times: np.ndarray, metres_per_unit: float, extent_m: float,
+            path_ratio: float, step_s: float) -> bool:
+    """True when the world points (N, 2) at ``times`` (s) stay within a box of diagonal
+    ``extent_m`` metres while the path through them, sampled every ``step_s`` seconds, is more than
+    ``path_ratio`` x that diagonal: something that went back and forth over a few metres."""
+    if extent_m <= 0 or path_ratio <= 0 or len(world) < 3:
+        return False
+    world = np.asarray(world, dtype=np.float64)
+    diag = float(np.hypot(*np.ptp(world, axis=0))) * metres_per_unit
+    if diag >= extent_m or diag <= 0:
+        return False
+    times = np.asarray(times, dtype=np.float64)
+    grid = np.arange(times[0], times[-1] + 1e-9, max(step_s, 1e-6))
+    idx = np.unique(np.searchsorted(times, grid).clip(0, len(times) - 1))
+    idx = np.union1d(idx, [len(times) - 1])
+    path = float(np.hypot(*np.diff(world[idx], axis=0).T).sum()) * metres_per_unit
+    return path > path_ratio * diag
+
+
 def is_small(sizes: np.ndarray, metres_per_unit: float, min_size_m: float) -> bool:
     """True when the median footprint ``sqrt(w * h)`` of the world sizes (N, 2) is below
     ``min_size_m`` metres (False without sizes or with ``min_size_m`` 0)."""
@@ -466,6 +487,12 @@ class TrackFinisher:
         # only a registered world is the ground: in the image of a moving camera a vehicle
         # driving along with it stands still
         if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
+            return False
+        if regs is not None and wanders(xs[measured, :2], times[measured], mpu, c.wander_extent_m,
+                                        c.wander_path_ratio, c.wander_step_s):
+            log.debug("finish: track of frames %d-%d dropped: back and forth within %.1f m",
+                      frames[0], frames[-1],
+                      float(np.hypot(*np.ptp(xs[measured, :2], axis=0))) * mpu)
             return False
         # a held stop's box is a copy, a persistence box (``weak``) a faint blob's: the size
         # comes from the regular observations around them
