@@ -325,7 +325,9 @@ class DetectionConfig:
         Keep the background from absorbing a vehicle after it was detected: pixels under recent
         detections are left out of the window median, and where every sample is left out the
         previous background is kept. A vehicle that stops at a light keeps being reported (with
-        ``extra["stationary"]``); a parked vehicle never seen moving is never held.
+        ``extra["stationary"]``); a parked vehicle never seen moving is never held. Persistence
+        detections (``persist``) are not held: too faint to pass the stationary test, they were
+        all taken for stopped vehicles.
     max_hold_s : float
         A pixel is held at most this long, so a false detection cannot freeze the background.
     stationary_lag_s : float
