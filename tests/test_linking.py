@@ -558,6 +558,32 @@ def test_partial_box_edge_model_recovers_the_hidden_centre():
                                   1.0, 1.0, 30) is None
 
 
+def test_partial_box_edge_model_leaves_whole_boxes_of_a_zooming_camera_alone():
+    """A camera descending or zooming in grows a whole vehicle's box in frame pixels along its
+    tracklet (UAV123 truck4: 17 px -> 82 px). The partial-box model compares box extents in
+    world units, else every early box is "partial" and the start is moved back by up to half the
+    late extent (truck4: 20 px, and a link across a 0.6 s gap refused)."""
+    from aerotrack.association.linking import partial_edge_positions
+    from aerotrack.types import Registration
+
+    n = 300
+    fr = np.arange(1, n + 1)
+    zoom = 1.0 + 4.0 * (fr - 1) / (n - 1)  # frame pixels per metre: 1 -> 5
+    world = np.column_stack([(fr - 1) * 10.0 / FPS, np.zeros(n)])  # 10 m/s along x
+    # frame = zoom * world about the world origin: a whole 5 m x 2 m vehicle at every frame
+    regs = {int(f): Registration(int(f), np.diag([1.0 / z, 1.0 / z, 1.0])) for f, z in zip(fr, zoom)}
+    pts = []
+    for f, z, w in zip(fr, zoom, world):
+        c = w * z
+        pts.append(TrackPoint(int(f), np.array([c[0] - 2.5 * z, c[1] - z, 5.0 * z, 2.0 * z]), w, 1.0))
+    t = Track(0, pts)
+    out = partial_edge_positions(t, fr, world.copy(), regs, 1.0, FPS, 0.8, 1.0, 1.0, 30)
+    assert out is not None
+    fr2, xy2 = out
+    assert np.array_equal(fr2, fr)
+    assert np.abs(xy2 - world).max() < 1e-6, "whole boxes were moved as if partly hidden"
+
+
 def test_an_unknown_partial_model_is_refused_naming_the_option():
     from aerotrack.errors import ConfigError
 
