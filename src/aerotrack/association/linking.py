@@ -974,10 +974,10 @@ def partial_edge_positions(t: Track, fr: np.ndarray, xy: np.ndarray, registratio
             continue
         u = u / np.hypot(*u)
         e = np.abs(B[:, 2] * u[0]) + np.abs(B[:, 3] * u[1])
+        near = (fr >= fr[-1] - span) if end else (fr <= fr[0] + span)
         # the whole target's extent in world units: a box's size in frame pixels changes along
         # a tracklet with the camera's zoom and height (UAV123 truck4: 17 px -> 82 px), and a
         # percentile of frame pixels called every small early box partial
-        near = (fr >= fr[-1] - span) if end else (fr <= fr[0] + span)
         scale = np.full(n, np.nan)  # world units per frame pixel along u at the box
         idx = [i for i in np.flatnonzero((obs | near) & np.isfinite(e))
                if int(fr[i]) in registrations]
