@@ -102,6 +102,16 @@ def apply_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray:
         return h[:, :2] / h[:, 2:3]
 
 
+def homography_jacobian(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Jacobians (N, 2, 2) of the homographies ``H`` (N, 3, 3) at ``points`` (N, 2): how a small
+    step at each point maps through its homography; a single (3, 3) and (2,) give one (2, 2)."""
+    if H.ndim == 2:
+        return homography_jacobian(H[None], np.asarray(points)[None])[0]
+    h = np.einsum("nij,nj->ni", H, np.column_stack([points, np.ones(len(points))]))
+    w = h[:, 2][:, None, None]
+    return (H[:, :2, :2] * w - h[:, :2, None] * H[:, 2, None, :2]) / (w * w)
+
+
 def _check_len(name: str, arr: np.ndarray | None, n: int) -> None:
     if arr is not None and len(arr) != n:
         raise ValueError(f"Detections.{name} has {len(arr)} rows, expected {n}")

@@ -78,7 +78,7 @@ from ..kalman import (
     transition_nb,
     update_nb,
 )
-from ..types import Registration, Track, TrackPoint, apply_homography
+from ..types import Registration, Track, TrackPoint, apply_homography, homography_jacobian
 from .linking import same_frame_overlaps
 
 __all__ = [
@@ -206,16 +206,6 @@ def _noise(sizes: np.ndarray, pos_std: float, pos_frac: float, size_std: float, 
         R[:, i, i] = pos_std ** 2 + (pos_frac * s[:, i]) ** 2
         R[:, i + 2, i + 2] = size_std ** 2 + (size_frac * s[:, i]) ** 2
     return R
-
-
-def _jacobian(Hinv: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Jacobians (N, 2, 2) of world -> frame pixels (``Hinv`` (N, 3, 3)) at world points ``c``
-    (N, 2); a single (3, 3) and (2,) give one (2, 2)."""
-    if Hinv.ndim == 2:
-        return _jacobian(Hinv[None], np.asarray(c)[None])[0]
-    h = np.einsum("nij,nj->ni", Hinv, np.column_stack([c, np.ones(len(c))]))
-    w = h[:, 2][:, None, None]
-    return (Hinv[:, :2, :2] * w - h[:, :2, None] * Hinv[:, 2, None, :2]) / (w * w)
 
 
 def _project(Hinv: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -504,7 +494,7 @@ class TrackFinisher:
             # regular detector saw at some point; alone it is a slow, small mover (on Santiago
             # mostly pedestrians)
             return False
-        J = _jacobian(Hinv, xs[:, :2])
+        J = homography_jacobian(Hinv, xs[:, :2])
         # one size per run of consecutive in-view frames (a tracklet): a wrong link between two
         # vehicles must not give one of them the other's size
         new = np.zeros((n, 4))
@@ -631,7 +621,7 @@ class TrackFinisher:
                               dtype=np.float64).reshape(-1, 2))
         missing = ~np.all(np.isfinite(out), axis=1)
         if missing.any():
-            scale = np.sqrt(np.abs(np.linalg.det(_jacobian(Hinv[missing], world[missing]))))
+            scale = np.sqrt(np.abs(np.linalg.det(homography_jacobian(Hinv[missing], world[missing]))))
             out[missing] = boxes[missing, 2:4] / np.where(scale > 0, scale, 1.0)[:, None]
         return np.nan_to_num(out)
 

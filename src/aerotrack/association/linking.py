@@ -49,7 +49,7 @@ from ..context.appearance import (
 from ..context.motion import TrackTable, get_predictor, kalman_start
 from ..context.reacquire import Cues, appearance_cost, descriptor_cost, link_cost, motion_cost
 from ..errors import ConfigError
-from ..types import Track, TrackPoint
+from ..types import Track, TrackPoint, homography_jacobian
 
 __all__ = ["GlobalLinker", "link_tracklets", "estimate_scale"]
 
@@ -1011,11 +1011,8 @@ def partial_edge_positions(t: Track, fr: np.ndarray, xy: np.ndarray, registratio
 
 def _scale_along(H: np.ndarray, points: np.ndarray, u: np.ndarray) -> np.ndarray:
     """World units per frame pixel along the unit direction ``u`` at each of ``points`` (k, 2),
-    through the homographies ``H`` (k, 3, 3), frame -> world: the norm of the Jacobian times u."""
-    q = np.einsum("kij,kj->ki", H, np.column_stack([points, np.ones(len(points))]))
-    p = q[:, :2] / q[:, 2:3]
-    J = (H[:, :2, :2] - p[:, :, None] * H[:, 2, None, :2]) / q[:, 2, None, None]
-    return np.hypot(*np.einsum("kij,j->ki", J, u).T)
+    through the homographies ``H`` (k, 3, 3), frame -> world."""
+    return np.hypot(*np.einsum("kij,j->ki", homography_jacobian(H, points), u).T)
 
 
 def _edge_cut(box: np.ndarray, u: np.ndarray, frame_size: tuple[int, int],
