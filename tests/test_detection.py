@@ -368,7 +368,9 @@ def test_cli_detect(tmp_path):
 def test_registration_reset_restarts_the_window():
     frames, regs, gt = render(MOVERS[:2], 30)
     shift = np.array([[1.0, 0, 9], [0, 1, -7], [0, 0, 1]])  # new world = old one, offset
-    det = MovingObjectDetector(DetectionConfig(window_s=2.0), FPS)
+    # 320x240 frames with vehicles of 1080p size: the 1080p model scale and gates (at this
+    # frame size's model scale 1.0 its sensor noise gave precision 0.84 after the reset)
+    det = MovingObjectDetector(DetectionConfig(window_s=2.0, pixel_gates_reference_px=0.0), FPS)
     out = []
     for f, r in zip(frames, regs):
         if f.index >= 15:  # the registrar reset: positions continue in an offset world frame
@@ -531,12 +533,13 @@ def test_a_regrown_ghost_is_dropped_and_a_regrown_dark_vehicle_kept():
     assert not found(r, dark) and not found(r, ghost)
 
 
-def test_pixel_gates_grow_with_frames_larger_than_1080p():
+def test_pixel_gates_follow_the_frame_diagonal():
     from aerotrack.detection.detector import pixel_gate_scale
 
     assert pixel_gate_scale((1080, 1920), 2203.0) == 1.0
-    assert pixel_gate_scale((720, 1280), 2203.0) == 1.0
+    assert pixel_gate_scale((720, 1280), 2203.0) == pytest.approx(2 / 3, abs=1e-3)
     assert pixel_gate_scale((2160, 3840), 2203.0) == pytest.approx(2.0, abs=1e-3)
+    assert pixel_gate_scale((240, 320), 2203.0) == 0.5  # floor
     assert pixel_gate_scale((2160, 3840), 0.0) == 1.0
     det = MovingObjectDetector(DetectionConfig(), FPS)
     g = det._gates(np.eye(3), (2160, 3840))
@@ -546,3 +549,19 @@ def test_pixel_gates_grow_with_frames_larger_than_1080p():
     # with a scale the gates are metres, whatever the frame size
     det = MovingObjectDetector(DetectionConfig(), FPS, metres_per_unit=0.1)
     assert det._gates(np.eye(3), (2160, 3840)).max_length_px == pytest.approx(c.max_length_m / 0.1)
+
+
+def test_model_resolution_per_vehicle_is_kept_at_every_frame_size_without_a_scale():
+    """Without a metric scale the background model keeps 1080p's model pixels per vehicle: a
+    540p frame is modelled at full resolution, 720p at 0.75, 4K at a quarter; with one, the
+    configured scale holds."""
+    c = DetectionConfig()
+    for (H, W), want in (((1080, 1920), 0.5), ((720, 1280), 0.75), ((540, 960), 1.0),
+                         ((2160, 3840), 0.25)):
+        det = MovingObjectDetector(c, FPS)
+        small = det.model_image(np.zeros((H, W, 3), np.uint8))
+        assert det.scale == pytest.approx(want, rel=2e-3)
+        assert small.shape[:2] == (round(H * det.scale), round(W * det.scale))
+    det = MovingObjectDetector(c, FPS, metres_per_unit=0.1)
+    det.model_image(np.zeros((540, 960, 3), np.uint8))
+    assert det.scale == c.model_scale

@@ -52,7 +52,8 @@ def _scene(n: int, contrast: float, *, flicker: bool = False, seed: int = 0,
 
 
 def _detect(frames, persist: bool):
-    det = MovingObjectDetector(dataclasses.replace(DetectionConfig(), persist=persist), FPS)
+    # 320x240 frames with targets of 1080p size: the 1080p model scale and gates (no frame-size rule)
+    det = MovingObjectDetector(DetectionConfig(persist=persist, pixel_gates_reference_px=0.0), FPS)
     out = []
     for f in frames:
         out += det.step(f, Registration(f.index, np.eye(3)))

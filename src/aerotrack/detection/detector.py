@@ -319,13 +319,39 @@ class SizeGates:
     min_width_px: float = 0.0
 
 
+#: Smallest factor :func:`pixel_gate_scale` gives (frames under 960 x 540: the rule was measured
+#: down to 540p, and smaller gates let compression noise through).
+MIN_PIXEL_GATE_SCALE = 0.5
+
+
 def pixel_gate_scale(shape: tuple[int, ...], reference_px: float) -> float:
     """Factor of the pixel size gates (used without a scale) for a frame of ``shape`` (H, W, ...):
-    1 up to a diagonal of ``reference_px``, the diagonal / ``reference_px`` beyond (0 disables).
-    The same flight filmed at 4K shows every vehicle twice as long, in pixels, as at 1080p."""
+    its diagonal / ``reference_px``, at least :data:`MIN_PIXEL_GATE_SCALE`, and exactly 1 within
+    1% of ``reference_px`` (``reference_px`` 0: always 1). The same flight filmed at 4K shows
+    every vehicle twice as long, in pixels, as at 1080p, and at 540p half as long."""
     if reference_px <= 0:
         return 1.0
-    return max(1.0, math.hypot(shape[0], shape[1]) / reference_px)
+    k = math.hypot(shape[0], shape[1]) / reference_px
+    return 1.0 if abs(k - 1.0) < 0.01 else max(MIN_PIXEL_GATE_SCALE, k)
+
+
+def model_scale_for(shape: tuple[int, ...], config: DetectionConfig,
+                    metric: bool = False) -> float:
+    """Resolution of the background model for frames of ``shape`` (H, W, ...).
+
+    With a metric scale (``metric``: a map or ``--gsd``) it is ``config.model_scale``. Without
+    one, ``config.model_scale`` is meant for a frame of ``pixel_gates_reference_px`` diagonal
+    (1080p) and the model keeps the same resolution per vehicle at other sizes:
+    ``model_scale / pixel_gate_scale``, at most 1. A 720p clip is modelled at 0.75 and a 540p
+    one at full resolution, where 0.5 would leave a car of 18 x 10 px 9 x 5 model pixels:
+    Santiago downscaled to 960x540 scored HOTA/IDF1 0.549/0.704 with the 1080p model scale and
+    gates, 0.642/0.858 with both scaled (0.658/0.874 at 1080p); at 1280x720 0.587/0.786 ->
+    0.627/0.831.
+    """
+    if metric:
+        return float(config.model_scale)
+    k = pixel_gate_scale(shape, config.pixel_gates_reference_px)
+    return min(1.0, float(config.model_scale) / k)
 
 
 def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
@@ -740,7 +766,10 @@ class MovingObjectDetector:
         self.fps = float(fps)
         self.geomap = geomap
         self.metres_per_unit = metres_per_unit
+        #: Model resolution relative to the frame: ``config.model_scale`` until the first frame
+        #: gives the frame size (:func:`model_scale_for`).
         self.scale = float(config.model_scale)
+        self._scale_shape: tuple[int, int] | None = None
         self.half = max(1, int(round(config.window_s * fps / 2.0)))
         self.every = max(1, int(round(config.sample_every_s * fps)))
         self.update = max(1, int(round(config.update_every_s * fps)))
@@ -755,6 +784,7 @@ class MovingObjectDetector:
         self._newest: int | None = None  # newest frame stepped
         self._ending = False  # inside flush(): no frame comes after the newest
         self.last_result: FrameResult | None = None
+        # (made again with the first frame's scale, if that differs)
         self._persist = PersistenceTracker(config, fps, self.scale) if config.persist else None
         #: When True, ``debug_frames`` collects ``(index, image, residual, boxes, stationary)``
         #: of every finalised frame (the caller drains it).
@@ -811,10 +841,16 @@ class MovingObjectDetector:
         return out
 
     def model_image(self, image: np.ndarray) -> np.ndarray:
-        """A frame at model resolution (``config.model_scale``), as the detector keeps it; a
-        function of the frame alone, so a resumed run can make it again
+        """A frame at model resolution (:func:`model_scale_for` its size), as the detector keeps
+        it; a function of the frame alone, so a resumed run can make it again
         (:mod:`aerotrack.io.state`)."""
         H, W = image.shape[:2]
+        if self._scale_shape is None:  # a video's frames all have the first one's size
+            self._scale_shape = (H, W)
+            scale = model_scale_for((H, W), self.config, bool(self.metres_per_unit))
+            if self._persist is not None and scale != self.scale:
+                self._persist = PersistenceTracker(self.config, self.fps, scale)
+            self.scale = scale
         size = (max(1, int(round(W * self.scale))), max(1, int(round(H * self.scale))))
         return cv2.resize(image, size, interpolation=cv2.INTER_AREA) if self.scale != 1 else image
 
@@ -960,13 +996,18 @@ class MovingObjectDetector:
         stationary = changed < 0.2
         stopped = changed < self.config.protect_changed
         ahead = self._ahead(p, r, bg, moved)
+        # Margins of 2 and 4 frame pixels (1 and 2 model pixels at model_scale 0.5): a margin of
+        # one frame pixel lets a waiting vehicle's interpolated edge into the samples, and the
+        # background eats it from the edges in (a stopped car kept half its box at scale 1.0).
+        grow = max(1, round(2 * self.scale))
         if c in self._samples and self.config.hold_stopped:
             self._samples[c].holes = blob_polygons(protected_blobs(blobs, moved, stopped),
-                                                   grow=1)
+                                                   grow=grow)
         for i, s in self._samples.items():
             if i <= c:
                 s.known = True
-        self._last_fg = (c, Hc, blob_polygons(protected_blobs(blobs, ahead, stopped), grow=2))
+        self._last_fg = (c, Hc, blob_polygons(protected_blobs(blobs, ahead, stopped),
+                                              grow=2 * grow))
         self._last_final = c
         if self.keep_debug:
             self.debug_frames.append((c, p.frame.image, r.residual, r.boxes, stationary))
