@@ -283,6 +283,22 @@ class GlobalLinker:
                 preds_of.setdefault(b, []).append(a)
         span = [(int(t.first), int(t.last)) for t in tl]
 
+        raw_gap = int(round(c.partial_raw_gap_s * self.fps))
+
+        def raw_end(i: int, end: bool):
+            fr, xy = raw[i]
+            if end:
+                h = fr >= fr[-1] - F
+                return kalman_start(fr[h], xy[h], self.fps, self.mpu, self.ctx)
+            s = fr <= fr[0] + F
+            p, v = kalman_start(-fr[s][::-1], xy[s][::-1], self.fps, self.mpu, self.ctx)
+            return p, -v
+
+        def resized(ta: Track, tb: Track, velocity: np.ndarray) -> bool:
+            # one end's box under partial_size_ratio of the other's along the motion
+            la, lb = end_extent(ta, velocity, True), end_extent(tb, velocity, False)
+            return la > 0 and lb > 0 and min(la, lb) < c.partial_size_ratio * max(la, lb)
+
         def distinct(o: int, a: int) -> bool:
             # another target for certain: seen at the same time as a, and not a split of it
             return o != a and span[o][0] <= span[a][1] and span[a][0] <= span[o][1] \
@@ -309,6 +325,17 @@ class GlobalLinker:
                     m = self._motion(preds[a][:gap], pos[a][1][-1], pos[b][1][0], ends[a],
                                      starts[b], gap, self._noise[a][0], self._noise[b][1],
                                      allow_split=not ap > c.split_max_appearance)
+                    if gap <= raw_gap and resized(tl[a], tl[b], ends[a][1]) and (
+                            len(pos[a][0]) < len(raw[a][0]) or len(pos[b][0]) < len(raw[b][0])
+                            or not np.array_equal(pos[a][1][-1], raw[a][1][-1])
+                            or not np.array_equal(pos[b][1][0], raw[b][1][0])):
+                        # as detected (partial_raw_gap_s)
+                        ea, sb = raw_end(a, True), raw_end(b, False)
+                        shift = ea[0] - ends[a][0]
+                        m = min(m, self._motion(preds[a][:gap] + shift, raw[a][1][-1],
+                                                raw[b][1][0], ea, sb, gap, self._noise[a][0],
+                                                self._noise[b][1],
+                                                allow_split=not ap > c.split_max_appearance))
                 cues = Cues(m, ap, de)
                 cost = link_cost(cues, c)
                 if c.gap_cost_per_s > 0 and a in preds and gap > 0:
@@ -610,6 +637,19 @@ class GlobalLinker:
         while hi - lo > keep and small[lo] and fr[lo] - fr[0] < span:
             lo += 1
         return fr[lo:hi], xy[lo:hi]
+
+
+def end_extent(t: Track, velocity: np.ndarray, end: bool, n: int = 3) -> float:
+    """Median extent (world units) along ``velocity`` of the boxes of a tracklet's last (first,
+    ``end`` False) ``n`` observed points; 0 when unknown."""
+    pts = [p for p in t.points if p.kind == "observed" and p.size_world is not None
+           and np.all(np.isfinite(p.size_world))]
+    pts = pts[-n:] if end else pts[:n]
+    sp = float(np.hypot(*velocity))
+    if not pts or not (sp > 0):
+        return 0.0
+    u = np.abs(np.asarray(velocity, float)) / sp
+    return float(np.median([u @ np.abs(np.asarray(p.size_world, float)) for p in pts]))
 
 
 def _chains(n: int, links: dict[int, int]) -> list[list[int]]:
