@@ -803,3 +803,23 @@ def test_a_box_that_changes_size_across_a_one_frame_gap_is_not_taken_for_an_occl
     assert n_tracks(0.2, front, back) == 1
     # the same size at both ends: scored as partial only (here refused, cost 6.3)
     assert n_tracks(0.2, (2.5, 1.25), (2.5, -1.25)) == 2
+
+
+def test_a_short_track_cut_by_the_view_is_kept_and_a_short_blip_inside_it_is_not():
+    """min_track_s (1 s) drops short unlinked tracks as false alarms; a vehicle that crosses a
+    corner of the view is seen for less than that too. A 0.6 s track whose first box lies within
+    its length of the frame's border is kept; the same track in mid-frame is dropped, and one
+    shorter than min_edge_track_s (0.4 s) is dropped at the border too."""
+    rng = np.random.default_rng(11)
+    red = [0.7, 0.1, 0.1, 0.1]
+    filler = Track(0, _box_track(range(1, 301), lambda f: (500.0, 300.0 + 0.01 * f), (5.0, 2.0), red, rng))
+
+    def kept(x0, frames):
+        t = Track(0, _box_track(frames, lambda f: (x0 + 10 * (f - frames[0]) / FPS, 100.0), (5.0, 2.0),
+                                red, rng))
+        tracks = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0).link(
+            [filler, t], frame_size=(1000, 600))
+        return len(tracks) == 2
+    assert kept(4.0, range(100, 119))  # 0.6 s, entering at the left border
+    assert not kept(400.0, range(100, 119))  # 0.6 s in mid-frame: a blip
+    assert not kept(4.0, range(100, 109))  # 0.27 s at the border

@@ -515,6 +515,7 @@ class GlobalLinker:
         """One track per chain of links, with predicted points in gaps and after the end (cut
         short by :meth:`_tail_length` when ``registrations`` and ``frame_size`` are given)."""
         video_end = max(t.last for t in tl)
+        video_start = min(t.first for t in tl)
         horizon = int(round(self.ctx.prediction_horizon_s * self.fps))
         min_len = self.config.min_tracklet_s * self.fps
         out = []
@@ -542,7 +543,10 @@ class GlobalLinker:
                         pr = pr[:self._tail_length(last_obs.frame, pr, registrations, frame_size)]
                         points.extend(_predicted(last_obs, pr))
             points = _one_per_frame(points)
-            if (tl[chain[-1]].last - tl[chain[0]].first) < self.config.min_track_s * self.fps:
+            span = tl[chain[-1]].last - tl[chain[0]].first
+            if span < self.config.min_track_s * self.fps and not (
+                    span >= self.config.min_edge_track_s * self.fps
+                    and _cut_by_view(points, frame_size, video_start, video_end)):
                 continue  # a short unlinked blip: a false alarm or a split blob
             out.append(Track(id=0, points=points))
         out.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
@@ -650,6 +654,27 @@ def end_extent(t: Track, velocity: np.ndarray, end: bool, n: int = 3) -> float:
         return 0.0
     u = np.abs(np.asarray(velocity, float)) / sp
     return float(np.median([u @ np.abs(np.asarray(p.size_world, float)) for p in pts]))
+
+
+def _cut_by_view(points: list[TrackPoint], frame_size, first_frame: int, last_frame: int,
+                 margin_px: float = 2.0) -> bool:
+    """Whether a track was seen only briefly because the view cut it: its first observed box
+    lies within its own length of the frame's border or in the video's first frame, or its last
+    observed box within its length of the border or in the video's last frame."""
+    obs = [p for p in points if p.kind == "observed" and p.box is not None]
+    if not obs:
+        return False
+    if obs[0].frame <= first_frame or obs[-1].frame >= last_frame:
+        return True
+    if frame_size is None:
+        return False
+    W, H = frame_size
+
+    def at_border(b) -> bool:
+        x, y, w, h = (float(v) for v in b)
+        m = margin_px + max(w, h)
+        return x <= m or y <= m or x + w >= W - m or y + h >= H - m
+    return at_border(obs[0].box) or at_border(obs[-1].box)
 
 
 def _chains(n: int, links: dict[int, int]) -> list[list[int]]:
