@@ -204,10 +204,9 @@ class GlobalLinker:
         ends, starts, self._noise = [], [], []
         for fr, xy in pos:
             h = (fr >= fr[-1] - F)
-            ends.append(kalman_start(fr[h], xy[h], self.fps, self.mpu, self.ctx))
             s = (fr <= fr[0] + F)
-            p, v = kalman_start(-fr[s][::-1], xy[s][::-1], self.fps, self.mpu, self.ctx)
-            starts.append((p, -v))
+            ends.append(self._end_state(fr, xy, F, True))
+            starts.append(self._end_state(fr, xy, F, False))
             self._noise.append((end_noise(fr[h], xy[h], self.mpu, self.fps),
                                 end_noise(fr[s], xy[s], self.mpu, self.fps)))
         first = np.array([fr[0] for fr, _ in pos])
@@ -285,18 +284,9 @@ class GlobalLinker:
 
         raw_gap = int(round(c.partial_raw_gap_s * self.fps))
 
-        def raw_end(i: int, end: bool):
-            fr, xy = raw[i]
-            if end:
-                h = fr >= fr[-1] - F
-                return kalman_start(fr[h], xy[h], self.fps, self.mpu, self.ctx)
-            s = fr <= fr[0] + F
-            p, v = kalman_start(-fr[s][::-1], xy[s][::-1], self.fps, self.mpu, self.ctx)
-            return p, -v
-
         def resized(ta: Track, tb: Track, velocity: np.ndarray) -> bool:
             # one end's box under partial_size_ratio of the other's along the motion
-            la, lb = end_extent(ta, velocity, True), end_extent(tb, velocity, False)
+            la, lb = _end_extent(ta, velocity, True), _end_extent(tb, velocity, False)
             return la > 0 and lb > 0 and min(la, lb) < c.partial_size_ratio * max(la, lb)
 
         def distinct(o: int, a: int) -> bool:
@@ -330,7 +320,8 @@ class GlobalLinker:
                             or not np.array_equal(pos[a][1][-1], raw[a][1][-1])
                             or not np.array_equal(pos[b][1][0], raw[b][1][0])):
                         # as detected (partial_raw_gap_s)
-                        ea, sb = raw_end(a, True), raw_end(b, False)
+                        ea = self._end_state(*raw[a], F, True)
+                        sb = self._end_state(*raw[b], F, False)
                         shift = ea[0] - ends[a][0]
                         m = min(m, self._motion(preds[a][:gap] + shift, raw[a][1][-1],
                                                 raw[b][1][0], ea, sb, gap, self._noise[a][0],
@@ -349,6 +340,16 @@ class GlobalLinker:
                     C[a, b] = cost
         self._pred = preds
         return _assign(C, c.max_cost), C
+
+    def _end_state(self, fr: np.ndarray, xy: np.ndarray, F: int, end: bool):
+        """Kalman (position, velocity) of a tracklet's end (``end``) or start from its points
+        within ``F`` frames of it (a start is filtered backwards in time)."""
+        if end:
+            h = fr >= fr[-1] - F
+            return kalman_start(fr[h], xy[h], self.fps, self.mpu, self.ctx)
+        s = fr <= fr[0] + F
+        p, v = kalman_start(-fr[s][::-1], xy[s][::-1], self.fps, self.mpu, self.ctx)
+        return p, -v
 
     def _is_split(self, a_last: np.ndarray, b_first: np.ndarray, a_velocity: np.ndarray,
                   gap: int) -> bool:
@@ -643,7 +644,7 @@ class GlobalLinker:
         return fr[lo:hi], xy[lo:hi]
 
 
-def end_extent(t: Track, velocity: np.ndarray, end: bool, n: int = 3) -> float:
+def _end_extent(t: Track, velocity: np.ndarray, end: bool, n: int = 3) -> float:
     """Median extent (world units) along ``velocity`` of the boxes of a tracklet's last (first,
     ``end`` False) ``n`` observed points; 0 when unknown."""
     pts = [p for p in t.points if p.kind == "observed" and p.size_world is not None
