@@ -56,10 +56,10 @@ def _box_from_world(p, reg: Registration | None, size) -> np.ndarray | None:
     else:
         c = apply_homography(np.linalg.inv(reg.H), np.asarray(p.world)[None])[0]
     if size is None and p.size_world is not None and reg is not None:
-        w = np.asarray(p.size_world, dtype=np.float64)
-        inv = np.linalg.inv(reg.H)
-        corner = apply_homography(inv, (np.asarray(p.world) + w / 2)[None])[0]
-        size = 2 * np.abs(corner - c)
+        from .detection.detector import local_scale
+
+        # world sides over the frame's local scale there (as the detector made them)
+        size = np.asarray(p.size_world, dtype=np.float64) / max(local_scale(reg.H, c), 1e-12)
     if size is None or not np.all(np.isfinite(c)):
         return None
     return np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])

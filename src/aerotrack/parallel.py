@@ -532,10 +532,11 @@ def chain_worlds(prev: dict[int, Registration], cur: dict[int, Registration], fr
 
 
 def _size_to(A: np.ndarray, world: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """(N, 2) world sizes at (N, 2) world points, carried through homography ``A``."""
-    c = apply_homography(A, world)
-    corner = apply_homography(A, world + size / 2)
-    return 2 * np.abs(corner - c)
+    """(N, 2) world sizes at (N, 2) world points, carried through homography ``A``: times its
+    local scale there (sizes are box sides times a scale, not a direction that ``A`` rotates)."""
+    from .detection.detector import local_scales
+
+    return size * local_scales(A, world)[:, None]
 
 
 def _move_detections(d: Detections, A: np.ndarray, geomap) -> Detections:

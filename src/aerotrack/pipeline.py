@@ -289,9 +289,13 @@ class Pipeline:
             world = centres
             size_world = boxes[:, 2:].copy()
         else:
+            from .detection.detector import local_scales
+
             world = reg.to_world(centres)
-            corner = reg.to_world(centres + boxes[:, 2:] / 2)
-            size_world = 2 * np.abs(corner - world)
+            # as the built-in detector's: the box's sides times the frame's local scale (the
+            # corner's offset through a rotating homography is no size: at 45 degrees one side
+            # of it vanishes, and the finish stage dropped such vehicles as too small)
+            size_world = boxes[:, 2:] * local_scales(reg.H, centres)[:, None]
         hist = desc = None
         extra = {}
         if frame is not None and frame.image is not None:
