@@ -823,3 +823,24 @@ def test_a_short_track_cut_by_the_view_is_kept_and_a_short_blip_inside_it_is_not
     assert kept(4.0, range(100, 119))  # 0.6 s, entering at the left border
     assert not kept(400.0, range(100, 119))  # 0.6 s in mid-frame: a blip
     assert not kept(4.0, range(100, 109))  # 0.27 s at the border
+
+
+def test_registered_frames_without_a_scale_allow_manoeuvres_over_long_gaps():
+    """Without a map or --gsd the scale is estimated; on registered frames the world is still the
+    ground, so a vehicle that turns while hidden for 3 s is linked as with a known scale. In
+    image coordinates (--detections alone) the manoeuvre limit is turn_max_gap_image_s."""
+    n_in, hidden = 60, 90
+    east = _line((0.0, 0.0), (8.0, 0.0), n_in)
+    # a quarter circle of radius 15 m while hidden (about 3 s at 8 m/s), then north
+    ang = np.linspace(0, np.pi / 2, hidden + 1)[1:]
+    turn = np.column_stack([east[-1, 0] + 15 * np.sin(ang), 15 - 15 * np.cos(ang)])
+    north = _line(turn[-1], (0.0, 8.0), n_in + 1)[1:]
+    path = np.vstack([east, turn, north])
+    tl, truth = _tracklets({1: path}, {1: 1}, {1: [(n_in + 1, n_in + hidden + 1)]},
+                           {1: [0.2, 0.5, 0.3]})
+    assert len(tl) == 2
+    regs = {f: Registration(f, np.eye(3)) for f in range(1, len(path) + 1)}
+    registered = GlobalLinker(LinkingConfig(), ContextConfig(), FPS).link(tl, registrations=regs)
+    image = GlobalLinker(LinkingConfig(), ContextConfig(), FPS).link(tl)
+    assert len(registered) == 1
+    assert len(image) == 2

@@ -146,6 +146,11 @@ class GlobalLinker:
                      self.ctx.image_object_size_m / self.mpu, self.ctx.image_object_size_m)
         self._regs = registrations or None
         self._frame_size = frame_size
+        if self._regs:
+            # registered frames: the world is the ground, free of the camera's motion, so a
+            # manoeuvre over a long gap is as plausible as with a known scale (the image-only
+            # limit, turn_max_gap_image_s, is for image coordinates)
+            self.turn_max_gap_s = self.config.turn_max_gap_s
         links, _ = self.solve(tl)
         links = self.fill_gaps(tl, links)
         for _ in range(max(0, self.config.rounds - 1)):
