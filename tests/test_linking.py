@@ -836,7 +836,7 @@ def test_registered_frames_without_a_scale_allow_manoeuvres_over_long_gaps():
     turn = np.column_stack([east[-1, 0] + 15 * np.sin(ang), 15 - 15 * np.cos(ang)])
     north = _line(turn[-1], (0.0, 8.0), n_in + 1)[1:]
     path = np.vstack([east, turn, north])
-    tl, truth = _tracklets({1: path}, {1: 1}, {1: [(n_in + 1, n_in + hidden + 1)]},
+    tl, _ = _tracklets({1: path}, {1: 1}, {1: [(n_in + 1, n_in + hidden + 1)]},
                            {1: [0.2, 0.5, 0.3]})
     assert len(tl) == 2
     regs = {f: Registration(f, np.eye(3)) for f in range(1, len(path) + 1)}

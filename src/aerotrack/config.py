@@ -828,7 +828,7 @@ class LinkingConfig:
         looks like manoeuvres and the reach is only estimated, and long-gap manoeuvre links were
         wrong more often than right (UAVDT). Registered frames are the ground even without a
         scale, and ``turn_max_gap_s`` applies: on the 18 held-out generated scenes tracked
-        without their map (MCMC seeds 0-2) this limit had cost HOTA/IDF1 0.023/0.046.
+        without their map (MCMC seeds 0-2) this limit had cost HOTA/IDF1 0.017/0.038.
     turn_cost : float
         Extra cost of that manoeuvre hypothesis over a straight continuation, on top of
         ``log(1 + reach / sigma)`` for the spread of where a target with a free heading may

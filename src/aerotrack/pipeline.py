@@ -215,8 +215,6 @@ class Pipeline:
         from .registration import FrameRegistrar
 
         self.frame_size = frame_size
-        if self.associator is not None:  # frames: the world is the registered ground
-            self.associator.scale_known = True
         self.registrar = _Stabilised() if self.stabilised else FrameRegistrar(
             self.config.registration, self.fps, geomap=self.geomap, H_init=self._H_init)
         if self.external is None:
@@ -846,8 +844,6 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                     roads=roads)
     pipe.registrations.update(regs)
     pipe.frame_size = frame_size
-    if regs and pipe.associator is not None:  # as the run that cached them: registered ground
-        pipe.associator.scale_known = True
     frames = sorted({*regs, *(d.frame for d in dets)})
     if frames:
         pipe.first_frame, pipe.last_frame, pipe.n_frames = frames[0], frames[-1], len(frames)

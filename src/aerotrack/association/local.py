@@ -45,11 +45,6 @@ class LocalAssociator:
     metres_per_unit : float, optional
         Metres per world unit. When None, estimated from the first detections' median size and
         ``config.target_size_m`` (or world units are taken as metres if that is 0).
-    registered : bool
-        The world is the registered ground (frames registered to each other, with or without a
-        scale), not image coordinates that also carry the camera's motion: motion is then judged
-        in m/s^2 with an estimated scale too (``split_accel_mps2``). :class:`~aerotrack.pipeline
-        .Pipeline` sets :attr:`scale_known` once frames arrive.
     seed : int or numpy.random.Generator
         The same seed gives the same tracklets. The MCMC of each frame ``t`` draws from its own
         stream, ``numpy.random.default_rng([seed, t])`` (a Generator is turned into an integer
@@ -72,8 +67,7 @@ class LocalAssociator:
     """
 
     def __init__(self, config: AssociationConfig | None = None, fps: float = 30.0,
-                 metres_per_unit: float | None = None, seed: int | np.random.Generator = 0,
-                 registered: bool = False):
+                 metres_per_unit: float | None = None, seed: int | np.random.Generator = 0):
         self.config = config = config or AssociationConfig()
         if not fps or fps <= 0 or not math.isfinite(fps):
             raise ConfigError(f"association: fps must be positive, got {fps}")
@@ -101,10 +95,9 @@ class LocalAssociator:
                               "split_merged_min_obs_s >= 0 and split_merged_max_age_s > 0")
         self.fps = float(fps)
         self.mpu = metres_per_unit
-        # motion is judged in m/s^2 with a known scale (a map or --gsd) or on registered frames,
-        # not with a scale estimated on pixels that also carry the camera's motion (--detections
-        # alone)
-        self.scale_known = metres_per_unit is not None or registered
+        # motion is judged in m/s^2 only with a known scale (a map or --gsd), not one estimated
+        # from box sizes on pixels that may also carry the camera's motion (--detections alone)
+        self.scale_known = metres_per_unit is not None
         if isinstance(seed, np.random.Generator):
             seed = int(seed.integers(2**63 - 1))
         if int(seed) < 0:
