@@ -18,7 +18,7 @@ from .geo import GeoMap
 from .io.mot import write_mot
 from .io.output import OutputDir
 from .pipeline import Result
-from .types import Registration, apply_homography
+from .types import Registration, apply_homography, local_scale
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +56,6 @@ def _box_from_world(p, reg: Registration | None, size) -> np.ndarray | None:
     else:
         c = apply_homography(np.linalg.inv(reg.H), np.asarray(p.world)[None])[0]
     if size is None and p.size_world is not None and reg is not None:
-        from .detection.detector import local_scale
-
         # world sides over the frame's local scale there (as the detector made them)
         size = np.asarray(p.size_world, dtype=np.float64) / max(local_scale(reg.H, c), 1e-12)
     if size is None or not np.all(np.isfinite(c)):

@@ -96,7 +96,7 @@ import numpy as np
 from .config import Config
 from .errors import ConfigError, InputError
 from .pipeline import Pipeline, Result, _group_rows, link
-from .types import Detections, Registration, Track, TrackPoint, apply_homography
+from .types import Detections, Registration, Track, TrackPoint, apply_homography, local_scales
 
 log = logging.getLogger(__name__)
 
@@ -534,8 +534,6 @@ def chain_worlds(prev: dict[int, Registration], cur: dict[int, Registration], fr
 def _size_to(A: np.ndarray, world: np.ndarray, size: np.ndarray) -> np.ndarray:
     """(N, 2) world sizes at (N, 2) world points, carried through homography ``A``: times its
     local scale there (sizes are box sides times a scale, not a direction that ``A`` rotates)."""
-    from .detection.detector import local_scales
-
     return size * local_scales(A, world)[:, None]
 
 

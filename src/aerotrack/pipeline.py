@@ -27,7 +27,7 @@ import numpy as np
 from .config import Config
 from .errors import InputError
 from .geo import GeoMap
-from .types import Detections, Frame, Registration, Track, apply_homography
+from .types import Detections, Frame, Registration, Track, apply_homography, local_scales
 
 log = logging.getLogger(__name__)
 
@@ -289,8 +289,6 @@ class Pipeline:
             world = centres
             size_world = boxes[:, 2:].copy()
         else:
-            from .detection.detector import local_scales
-
             world = reg.to_world(centres)
             # as the built-in detector's: the box's sides times the frame's local scale (the
             # corner's offset through a rotating homography is no size: at 45 degrees one side

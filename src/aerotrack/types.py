@@ -15,6 +15,7 @@ otherwise; ``metres_per_unit`` converts them to metres where known.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -110,6 +111,25 @@ def homography_jacobian(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     h = np.einsum("nij,nj->ni", H, np.column_stack([points, np.ones(len(points))]))
     w = h[:, 2][:, None, None]
     return (H[:, :2, :2] * w - h[:, :2, None] * H[:, 2, None, :2]) / (w * w)
+
+
+def local_scale(H: np.ndarray, point: np.ndarray) -> float:
+    """World units per frame pixel of ``H`` at ``point`` (square root of the Jacobian's |det|)."""
+    x, y = float(point[0]), float(point[1])
+    p = np.array([[x, y], [x + 1.0, y], [x, y + 1.0]])
+    q = apply_homography(H, p)
+    J = np.stack([q[1] - q[0], q[2] - q[0]], axis=1)
+    return math.sqrt(abs(float(np.linalg.det(J))))
+
+
+def local_scales(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`local_scale` at each of the (N, 2) ``points`` (frame pixels); (N,) float64, the same
+    bits as one call per point (the Jacobians of all points from one homography product)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    p = np.stack([pts, pts + (1.0, 0.0), pts + (0.0, 1.0)], axis=1).reshape(-1, 2)
+    q = apply_homography(H, p).reshape(-1, 3, 2)
+    J = np.stack([q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]], axis=2)
+    return np.sqrt(np.abs(np.linalg.det(J)))
 
 
 def _check_len(name: str, arr: np.ndarray | None, n: int) -> None:

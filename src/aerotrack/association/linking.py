@@ -100,8 +100,7 @@ class GlobalLinker:
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
-        self.turn_max_gap_s = self.config.turn_max_gap_s if metres_per_unit else \
-            min(self.config.turn_max_gap_s, self.config.turn_max_gap_image_s)
+        self.turn_max_gap_s = self._turn_max_gap(registered=False)
         self.predictor = get_predictor(self.ctx.method, self.ctx, self.fps, self.mpu)
         self.last_costs: dict[tuple[int, int], tuple[float, Cues]] = {}
         self._pred: dict[int, np.ndarray] = {}
@@ -146,11 +145,10 @@ class GlobalLinker:
                      self.ctx.image_object_size_m / self.mpu, self.ctx.image_object_size_m)
         self._regs = registrations or None
         self._frame_size = frame_size
-        if self._regs:
-            # registered frames: the world is the ground, free of the camera's motion, so a
-            # manoeuvre over a long gap is as plausible as with a known scale (the image-only
-            # limit, turn_max_gap_image_s, is for image coordinates)
-            self.turn_max_gap_s = self.config.turn_max_gap_s
+        # registered frames are the ground, free of the camera's motion, so a manoeuvre over a
+        # long gap is as plausible there as with a known scale; turn_max_gap_image_s is for
+        # image coordinates
+        self.turn_max_gap_s = self._turn_max_gap(bool(self._regs))
         links, _ = self.solve(tl)
         links = self.fill_gaps(tl, links)
         for _ in range(max(0, self.config.rounds - 1)):
@@ -159,6 +157,11 @@ class GlobalLinker:
                 break
             links = self.fill_gaps(tl, more)
         return self.build_tracks(tl, links, registrations, frame_size)
+
+    def _turn_max_gap(self, registered: bool) -> float:
+        c = self.config
+        known = self.metres_per_unit or registered
+        return c.turn_max_gap_s if known else min(c.turn_max_gap_s, c.turn_max_gap_image_s)
 
     def relink(self, tl: list[Track], links: dict[int, int]) -> dict[int, int]:
         """``links`` with the chains they make linked again, as tracklets of their own.

@@ -24,8 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..detection.detector import local_scales
-from ..types import Detections, apply_homography
+from ..types import Detections, apply_homography, local_scales
 from .posterior import inside_fraction, iou_xywh_centre
 
 __all__ = ["split_merged"]

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..config import DetectionConfig
 from ..errors import ConfigError
-from ..types import Detections, Frame, Registration, apply_homography
+from ..types import Detections, Frame, Registration, apply_homography, local_scale, local_scales
 from .appearance import colour_histogram, ring_descriptor
 from .background import (
     subset_median,
@@ -286,25 +286,6 @@ def robust_sigma(residual: np.ndarray, valid: np.ndarray | None = None,
     frac = (target - below) / max(hist[k], 1.0)
     q = max(0.0, k - 0.5 + frac)
     return q / _half_normal_quantile(quantile)
-
-
-def local_scale(H: np.ndarray, point: np.ndarray) -> float:
-    """World units per frame pixel of ``H`` at ``point`` (square root of the Jacobian's |det|)."""
-    x, y = float(point[0]), float(point[1])
-    p = np.array([[x, y], [x + 1.0, y], [x, y + 1.0]])
-    q = apply_homography(H, p)
-    J = np.stack([q[1] - q[0], q[2] - q[0]], axis=1)
-    return math.sqrt(abs(float(np.linalg.det(J))))
-
-
-def local_scales(H: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """:func:`local_scale` at each of the (N, 2) ``points`` (frame pixels); (N,) float64, the same
-    bits as one call per point (the Jacobians of all points from one homography product)."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    p = np.stack([pts, pts + (1.0, 0.0), pts + (0.0, 1.0)], axis=1).reshape(-1, 2)
-    q = apply_homography(H, p).reshape(-1, 3, 2)
-    J = np.stack([q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]], axis=2)
-    return np.sqrt(np.abs(np.linalg.det(J)))
 
 
 @dataclass(frozen=True)
