@@ -9,6 +9,10 @@ by default); the point is to catch what the tuned benchmarks do not (a false ala
 seconds on convoy:5, dark vehicles' shadows in their boxes on static scenes).
 
     python benchmarks/scenarios.py [--seeds 11 12 21] [--scenarios ...] [--jobs 2] [--set K=V]
+                                   [--no-map]
+
+``--no-map`` tracks the same frames as a user without a map or ``--gsd`` would (registered to
+frame 1, the metric scale estimated from the objects): ``results/scenarios-nomap.json``.
 
 Scenes are cached under ``$AEROTRACK_BENCH_WORK/scenarios`` with the generator's source hash;
 results go to ``benchmarks/results/scenarios.json`` (per scene and the mean per scenario and
@@ -54,13 +58,15 @@ def scene(folder: Path, scenario: str, seed: int) -> Path:
     return d
 
 
-def run_one(folder: Path, scenario: str, seed: int, overrides: list[str]) -> dict:
+def run_one(folder: Path, scenario: str, seed: int, overrides: list[str],
+            use_map: bool = True) -> dict:
     d = scene(folder, scenario, seed)
-    out = folder / f"{scenario}_{seed}.run"
+    out = folder / f"{scenario}_{seed}.{'run' if use_map else 'nomap.run'}"
     sets = [a for kv in overrides for a in ("--set", kv)]
+    geo = ["--map", str(d / "map.tif"), "--map-init", str(d / "map_init.txt")] if use_map else []
     t0 = time.perf_counter()
-    aerotrack("-q", "track", str(d / "frames"), "--out", str(out), "--map", str(d / "map.tif"),
-              "--map-init", str(d / "map_init.txt"), "--seed", "0", "--overwrite", *sets)
+    aerotrack("-q", "track", str(d / "frames"), "--out", str(out), *geo, "--seed", "0",
+              "--overwrite", *sets)
     wall = time.perf_counter() - t0
     e = json.loads(aerotrack("eval", "--gt", str(d / "gt.txt"), "--pred", str(out / "tracks.csv"),
                              "--json").stdout)
@@ -75,13 +81,19 @@ def main(argv=None) -> None:
     ap.add_argument("--jobs", type=int, default=2, help="scenes tracked at once")
     ap.add_argument("--set", dest="overrides", action="append", default=[],
                     help="configuration override for aerotrack track, SECTION.KEY=VALUE")
-    ap.add_argument("--out", default="scenarios", help="results name (benchmarks/results/NAME.json)")
+    ap.add_argument("--no-map", action="store_true",
+                    help="track without the map (frames alone, no --map/--gsd)")
+    ap.add_argument("--out", default=None,
+                    help="results name (benchmarks/results/NAME.json; default scenarios, or "
+                         "scenarios-nomap with --no-map)")
     args = ap.parse_args(argv)
+    out_name = args.out or ("scenarios-nomap" if args.no_map else "scenarios")
     folder = WORK / "scenarios"
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [(s, n) for n in args.seeds for s in args.scenarios]
     with ThreadPoolExecutor(max(1, args.jobs)) as pool:
-        rows = list(pool.map(lambda j: run_one(folder, j[0], j[1], args.overrides), jobs))
+        rows = list(pool.map(lambda j: run_one(folder, j[0], j[1], args.overrides,
+                                               use_map=not args.no_map), jobs))
     print(f"{'scene':14s} " + " ".join(f"{k:>8s}" for k in KEYS))
     for r in rows:
         print(f"{r['scene']:14s} " + " ".join(
@@ -93,7 +105,8 @@ def main(argv=None) -> None:
         means[name]["IDSW"] = int(sum(r["IDSW"] for r in sel))
         print(f"mean {name:9s} HOTA {means[name]['HOTA']:.3f} IDF1 {means[name]['IDF1']:.3f} "
               f"MOTA {means[name]['MOTA']:.3f} IDSW {means[name]['IDSW']}")
-    path = write_results(args.out, {"seeds": args.seeds, "scenarios": args.scenarios,
+    path = write_results(out_name, {"seeds": args.seeds, "scenarios": args.scenarios,
+                                    "map": not args.no_map,
                                     "overrides": args.overrides, "generator": generator_version(),
                                     "scenes": rows, "mean": means})
     print(f"wrote {path}")
