@@ -128,19 +128,30 @@ def _attach_unseeded(labels: np.ndarray, stats: np.ndarray, seeded: np.ndarray,
     being dropped with the noise, which left boxes covering half a vehicle."""
     n = len(stats)
     owner = np.arange(n)
-    seed_mask = np.isin(labels, np.flatnonzero(seeded)).astype(np.uint8)
-    # Distance of every pixel to the nearest seeded pixel, and which seeded pixel that is.
-    dist, near = cv2.distanceTransformWithLabels(1 - seed_mask, cv2.DIST_L2, 5,
-                                                 labelType=cv2.DIST_LABEL_PIXEL)
-    lut = np.zeros(int(near.max()) + 1, np.int32)
-    lut[near[seed_mask > 0]] = labels[seed_mask > 0]
+    H, W = labels.shape
+    seed_mask = seeded[labels].astype(np.uint8)
+    # Each unseeded component looks for seeds in its box grown by ``reach``: the chamfer distance
+    # is at least the chessboard distance, so a seed outside lies farther than ``gap + 1``, and
+    # the best chamfer path between two points stays in their bounding box, so the distances
+    # and nearest seeds inside are those of a transform over the whole frame.
+    reach = int(math.ceil(gap + 1.0)) + 1
     for k in np.flatnonzero(~seeded[1:]) + 1:
         x, y, w, h = (int(v) for v in stats[k, :4])
-        sub = labels[y:y + h, x:x + w] == k
-        d = dist[y:y + h, x:x + w][sub]
+        x0, y0, x1, y1 = max(0, x - reach), max(0, y - reach), min(W, x + w + reach), min(H, y + h + reach)
+        seeds = seed_mask[y0:y1, x0:x1]
+        if not seeds.any():
+            continue
+        # Distance of every pixel to the nearest seeded pixel, and which seeded pixel that is.
+        dist, near = cv2.distanceTransformWithLabels(1 - seeds, cv2.DIST_L2, 5,
+                                                     labelType=cv2.DIST_LABEL_PIXEL)
+        lab = labels[y0:y1, x0:x1]
+        sub = lab[y - y0:y - y0 + h, x - x0:x - x0 + w] == k
+        d = dist[y - y0:y - y0 + h, x - x0:x - x0 + w][sub]
         i = int(np.argmin(d))
         if d[i] <= gap + 1.0:  # at most ``gap`` background pixels in between
-            owner[k] = lut[near[y:y + h, x:x + w][sub][i]]
+            lut = np.zeros(int(near.max()) + 1, np.int32)
+            lut[near[seeds > 0]] = lab[seeds > 0]
+            owner[k] = lut[near[y - y0:y - y0 + h, x - x0:x - x0 + w][sub][i]]
     return owner
 
 
@@ -200,6 +211,29 @@ def box_gap(a: tuple, b: tuple) -> float:
     return float(max(gx, gy))
 
 
+def box_gaps(boxes: np.ndarray, others: np.ndarray | None = None) -> np.ndarray:
+    """:func:`box_gap` of every box in ``boxes`` (n, 4) against every box in ``others`` (m, 4,
+    default ``boxes``): an (n, m) float64 array, the same values pair by pair."""
+    a = np.asarray(boxes, np.int64).reshape(-1, 4)
+    b = a if others is None else np.asarray(others, np.int64).reshape(-1, 4)
+    ax0, ay0 = a[:, 0:1], a[:, 1:2]
+    ax1, ay1 = ax0 + a[:, 2:3], ay0 + a[:, 3:4]
+    bx0, by0 = b[None, :, 0], b[None, :, 1]
+    bx1, by1 = bx0 + b[None, :, 2], by0 + b[None, :, 3]
+    gx = np.maximum(np.maximum(ax0 - bx1, bx0 - ax1), 0)
+    gy = np.maximum(np.maximum(ay0 - by1, by0 - ay1), 0)
+    return np.maximum(gx, gy).astype(np.float64)
+
+
+def _union_extent(boxes: np.ndarray, i: int) -> np.ndarray:
+    """Longer side of the union of box ``i`` with every box (integer pixels), shape (n,)."""
+    x0 = np.minimum(boxes[:, 0], boxes[i, 0])
+    y0 = np.minimum(boxes[:, 1], boxes[i, 1])
+    x1 = np.maximum(boxes[:, 0] + boxes[:, 2], boxes[i, 0] + boxes[i, 2])
+    y1 = np.maximum(boxes[:, 1] + boxes[:, 3], boxes[i, 1] + boxes[i, 3])
+    return np.maximum(x1 - x0, y1 - y0)
+
+
 def oriented_sides(blob: Blob) -> tuple[float, float]:
     """Longer and shorter side of the blob mask's minimum-area rectangle, pixels."""
     pts = np.column_stack(np.nonzero(blob.mask)[::-1]).astype(np.float32)
@@ -228,28 +262,30 @@ def join_fragments(blobs: list[Blob], *, gap: float, max_length: float,
     queue bumper to bumper stay apart.
     """
     blobs = list(blobs)
-    changed = True
-    while changed:
-        changed = False
-        order = sorted(range(len(blobs)), key=lambda i: blobs[i].area)
-        for i in order:
-            a = blobs[i]
-            best, best_gap = -1, gap + 1e-9
-            for j, b in enumerate(blobs):
-                if j == i or a.area >= fragment_ratio * b.area:
-                    continue
-                g = box_gap(a.box, b.box)
-                if g <= best_gap:
-                    ux0, uy0 = min(a.box[0], b.box[0]), min(a.box[1], b.box[1])
-                    ux1 = max(a.box[0] + a.box[2], b.box[0] + b.box[2])
-                    uy1 = max(a.box[1] + a.box[3], b.box[1] + b.box[3])
-                    if max(ux1 - ux0, uy1 - uy0) <= max_length:
-                        best, best_gap = j, g
-            if best >= 0:
-                blobs[best] = merge_blobs(a, blobs[best])
-                del blobs[i]
-                changed = True
-                break
+    limit = gap + 1e-9
+    while len(blobs) > 1:
+        boxes = np.array([b.box for b in blobs], np.int64)
+        areas = np.array([b.area for b in blobs], np.float64)
+        gaps = box_gaps(boxes)
+        merged = False
+        for i in sorted(range(len(blobs)), key=lambda k: blobs[k].area):
+            ok = (areas[i] < fragment_ratio * areas) & (gaps[i] <= limit)
+            ok[i] = False
+            if not ok.any():
+                continue
+            ok &= _union_extent(boxes, i) <= max_length
+            if not ok.any():
+                continue
+            # the nearest, the last of equal gaps (as a scan keeping each j with gap <= best)
+            cand = np.flatnonzero(ok)
+            g = gaps[i, cand]
+            best = int(cand[np.flatnonzero(g == g.min())[-1]])
+            blobs[best] = merge_blobs(blobs[i], blobs[best])
+            del blobs[i]
+            merged = True
+            break
+        if not merged:
+            break
     return blobs
 
 
@@ -264,22 +300,32 @@ def join_vehicle_parts(blobs: list[Blob], *, gap: float, max_long: float,
     bumper to bumper make a union about twice a vehicle's length and stay apart.
     """
     blobs = list(blobs)
+    keys = list(range(len(blobs)))  # a key per blob, so unions already tested are not redone
+    next_key = len(blobs)
+    tested: dict[tuple[int, int], Blob | None] = {}
+    limit = gap + 1e-9
     while len(blobs) > 1:
-        best, best_gap = None, gap + 1e-9
-        for i in range(len(blobs)):
-            for j in range(i + 1, len(blobs)):
-                g = box_gap(blobs[i].box, blobs[j].box)
-                if g <= best_gap:
-                    u = merge_blobs(blobs[i], blobs[j])
-                    pts = np.column_stack(np.nonzero(u.mask)[::-1]).astype(np.float32)
-                    (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
-                    if max(rw, rh) <= max_long and min(rw, rh) <= max_short:
-                        best, best_gap = (i, j, u), g
+        gaps = box_gaps(np.array([b.box for b in blobs], np.int64))
+        best, best_gap = None, limit
+        ii, jj = np.nonzero(np.triu(gaps <= limit, 1))  # row-major: the order of a double loop
+        for i, j in zip(ii.tolist(), jj.tolist()):
+            g = gaps[i, j]
+            if g > best_gap:
+                continue
+            key = (keys[i], keys[j])
+            if key not in tested:
+                u = merge_blobs(blobs[i], blobs[j])
+                pts = np.column_stack(np.nonzero(u.mask)[::-1]).astype(np.float32)
+                (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
+                tested[key] = u if max(rw, rh) <= max_long and min(rw, rh) <= max_short else None
+            if tested[key] is not None:
+                best, best_gap = (i, j, tested[key]), g
         if best is None:
             break
         i, j, u = best
-        blobs[i] = u
-        del blobs[j]
+        blobs[i], keys[i] = u, next_key
+        next_key += 1
+        del blobs[j], keys[j]
     return blobs
 
 
@@ -297,28 +343,34 @@ def join_cabs(blobs: list[Blob], *, gap: float, long_t: float, max_long: float,
     """
     blobs = list(blobs)
     sides = [oriented_sides(b) for b in blobs]
-    changed = True
-    while changed and len(blobs) > 1:
-        changed = False
+    keys = list(range(len(blobs)))  # a key per blob, so unions already tested are not redone
+    next_key = len(blobs)
+    tested: dict[tuple[int, int], Blob | None] = {}
+    while len(blobs) > 1:
+        gaps = box_gaps(np.array([b.box for b in blobs], np.int64))
+        long_sides = np.array([s[0] for s in sides])
+        cab = long_sides < cab_ratio * long_t
+        ok = cab[:, None] & (long_sides[None, :] > long_sides[:, None]) & (gaps <= gap)
+        ii, jj = np.nonzero(ok)
+        # the nearest pair that passes, the first in scan order among equal gaps
         best = None
-        for i in range(len(blobs)):
-            if sides[i][0] >= cab_ratio * long_t:
-                continue
-            for j in range(len(blobs)):
-                if j == i or sides[j][0] <= sides[i][0]:
-                    continue
-                g = box_gap(blobs[i].box, blobs[j].box)
-                if g > gap or (best is not None and g >= best[0]):
-                    continue
+        for k in np.lexsort((jj, ii, gaps[ii, jj])).tolist():
+            i, j = int(ii[k]), int(jj[k])
+            key = (keys[i], keys[j])
+            if key not in tested:
                 u = merge_blobs(blobs[i], blobs[j])
                 lo, sh = oriented_sides(u)
-                if lo <= max_long and sh <= width_tol * max(sides[i][1], sides[j][1]):
-                    best = (g, i, j, u)
-        if best is not None:
-            _, i, j, u = best
-            blobs[j], sides[j] = u, oriented_sides(u)
-            del blobs[i], sides[i]
-            changed = True
+                passes = lo <= max_long and sh <= width_tol * max(sides[i][1], sides[j][1])
+                tested[key] = u if passes else None
+            if tested[key] is not None:
+                best = (i, j, tested[key])
+                break
+        if best is None:
+            break
+        i, j, u = best
+        blobs[j], sides[j], keys[j] = u, oriented_sides(u), next_key
+        next_key += 1
+        del blobs[i], sides[i], keys[i]
     return blobs
 
 

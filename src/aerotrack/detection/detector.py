@@ -161,7 +161,9 @@ def _gain_normalise(image: np.ndarray, bg: np.ndarray, block: float) -> np.ndarr
         gain = cv2.medianBlur(gain, 3)
     gain = np.clip(gain, 0.5, 2.0)
     gain = cv2.resize(gain, (w, h), interpolation=cv2.INTER_LINEAR)
-    return cv2.multiply(bg.astype(np.float32), cv2.merge([gain, gain, gain])).clip(0, 255).astype(np.uint8)
+    # products are >= 0: capping at 255 and truncating is numpy's clip(0, 255).astype(uint8)
+    out = cv2.multiply(bg, cv2.merge([gain, gain, gain]), dtype=cv2.CV_32F)
+    return np.minimum(out, 255.0, out=out).astype(np.uint8)
 
 
 def border_fill_mask(image: np.ndarray, level: int = 12) -> np.ndarray:
