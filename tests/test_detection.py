@@ -234,6 +234,11 @@ def test_stack_median_matches_numpy():
     for n in (1, 2, 5, 9, 16, 17):
         x = rng.integers(0, 256, (n, 7, 5, 3)).astype(np.uint8)
         np.testing.assert_array_equal(stack_median(list(x)), np.sort(x, axis=0)[(n - 1) // 2])
+    # frame-sized images go through the network in blocks of rows (a last partial block too)
+    for shape in ((301, 640, 3), (97, 1500)):
+        for n in (4, 15):
+            x = rng.integers(0, 256, (n, *shape)).astype(np.uint8)
+            np.testing.assert_array_equal(stack_median(list(x)), np.sort(x, axis=0)[(n - 1) // 2])
 
 
 def test_ring_descriptor_and_histogram():

@@ -161,9 +161,14 @@ def _gain_normalise(image: np.ndarray, bg: np.ndarray, block: float) -> np.ndarr
         gain = cv2.medianBlur(gain, 3)
     gain = np.clip(gain, 0.5, 2.0)
     gain = cv2.resize(gain, (w, h), interpolation=cv2.INTER_LINEAR)
-    # products are >= 0: capping at 255 and truncating is numpy's clip(0, 255).astype(uint8)
-    out = cv2.multiply(bg, cv2.merge([gain, gain, gain]), dtype=cv2.CV_32F)
-    return np.minimum(out, 255.0, out=out).astype(np.uint8)
+    # products are >= 0: capping at 255 and truncating (the cast on assignment) is numpy's
+    # clip(0, 255).astype(uint8); in blocks of rows, whose float products stay in the CPU cache
+    out = np.empty_like(bg)
+    for y0 in range(0, h, 32):
+        g = gain[y0:y0 + 32]
+        prod = cv2.multiply(bg[y0:y0 + 32], cv2.merge([g, g, g]), dtype=cv2.CV_32F)
+        out[y0:y0 + 32] = np.minimum(prod, 255.0, out=prod)
+    return out
 
 
 def border_fill_mask(image: np.ndarray, level: int = 12) -> np.ndarray:
