@@ -227,3 +227,53 @@ def test_a_box_rebuilt_from_a_world_size_is_the_detected_box_at_any_rotation():
                    size_world=np.array([32.0, 16.0]))
     box = _box_from_world(p, Registration(3, H), None)
     assert np.allclose(box, [120 - 8, 80 - 4, 16, 8])
+
+
+def test_read_ahead_yields_the_sources_frames_in_order(tmp_path):
+    from aerotrack.io.frames import read_ahead
+
+    for i in range(7):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((6, 8, 3), 30 * i, np.uint8))
+    src = open_source(tmp_path, 10)
+    direct = [(f.index, f.time, f.image.copy()) for f in src.frames(start=2, stop=6, stride=2)]
+    ahead = [(f.index, f.time, f.image) for f in read_ahead(src.frames(start=2, stop=6, stride=2))]
+    assert [a[:2] for a in ahead] == [d[:2] for d in direct] == [(2, 0.1), (4, 0.3), (6, 0.5)]
+    assert all(np.array_equal(a[2], d[2]) for a, d in zip(ahead, direct))
+
+
+def test_read_ahead_raises_the_sources_error_in_place_and_stops_with_the_consumer():
+    import threading
+    import time
+
+    from aerotrack.io.frames import read_ahead
+
+    def failing():
+        yield 1
+        yield 2
+        raise InputError("frame 3: corrupt")
+
+    got = []
+    with pytest.raises(InputError, match="frame 3"):
+        for x in read_ahead(failing()):
+            got.append(x)  # noqa: PERF402 - what arrived before the error
+    assert got == [1, 2]
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            n = 0
+            while True:
+                n += 1
+                yield n
+        finally:
+            closed.set()
+
+    for x in read_ahead(endless(), depth=2):
+        if x == 3:
+            break
+    t0 = time.monotonic()
+    while not closed.is_set() and time.monotonic() - t0 < 5:
+        time.sleep(0.01)
+    assert closed.is_set()  # the source was closed: a video's capture is released
+    assert not any(t.name == "aerotrack-read-ahead" for t in threading.enumerate())

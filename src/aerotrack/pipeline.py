@@ -27,6 +27,7 @@ import numpy as np
 from .config import Config
 from .errors import InputError
 from .geo import GeoMap
+from .io.frames import read_ahead
 from .types import Detections, Frame, Registration, Track, apply_homography, local_scales
 
 log = logging.getLogger(__name__)
@@ -737,7 +738,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                 if progress:
                     progress(done)
         else:
-            for frame in source.frames(start=start, stop=stop, stride=stride):
+            for frame in read_ahead(source.frames(start=start, stop=stop, stride=stride)):
                 stepping = True
                 pipe.step(frame)
                 stepping = False
@@ -808,7 +809,7 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
 
     done = 0
     try:
-        for frame in source.frames(start=start, stop=stop, stride=stride):
+        for frame in read_ahead(source.frames(start=start, stop=stop, stride=stride)):
             pipe.step(frame)
             detector = pipe.detector
             drain()

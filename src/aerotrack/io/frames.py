@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -56,6 +58,73 @@ class FrameSource:
 
     def __len__(self) -> int:
         return int(self.count or 0)
+
+
+class _Failed:
+    """An exception raised while reading ahead, handed to the consumer."""
+
+    def __init__(self, exc: BaseException) -> None:
+        self.exc = exc
+
+
+_END = object()
+
+
+def read_ahead(frames: Iterator[Frame], depth: int = 2) -> Iterator[Frame]:
+    """The frames of ``frames``, in order, read by a background thread up to ``depth`` frames
+    ahead of the consumer.
+
+    Decoding (8 ms per 1920x1080 H.264 frame, a few per JPEG image) then runs while the
+    pipeline works on the previous frame: OpenCV's decoders and image readers release the GIL, so
+    it takes the second core that the pipeline's single-threaded stages leave idle. The frames
+    are the same objects the source yields; memory grows by ``depth`` frames. An exception of the
+    source is raised to the consumer at the frame where it happened; when the consumer stops
+    early (``break``, an interruption) the thread stops and closes the source.
+    """
+    q: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for frame in frames:
+                if not put(frame):
+                    break
+            else:
+                put(_END)
+        except BaseException as exc:  # noqa: BLE001 - the consumer raises it
+            put(_Failed(exc))
+        finally:
+            close = getattr(frames, "close", None)
+            if close is not None:
+                close()
+
+    thread = threading.Thread(target=work, name="aerotrack-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            try:
+                item = q.get(timeout=0.5)
+            except queue.Empty:
+                if not thread.is_alive() and q.empty():
+                    return
+                continue
+            if item is _END:
+                return
+            if isinstance(item, _Failed):
+                raise item.exc
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
 
 
 def _check_fps(fps: float | None, label: str) -> float | None:
