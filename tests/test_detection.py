@@ -570,3 +570,42 @@ def test_model_resolution_per_vehicle_is_kept_at_every_frame_size_without_a_scal
     det = MovingObjectDetector(c, FPS, metres_per_unit=0.1)
     det.model_image(np.zeros((540, 960, 3), np.uint8))
     assert det.scale == c.model_scale
+
+
+def test_whole_frame_work_gets_the_threads_the_process_has_and_the_stages_one():
+    """The pipeline runs its stages on one OpenCV thread; the detector's background warps and
+    medians and its model image get the process's setting back (a Dask worker's 1, else all)."""
+    import cv2
+
+    from aerotrack.config import Config
+    from aerotrack.detection import detector as det_mod
+    from aerotrack.pipeline import Pipeline
+    from aerotrack.synth import Scenario
+
+    frames = [f for f, _, _ in Scenario(seed=1, frames=12, size=(320, 240), fps=10.0).frames()]
+    seen: list[tuple[str, int]] = []
+    real_bg = det_mod.MovingObjectDetector._background
+
+    def spy_bg(self, p):
+        seen.append(("background", cv2.getNumThreads()))
+        return real_bg(self, p)
+
+    previous = cv2.getNumThreads()
+    try:
+        for outer in (2, 1):
+            cv2.setNumThreads(outer)
+            seen.clear()
+            det_mod.MovingObjectDetector._background = spy_bg
+            pipe = Pipeline(Config(), 10.0, metres_per_unit=0.3, seed=0)
+            for f in frames:
+                pipe.step(f)
+                seen.append(("stage", -1))  # between steps: the process's own setting again
+                assert cv2.getNumThreads() == outer
+            pipe.finish_local()
+            assert [n for what, n in seen if what == "background"] and \
+                all(n == outer for what, n in seen if what == "background")
+            with det_mod.cv_threads(None):
+                assert cv2.getNumThreads() == outer
+    finally:
+        det_mod.MovingObjectDetector._background = real_bg
+        cv2.setNumThreads(previous)

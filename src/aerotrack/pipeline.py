@@ -191,6 +191,7 @@ class Pipeline:
         self.regions = list(regions or [])
         self.min_speed_mps = min_speed_mps
         self.opencv_threads = opencv_threads
+        self._outer_threads: int | None = None  # see _wide_threads
         # frame index -> the image the stages were given, while some stage still holds it: on
         # interruption the state then refers to these frames instead of holding their pixels
         self._images: weakref.WeakValueDictionary[int, np.ndarray] = weakref.WeakValueDictionary()
@@ -246,13 +247,26 @@ class Pipeline:
 
     def step(self, frame: Frame) -> None:
         """Process one frame (frames must come in increasing order)."""
+        self._wide_threads()
         with opencv_threads(self.opencv_threads):
             self._step(frame)
+
+    def _wide_threads(self) -> None:
+        """The OpenCV threads the process has outside the stages, for the detector's whole-frame
+        work (``MovingObjectDetector.wide_threads``)."""
+        if self.opencv_threads is not None:
+            import cv2
+
+            self._outer_threads = cv2.getNumThreads()
+        if self.detector is not None:
+            self.detector.wide_threads = self._outer_threads
 
     def _step(self, frame: Frame) -> None:
         if self.undistort is not None:
             frame = self.undistort(frame)
         self._ensure_stages(frame)
+        if self.detector is not None:
+            self.detector.wide_threads = self._outer_threads
         if frame.image is not None:
             self._images[frame.index] = frame.image
         if self.first_frame is None:
@@ -532,6 +546,7 @@ class Pipeline:
         from .io.checkpoint import TrackletSpill
 
         if self.detector is not None:
+            self._wide_threads()
             with self._timed("detection"), opencv_threads(self.opencv_threads):
                 rest = self.detector.flush()
             self._associate(rest)
