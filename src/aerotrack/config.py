@@ -237,6 +237,16 @@ class DetectionConfig:
         Side (full-resolution pixels) of the blocks over which the frame's local gain against
         the background is estimated and divided out (illumination changes, auto-exposure).
         0 disables the normalisation.
+    exposure_tolerance : float
+        Each background sample whose exposure differs from the frame the background is built
+        for by more than this fraction is brought to that frame's exposure before the window's
+        median (:func:`aerotrack.detection.background.exposure_gain`: the median over blocks of
+        the ratio of their mean grey levels). Without it a camera's auto-exposure swing ranks
+        the samples by their exposure rather than by their noise, the median is one sample's
+        noisy value, and the threshold, which follows the residual's noise, rises (Santiago
+        with +-10% every 3 s: 11-17 grey levels instead of 10-11). Within the tolerance a
+        sample is used as it is, so footage without exposure changes is not touched. 0
+        rescales every sample, a negative value none.
     close_m, close_px : float
         Radius of the morphological closing that joins fragments of one vehicle: metres when a
         scale is known, full-resolution pixels otherwise.
@@ -501,6 +511,7 @@ class DetectionConfig:
     seed_sigma: float = 0.0
     residual_sigma_px: float = 0.0
     gain_block_px: float = 96.0
+    exposure_tolerance: float = 0.04
     close_m: float = 0.8
     close_px: float = 4.0
     join_gap_m: float = 1.0

@@ -225,6 +225,8 @@ def warp_samples(
     size: tuple[int, int],
     ref_holes: np.ndarray | None = None,
     ref_holes_for: Sequence[bool] | None = None,
+    exposure_ref: np.ndarray | None = None,
+    exposure_tolerance: float = 0.04,
 ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """The samples of :func:`window_background` warped into the reference frame, with their
     validity; several window medians (:func:`subset_median`) can then share the warps.
@@ -237,6 +239,9 @@ def warp_samples(
     """
     w, h = size
     out = []
+    ref_small = None
+    if exposure_ref is not None:
+        ref_small = _exposure_grey(exposure_ref)
     for k, (img, M) in enumerate(zip(samples, to_ref)):
         sh, sw = img.shape[:2]
         wimg = warp(img, M, (w, h))
@@ -249,8 +254,50 @@ def warp_samples(
         if ref_holes is not None and len(ref_holes) and (ref_holes_for is None or ref_holes_for[k]):
             polys.extend(ref_holes)
         _fill(valid, polys, 0)
+        if ref_small is not None:
+            g = exposure_gain(ref_small, wimg, valid)
+            if abs(g - 1.0) > exposure_tolerance:
+                wimg = cv2.convertScaleAbs(wimg, alpha=g)
         out.append((wimg, valid))
     return out
+
+
+def _quarter(img: np.ndarray) -> np.ndarray:
+    """Every fourth pixel of every fourth row (nearest-neighbour decimation)."""
+    h, w = img.shape[:2]
+    return cv2.resize(img, (max(1, w // 4), max(1, h // 4)), interpolation=cv2.INTER_NEAREST)
+
+
+def _exposure_grey(img: np.ndarray) -> np.ndarray:
+    """Grey level of every fourth pixel of every fourth row, float32 (block means of these are
+    as good as of all pixels for a global exposure, at a sixteenth of the cost)."""
+    sub = _quarter(img)
+    grey = cv2.cvtColor(sub, cv2.COLOR_BGR2GRAY) if sub.ndim == 3 else sub
+    return grey.astype(np.float32)
+
+
+def exposure_gain(ref_grey: np.ndarray, img: np.ndarray, valid: np.ndarray,
+                  block: int = 12) -> float:
+    """Exposure of the reference relative to a warped sample: the median over blocks of the
+    ratio of their mean grey levels, over the blocks the sample saw whole and outside its
+    holes (``ref_grey`` from :func:`_exposure_grey`; ``block`` in its pixels, 4 frame pixels
+    each; the rows and columns that do not fill a block are left out). The median over blocks
+    leaves out those where a vehicle is in one image and not the other. 1.0 when fewer than 4
+    blocks qualify."""
+    hh, ww = ref_grey.shape
+    gh, gw = hh // block, ww // block
+    if gh * gw < 4:
+        return 1.0
+    gi = _exposure_grey(img)
+    v = _quarter(valid).astype(np.float32)
+
+    # block means: an area resize by a whole factor is the box average
+    stack = cv2.merge([ref_grey * v, gi * v, v])[:gh * block, :gw * block]
+    mr, mi, mv = cv2.split(cv2.resize(stack, (gw, gh), interpolation=cv2.INTER_AREA))
+    ok = (mv > 0.95) & (mi > 8.0) & (mr > 8.0)
+    if int(ok.sum()) < 4:
+        return 1.0
+    return float(np.median(mr[ok] / mi[ok]))
 
 
 def subset_median(warped: Sequence[tuple[np.ndarray, np.ndarray]], which: Sequence[int],

@@ -922,7 +922,7 @@ class MovingObjectDetector:
             # is chosen per pixel from the two once this frame's detections are known
             # (choose_hold). (At the end of a segment the choice changed nothing measurable.)
             windows.append((c - self.half, c + self.half))
-        meds = self._medians(windows, Hc_inv, (w, h))
+        meds = self._medians(windows, Hc_inv, (w, h), p.small)
         bg, count, n = meds[0]
         cut = meds[1][0] if len(meds) > 1 else None
         weak = count < min(self.config.min_valid_samples, max(1, n))
@@ -947,7 +947,8 @@ class MovingObjectDetector:
         return bg, testable
 
     def _medians(self, windows: list[tuple[int, int]], Hc_inv: np.ndarray,
-                 size: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray, int]]:
+                 size: tuple[int, int], ref_small: np.ndarray | None = None
+                 ) -> list[tuple[np.ndarray, np.ndarray, int]]:
         """Window medians of the samples of frames ``[lo, hi]`` for each window, in the model
         pixels of the frame whose inverse homography is ``Hc_inv``, sharing the sample warps.
 
@@ -963,8 +964,11 @@ class MovingObjectDetector:
         if self.config.hold_stopped and self._last_fg is not None:
             _, fH, fpolys = self._last_fg
             ref_holes = warp_polygons(fpolys, to_cv_homography(Hc_inv @ fH, self.scale))
+        tol = self.config.exposure_tolerance
         warped = warp_samples([s.small for s in chosen], to_ref, [s.holes for s in chosen],
-                              size, ref_holes, [not s.known for s in chosen])
+                              size, ref_holes, [not s.known for s in chosen],
+                              exposure_ref=ref_small if tol >= 0 else None,
+                              exposure_tolerance=tol)
         out = []
         for j, (lo, hi) in enumerate(windows):
             which = [k for k, i in enumerate(idx) if lo <= i <= hi]
@@ -1204,6 +1208,7 @@ def _validate(c: DetectionConfig) -> None:
         ("min_threshold", 0 <= c.min_threshold < 255), ("seed_ratio", c.seed_ratio >= 1),
         ("seed_sigma", c.seed_sigma >= 0),
         ("gain_block_px", c.gain_block_px >= 0), ("close_m", c.close_m >= 0),
+        ("exposure_tolerance", math.isfinite(c.exposure_tolerance)),
         ("close_px", c.close_px >= 0), ("min_area_m2", c.min_area_m2 >= 0),
         ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
         ("max_length_px", c.max_length_px > 0), ("min_width_m", c.min_width_m >= 0),
