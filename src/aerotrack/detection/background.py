@@ -231,6 +231,11 @@ def warp_samples(
     """The samples of :func:`window_background` warped into the reference frame, with their
     validity; several window medians (:func:`subset_median`) can then share the warps.
 
+    With ``exposure_ref`` (the reference frame, same size as the warped samples) a sample whose
+    exposure (:func:`exposure_gain`) differs from the reference's by more than
+    ``exposure_tolerance`` is scaled to it, so that the median ranks the samples by their noise
+    and not by the camera's auto-exposure.
+
     Returns
     -------
     list of (image, valid)
