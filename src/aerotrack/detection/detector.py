@@ -967,7 +967,7 @@ class MovingObjectDetector:
         tol = self.config.exposure_tolerance
         warped = warp_samples([s.small for s in chosen], to_ref, [s.holes for s in chosen],
                               size, ref_holes, [not s.known for s in chosen],
-                              exposure_ref=ref_small if tol >= 0 else None,
+                              exposure_ref=ref_small if tol > 0 else None,
                               exposure_tolerance=tol)
         out = []
         for j, (lo, hi) in enumerate(windows):
@@ -1208,7 +1208,7 @@ def _validate(c: DetectionConfig) -> None:
         ("min_threshold", 0 <= c.min_threshold < 255), ("seed_ratio", c.seed_ratio >= 1),
         ("seed_sigma", c.seed_sigma >= 0),
         ("gain_block_px", c.gain_block_px >= 0), ("close_m", c.close_m >= 0),
-        ("exposure_tolerance", math.isfinite(c.exposure_tolerance)),
+        ("exposure_tolerance", c.exposure_tolerance >= 0),
         ("close_px", c.close_px >= 0), ("min_area_m2", c.min_area_m2 >= 0),
         ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
         ("max_length_px", c.max_length_px > 0), ("min_width_m", c.min_width_m >= 0),
