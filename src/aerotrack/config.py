@@ -245,9 +245,9 @@ class DetectionConfig:
         the samples by their exposure rather than by their noise, the median is one sample's
         noisy value, and the threshold, which follows the residual's noise, rises (Santiago
         with +-10% every 3 s: 11-17 grey levels instead of 10-11). Within the tolerance a
-        sample is used as it is, so footage without exposure changes is not touched; on a
-        moving camera the estimate's own noise reaches 3% (truck4), and 2% rescaled 11% of
-        its samples and split its truck's track. 0 disables. Measured (``docs/DESIGN.md``,
+        sample is used as it is, so footage without exposure changes is not touched (truck4's
+        camera varies by up to 3%: at 2%, 11% of its samples were rescaled and one missed
+        stretch split its truck's track). 0 disables. Measured (``docs/DESIGN.md``,
         "Exposure changes"): Santiago with +-25% every 1.3 s HOTA/IDF1 0.562/0.719 ->
         0.627/0.835; generated scenes' detection (their gain drifts +-6% over 17 s) recall
         0.845 -> 0.840 and precision 0.899 -> 0.895 at IoU 0.5, tracking within their MCMC
