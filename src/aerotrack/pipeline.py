@@ -33,23 +33,6 @@ from .types import Detections, Frame, Registration, Track, apply_homography, loc
 log = logging.getLogger(__name__)
 
 
-@contextmanager
-def opencv_threads(n: int | None) -> Iterator[None]:
-    """Run the block with ``n`` OpenCV worker threads (``cv2.setNumThreads``), then restore the
-    previous setting; ``None`` changes nothing."""
-    if n is None:
-        yield
-        return
-    import cv2
-
-    previous = cv2.getNumThreads()
-    cv2.setNumThreads(int(n))
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(previous)
-
-
 @dataclass
 class Result:
     """What a run produced.
@@ -247,8 +230,10 @@ class Pipeline:
 
     def step(self, frame: Frame) -> None:
         """Process one frame (frames must come in increasing order)."""
+        from .detection.detector import cv_threads
+
         self._wide_threads()
-        with opencv_threads(self.opencv_threads):
+        with cv_threads(self.opencv_threads):
             self._step(frame)
 
     def _wide_threads(self) -> None:
@@ -546,8 +531,10 @@ class Pipeline:
         from .io.checkpoint import TrackletSpill
 
         if self.detector is not None:
+            from .detection.detector import cv_threads
+
             self._wide_threads()
-            with self._timed("detection"), opencv_threads(self.opencv_threads):
+            with self._timed("detection"), cv_threads(self.opencv_threads):
                 rest = self.detector.flush()
             self._associate(rest)
         if self.associator is not None:
