@@ -248,8 +248,8 @@ class DetectionConfig:
         sample is used as it is, so footage without exposure changes is not touched (truck4's
         camera varies by up to 3%: at 2%, 11% of its samples were rescaled and one missed
         stretch split its truck's track). 0 disables. Measured (``docs/DESIGN.md``,
-        "Exposure changes"): Santiago with +-25% every 1.3 s HOTA/IDF1 0.562/0.719 ->
-        0.627/0.835; generated scenes' detection (their gain drifts +-6% over 17 s) recall
+        "Exposure changes"): Santiago with +-25% every 1.3 s HOTA/IDF1 0.579/0.749 ->
+        0.623/0.822 (``benchmarks/exposure.py``); generated scenes' detection (their gain drifts +-6% over 17 s) recall
         0.845 -> 0.840 and precision 0.899 -> 0.895 at IoU 0.5, tracking within their MCMC
         noise.
     close_m, close_px : float
