@@ -78,7 +78,8 @@ from scipy.optimize import linear_sum_assignment
 
 from aerotrack.config import Config, DetectionConfig
 from aerotrack.detection import MovingObjectDetector
-from aerotrack.detection.detector import SizeGates, detect_moving, robust_sigma
+from aerotrack.detection.moving import SizeGates, detect_moving
+from aerotrack.detection.residual import robust_sigma
 from aerotrack.io.frames import open_source
 from aerotrack.types import Frame, Registration, apply_homography
 

@@ -19,19 +19,11 @@ from aerotrack.detection import (
 )
 from aerotrack.detection.appearance import median_u8
 from aerotrack.detection.blobs import Blob, join_vehicle_parts
-from aerotrack.detection.detector import (
-    SizeGates,
-    _gain_normalise,
-    _outline_ratio,
-    _pad0,
-    detect_moving,
-    local_scale,
-    local_scales,
-    protected_blobs,
-    robust_sigma,
-)
+from aerotrack.detection.detector import _outline_ratio, protected_blobs
+from aerotrack.detection.moving import SizeGates, detect_moving
+from aerotrack.detection.residual import gain_normalise, pad0, robust_sigma
 from aerotrack.errors import ConfigError
-from aerotrack.types import Frame, Registration, apply_homography
+from aerotrack.types import Frame, Registration, apply_homography, local_scale, local_scales
 
 FPS = 10.0
 FRAME_W, FRAME_H = 320, 240
@@ -323,7 +315,7 @@ def test_gain_normalise_equals_two_resizes():
             gain = cv2.medianBlur(gain, 3)
         gain = cv2.resize(np.clip(gain, 0.5, 2.0), (w, h), interpolation=cv2.INTER_LINEAR)
         ref = cv2.multiply(bg.astype(np.float32), cv2.merge([gain] * 3)).clip(0, 255).astype(np.uint8)
-        np.testing.assert_array_equal(_gain_normalise(img, bg, block), ref)
+        np.testing.assert_array_equal(gain_normalise(img, bg, block), ref)
 
 
 def test_pad0_equals_np_pad():
@@ -331,8 +323,8 @@ def test_pad0_equals_np_pad():
     for _ in range(50):
         m = (rng.random(tuple(rng.integers(1, 30, 2))) < 0.5).astype(np.uint8)
         for n in (1, 2, 3):
-            np.testing.assert_array_equal(_pad0(m, n), np.pad(m, n))
-            np.testing.assert_array_equal(_pad0(m[::2, 1:], n), np.pad(m[::2, 1:], n))
+            np.testing.assert_array_equal(pad0(m, n), np.pad(m, n))
+            np.testing.assert_array_equal(pad0(m[::2, 1:], n), np.pad(m[::2, 1:], n))
 
 
 def test_median_u8_equals_np_median():
@@ -539,7 +531,7 @@ def test_a_regrown_ghost_is_dropped_and_a_regrown_dark_vehicle_kept():
 
 
 def test_pixel_gates_follow_the_frame_diagonal():
-    from aerotrack.detection.detector import pixel_gate_scale
+    from aerotrack.detection.moving import pixel_gate_scale
 
     assert pixel_gate_scale((1080, 1920), 2203.0) == 1.0
     assert pixel_gate_scale((720, 1280), 2203.0) == pytest.approx(2 / 3, abs=1e-3)

@@ -210,7 +210,7 @@ def test_seeds_out_of_the_noise_let_a_dark_vehicle_be_found_whole():
     import dataclasses
 
     from aerotrack.config import DetectionConfig
-    from aerotrack.detection.detector import SizeGates, detect_moving
+    from aerotrack.detection.moving import SizeGates, detect_moving
 
     gates = SizeGates(min_area_px=60, max_length_px=300, close_px=4, join_gap_px=5,
                       min_width_px=5)
@@ -277,8 +277,8 @@ def test_an_articulated_vehicles_cab_joins_its_trailer_and_queued_cars_stay_apar
 
 
 def test_two_vehicles_a_few_pixels_apart_are_separated_and_one_vehicle_is_not():
-    from aerotrack.detection.detector import Blob as DBlob
-    from aerotrack.detection.detector import pieces_of, separate_pieces
+    from aerotrack.detection.blobs import Blob as DBlob
+    from aerotrack.detection.moving import pieces_of, separate_pieces
 
     m = np.zeros((40, 60), np.uint8)
     m[5:15, 5:35] = 1  # two cars passing in opposite lanes, 3 px of road between their bodies
@@ -308,7 +308,7 @@ def test_two_vehicles_a_few_pixels_apart_are_separated_and_one_vehicle_is_not():
 
 def test_persistence_gets_no_evidence_from_a_detected_vehicles_shadow_only():
     from aerotrack.config import DetectionConfig
-    from aerotrack.detection.detector import shadows_beside_detections_removed
+    from aerotrack.detection.moving import shadows_beside_detections_removed
 
     # model pixels (scale 0.5): a detected truck with its shadow beside it, and far away a small
     # undetected mover's shadow; the residual is high on all three

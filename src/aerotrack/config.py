@@ -285,7 +285,7 @@ class DetectionConfig:
     split_full_ratio : float
         A blob whose full-resolution mask (after shadow removal, before the closing) falls into
         two or more pieces of at least this fraction of the frame's typical blob area (and
-        ``min_width`` thick) is that many vehicles (``detector.separate_pieces``): cars passing
+        ``min_width`` thick) is that many vehicles (``moving.separate_pieces``): cars passing
         in opposite lanes, queues and junction crossings, whose bodies are a few pixels apart
         but whose shadows and the model's coarser pixels join them; only blobs of at least
         ``split_area_ratio`` x the typical area are candidates. 0 disables. Measured at 0.4

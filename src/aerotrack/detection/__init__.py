@@ -7,7 +7,8 @@ appearance data of externally given boxes.
 
 from .appearance import colour_histogram, describe, ring_descriptor
 from .background import stack_median, window_background
-from .detector import MovingObjectDetector, detect_moving
+from .detector import MovingObjectDetector
+from .moving import detect_moving
 from .shadows import shadow_mask
 
 __all__ = [

@@ -1,0 +1,480 @@
+"""Moving vehicles in one registered frame: residual -> blobs -> refined boxes.
+
+:func:`detect_moving` is the per-frame algorithm as a pure function of the frame and its
+background (the streaming window that builds the background is :mod:`.detector`):
+
+1. the residual at model resolution and its noise threshold (:mod:`.residual`);
+2. model-resolution blobs (:func:`model_blobs`): hysteresis, splitting of merged blobs, joining
+   of a vehicle's fragments, small blobs regrown or dropped (:mod:`.blobs`);
+3. each blob refined at full resolution (:func:`refine_blob`): ghosts dropped, moving shadows
+   removed (:mod:`.shadows`), side-by-side vehicles separated, each piece gated by size and
+   thickness, scored and boxed at its half-contrast edge.
+
+Boxes are ``x, y, w, h`` in full-resolution frame pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..config import DetectionConfig
+from .blobs import (
+    Blob,
+    close,
+    drop_small,
+    edge_extent,
+    hysteresis_blobs,
+    join_cabs,
+    join_fragments,
+    join_vehicle_parts,
+    open2,
+    regrow_small,
+    split_blob,
+)
+from .residual import border_fill_mask, gain_normalise, ghost_score, pad0, robust_sigma, smoothed_residual
+from .shadows import remove_shadows, shadow_mask, trim_shadow_side
+
+
+@dataclass
+class FrameResult:
+    """What :func:`detect_moving` found in one frame.
+
+    Attributes
+    ----------
+    boxes : ndarray, shape (N, 4) float64
+        ``x, y, w, h`` in full-resolution frame pixels.
+    conf : ndarray, shape (N,)
+    masks : list of ndarray (h_k, w_k) bool
+        Blob of each box at full resolution, cropped to ``crops[k]``.
+    crops : list of (x0, y0, x1, y1)
+        Full-resolution integer crop of each mask.
+    model_blobs : list of Blob
+        The same detections' blobs at model resolution (kept out of the background).
+    contrast : ndarray, shape (N,)
+        Mean residual of each blob over the threshold.
+    threshold : float
+        Residual threshold used, grey levels.
+    residual : ndarray, shape (h, w) uint8
+        Model-resolution residual (for debug pictures).
+    persistent : ndarray, shape (N,) bool, optional
+        True for detections found by multi-frame persistence (None: none were).
+    """
+
+    boxes: np.ndarray
+    conf: np.ndarray
+    masks: list = field(default_factory=list)
+    crops: list = field(default_factory=list)
+    model_blobs: list = field(default_factory=list)
+    contrast: np.ndarray | None = None
+    threshold: float = 0.0
+    residual: np.ndarray | None = None
+    persistent: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SizeGates:
+    """Size limits of one frame in full-resolution frame pixels (from metres via the frame's
+    scale when known; see ``DetectionConfig``)."""
+
+    min_area_px: float
+    max_length_px: float
+    close_px: float
+    join_gap_px: float
+    min_width_px: float = 0.0
+
+
+#: Smallest factor :func:`pixel_gate_scale` gives (frames under 960 x 540: the rule was measured
+#: down to 540p, and smaller gates let compression noise through).
+MIN_PIXEL_GATE_SCALE = 0.5
+
+
+def pixel_gate_scale(shape: tuple[int, ...], reference_px: float) -> float:
+    """Factor of the pixel size gates (used without a scale) for a frame of ``shape`` (H, W, ...):
+    its diagonal / ``reference_px``, at least :data:`MIN_PIXEL_GATE_SCALE`, and exactly 1 within
+    1% of ``reference_px`` (``reference_px`` 0: always 1). The same flight filmed at 4K shows
+    every vehicle twice as long, in pixels, as at 1080p, and at 540p half as long."""
+    if reference_px <= 0:
+        return 1.0
+    k = math.hypot(shape[0], shape[1]) / reference_px
+    return 1.0 if abs(k - 1.0) < 0.01 else max(MIN_PIXEL_GATE_SCALE, k)
+
+
+def model_scale_for(shape: tuple[int, ...], config: DetectionConfig,
+                    metric: bool = False) -> float:
+    """Resolution of the background model for frames of ``shape`` (H, W, ...).
+
+    With a metric scale (``metric``: a map or ``--gsd``) it is ``config.model_scale``. Without
+    one, ``config.model_scale`` is meant for a frame of ``pixel_gates_reference_px`` diagonal
+    (1080p) and the model keeps the same resolution per vehicle at other sizes:
+    ``model_scale / pixel_gate_scale``, at most 1. A 720p clip is modelled at 0.75 and a 540p
+    one at full resolution, where 0.5 would leave a car of 18 x 10 px 9 x 5 model pixels:
+    Santiago downscaled to 960x540 scored HOTA/IDF1 0.549/0.704 with the 1080p model scale and
+    gates, 0.642/0.858 with both scaled (0.658/0.874 at 1080p); at 1280x720 0.587/0.786 ->
+    0.627/0.831.
+    """
+    if metric:
+        return float(config.model_scale)
+    k = pixel_gate_scale(shape, config.pixel_gates_reference_px)
+    return min(1.0, float(config.model_scale) / k)
+
+
+#: Full-resolution pixels of a blob's region count as vehicle above this fraction of the
+#: model-resolution threshold (the threshold of a regrown blob's fainter pixels likewise).
+FULL_THRESHOLD_FRACTION = 0.8
+#: Components of a refined piece smaller than this fraction of its largest are dropped as stray
+#: noise pixels.
+STRAY_FRACTION = 0.15
+
+
+def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
+                  testable: np.ndarray, config: DetectionConfig, scale: float,
+                  gates: SizeGates) -> FrameResult:
+    """Detect moving blobs in one frame against its background.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) uint8
+        Full-resolution frame (BGR).
+    small : ndarray, shape (h, w, 3) uint8
+        The frame at model resolution (``scale`` x full size).
+    bg_small : ndarray, shape (h, w, 3) uint8
+        Its background, in the same model pixels.
+    testable : ndarray, shape (h, w) uint8
+        255 where the background is trusted.
+    config : DetectionConfig
+    scale : float
+        Model / full resolution.
+    gates : SizeGates
+        Size gates in full-resolution pixels for this frame.
+
+    Returns
+    -------
+    FrameResult
+    """
+    bgn = gain_normalise(small, bg_small, config.gain_block_px * scale)
+    res, sigma, thr = model_residual(small, bgn, testable, config, scale)
+    blobs, faint, typical = model_blobs(res, thr, sigma, config, scale, gates)
+    found = [d for b, f in zip(blobs, faint)
+             for d in refine_blob(b, image, small, bgn, thr, config, scale, gates,
+                                  typical=typical, faint=f)]
+    boxes = np.asarray([d.box for d in found], np.float64).reshape(-1, 4)
+    if config.shadow_suppression and config.shadow_trim:
+        boxes = trim_shadow_side(boxes, np.asarray([d.dark for d in found], bool),
+                                 [d.growth for d in found if d.growth is not None])
+    return FrameResult(
+        boxes=boxes,
+        conf=np.asarray([d.conf for d in found], np.float64),
+        masks=[d.mask for d in found], crops=[d.crop for d in found],
+        model_blobs=[d.blob for d in found],
+        contrast=np.asarray([d.contrast for d in found], np.float64), threshold=thr, residual=res,
+    )
+
+
+def model_residual(small: np.ndarray, bgn: np.ndarray, testable: np.ndarray,
+                   config: DetectionConfig, scale: float) -> tuple[np.ndarray, float, float]:
+    """The model-resolution residual of ``small`` against its gain-normalised background ``bgn``,
+    zero where the background is not trusted and on the black fill at the image border.
+
+    Returns
+    -------
+    residual : ndarray, shape (h, w) uint8
+    sigma : float
+        Its noise level, grey levels (:func:`.residual.robust_sigma`).
+    threshold : float
+        ``max(min_threshold, threshold_sigma x sigma)``.
+    """
+    res = smoothed_residual(small, bgn, 1, config.residual_sigma_px * scale)
+    res[testable == 0] = 0
+    res[border_fill_mask(small)] = 0
+    sigma = robust_sigma(res, testable)
+    return res, sigma, max(config.min_threshold, config.threshold_sigma * sigma)
+
+
+def model_blobs(res: np.ndarray, thr: float, sigma: float, config: DetectionConfig, scale: float,
+                gates: SizeGates) -> tuple[list[Blob], list[bool], float]:
+    """Vehicle-sized blobs of the model-resolution residual ``res`` (model pixels).
+
+    Hysteresis between ``thr`` and the seed level, then (each step as configured) blobs much
+    bigger than the frame's typical one split, a vehicle's fragments and parts joined, small
+    blobs regrown from fainter residual and the rest of the small ones dropped.
+
+    Returns
+    -------
+    blobs : list of Blob
+    faint : list of bool
+        Per blob: regrown, so that its pixels are only above ``regrow_ratio x thr``.
+    typical : float
+        The frame's median blob area before splitting, model pixels (0 with fewer than 5 blobs).
+    """
+    low = res > thr
+    # Seeds also stand out of the noise by seed_sigma: the low threshold can then sit close to
+    # the noise (whole dark vehicles), while noise alone rarely reaches a seed.
+    high = res > max(thr * config.seed_ratio, config.seed_sigma * sigma)
+    model_min_area = 0.5 * gates.min_area_px * scale * scale
+    blobs = hysteresis_blobs(low, high, close_radius=gates.close_px * scale,
+                             min_area=model_min_area)
+    max_len_model = gates.max_length_px * scale
+    # Without a vehicle model, the frame's typical blob is the best guess of one vehicle's size.
+    areas = np.array([b.area for b in blobs], np.float64)
+    typical = float(np.median(areas)) if len(areas) >= 5 else 0.0
+    if config.split_blobs:
+        split: list[Blob] = []
+        r_max = max(1, int(round(gates.close_px * scale)) + 1)
+        # Only blobs much bigger than the frame's typical blob are candidates.
+        for b in blobs:
+            if typical > 0 and b.area >= config.split_area_ratio * typical:
+                split.extend(split_blob(b, min_area=0.5 * typical, max_radius=r_max))
+            else:
+                split.append(b)
+        blobs = split
+    blobs = join_fragments(blobs, gap=gates.join_gap_px * scale, max_length=max_len_model)
+    if config.join_parts_ratio > 0 and len(blobs) >= 5:
+        # Without a vehicle model the frame's typical blob is the best guess of one vehicle.
+        sides = np.array([sorted(cv2.minAreaRect(np.column_stack(np.nonzero(b.mask)[::-1])
+                                                 .astype(np.float32))[1]) for b in blobs])
+        long_t, short_t = np.median(sides[:, 1]), np.median(sides[:, 0])
+        blobs = join_vehicle_parts(blobs, gap=2 * gates.join_gap_px * scale,
+                                   max_long=config.join_parts_ratio * long_t,
+                                   max_short=config.join_parts_ratio * short_t)
+        if config.join_cab_ratio > 0:
+            blobs = join_cabs(blobs, gap=gates.join_gap_px * scale, long_t=long_t,
+                              max_long=max_len_model, cab_ratio=config.join_cab_ratio)
+    faint_ids: set[int] = set()
+    if config.regrow_ratio > 0:
+        blobs, grown = regrow_small(blobs, res > config.regrow_ratio * thr,
+                                    area_ratio=config.drop_small_ratio,
+                                    close_radius=gates.close_px * scale,
+                                    min_ratio=0.7)
+        faint_ids = {id(b) for b, g in zip(blobs, grown) if g}
+    blobs = drop_small(blobs, area_ratio=config.drop_small_ratio, near=config.drop_small_near)
+    return blobs, [id(b) in faint_ids for b in blobs], typical
+
+
+@dataclass
+class Refined:
+    """One detection of :func:`refine_blob`."""
+
+    box: list  # x, y, w, h, full-resolution frame pixels
+    conf: float
+    contrast: float  # mean full-resolution residual over the threshold
+    mask: np.ndarray  # (h, w) bool, the vehicle's pixels in ``crop``
+    crop: tuple[int, int, int, int]  # x0, y0, x1, y1, full-resolution
+    blob: Blob  # its model-resolution blob (kept out of the background)
+    dark: bool  # a dark vehicle kept whole with its shadow (shadows.trim_shadow_side)
+    growth: np.ndarray | None  # how far a removed shadow reached past each box side
+
+
+def blob_confidence(contrast: float, fill: float) -> float:
+    """Confidence in [0, 1] of a detection from its ``contrast`` (mean residual over the
+    threshold) and ``fill`` (its pixels' share of its box): rises with the contrast from 0 at
+    0.8 x the threshold, and a box less than half filled (a thin or ragged blob) scores down to
+    half."""
+    c_contrast = 1.0 - math.exp(-1.5 * max(0.0, contrast - 0.8))
+    c_shape = min(1.0, fill / 0.5)
+    return float(np.clip(c_contrast * (0.5 + 0.5 * c_shape), 0.0, 1.0))
+
+
+def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, thr: float,
+                config: DetectionConfig, scale: float, gates: SizeGates, *, typical: float,
+                faint: bool) -> list[Refined]:
+    """The detections of one model-resolution blob ``b``, refined at full resolution.
+
+    A ghost (:func:`.residual.ghost_score`) gives none. Otherwise the blob's region is
+    thresholded in the full-resolution residual, moving shadows are removed (as configured),
+    side-by-side vehicles are separated (``split_full_ratio``), and each piece that passes the
+    size, thickness, length and confidence gates becomes a detection boxed at its half-contrast
+    edge (``box_edge_level``).
+
+    Parameters
+    ----------
+    b : Blob
+        In model pixels.
+    image, small, bgn : ndarray
+        The frame at full and model resolution, and the gain-normalised background (model).
+    thr : float
+        The model residual's threshold.
+    typical : float
+        The frame's typical blob area, model pixels (0: unknown).
+    faint : bool
+        ``b`` was regrown from residual above ``regrow_ratio x thr`` only.
+    """
+    H, W = image.shape[:2]
+    h, w = small.shape[:2]
+    margin = 2
+    bx, by, bw, bh = b.box
+    mx0, my0 = max(0, bx - margin), max(0, by - margin)
+    mx1, my1 = min(w, bx + bw + margin), min(h, by + bh + margin)
+    if config.ghost_ratio > 0 or (faint and config.regrow_ghost_ratio > 0):
+        gm = np.zeros((my1 - my0, mx1 - mx0), np.uint8)
+        gm[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw] = b.mask
+        gm = cv2.dilate(gm, np.ones((3, 3), np.uint8)) > 0
+        # a regrown blob is mostly faint residual: it must show its outline in the frame
+        ratio = max(config.ghost_ratio, config.regrow_ghost_ratio) if faint else config.ghost_ratio
+        if ghost_score(small[my0:my1, mx0:mx1], bgn[my0:my1, mx0:mx1], gm) < ratio:
+            return []
+    fx0, fy0 = int(round(mx0 / scale)), int(round(my0 / scale))
+    fx1, fy1 = min(W, int(round(mx1 / scale))), min(H, int(round(my1 / scale)))
+    if fx1 <= fx0 or fy1 <= fy0:
+        return []
+    size = (fx1 - fx0, fy1 - fy0)
+    crop = image[fy0:fy1, fx0:fx1]
+    bg_crop = cv2.resize(bgn[my0:my1, mx0:mx1], size, interpolation=cv2.INTER_LINEAR)
+    res_full = smoothed_residual(crop, bg_crop, max(1, int(round(1.0 / scale))),
+                                 config.residual_sigma_px)
+    mm = np.zeros((my1 - my0, mx1 - mx0), np.uint8)
+    mm[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw] = b.mask.astype(np.uint8) * 255
+    mm = cv2.dilate(mm, np.ones((3, 3), np.uint8))
+    region = cv2.resize(mm, size, interpolation=cv2.INTER_NEAREST) > 0
+    # a regrown fragment's pixels are only above the lower threshold
+    thr_b = config.regrow_ratio * thr if faint else thr
+    fg = (res_full > FULL_THRESHOLD_FRACTION * thr_b) & region
+    is_dark, growth = False, None
+    if config.shadow_suppression:
+        whole, info = fg, {}
+        fg = remove_shadows(fg, crop, bg_crop, alpha=config.shadow_alpha,
+                            beta=config.shadow_beta, tau_s=config.shadow_tau_s,
+                            tau_h=config.shadow_tau_h,
+                            min_core=config.shadow_min_core,
+                            chroma_tolerance_px=config.shadow_chroma_px, info=info)
+        if config.shadow_trim:
+            n_fg = max(1, int(whole.sum()))
+            is_dark = info["kept_shaded"] >= config.shadow_trim_share * n_fg
+            if 0.1 * n_fg <= info["removed"] <= 0.6 * n_fg:
+                growth = _box_growth(whole, fg)
+    fg8 = open2(fg.astype(np.uint8))
+    close_full = max(1.0, gates.close_px)
+    # Vehicles side by side or nose to tail are separate pieces before the closing joins
+    # them (their gap is a few pixels of road); each piece is a detection.
+    pieces = None
+    full_typical = typical / scale ** 2
+    if config.split_full_ratio > 0 and typical > 0 \
+            and int(np.count_nonzero(fg8)) >= config.split_area_ratio * full_typical:
+        pieces = separate_pieces(fg8, max(gates.min_area_px,
+                                          config.split_full_ratio * full_typical),
+                                 gates.min_width_px)
+    out = []
+    for piece, pb in pieces_of(fg8, pieces, b, (mx0, my0, mx1, my1), scale):
+        fg8p = close(piece, close_full)
+        fg8p &= region.astype(np.uint8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg8p, connectivity=8)
+        if n <= 1:
+            continue
+        # Keep the components that carry most of the blob (drop stray noise pixels).
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        keep = np.flatnonzero(areas >= max(2.0, STRAY_FRACTION * areas.max())) + 1
+        lut = np.zeros(n, bool)
+        lut[keep] = True
+        fgm = lut[labels]
+        area = int(fgm.sum())
+        if area < gates.min_area_px:
+            continue
+        if gates.min_width_px > 0:
+            # Thickness = twice the largest inscribed radius: the residual of a parallax edge
+            # (a wall or overpass side the ground homography does not register) is a thin
+            # line however long; a vehicle is at least about its width thick.
+            dist = cv2.distanceTransform(pad0(fgm.astype(np.uint8), 1), cv2.DIST_L2, 3)
+            if 2.0 * float(dist.max()) < gates.min_width_px:
+                continue
+        ys, xs = np.nonzero(fgm)
+        x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+        if max(x1 - x0, y1 - y0) > gates.max_length_px:
+            continue
+        contrast = float(res_full[fgm].mean()) / thr
+        conf = blob_confidence(contrast, area / float((x1 - x0) * (y1 - y0)))
+        if conf < config.min_conf:
+            continue
+        if config.box_edge_level > 0:
+            # the box at the vehicle's half-contrast edge, not at the noise threshold
+            ext = edge_extent(res_full, fgm, level=config.box_edge_level, floor=0.5 * thr_b)
+            if ext is not None:
+                x0, y0, x1, y1 = ext
+        out.append(Refined(box=[fx0 + x0, fy0 + y0, x1 - x0, y1 - y0], conf=conf,
+                           contrast=contrast, mask=fgm[y0:y1, x0:x1],
+                           crop=(fx0 + int(x0), fy0 + int(y0), fx0 + int(x1), fy0 + int(y1)),
+                           blob=pb, dark=is_dark, growth=growth))
+    return out
+
+
+def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list[np.ndarray] | None:
+    """Masks of the vehicles in one refined blob, when it holds two or more, else None.
+
+    A blob found at the model's resolution can hold two vehicles whose bodies are a few pixels
+    apart at full resolution: two cars passing in opposite lanes, a queue, a crossing at a
+    junction (their shadows and the model's coarser pixels bridge the gap; the full-resolution
+    closing that joins a vehicle's own fragments would bridge it again). Components of
+    ``mask`` (full resolution, before the closing) of at least ``min_area`` pixels that are at
+    least ``min_width`` thick are vehicles; the other pixels go to the nearest of them.
+    """
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    big = []
+    for k in range(1, n):
+        if stats[k, cv2.CC_STAT_AREA] < min_area:
+            continue
+        comp = (labels == k).astype(np.uint8)
+        if min_width > 0:
+            dist = cv2.distanceTransform(pad0(comp, 1), cv2.DIST_L2, 3)
+            if 2.0 * float(dist.max()) < min_width:
+                continue
+        big.append(k)
+    if len(big) < 2:
+        return None
+    seeds = np.zeros(labels.shape, np.int32)
+    for i, k in enumerate(big, start=1):
+        seeds[labels == k] = i
+    _, nearest = cv2.distanceTransformWithLabels((seeds == 0).astype(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, np.int32)
+    lut[nearest[seeds > 0]] = seeds[seeds > 0]
+    owner = lut[nearest] * (mask > 0)
+    return [(owner == i).astype(np.uint8) for i in range(1, len(big) + 1)]
+
+
+def pieces_of(mask: np.ndarray, pieces: list[np.ndarray] | None, blob: Blob,
+              model_crop: tuple[int, int, int, int], scale: float):
+    """(full-resolution piece, its model-resolution blob) for each vehicle of a refined blob:
+    ``[(mask, blob)]`` when it was not separated (:func:`separate_pieces`)."""
+    if not pieces:
+        return [(mask, blob)]
+    mx0, my0, mx1, my1 = model_crop
+    bx, by, bw, bh = blob.box
+    out = []
+    for pc in pieces:
+        small = cv2.resize(pc, (mx1 - mx0, my1 - my0), interpolation=cv2.INTER_AREA) > 0
+        sub = blob.mask & small[by - my0:by - my0 + bh, bx - mx0:bx - mx0 + bw]
+        out.append((pc, Blob(blob.box, sub) if sub.any() else blob))
+    return out
+
+
+def _box_growth(whole: np.ndarray, core: np.ndarray) -> np.ndarray | None:
+    """How far the box of mask ``whole`` reaches past the box of its part ``core`` on the left,
+    top, right and bottom, pixels (4,); None when ``core`` is empty."""
+    if not core.any():
+        return None
+    ys, xs = np.nonzero(whole)
+    yc, xc = np.nonzero(core)
+    return np.array([xc.min() - xs.min(), yc.min() - ys.min(), xs.max() - xc.max(),
+                     ys.max() - yc.max()], np.float64)
+
+
+def shadows_beside_detections_removed(residual: np.ndarray, small: np.ndarray,
+                                      bg_small: np.ndarray, boxes: np.ndarray, scale: float,
+                                      config: DetectionConfig) -> np.ndarray:
+    """``residual`` (model pixels) with the cast-shadow pixels (:func:`.shadows.shadow_mask`)
+    within one box size of a regular detection (``boxes``, full-resolution ``x, y, w, h``) set to
+    0: the persistence step's evidence (see ``MovingObjectDetector._add_persistent``)."""
+    h, w = residual.shape
+    near = np.zeros((h, w), bool)
+    for bx, by, bw, bh in np.asarray(boxes, np.float64).reshape(-1, 4) * scale:
+        g = max(bw, bh)
+        x0, y0 = max(0, int(bx - g)), max(0, int(by - g))
+        x1, y1 = min(w, int(math.ceil(bx + bw + g))), min(h, int(math.ceil(by + bh + g)))
+        near[y0:y1, x0:x1] = True
+    bgn = gain_normalise(small, bg_small, config.gain_block_px * scale)
+    shade = shadow_mask(small, bgn, alpha=config.shadow_alpha, beta=config.shadow_beta,
+                        tau_s=config.shadow_tau_s, tau_h=config.shadow_tau_h,
+                        chroma_tolerance_px=config.shadow_chroma_px)
+    return np.where(shade & near, 0, residual).astype(residual.dtype)
