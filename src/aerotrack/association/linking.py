@@ -74,6 +74,25 @@ def _positions(t: Track) -> tuple[np.ndarray, np.ndarray]:
     return np.array(fr, dtype=np.int64), np.array(xy, dtype=np.float64).reshape(-1, 2)
 
 
+@dataclasses.dataclass
+class _Ends:
+    """Per-call data of :meth:`GlobalLinker.solve`, one entry per tracklet. Positions are world
+    coordinates; ``raw`` as detected, ``pos`` with the partly visible ends trimmed."""
+
+    tracklets: list[Track]
+    raw: list[tuple[np.ndarray, np.ndarray]]  # (frames (n,), xy (n, 2))
+    pos: list[tuple[np.ndarray, np.ndarray]]
+    ends: list  # Kalman (position, velocity) of the end, from pos
+    starts: list  # ... of the start, filtered backwards
+    F: int  # frames of history behind an end state
+    first: np.ndarray  # first and last frame of pos
+    last: np.ndarray
+    raw_first: np.ndarray  # ... of raw
+    raw_last: np.ndarray
+    epoch_first: np.ndarray  # registration epoch (resets before) of raw_first / raw_last
+    epoch_last: np.ndarray
+
+
 class GlobalLinker:
     """Links tracklets into persistent tracks.
 
@@ -196,13 +215,84 @@ class GlobalLinker:
         return out
 
     def solve(self, tl: list[Track]) -> tuple[dict[int, int], np.ndarray]:
-        """Links as {index of a: index of b} and the (n, n) cost matrix (inf where inconsistent)."""
+        """Links as {index of a: index of b} and the (n, n) cost matrix (inf where inconsistent).
+
+        Steps 1-3 of the module docstring: the consistent pairs (:meth:`_successors`), hand-overs
+        between overlapping tracklets at a cost of their own (:meth:`_handover_costs`), the cues
+        of every consistent pair (:meth:`_pair_cost`), one joint assignment."""
         c = self.config
         n = len(tl)
         self._pred = {}
         self._in_view_cache = {}
         self._table = None  # built again for these tracklets by _forward when needed
         self._trimmed = None
+        e = self._tracklet_ends(tl)
+        cand = {a: bs for a in range(n) if (bs := self._successors(e, a))}
+        C = np.full((n, n), np.inf)
+        self.last_costs = {}
+        handovers = handover_pairs(tl, c.duplicate_overlap, int(round(c.handover_max_s * self.fps)),
+                                   c.handover_max_area_ratio)
+        app = None
+        if handovers or cand:
+            hists_end = {i: track_histograms(t) for i, t in enumerate(tl)}
+            app = AppearanceContext({i: h for i, h in hists_end.items() if h.size})
+        self._handover_costs(tl, handovers, app, C)
+        if not cand:
+            return _assign(C, c.max_cost), C
+        table = _table_of(e.pos)
+        self._table, self._table_key = table, tl
+        preds = {}
+        if c.weight_motion > 0 or c.predict_gaps:
+            for a, bs in cand.items():
+                h = int(max(e.first[b] - e.last[a] for b in bs))
+                preds[a] = self.predictor.predict(table, a, int(e.last[a]), h)
+        desc = [TrackletDescriptor.from_track(t) for t in tl] if c.weight_descriptor > 0 else [None] * n
+        preds_of: dict[int, list[int]] = {}
+        for a, bs in cand.items():
+            for b in bs:
+                preds_of.setdefault(b, []).append(a)
+        span = [(int(t.first), int(t.last)) for t in tl]
+
+        def distinct(o: int, a: int) -> bool:
+            # another target for certain: seen at the same time as a, and not a split of it
+            return o != a and span[o][0] <= span[a][1] and span[a][0] <= span[o][1] \
+                and (o, a) not in handovers and (a, o) not in handovers
+        for a, bs in cand.items():
+            for b in bs:
+                ap = float("nan")
+                if c.weight_appearance > 0 and a in app.intra:
+                    s = track_histograms(tl[b], max_obs=5)
+                    if s.size and s.shape[1] == app.X[a].shape[1]:
+                        z2 = app.intra_distance(s, a)
+                        ok = app.verify(s, a, [o for o in preds_of[b]
+                                               if o in app.X and distinct(o, a)])
+                        ap = appearance_cost(z2, ok, c.appearance_max)
+                de = float("nan")
+                if desc[a] is not None and desc[b] is not None:
+                    de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
+                                         c.descriptor_max)
+                # a split needs the appearance's agreement too (a false fragment right after a
+                # vehicle's tracklet also starts where it ended)
+                m = self._motion_cue(e, a, b, preds.get(a),
+                                     allow_split=not ap > c.split_max_appearance)
+                cues = Cues(m, ap, de)
+                cost = link_cost(cues, c)
+                gap = int(e.first[b] - e.last[a])
+                if c.gap_cost_per_s > 0 and a in preds and gap > 0:
+                    unseen = int(self._in_view(a, preds[a], e.last[a])[min(gap, len(preds[a])) - 1])
+                    cost += c.gap_cost_per_s * unseen / self.fps
+                self.last_costs[(a, b)] = (cost, cues)
+                log.debug("linking: %d (ends %d) -> %d (starts %d): cost %.2f, motion %.2f, "
+                          "appearance %.2f, descriptor %.2f", a, e.last[a], b, e.first[b], cost,
+                          m, ap, de)
+                if cost <= c.max_cost:
+                    C[a, b] = cost
+        self._pred = preds
+        return _assign(C, c.max_cost), C
+
+    def _tracklet_ends(self, tl: list[Track]) -> _Ends:
+        """Each tracklet's points as detected and with its partly visible ends trimmed, the
+        Kalman states of its end and start, and their noise (kept for :meth:`relink`)."""
         F = max(2, int(round(self.ctx.history_s * self.fps)))
         raw = [_positions(t) for t in tl]
         # end states from the fully visible part: a box shrinking into an occluder or the image
@@ -217,51 +307,60 @@ class GlobalLinker:
             starts.append(self._end_state(fr, xy, F, False))
             self._noise.append((end_noise(fr[h], xy[h], self.mpu, self.fps),
                                 end_noise(fr[s], xy[s], self.mpu, self.fps)))
-        first = np.array([fr[0] for fr, _ in pos])
-        last = np.array([fr[-1] for fr, _ in pos])
-        raw_first = np.array([fr[0] for fr, _ in raw])
-        raw_last = np.array([fr[-1] for fr, _ in raw])
-        max_gap = int(round(c.max_gap_s * self.fps))
         # a ``reset`` registration (a scene change, or a loss too long to bridge without a map)
         # starts an unrelated world: nothing is linked across it
         resets = np.array(sorted(f for f, r in (self._regs or {}).items() if r.status == "reset"),
                           dtype=np.int64)
-        epoch_first = np.searchsorted(resets, raw_first, side="right")
-        epoch_last = np.searchsorted(resets, raw_last, side="right")
-        cand: dict[int, list[int]] = {}
-        for a in range(n):
-            gaps = first - last[a]
-            order = raw_first - raw_last[a]
-            same = epoch_first == epoch_last[a]
-            for b in np.flatnonzero((order > 0) & (gaps <= max_gap) & same):
-                gap_s = gaps[b] / self.fps
-                d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
-                dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
-                if gap_s <= self.turn_max_gap_s:
-                    # a turn may hide in the gap and in the velocity windows: only the speed
-                    # (and the whole velocity, with the windows' time, ``turn_a_max_mps2``)
-                    dv_turn = dv
-                    dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
-                    # a split of one track (a vehicle pulling away, braking): both ends'
-                    # velocities are fitted over history_s while it accelerates
-                    split = self._is_split(pos[a][1][-1], pos[b][1][0], ends[a][1], int(gaps[b]))
-                    gap_s += self.ctx.history_s * (2.0 if split else 1.0)
-                    if c.turn_a_max_mps2 > 0 and \
-                            dv_turn > c.turn_a_max_mps2 * gap_s + c.speed_slack_mps:
-                        log.debug("linking: %d -> %d refused, velocity change %.1f m/s in %.2f s",
-                                  a, b, dv_turn, gap_s)
-                        continue
-                if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
-                        dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
-                    cand.setdefault(a, []).append(int(b))
-        C = np.full((n, n), np.inf)
-        self.last_costs = {}
-        handovers = handover_pairs(tl, c.duplicate_overlap, int(round(c.handover_max_s * self.fps)),
-                                   c.handover_max_area_ratio)
-        app = None
-        if handovers or cand:
-            hists_end = {i: track_histograms(t) for i, t in enumerate(tl)}
-            app = AppearanceContext({i: h for i, h in hists_end.items() if h.size})
+        raw_first = np.array([fr[0] for fr, _ in raw])
+        raw_last = np.array([fr[-1] for fr, _ in raw])
+        return _Ends(tracklets=tl, raw=raw, pos=pos, ends=ends, starts=starts, F=F,
+                     first=np.array([fr[0] for fr, _ in pos]),
+                     last=np.array([fr[-1] for fr, _ in pos]),
+                     raw_first=raw_first, raw_last=raw_last,
+                     epoch_first=np.searchsorted(resets, raw_first, side="right"),
+                     epoch_last=np.searchsorted(resets, raw_last, side="right"))
+
+    def _successors(self, e: _Ends, a: int) -> list[int]:
+        """The tracklets that may continue tracklet a (spatio-temporal consistency, Yu & Medioni
+        5.1): starting after a ends, within ``max_gap_s`` and the same registration epoch, within
+        ``v_max x gap`` of a's end and with a velocity change within ``a_max x gap``. Over a gap of
+        at most ``turn_max_gap_s`` a turn may hide in the gap and in the velocity windows, so only
+        the change of speed counts there (and the whole velocity's against
+        ``turn_a_max_mps2``)."""
+        c = self.config
+        max_gap = int(round(c.max_gap_s * self.fps))
+        ends, starts, pos = e.ends, e.starts, e.pos
+        gaps = e.first - e.last[a]
+        order = e.raw_first - e.raw_last[a]
+        same = e.epoch_first == e.epoch_last[a]
+        out = []
+        for b in np.flatnonzero((order > 0) & (gaps <= max_gap) & same):
+            gap_s = gaps[b] / self.fps
+            d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
+            dv = float(np.hypot(*(starts[b][1] - ends[a][1]))) * self.mpu * self.fps
+            if gap_s <= self.turn_max_gap_s:
+                dv_turn = dv
+                dv = abs(_speed(starts[b][1]) - _speed(ends[a][1])) * self.mpu * self.fps
+                # a split of one track (a vehicle pulling away, braking): both ends'
+                # velocities are fitted over history_s while it accelerates
+                split = self._is_split(pos[a][1][-1], pos[b][1][0], ends[a][1], int(gaps[b]))
+                gap_s += self.ctx.history_s * (2.0 if split else 1.0)
+                if c.turn_a_max_mps2 > 0 and \
+                        dv_turn > c.turn_a_max_mps2 * gap_s + c.speed_slack_mps:
+                    log.debug("linking: %d -> %d refused, velocity change %.1f m/s in %.2f s",
+                              a, b, dv_turn, gap_s)
+                    continue
+            if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
+                    dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
+                out.append(int(b))
+        return out
+
+    def _handover_costs(self, tl: list[Track], handovers: dict[tuple[int, int], float],
+                        app: AppearanceContext | None, C: np.ndarray) -> None:
+        """Enter into ``C`` (and ``last_costs``) the cost of each hand-over a -> b (b's box takes
+        over a's while they overlap, :func:`handover_pairs`), dropping from ``handovers`` those
+        whose appearance disagrees."""
+        c = self.config
         for (a, b), ov in list(handovers.items()):
             if c.weight_appearance > 0 and a in app.intra:
                 # like a split, a hand-over needs the appearance's agreement: two vehicles whose
@@ -274,80 +373,37 @@ class GlobalLinker:
             cost = c.handover_cost * (1.0 - ov) / max(1e-9, 1.0 - c.duplicate_overlap)
             self.last_costs[(a, b)] = (cost, Cues())
             C[a, b] = cost
-        if not cand:
-            return _assign(C, c.max_cost), C
-        table = _table_of(pos)
-        self._table, self._table_key = table, tl
-        preds = {}
-        if c.weight_motion > 0 or c.predict_gaps:
-            for a, bs in cand.items():
-                h = int(max(first[b] - last[a] for b in bs))
-                preds[a] = self.predictor.predict(table, a, int(last[a]), h)
-        desc = [TrackletDescriptor.from_track(t) for t in tl] if c.weight_descriptor > 0 else [None] * n
-        preds_of: dict[int, list[int]] = {}
-        for a, bs in cand.items():
-            for b in bs:
-                preds_of.setdefault(b, []).append(a)
-        span = [(int(t.first), int(t.last)) for t in tl]
 
-        raw_gap = int(round(c.partial_raw_gap_s * self.fps))
+    def _motion_cue(self, e: _Ends, a: int, b: int, pred: np.ndarray | None,
+                    allow_split: bool) -> float:
+        """Motion cost of a -> b (:meth:`_motion`) on the trimmed ends; NaN without a prediction.
 
-        def resized(ta: Track, tb: Track, velocity: np.ndarray) -> bool:
-            # one end's box under partial_size_ratio of the other's along the motion
-            la, lb = _end_extent(ta, velocity, True), _end_extent(tb, velocity, False)
-            return la > 0 and lb > 0 and min(la, lb) < c.partial_size_ratio * max(la, lb)
+        Within ``partial_raw_gap_s``, when one end's box is under ``partial_size_ratio`` of the
+        other's along the motion and trimming changed an end, the ends as detected compete: the
+        lower cost counts."""
+        if pred is None:
+            return float("nan")
+        c = self.config
+        raw, pos, F = e.raw, e.pos, e.F
+        gap = int(e.first[b] - e.last[a])
+        m = self._motion(pred[:gap], pos[a][1][-1], pos[b][1][0], e.ends[a], e.starts[b], gap,
+                         self._noise[a][0], self._noise[b][1], allow_split=allow_split)
+        if gap <= int(round(c.partial_raw_gap_s * self.fps)) and \
+                self._resized(e.tracklets[a], e.tracklets[b], e.ends[a][1]) and (
+                len(pos[a][0]) < len(raw[a][0]) or len(pos[b][0]) < len(raw[b][0])
+                or not np.array_equal(pos[a][1][-1], raw[a][1][-1])
+                or not np.array_equal(pos[b][1][0], raw[b][1][0])):
+            ea = self._end_state(*raw[a], F, True)
+            sb = self._end_state(*raw[b], F, False)
+            shift = ea[0] - e.ends[a][0]
+            m = min(m, self._motion(pred[:gap] + shift, raw[a][1][-1], raw[b][1][0], ea, sb, gap,
+                                    self._noise[a][0], self._noise[b][1], allow_split=allow_split))
+        return m
 
-        def distinct(o: int, a: int) -> bool:
-            # another target for certain: seen at the same time as a, and not a split of it
-            return o != a and span[o][0] <= span[a][1] and span[a][0] <= span[o][1] \
-                and (o, a) not in handovers and (a, o) not in handovers
-        for a, bs in cand.items():
-            for b in bs:
-                gap = int(first[b] - last[a])
-                ap = float("nan")
-                if c.weight_appearance > 0 and a in app.intra:
-                    s = track_histograms(tl[b], max_obs=5)
-                    if s.size and s.shape[1] == app.X[a].shape[1]:
-                        z2 = app.intra_distance(s, a)
-                        ok = app.verify(s, a, [o for o in preds_of[b]
-                                               if o in app.X and distinct(o, a)])
-                        ap = appearance_cost(z2, ok, c.appearance_max)
-                de = float("nan")
-                if desc[a] is not None and desc[b] is not None:
-                    de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
-                                         c.descriptor_max)
-                m = float("nan")
-                if a in preds:
-                    # a split needs the appearance's agreement too (a false fragment right
-                    # after a vehicle's tracklet also starts where it ended)
-                    m = self._motion(preds[a][:gap], pos[a][1][-1], pos[b][1][0], ends[a],
-                                     starts[b], gap, self._noise[a][0], self._noise[b][1],
-                                     allow_split=not ap > c.split_max_appearance)
-                    if gap <= raw_gap and resized(tl[a], tl[b], ends[a][1]) and (
-                            len(pos[a][0]) < len(raw[a][0]) or len(pos[b][0]) < len(raw[b][0])
-                            or not np.array_equal(pos[a][1][-1], raw[a][1][-1])
-                            or not np.array_equal(pos[b][1][0], raw[b][1][0])):
-                        # as detected (partial_raw_gap_s)
-                        ea = self._end_state(*raw[a], F, True)
-                        sb = self._end_state(*raw[b], F, False)
-                        shift = ea[0] - ends[a][0]
-                        m = min(m, self._motion(preds[a][:gap] + shift, raw[a][1][-1],
-                                                raw[b][1][0], ea, sb, gap, self._noise[a][0],
-                                                self._noise[b][1],
-                                                allow_split=not ap > c.split_max_appearance))
-                cues = Cues(m, ap, de)
-                cost = link_cost(cues, c)
-                if c.gap_cost_per_s > 0 and a in preds and gap > 0:
-                    unseen = int(self._in_view(a, preds[a], last[a])[min(gap, len(preds[a])) - 1])
-                    cost += c.gap_cost_per_s * unseen / self.fps
-                self.last_costs[(a, b)] = (cost, cues)
-                log.debug("linking: %d (ends %d) -> %d (starts %d): cost %.2f, motion %.2f, "
-                          "appearance %.2f, descriptor %.2f", a, last[a], b, first[b], cost,
-                          m, ap, de)
-                if cost <= c.max_cost:
-                    C[a, b] = cost
-        self._pred = preds
-        return _assign(C, c.max_cost), C
+    def _resized(self, ta: Track, tb: Track, velocity: np.ndarray) -> bool:
+        """One end's box under ``partial_size_ratio`` of the other's along the motion."""
+        la, lb = _end_extent(ta, velocity, True), _end_extent(tb, velocity, False)
+        return la > 0 and lb > 0 and min(la, lb) < self.config.partial_size_ratio * max(la, lb)
 
     def _end_state(self, fr: np.ndarray, xy: np.ndarray, F: int, end: bool):
         """Kalman (position, velocity) of a tracklet's end (``end``) or start from its points
