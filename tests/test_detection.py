@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import cv2
 import numpy as np
@@ -601,3 +602,15 @@ def test_whole_frame_work_gets_the_threads_the_process_has_and_the_stages_one():
     finally:
         det_mod.MovingObjectDetector._background = real_bg
         cv2.setNumThreads(previous)
+
+
+def test_blob_confidence_rises_with_contrast_and_halves_for_ragged_blobs():
+    from aerotrack.detection.moving import blob_confidence
+
+    assert blob_confidence(0.8, 1.0) == 0.0  # no contrast over 0.8 x the threshold
+    assert blob_confidence(0.5, 1.0) == 0.0
+    levels = [blob_confidence(c, 0.9) for c in (1.0, 1.5, 2.0, 4.0)]
+    assert all(a < b for a, b in itertools.pairwise(levels)) and levels[-1] < 1.0
+    # a box at least half filled is a solid blob; an empty-looking one scores half as much
+    assert blob_confidence(2.0, 0.5) == blob_confidence(2.0, 1.0)
+    assert blob_confidence(2.0, 0.0) == pytest.approx(0.5 * blob_confidence(2.0, 1.0))
