@@ -433,19 +433,24 @@ def summarise(per_scene: dict, variant: str) -> dict:
 
 
 def gap_mpe(per_scene: dict) -> dict:
-    """MPE (m) at 1/2/4 s of the linked default vs the Kalman variant on common (gap, time) pairs."""
+    """MPE (m) at 1/2/4 s of the linked default, with roads, and the Kalman variant, on the (gap,
+    time) pairs all three predicted."""
     out = {}
     for s in (1, 2, 4):
-        a, b = [], []
+        a, b, c = [], [], []
         for r in per_scene.values():
             ea, eb = r["linked"]["_gap_err"], r["linked (kalman)"]["_gap_err"]
+            ec = r["linked + roads"]["_gap_err"]
             for key in ea:
-                if key[1] == s and key in eb:
+                if key[1] == s and key in eb and key in ec:
                     a.append(ea[key])
                     b.append(eb[key])
-        out[f"{s}s"] = {"context": float(np.mean(a)) if a else float("nan"),
-                            "kalman": float(np.mean(b)) if b else float("nan"), "n": len(a),
-                            "ratio": float(np.mean(a) / np.mean(b)) if a and np.mean(b) > 0 else float("nan")}
+                    c.append(ec[key])
+        kal = float(np.mean(b)) if b else float("nan")
+        out[f"{s}s"] = {"context": float(np.mean(a)) if a else float("nan"), "kalman": kal,
+                        "roads": float(np.mean(c)) if c else float("nan"), "n": len(a),
+                        "ratio": float(np.mean(a) / kal) if a and kal > 0 else float("nan"),
+                        "ratio_roads": float(np.mean(c) / kal) if c and kal > 0 else float("nan")}
     return out
 
 
@@ -573,8 +578,9 @@ def main(argv=None) -> None:
             print(f"{mode + ' / ' + v:28s}" + "".join(
                 f"{agg[c]:15.3f}" if isinstance(agg[c], float) else f"{agg[c]:15d}" for c in cols))
         for s, m in r["gap_MPE_m"].items():
-            print(f"  {mode} gap MPE {s}: context {m['context']:.2f} m, kalman {m['kalman']:.2f} m, "
-                  f"ratio {m['ratio']:.2f} (n={m['n']})")
+            print(f"  {mode} gap MPE {s}: context {m['context']:.2f} m, with roads {m['roads']:.2f} m, "
+                  f"kalman {m['kalman']:.2f} m, ratios {m['ratio']:.2f} / {m['ratio_roads']:.2f} "
+                  f"(n={m['n']})")
     if args.truck4 or args.truck4_run:
         t4 = run_truck4(args.overrides, args.truck4_run)
         results["truck4"] = t4
