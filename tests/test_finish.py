@@ -3,6 +3,7 @@ border handling and static-track rejection, on tracks with a known truth."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -553,3 +554,17 @@ def test_a_waiting_vehicle_half_absorbed_keeps_its_size():
                          metres_per_unit=MPU, registrations=IDENT)
     assert np.allclose([p.box[2:] for p in fast[0].points if p.frame in range(20, 50)][5:-5],
                        [18, 10], atol=1.0)
+
+
+def test_an_estimated_scale_judges_small_tracks_by_its_own_threshold():
+    """A 1.6 x 2.0 m mover: a small vehicle when the scale is known, below the threshold for a
+    scale that global linking estimated from the objects."""
+    identity = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 200)}
+    t = _walker()
+    for p in t.points:
+        p.box = np.array([p.world[0] - 8, p.world[1] - 10, 16, 20])  # 1.6 x 2.0 m at MPU 0.1
+    cfg = FinishConfig(min_size_m=1.5, min_size_estimated_m=2.0)
+    known = finish_tracks([copy.deepcopy(t)], cfg, FPS, metres_per_unit=MPU, registrations=identity)
+    estimated = finish_tracks([copy.deepcopy(t)], cfg, FPS, metres_per_unit=MPU,
+                              registrations=identity, scale_estimated=True)
+    assert len(known) == 1 and estimated == []

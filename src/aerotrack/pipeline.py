@@ -617,7 +617,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     from .association.finish import finish_tracks  # smoothed boxes, static tracks out
 
     tracks = finish_tracks(tracks, config.finish, fps, metres_per_unit=metres_per_unit or linker.mpu,
-                           registrations=registrations or None, frame_size=frame_size)
+                           registrations=registrations or None, frame_size=frame_size,
+                           scale_estimated=not metres_per_unit)
     return _renumber(tracks)
 
 

@@ -43,7 +43,8 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
    ``static_extent_m`` diagonal never moved (a parked vehicle, a median blob, a registration
    artefact) and is dropped; so is one that went back and forth within ``wander_extent_m`` (the
    parallax of a tree's or a wall's edge under a moving camera), and one whose typical footprint
-   is under ``min_size_m`` (a pedestrian, a fragment). A vehicle that waits and then drives is
+   is under ``min_size_m`` (``min_size_estimated_m`` when the scale was estimated from the
+   objects: a pedestrian, a fragment). A vehicle that waits and then drives is
    kept whole.
 5. **Standing vehicles** (:func:`hold_stops`, before the steps above): a vehicle that stopped
    where the detector lost it (its sliding-window background absorbs a standing vehicle) is
@@ -374,10 +375,14 @@ class TrackFinisher:
         (the median observed object's longer side is ``object_size_m``).
     object_size_m : float
         See ``metres_per_unit``.
+    scale_estimated : bool
+        ``metres_per_unit`` is such an estimate (made by global linking): small tracks are then
+        judged by ``min_size_estimated_m``. Also True when ``metres_per_unit`` is not given.
     """
 
     def __init__(self, config: FinishConfig | None = None, fps: float = 30.0, *,
-                 metres_per_unit: float | None = None, object_size_m: float = 4.5) -> None:
+                 metres_per_unit: float | None = None, object_size_m: float = 4.5,
+                 scale_estimated: bool = False) -> None:
         self.config = config or FinishConfig()
         if self.config.size_mode not in SIZE_MODES:
             raise ConfigError(f"config finish.size_mode: unknown {self.config.size_mode!r} "
@@ -398,6 +403,7 @@ class TrackFinisher:
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.object_size_m = object_size_m
+        self.scale_estimated = scale_estimated or not metres_per_unit
 
     def finish(self, tracks: list[Track], registrations: dict[int, Registration] | None = None,
                frame_size: tuple[int, int] | None = None) -> list[Track]:
@@ -487,7 +493,8 @@ class TrackFinisher:
         # a held stop's box is a copy, a persistence box (``weak``) a faint blob's: the size
         # comes from the regular observations around them
         full = measured & ~edge & np.array([p.kind == "observed" and not p.weak for p in pts])
-        if regs is not None and is_small(sizes[full], mpu, c.min_size_m):
+        min_size = c.min_size_estimated_m if self.scale_estimated else c.min_size_m
+        if regs is not None and is_small(sizes[full], mpu, min_size):
             return False
         if any(p.weak for p in pts) and not any(p.kind == "observed" and not p.weak for p in pts):
             # persistence boxes only: track-before-detect evidence extends a vehicle that the
@@ -936,8 +943,8 @@ def finish_tracks(tracks: list[Track], config: FinishConfig | None = None, fps: 
                   metres_per_unit: float | None = None,
                   registrations: dict[int, Registration] | None = None,
                   frame_size: tuple[int, int] | None = None,
-                  object_size_m: float = 4.5) -> list[Track]:
+                  object_size_m: float = 4.5, scale_estimated: bool = False) -> list[Track]:
     """:meth:`TrackFinisher.finish` in one call."""
-    return TrackFinisher(config, fps, metres_per_unit=metres_per_unit,
-                         object_size_m=object_size_m).finish(tracks, registrations, frame_size)
+    return TrackFinisher(config, fps, metres_per_unit=metres_per_unit, object_size_m=object_size_m,
+                         scale_estimated=scale_estimated).finish(tracks, registrations, frame_size)
 
