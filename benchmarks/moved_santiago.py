@@ -11,13 +11,15 @@ second compression) and maps the ground truth through the same transform:
 * ``still``: the same 1600x900 window held at its first position (the moved variant's baseline:
   the same crop size cuts the same kind of vehicles at its edges).
 * ``720p`` and ``540p``: the whole frame downscaled (INTER_AREA) to 1280x720 and 960x540.
+* ``original``: the clip itself (its MP4 and ground truth, nothing re-rendered): the README's
+  Santiago figures.
 
 Ground-truth boxes are the axis-aligned boxes of the transformed corners (negative sizes
 reflected first, as ``aerotrack eval --fix-gt`` does); boxes wholly outside a frame are left out.
 Each variant is tracked with ``aerotrack track FRAMES --fps 30 --seed S`` (no map) and scored with
 ``aerotrack eval --gt-zero-based --frames 2:98 --fix-gt`` (the clip's published protocol).
 
-    python benchmarks/moved_santiago.py [--variants moved still 720p 540p] [--seeds 0] [--set K=V]
+    python benchmarks/moved_santiago.py [--variants original moved still 720p 540p] [--seeds 0] [--set K=V]
 
 Frames are cached under ``$AEROTRACK_BENCH_WORK/moved_santiago``; results go to
 ``benchmarks/results/moved_santiago.json``.
@@ -35,7 +37,7 @@ import cv2
 import numpy as np
 from common import SANTIAGO_DIR, WORK, require_data, write_results
 
-VARIANTS = ("moved", "still", "720p", "540p")
+VARIANTS = ("original", "moved", "still", "720p", "540p")
 KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "LocA", "IDSW", "GT_IDs", "Pred_IDs")
 CROP = (1600, 900)
 
@@ -142,14 +144,20 @@ def main(argv=None) -> None:
     results: dict = {"overrides": args.overrides, "variants": {}}
     for v in args.variants:
         folder = WORK / "moved_santiago" / v
-        Ts = render(v, folder)
-        size = CROP if v in ("moved", "still") else {"720p": (1280, 720), "540p": (960, 540)}[v]
+        if v == "original":
+            Ts, size = None, (1920, 1080)
+            frames, gt = SANTIAGO_DIR / "video_sift_estabilizado_filtrado.mp4", \
+                SANTIAGO_DIR / "dfs_ground_truth.csv"
+        else:
+            Ts = render(v, folder)
+            size = CROP if v in ("moved", "still") else {"720p": (1280, 720), "540p": (960, 540)}[v]
+            frames, gt = folder / "frames", folder / "gt.csv"
         per_seed = {}
         for seed in args.seeds:
             run = folder / f"run_{seed}"
-            aerotrack("-q", "track", str(folder / "frames"), "--fps", "30", "--out", str(run),
+            aerotrack("-q", "track", str(frames), "--fps", "30", "--out", str(run),
                       "--seed", str(seed), "--overwrite", *sets)
-            e = json.loads(aerotrack("eval", "--gt", str(folder / "gt.csv"), "--pred",
+            e = json.loads(aerotrack("eval", "--gt", str(gt), "--pred",
                                      str(run / "tracks.csv"), "--gt-zero-based", "--frames", "2:98",
                                      "--fix-gt", "--json"))
             e = e.get("combined", e)
