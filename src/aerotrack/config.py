@@ -1349,8 +1349,8 @@ class FinishConfig:
         ``min_size_m`` for a scale estimated from the objects themselves (no map, no ``--gsd``:
         the median object's longer side is ``context.image_object_size_m``, 4.5 m), where a
         size in metres is really a fraction of the typical object. Measured (2026-11-27):
-        Santiago kept a pedestrian walking on the median for 85 frames with MCMC seed 0 (1.8-2.0
-        m at that scale; with seeds 1 and 2 local association never made it a track): at 2.0
+        Santiago kept a small mover on the median (a pedestrian or cyclist) for 85 frames with
+        MCMC seed 0 (1.8-2.0 m at that scale; seeds 1 and 2 never made it a track): at 2.0
         HOTA / IDF1 / MOTA 0.656 / 0.872 / 0.727 -> 0.665 / 0.885 / 0.760, seeds 1-2 and truck4
         unchanged; ``benchmarks/moved_santiago.py`` (seeds 0-2) better in all four variants, e.g.
         the moving 1600x900 crop 0.608 / 0.806 / 0.657 -> 0.612 / 0.813 / 0.675. Santiago's
