@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -115,3 +116,13 @@ def synthetic_dets(n_objects: int, n_frames: int = 300, seed: int = 0,
                                      c[:, 1] - 8, np.full(n, 30.0), np.full(n, 16.0),
                                      rng.uniform(0.5, 1, n), -np.ones((n, 3))]))
     return np.vstack(rows)
+
+
+def aerotrack(*args: str) -> str:
+    """Run the CLI (``python -m aerotrack ARGS``) in a child process and return its standard
+    output; a failure raises RuntimeError with the end of its standard error."""
+    p = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True,
+                       check=False)
+    if p.returncode:
+        raise RuntimeError(f"aerotrack {' '.join(args[:2])}: {p.stderr.strip()[-400:]}")
+    return p.stdout

@@ -19,24 +19,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
-import sys
 
 import cv2
 import numpy as np
-from common import SANTIAGO_DIR, WORK, require_data, write_results
+from common import SANTIAGO_DIR, WORK, aerotrack, require_data, write_results
 
 SWINGS = {"none": (0.0, 3.0), "10pct_3s": (0.10, 3.0), "25pct_1.3s": (0.25, 1.3)}
 KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "IDSW", "Pred_IDs")
 CONFIGS = {"default": [], "off": ["--set", "detection.exposure_tolerance=0"]}
-
-
-def aerotrack(*args: str) -> str:
-    p = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True,
-                       check=False)
-    if p.returncode:
-        raise RuntimeError(f"aerotrack {' '.join(args[:2])}: {p.stderr.strip()[-400:]}")
-    return p.stdout
 
 
 def render(name: str) -> str:

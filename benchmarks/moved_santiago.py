@@ -29,13 +29,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
-from common import SANTIAGO_DIR, WORK, require_data, write_results
+from common import SANTIAGO_DIR, WORK, aerotrack, require_data, write_results
 
 VARIANTS = ("original", "moved", "still", "720p", "540p")
 KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "LocA", "IDSW", "GT_IDs", "Pred_IDs")
@@ -121,14 +119,6 @@ def registration_error(run: Path, Ts: list[np.ndarray], size: tuple[int, int]) -
         errs.append(np.hypot(*(pt[:, :2] / pt[:, 2:] - pe[:, :2] / pe[:, 2:]).T))
     e = np.concatenate(errs)
     return {"median_px": float(np.median(e)), "max_px": float(e.max())}
-
-
-def aerotrack(*args: str) -> str:
-    p = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True,
-                       check=False)
-    if p.returncode:
-        raise RuntimeError(f"aerotrack {' '.join(args[:2])}: {p.stderr.strip()[-400:]}")
-    return p.stdout
 
 
 def main(argv=None) -> None:
