@@ -358,31 +358,10 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
                                  gates.min_width_px)
     out = []
     for piece, pb in pieces_of(fg8, pieces, b, (mx0, my0, mx1, my1), scale):
-        fg8p = close(piece, close_full)
-        fg8p &= region.astype(np.uint8)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg8p, connectivity=8)
-        if n <= 1:
+        kept = piece_mask(piece, region, close_full, gates)
+        if kept is None:
             continue
-        # Keep the components that carry most of the blob (drop stray noise pixels).
-        areas = stats[1:, cv2.CC_STAT_AREA]
-        keep = np.flatnonzero(areas >= max(2.0, STRAY_FRACTION * areas.max())) + 1
-        lut = np.zeros(n, bool)
-        lut[keep] = True
-        fgm = lut[labels]
-        area = int(fgm.sum())
-        if area < gates.min_area_px:
-            continue
-        if gates.min_width_px > 0:
-            # Thickness = twice the largest inscribed radius: the residual of a parallax edge
-            # (a wall or overpass side the ground homography does not register) is a thin
-            # line however long; a vehicle is at least about its width thick.
-            dist = cv2.distanceTransform(pad0(fgm.astype(np.uint8), 1), cv2.DIST_L2, 3)
-            if 2.0 * float(dist.max()) < gates.min_width_px:
-                continue
-        ys, xs = np.nonzero(fgm)
-        x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
-        if max(x1 - x0, y1 - y0) > gates.max_length_px:
-            continue
+        fgm, (x0, y0, x1, y1), area = kept
         contrast = float(res_full[fgm].mean()) / thr
         conf = blob_confidence(contrast, area / float((x1 - x0) * (y1 - y0)))
         if conf < config.min_conf:
@@ -397,6 +376,47 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
                            crop=(fx0 + int(x0), fy0 + int(y0), fx0 + int(x1), fy0 + int(y1)),
                            blob=pb, dark=is_dark, growth=growth))
     return out
+
+
+def piece_mask(piece: np.ndarray, region: np.ndarray, close_px: float, gates: SizeGates
+               ) -> tuple[np.ndarray, tuple[int, int, int, int], int] | None:
+    """The vehicle's pixels in one piece of a refined blob, or None when they fail the size gates.
+
+    The piece (uint8, the blob's full-resolution crop) is closed by ``close_px``, kept inside the
+    blob's ``region`` (bool), and its stray components (under ``STRAY_FRACTION`` of the largest)
+    are dropped. The rest must reach ``gates.min_area_px`` and be ``gates.min_width_px`` thick,
+    and its box no longer than ``gates.max_length_px``.
+
+    Returns
+    -------
+    (mask (h, w) bool, (x0, y0, x1, y1) its box in the crop, its area in pixels), or None
+    """
+    fg8p = close(piece, close_px)
+    fg8p &= region.astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(fg8p, connectivity=8)
+    if n <= 1:
+        return None
+    # Keep the components that carry most of the blob (drop stray noise pixels).
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = np.flatnonzero(areas >= max(2.0, STRAY_FRACTION * areas.max())) + 1
+    lut = np.zeros(n, bool)
+    lut[keep] = True
+    fgm = lut[labels]
+    area = int(fgm.sum())
+    if area < gates.min_area_px:
+        return None
+    if gates.min_width_px > 0:
+        # Thickness = twice the largest inscribed radius: the residual of a parallax edge
+        # (a wall or overpass side the ground homography does not register) is a thin
+        # line however long; a vehicle is at least about its width thick.
+        dist = cv2.distanceTransform(pad0(fgm.astype(np.uint8), 1), cv2.DIST_L2, 3)
+        if 2.0 * float(dist.max()) < gates.min_width_px:
+            return None
+    ys, xs = np.nonzero(fgm)
+    x0, y0, x1, y1 = xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+    if max(x1 - x0, y1 - y0) > gates.max_length_px:
+        return None
+    return fgm, (x0, y0, x1, y1), area
 
 
 def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list[np.ndarray] | None:
