@@ -326,3 +326,24 @@ def test_persistence_gets_no_evidence_from_a_detected_vehicles_shadow_only():
     assert out[10:16, 20:25].max() == 0  # its shadow gives none
     assert out[40:44, 80:84].min() == 50  # a shadow away from detections still counts
     assert out.dtype == residual.dtype
+
+
+def test_piece_mask_keeps_a_vehicle_and_drops_strays_and_thin_lines():
+    from aerotrack.detection.moving import SizeGates, piece_mask
+
+    gates = SizeGates(min_area_px=60, max_length_px=80, close_px=1.0, join_gap_px=2.0,
+                      min_width_px=5.0)
+    piece = np.zeros((40, 60), np.uint8)
+    piece[10:22, 10:34] = 1  # a 24 x 12 vehicle
+    piece[30, 50] = 1  # a stray pixel
+    region = np.ones(piece.shape, bool)
+    mask, box, area = piece_mask(piece, region, 1.0, gates)
+    assert box == (10, 10, 34, 22) and area == 24 * 12 and not mask[30, 50]
+    # outside the blob's region nothing counts
+    assert piece_mask(piece, np.zeros(piece.shape, bool), 1.0, gates) is None
+    line = np.zeros((40, 60), np.uint8)
+    line[20:22, 2:58] = 1  # 56 x 2: a parallax edge, not a vehicle
+    assert piece_mask(line, region, 1.0, gates) is None
+    long = np.zeros((40, 120), np.uint8)
+    long[10:22, 5:100] = 1  # longer than max_length_px
+    assert piece_mask(long, np.ones(long.shape, bool), 1.0, gates) is None
