@@ -189,7 +189,7 @@ def main(argv=None) -> None:
             per_seed[str(seed)] = {k: e[k] for k in KEYS}
             tracks = np.loadtxt(run / "tracks.csv", delimiter=",", ndmin=2)
             drop = unannotated_tracks(tracks, gt, (2, 98))
-            kept = run / "tracks_annotated_only.csv"
+            kept = folder / f"tracks_annotated_only_{seed}.csv"
             np.savetxt(kept, tracks[~np.isin(tracks[:, 1], drop)], delimiter=",", fmt="%.3f")
             a = json.loads(aerotrack("eval", "--gt", str(gt), "--pred", str(kept), "--gt-zero-based",
                                      "--frames", "2:98", "--fix-gt", "--json"))
