@@ -84,9 +84,9 @@ Re-measured at 143d3fd (after tracks' footprints were judged at 2.0 m under an e
 0.666/0.887 / 0.642/0.848, generated P/R 0.893/0.843 / 0.890/0.844, detection CPU time 1.31x
 (720p) and 1.45x (1080p); the 18 held-out generated scenes (``benchmarks/scenarios.py``)
 HOTA/IDF1 0.700/0.857 / 0.691/0.848 (both in one environment). Part of Santiago's loss is
-tracks on movers its ground truth omits (a pedestrian on the pavement, 57 frames, cars creeping in the queue): scored
-without the tracks that overlap no annotated vehicle, seed 0 gives 0.710/0.952 off and
-0.696/0.930 on. The rest is mostly one track that persistence kept for the whole clip behind a
+tracks on movers its ground truth omits (a pedestrian on the pavement, 57 frames, cars creeping
+in the queue): scored without the tracks that overlap no annotated vehicle, seed 0 gives
+0.710/0.952 off and 0.696/0.930 on. The rest is mostly one track that persistence kept for the whole clip behind a
 queued car: 33 of its 97 boxes are on that car (GT 12), the others on the empty road behind it.
 Still off by default.
 
