@@ -601,7 +601,8 @@ class AssociationConfig:
         0.621/0.839, ID switches 6 -> 3 / 1: a queued car's tracklet no longer coasts into the
         next lane); UAVDT's detections with their runs of misses lose (local association IDF1
         0.810 -> 0.788 / 0.782); the 18 held-out generated scenes HOTA/IDF1 0.700/0.857 ->
-        0.699/0.857 / 0.696/0.852 (ID switches 38 -> 44 / 49). Kept at 1.2 s; lower it for
+        0.699/0.857 / 0.696/0.852 (ID switches 38 -> 44 / 49); truck4's tiny truck, detected in
+        scattered frames, best single ID 0.663 -> 0.423 at either. Kept at 1.2 s; lower it for
         queues filmed from a moving camera when the detector rarely misses.
     target_size_m : float
         When ``metres_per_unit`` is unknown (image coordinates), the scale is estimated from the
