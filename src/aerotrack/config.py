@@ -1126,7 +1126,7 @@ class ContextConfig:
         are ignored (opposite lane, crossing traffic, the other branch of a fork).
     flow_follow : bool
         ``context``: turn the prediction as the local flow turns
-        (:func:`~aerotrack.context.motion.follow_flow`). Off by default: measured on SDD and on
+        (:func:`~aerotrack.context.paths.follow_flow`). Off by default: measured on SDD and on
         generated scenes it gained nothing over path following (SDD straight windows lost 1-4%).
     flow_prior_weight : float
         ``context``, ``flow_follow``: support (sum of row weights) at which the flow's turn is half

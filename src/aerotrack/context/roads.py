@@ -11,7 +11,7 @@ centre-lines (a GeoJSON file, ``--roads``) the road geometry itself says where a
   (distance and heading agreement, either direction of travel), then drives along the centre-line
   at the target's speed, keeping its lateral offset (its lane; any excess decays). At a junction
   each way on has a probability from the votes of earlier vehicles from the same approach (the
-  learned road, a :class:`~aerotrack.context.motion.PathIndex`) smoothed by a prior
+  learned road, a :class:`~aerotrack.context.paths.PathIndex`) smoothed by a prior
   (:func:`branch_probabilities`); a route's probability is the product of its junction choices'.
   At a dead end inside the map it U-turns; at an end on the map's edge (the road goes on beyond)
   it goes straight on. The prediction is the routes' weighted centre (``road_hedge``,
@@ -755,7 +755,7 @@ def road_prediction(net: RoadNetwork, p0: np.ndarray, v0: np.ndarray, h: int, fp
         ``road_uturn_s``, ``road_vote_radius_m``, ``road_turn_*``, ``road_hedge``,
         ``road_vote_prior``, ``road_straight_kappa``, ``min_speed_mps``.
     index : PathIndex, optional
-        Other objects' rows (:class:`aerotrack.context.motion.PathIndex`): at each junction the
+        Other objects' rows (:class:`aerotrack.context.paths.PathIndex`): at each junction the
         ways on earlier objects from the same approach took (rows seen no later than ``frame``,
         not ``exclude_id``'s) are voted for (:func:`_branch_votes`, :func:`branch_probabilities`);
         the most likely route goes by the most votes, then the straightest.
