@@ -530,6 +530,12 @@ def test_synth_negative_seed(tmp_path, capsys):
                  "-1", out_dir=tmp_path / "s")
 
 
+@pytest.mark.parametrize("value", ["0", "-2", "nan", "inf", "9"])
+def test_synth_bad_gsd_scale(tmp_path, capsys, value):
+    expect_error(capsys, ["--gsd-scale", "between 0.125 and 8"], "synth", "--out", tmp_path / "s",
+                 "--frames", "2", "--gsd-scale", value, out_dir=tmp_path / "s")
+
+
 def test_eval_frames_without_ground_truth(tmp_path, capsys, dets):
     gt = tmp_path / "gt.txt"
     gt.write_text("1,1,10,10,8,4,1\n2,1,12,10,8,4,1\n")

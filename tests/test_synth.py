@@ -15,7 +15,7 @@ from aerotrack.cli.main import main
 from aerotrack.geo import GeoMap, read_map_init
 from aerotrack.io.mot import read_mot
 from aerotrack.synth import Scenario, perturb_map, render_to
-from aerotrack.types import apply_homography
+from aerotrack.types import apply_homography, local_scale
 
 N = 75
 
@@ -81,6 +81,25 @@ def test_vehicle_sizes(scene):
     gt = read_mot(scene / "gt.txt")
     length = np.maximum(gt[:, 4], gt[:, 5])
     assert 14 <= np.median(length) <= 21
+
+
+def test_gsd_scale_flies_the_same_scene_higher():
+    """``gsd_scale`` 2: the same vehicles at the same map positions, half as long in pixels, and
+    the frame covering four times the ground."""
+    def first_frame(k):
+        sc = Scenario(seed=1, frames=1, gsd_scale=k)
+        _, H, truth = next(iter(sc.frames()))
+        return H, {v["id"]: v for v in truth}
+
+    H1, t1 = first_frame(1.0)
+    H2, t2 = first_frame(2.0)
+    centre = np.array([320.0, 240.0])
+    assert local_scale(H2, centre) / local_scale(H1, centre) == pytest.approx(2.0, rel=0.02)
+    both = [i for i in t1 if t1[i]["state"] == "visible" and t2[i]["state"] == "visible"]
+    assert both
+    for i in both:
+        assert np.allclose(t1[i]["map"], t2[i]["map"])
+        assert max(t2[i]["box"][2:]) == pytest.approx(max(t1[i]["box"][2:]) / 2, rel=0.15)
 
 
 def test_true_homographies_match_rendered_pixels(scene):

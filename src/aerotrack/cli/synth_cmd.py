@@ -32,9 +32,12 @@ def parse_size(text: str) -> tuple[int, int]:
 @click.option("--size", "size_text", default="640x480", show_default=True,
               help="Frame size WIDTHxHEIGHT.")
 @click.option("--fps", type=float, default=30.0, show_default=True, help="Frame rate.")
+@click.option("--gsd-scale", type=float, default=1.0, show_default=True,
+              help="Fly the same path this many times higher (2: vehicles half as long in "
+                   "pixels; 0.5: twice as long). Between 0.125 and 8.")
 @click.option("--overwrite", is_flag=True, help="Replace what is already in --out.")
 @click.pass_context
-def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrite):
+def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, gsd_scale, overwrite):
     """Render an aerial video over a real satellite tile, with exact ground truth.
 
     Vehicles drive the tile's real road centre-lines (turns, stops, U-turns, convoys) under tree
@@ -50,6 +53,7 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrit
     Examples:
       aerotrack synth --out scene/
       aerotrack synth --out scene/ --seed 3 --frames 1800 --scenario exits
+      aerotrack synth --out high/ --gsd-scale 2     # from twice as high: small vehicles
       aerotrack track scene/frames --out run/ --map scene/map.tif --map-init scene/map_init.txt
     """
     from ..io.output import OutputDir
@@ -57,7 +61,7 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrit
     from ..synth.scene import Scenario
 
     size = parse_size(size_text)
-    Scenario.validate(frames=frames, size=size, fps=fps, name=scenario)
+    Scenario.validate(frames=frames, size=size, fps=fps, name=scenario, gsd_scale=gsd_scale)
     check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
@@ -66,7 +70,7 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, overwrit
     with cleanup:
         try:
             info = render_to(out, seed=seed, frames=frames, size=size, fps=fps,
-                             scenario=scenario, progress=progress)
+                             scenario=scenario, progress=progress, gsd_scale=gsd_scale)
         finally:
             close()
     if not quiet:

@@ -23,7 +23,8 @@ log = logging.getLogger(__name__)
 
 def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
               size: tuple[int, int] = (640, 480), fps: float = 30.0, scenario: str = "default",
-              jpeg_quality: int = 90, progress: Callable[[int], None] | None = None) -> dict:
+              jpeg_quality: int = 90, progress: Callable[[int], None] | None = None,
+              gsd_scale: float = 1.0) -> dict:
     """Render a scene into ``out`` and return its ``scenario.json`` content.
 
     Writes ``frames/000001.jpg...``, ``gt.txt`` (MOTChallenge, visible targets only; x, y = the
@@ -33,10 +34,11 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     ``map_init.txt`` (frame-1 homography), ``map_init_gcps.csv`` and ``map_init_lonlat.csv``
     (control points), ``occluders.csv`` (bounding boxes), ``occluders.geojson`` (outlines in map
     pixels), ``roads.geojson`` (the road centre-lines, lon/lat) and ``scenario.json``.
+    ``gsd_scale``: see :class:`Scenario`.
     """
     if not isinstance(out, OutputDir):
         out = OutputDir(out)
-    sc = Scenario(seed=seed, frames=frames, size=size, fps=fps, name=scenario)
+    sc = Scenario(seed=seed, frames=frames, size=size, fps=fps, name=scenario, gsd_scale=gsd_scale)
     world = sc.world
     # Frames are written into .partial/frames (no per-file fsync: 900 of them dominated the run
     # time) and the folder is renamed into place once every frame is there.
@@ -96,6 +98,7 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     info = {
         "seed": seed, "scenario": scenario, "frames": frames, "fps": fps, "size": list(size),
         "map_metres_per_pixel": [world.mx, world.my], "camera_gsd_m": sc.camera.gsd0,
+        "gsd_scale": sc.gsd_scale,
         "vehicles": len(sc.vehicles), "gt_rows": len(gt_rows), "states": counts,
         "occluders": len(world.occluders),
         "attribution": "map: solaris 0.4.0 test tile (Apache-2.0), imagery likely SpaceNet "

@@ -85,7 +85,8 @@ class Camera:
     (centre, yaw, gsd) <- a slight fixed tilt (a true homography, not an affine map).
     """
 
-    def __init__(self, world: World, size: tuple[int, int], mode: str, rng: np.random.Generator):
+    def __init__(self, world: World, size: tuple[int, int], mode: str, rng: np.random.Generator,
+                 gsd_scale: float = 1.0):
         self.world, self.size, self.mode = world, size, mode
         w, h = size
         W = world.width * world.mx
@@ -116,6 +117,8 @@ class Camera:
                 o = deck[0]
                 c = world.to_metric(np.array([[(o["x0"] + o["x1"]) / 2, (o["y0"] + o["y1"]) / 2]]))
                 self.route[0] = np.clip(c[0], self.lo, self.hi)
+        # flown higher or lower along the same path (``Scenario.gsd_scale``)
+        self.gsd0 *= gsd_scale
 
     def _waypoints(self, rng: np.random.Generator) -> np.ndarray:
         """Camera centre waypoints (metric): road junctions clipped into the allowed box, so the
@@ -193,16 +196,21 @@ class Scenario:
     fps : float
     name : str
         One of :data:`SCENARIOS`.
+    gsd_scale : float
+        The camera's ground sample distance times this: 2 flies the same path twice as high
+        (vehicles half as long in pixels, four times the ground in view), 0.5 half as high. The
+        scene (vehicles, routes, camera path) is the same at every value.
     """
 
     def __init__(self, seed: int = 0, frames: int = 900, size: tuple[int, int] = (640, 480),
-                 fps: float = 30.0, name: str = "default") -> None:
-        self.validate(frames=frames, size=size, fps=fps, name=name)
+                 fps: float = 30.0, name: str = "default", gsd_scale: float = 1.0) -> None:
+        self.validate(frames=frames, size=size, fps=fps, name=name, gsd_scale=gsd_scale)
         self.seed, self.n_frames, self.size, self.fps, self.name = seed, frames, size, fps, name
+        self.gsd_scale = float(gsd_scale)
         self.settings = dict(SCENARIOS[name])
         rng = np.random.default_rng(seed)
         self.world = World(rng, n_trees=self.settings["n_trees"])
-        self.camera = Camera(self.world, size, self.settings["camera"], rng)
+        self.camera = Camera(self.world, size, self.settings["camera"], rng, gsd_scale)
         self.vehicles = self._spawn(rng)
         self._rng = rng
         h, w = size[1], size[0]
@@ -215,8 +223,11 @@ class Scenario:
         self._gain_phase = rng.uniform(0, 2 * np.pi)
 
     @staticmethod
-    def validate(*, frames: int, size: tuple[int, int], fps: float, name: str) -> None:
+    def validate(*, frames: int, size: tuple[int, int], fps: float, name: str,
+                 gsd_scale: float = 1.0) -> None:
         """Raise InputError for settings no scene can have."""
+        if not (math.isfinite(gsd_scale) and 0.125 <= gsd_scale <= 8.0):
+            raise InputError(f"--gsd-scale {gsd_scale}: must be between 0.125 and 8")
         if name not in SCENARIOS:
             raise InputError(f"--scenario {name!r}: unknown (valid: {', '.join(SCENARIOS)})")
         if frames < 1:
