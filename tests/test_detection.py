@@ -565,6 +565,28 @@ def test_model_resolution_per_vehicle_is_kept_at_every_frame_size_without_a_scal
     assert det.scale == c.model_scale
 
 
+def test_model_resolution_is_raised_where_vehicles_are_small_on_the_map():
+    """With a metric scale the model is ``model_scale`` unless a model pixel would cover more
+    than ``model_pixel_max_m`` of ground at the first frame's centre; then it is finer, at most
+    the frame's. The first frame sets it for the whole video."""
+    from aerotrack.detection.moving import model_scale_for
+
+    c = DetectionConfig()
+    assert model_scale_for((480, 640), c, True, 0.28) == c.model_scale  # 0.56 m model pixels
+    assert model_scale_for((480, 640), c, True, 0.52) == pytest.approx(0.52 / c.model_pixel_max_m)
+    assert model_scale_for((480, 640), c, True, 2.0) == 1.0
+    off = dataclasses.replace(c, model_pixel_max_m=0.0)
+    assert model_scale_for((480, 640), off, True, 2.0) == c.model_scale
+    img = np.zeros((240, 320, 3), np.uint8)
+    for zoom, want in ((1.0, 0.5), (2.0, 0.8)):  # 0.26 and 0.52 m per pixel
+        det = MovingObjectDetector(c, FPS, metres_per_unit=0.26)
+        det.step(Frame(1, img, 0.0), Registration(1, np.diag([zoom, zoom, 1.0])))
+        assert det.scale == pytest.approx(want)
+        det.step(Frame(2, img, 1 / FPS), Registration(2, np.diag([1.0, 1.0, 1.0])))
+        assert det.scale == pytest.approx(want)
+        assert det._samples[1].small.shape[:2] == (round(240 * want), round(320 * want))
+
+
 def test_whole_frame_work_gets_the_threads_the_process_has_and_the_stages_one():
     """The pipeline runs its stages on one OpenCV thread; the detector's background warps and
     medians and its model image get the process's setting back (a Dask worker's 1, else all)."""

@@ -13,6 +13,7 @@ Frame-to-frame relations come from the registrations: ``H_{i->c} = inv(H_c) @ H_
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import OrderedDict, deque
 from collections.abc import Iterator
@@ -44,6 +45,8 @@ from .moving import (
 )
 from .persistence import PersistenceTracker
 from .residual import ghost_score, pad0, residual_image
+
+log = logging.getLogger(__name__)
 
 #: Registration statuses after which earlier frames no longer relate to this one.
 RESTART_STATUSES = ("reset", "reanchored")
@@ -288,7 +291,7 @@ class MovingObjectDetector:
     # -- public API -----------------------------------------------------------------------
     def step(self, frame: Frame, registration: Registration) -> list[Detections]:
         """Add one frame; return the detections of frames that became final (oldest first)."""
-        small = self.model_image(frame.image)
+        small = self.model_image(frame.image, self._metres_per_px(registration, frame.image.shape))
         out = []
         if registration.status in RESTART_STATUSES and self._pending:
             # The new world frame is unrelated to the old one: finish the frames waiting for their
@@ -334,16 +337,30 @@ class MovingObjectDetector:
         self._drop_old()
         return out
 
-    def model_image(self, image: np.ndarray) -> np.ndarray:
-        """A frame at model resolution (:func:`model_scale_for` its size), as the detector keeps
-        it; a function of the frame alone, so a resumed run can make it again
+    def _metres_per_px(self, registration: Registration, shape: tuple[int, ...]) -> float | None:
+        """Metres per frame pixel at the centre of the first frame (None without a metric scale,
+        and once the model's scale is set)."""
+        if self._scale_shape is not None or not self.metres_per_unit:
+            return None
+        centre = np.array([shape[1] / 2, shape[0] / 2])
+        return self.metres_per_unit * local_scale(np.asarray(registration.H, np.float64), centre)
+
+    def model_image(self, image: np.ndarray, metres_per_px: float | None = None) -> np.ndarray:
+        """A frame at model resolution (:func:`model_scale_for` its size and, with a metric scale,
+        the first frame's ground resolution ``metres_per_px``), as the detector keeps it; after
+        the first frame a function of the frame alone, so a resumed run can make it again
         (:mod:`aerotrack.io.state`)."""
         H, W = image.shape[:2]
         if self._scale_shape is None:  # a video's frames all have the first one's size
             self._scale_shape = (H, W)
-            scale = model_scale_for((H, W), self.config, bool(self.metres_per_unit))
+            scale = model_scale_for((H, W), self.config, bool(self.metres_per_unit),
+                                    metres_per_px)
             if self._persist is not None and scale != self.scale:
                 self._persist = PersistenceTracker(self.config, self.fps, scale)
+            if metres_per_px and scale > self.config.model_scale:
+                log.info("detection: %.2f m per pixel (small vehicles): background model at %.2f "
+                         "of the frame's resolution instead of %.2f (detection.model_pixel_max_m)",
+                         metres_per_px, scale, self.config.model_scale)
             self.scale = scale
         size = (max(1, int(round(W * self.scale))), max(1, int(round(H * self.scale))))
         if self.scale == 1:

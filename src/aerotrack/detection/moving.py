@@ -104,10 +104,13 @@ def pixel_gate_scale(shape: tuple[int, ...], reference_px: float) -> float:
 
 
 def model_scale_for(shape: tuple[int, ...], config: DetectionConfig,
-                    metric: bool = False) -> float:
+                    metric: bool = False, metres_per_px: float | None = None) -> float:
     """Resolution of the background model for frames of ``shape`` (H, W, ...).
 
-    With a metric scale (``metric``: a map or ``--gsd``) it is ``config.model_scale``. Without
+    With a metric scale (``metric``: a map or ``--gsd``) it is ``config.model_scale``, raised
+    (at most to 1) where a model pixel would cover more than ``config.model_pixel_max_m`` metres
+    of ground, ``metres_per_px`` being the frame's (the vehicles are then too small for the
+    model to see). Without
     one, ``config.model_scale`` is meant for a frame of ``pixel_gates_reference_px`` diagonal
     (1080p) and the model keeps the same resolution per vehicle at other sizes:
     ``model_scale / pixel_gate_scale``, at most 1. A 720p clip is modelled at 0.75 and a 540p
@@ -117,7 +120,10 @@ def model_scale_for(shape: tuple[int, ...], config: DetectionConfig,
     0.627/0.831.
     """
     if metric:
-        return float(config.model_scale)
+        scale = float(config.model_scale)
+        if metres_per_px and config.model_pixel_max_m > 0 and math.isfinite(metres_per_px):
+            scale = max(scale, min(1.0, metres_per_px / config.model_pixel_max_m))
+        return scale
     k = pixel_gate_scale(shape, config.pixel_gates_reference_px)
     return min(1.0, float(config.model_scale) / k)
 
