@@ -565,6 +565,27 @@ def test_model_resolution_per_vehicle_is_kept_at_every_frame_size_without_a_scal
     assert det.scale == c.model_scale
 
 
+def test_small_vehicles_without_a_scale_get_a_hint():
+    """Without a scale, tracks whose median box is under half the length the pixel gates assume
+    for the frame size (36 px at 1080p, 24 px at 720p) give a warning naming --gsd; tracks of
+    the assumed size, too few boxes or gates not following the frame give none."""
+    from aerotrack.detection.moving import small_vehicles_hint
+    from aerotrack.types import Track, TrackPoint
+
+    def tracks(length, n=30):
+        return [Track(1, [TrackPoint(f, np.array([0.0, 0.0, length, length / 2]), np.zeros(2), 1.0)
+                          for f in range(1, n + 1)])]
+
+    c = DetectionConfig()
+    hint = small_vehicles_hint(tracks(9.0), (1280, 720), c)
+    assert hint and "--gsd" in hint and "9 px" in hint and "24 px" in hint
+    assert small_vehicles_hint(tracks(13.0), (1280, 720), c) is None
+    assert small_vehicles_hint(tracks(36.0), (1920, 1080), c) is None
+    assert small_vehicles_hint(tracks(9.0, n=10), (1280, 720), c) is None
+    off = dataclasses.replace(c, pixel_gates_reference_px=0.0)
+    assert small_vehicles_hint(tracks(9.0), (1280, 720), off) is None
+
+
 def test_model_resolution_is_raised_where_vehicles_are_small_on_the_map():
     """With a metric scale the model is ``model_scale`` unless a model pixel would cover more
     than ``model_pixel_max_m`` of ground at the first frame's centre; then it is finer, at most

@@ -394,6 +394,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         finally:
             close()
         stopper.writing()
+        if dets is None and geomap is None and gsd is None:
+            from ..detection.moving import small_vehicles_hint
+
+            hint = small_vehicles_hint(result.tracks, result.frame_size, config.detection)
+            if hint:
+                log.warning(hint)
+                notes = {**notes, "hints": [hint]}
         info = {
             "input": str(input_path) if input_path else None,
             "detections": str(detections_path) if detections_path else None,
