@@ -769,8 +769,12 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
                map_path=None, H_init: np.ndarray | None = None,
                detections: np.ndarray | None = None, undistort: Callable | None = None,
                regions: Sequence | None = None,
-               hold_after_s: float | None = None) -> list[SegmentTask]:
+               hold_after_s: float | None = None,
+               frame_size: tuple[int, int] | None = None) -> list[SegmentTask]:
     """One :class:`SegmentTask` per segment (external detections cut to each segment's frames).
+
+    With a map, later segments get frame 1's metres per pixel at its centre (``frame_size``, as
+    the single process's detector takes it for its gates and model scale), else at its origin.
 
     ``hold_after_s``: see :attr:`ParallelConfig.hold_after_s` (segments after the first only).
 
@@ -784,8 +788,14 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
 
         # later segments run in their first frame's pixels: scale of frame 1 on the map
         lin = np.asarray(H_init, dtype=np.float64)
-        mpu = GeoMap(map_path).metres_per_pixel * math.sqrt(abs(np.linalg.det(lin[:2, :2]
-                                                                              / lin[2, 2])))
+        if frame_size:
+            from .types import local_scale
+
+            at = np.array([frame_size[0] / 2, frame_size[1] / 2])
+            mpu = GeoMap(map_path).metres_per_pixel * local_scale(lin, at)
+        else:
+            mpu = GeoMap(map_path).metres_per_pixel * math.sqrt(abs(np.linalg.det(
+                lin[:2, :2] / lin[2, 2])))
     tasks = []
     for seg in segments:
         rows = None
@@ -1062,7 +1072,8 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                        metres_per_unit=metres_per_unit,
                        map_path=geomap.path if geomap is not None else None, H_init=H_init,
                        detections=detections, undistort=undistort, regions=regions,
-                       hold_after_s=parallel.hold_after_s)
+                       hold_after_s=parallel.hold_after_s,
+                       frame_size=getattr(source, "size", None))
     submitted, cpu0, received = time.time(), time.process_time(), {}
     results = gather_segments(client, tasks, retries=retries, checkpoint_dir=checkpoint_dir,
                               resume=resume, progress=progress, while_waiting=warm_up_linking,
