@@ -253,3 +253,18 @@ def test_report_without_input_or_map(tmp_path):
     assert "<video" not in text and 'id="scrubdata"' not in text
     assert "Tracks on frame 1" in text and text.count('src="data:image/png;base64,') == 3
     assert 'id="tracks"' in text and text.count("<tr><td data-v=") == 3
+    assert 'id="hints"' not in text
+
+
+def test_report_shows_the_runs_warnings(tmp_path):
+    """``summary.json`` hints (e.g. vehicles too small for a run without a scale) are shown,
+    escaped, under Warnings."""
+    from aerotrack.viz.report import build_report
+
+    run = make_run(tmp_path, with_map=False, n_frames=20)
+    summary = json.loads((run / "summary.json").read_text())
+    summary["hints"] = ["the tracked vehicles are small <9 px>: give --gsd"]
+    (run / "summary.json").write_text(json.dumps(summary))
+    text = build_report(run).read_text()
+    assert '<section id="hints"><h2>Warnings</h2>' in text
+    assert "small &lt;9 px&gt;: give --gsd" in text

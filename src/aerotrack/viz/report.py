@@ -389,6 +389,10 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
     else:
         what.append("no map: positions in frame 1's pixels")
     parts = [f'<section><h2>Summary</h2><div class="cards">{_cards(results, stats)}</div></section>']
+    hints = results.summary.get("hints")
+    if isinstance(hints, list) and hints:
+        items = "".join(f"<li>{html.escape(str(h))}</li>" for h in hints)
+        parts.append(f'<section id="hints"><h2>Warnings</h2><ul>{items}</ul></section>')
     if metrics:
         parts.append(f'<section id="evaluation"><h2>Evaluation</h2><p class="note">{html.escape(eval_note)}'
                      f'</p>{_metrics_table(metrics)}</section>')
