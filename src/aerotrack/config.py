@@ -170,6 +170,8 @@ class DetectionConfig:
     window_s : float
         Length of the sliding background window in seconds (the paper: 91 frames = 3 s at 30 fps).
         Longer absorbs fewer slow vehicles but costs memory and fails more with parallax.
+        Measured 2026-11-27: 4.5 s gave the 18 held-out generated scenes HOTA/IDF1 0.685/0.836
+        and 58 ID switches, against 0.700/0.858 and 37 at 3 s.
     causal : bool
         False: the window is centred on the frame (detections are final half a window later, the
         paper's method). True: the window ends at the frame (delay 0, for live use); a vehicle
