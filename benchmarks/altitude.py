@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from common import WORK, aerotrack, generator_version, write_results
+from common import WORK, aerotrack, generator_version, rendered_scene, write_results
 
 #: (scenario, seed, frame size)
 SCENES = (("dense", 3, "1280x720"), ("default", 12, "640x480"))
@@ -37,15 +36,9 @@ KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "LocA", "IDSW", "GT_IDs", "Pred_
 
 def scene(folder: Path, scenario: str, seed: int, size: str, k: float) -> Path:
     """The rendered scene, rendered again when the generator's code changed."""
-    d = folder / f"{scenario}_{seed}_{size}_x{k:g}"
-    marker = folder / f"{d.name}.generator"
-    version = generator_version()
-    if not (d / "gt.txt").exists() or not marker.exists() or marker.read_text() != version:
-        shutil.rmtree(d, ignore_errors=True)
-        aerotrack("-q", "synth", "--out", str(d), "--seed", str(seed), "--scenario", scenario,
-                  "--size", size, "--frames", str(FRAMES), "--gsd-scale", f"{k:g}")
-        marker.write_text(version)
-    return d
+    return rendered_scene(folder, f"{scenario}_{seed}_{size}_x{k:g}",
+                          ("--seed", str(seed), "--scenario", scenario, "--size", size,
+                           "--frames", str(FRAMES), "--gsd-scale", f"{k:g}"))
 
 
 def metres_per_pixel(d: Path) -> float:

@@ -51,6 +51,22 @@ def generator_version() -> str:
     return h.hexdigest()[:12]
 
 
+def rendered_scene(folder: Path, name: str, synth_args: tuple[str, ...] = ()) -> Path:
+    """``folder/name``: a scene rendered by ``aerotrack synth --out folder/name SYNTH_ARGS``,
+    rendered again when the generator's code changed (``folder/name.generator`` holds the
+    :func:`generator_version` it was made with)."""
+    import shutil
+
+    d = folder / name
+    marker = folder / f"{name}.generator"
+    version = generator_version()
+    if not (d / "gt.txt").exists() or not marker.exists() or marker.read_text() != version:
+        shutil.rmtree(d, ignore_errors=True)
+        aerotrack("-q", "synth", "--out", str(d), *synth_args)
+        marker.write_text(version)
+    return d
+
+
 def source_version(exclude: tuple[str, ...] = ()) -> str:
     """Hash of the package's source (``src/aerotrack``) but the files and folders in ``exclude``
     (paths relative to the package, e.g. ``"context"``, ``"association/linking.py"``): a cache of

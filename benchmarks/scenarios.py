@@ -23,39 +23,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
-import subprocess
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from common import WORK, generator_version, write_results
+from common import WORK, aerotrack, generator_version, rendered_scene, write_results
 
 SCENARIOS = ("default", "occlusion", "exits", "convoy", "dense", "static")
 KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "LocA", "IDSW", "GT_IDs", "Pred_IDs")
 
 
-def aerotrack(*args: str) -> subprocess.CompletedProcess:
-    """Run the CLI of this interpreter's aerotrack; raise with its stderr on failure."""
-    p = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True,
-                       check=False)
-    if p.returncode:
-        raise RuntimeError(f"aerotrack {' '.join(args[:2])}: {p.stderr.strip()[-400:]}")
-    return p
-
-
 def scene(folder: Path, scenario: str, seed: int) -> Path:
     """The rendered scene, rendered again when the generator's code changed."""
-    d = folder / f"{scenario}_{seed}"
-    marker = folder / f"{scenario}_{seed}.generator"
-    version = generator_version()
-    if not (d / "gt.txt").exists() or not marker.exists() or marker.read_text() != version:
-        shutil.rmtree(d, ignore_errors=True)
-        aerotrack("-q", "synth", "--out", str(d), "--seed", str(seed), "--scenario", scenario)
-        marker.write_text(version)
-    return d
+    return rendered_scene(folder, f"{scenario}_{seed}", ("--seed", str(seed), "--scenario", scenario))
 
 
 def run_one(folder: Path, scenario: str, seed: int, overrides: list[str],
@@ -69,7 +50,7 @@ def run_one(folder: Path, scenario: str, seed: int, overrides: list[str],
               "--overwrite", *sets)
     wall = time.perf_counter() - t0
     e = json.loads(aerotrack("eval", "--gt", str(d / "gt.txt"), "--pred", str(out / "tracks.csv"),
-                             "--json").stdout)
+                             "--json"))
     e = e.get("combined", e)
     return {"scene": f"{scenario}:{seed}", **{k: e[k] for k in KEYS}, "track_wall_s": wall}
 
