@@ -549,6 +549,38 @@ def test_pixel_gates_follow_the_frame_diagonal():
     assert det._gates(np.eye(3), (2160, 3840)).max_length_px == pytest.approx(c.max_length_m / 0.1)
 
 
+def test_close_up_queued_vehicles_are_not_closed_into_one():
+    """At 0.08 m per pixel (a low flight) two cars queued 1.2 m apart stay two detections with
+    the map's scale: the closing is capped at the model pixels it has without a scale (2),
+    where 0.8 m would be 5 model pixels and close the gap (up to 1.6 m). At the usual 0.27 m per pixel the
+    metric radius (1.5 model pixels) is below the cap and is kept."""
+    c = DetectionConfig(shadow_suppression=False, gain_block_px=0)
+    det = MovingObjectDetector(c, FPS, metres_per_unit=0.08)
+    det.model_image(np.zeros((720, 1280, 3), np.uint8))  # sets the model scale (0.5)
+    gates = det._gates(np.eye(3), (720, 1280))
+    assert gates.close_px * det.scale == pytest.approx(c.close_px * c.model_scale)
+    usual = MovingObjectDetector(c, FPS, metres_per_unit=0.27)
+    usual.model_image(np.zeros((720, 1280, 3), np.uint8))
+    assert usual._gates(np.eye(3), (720, 1280)).close_px == pytest.approx(c.close_m / 0.27)
+
+    rng = np.random.default_rng(3)
+    road = np.clip(90 + rng.normal(0, 2, (240, 400, 3)), 0, 255).astype(np.uint8)
+    img = road.copy()
+    gap = round(1.2 / 0.08)  # 15 px: more than join_gap_m (1 m)
+    cars = [(100, 100, 56, 24), (100 + 56 + gap, 100, 56, 24)]  # 4.5 x 1.9 m each
+    for x, y, w, h in cars:
+        img[y:y + h, x:x + w] = 170
+        img[y + 8:y + 16, x + 14:x + 24] = 95  # a windscreen close to the road's grey
+    small = cv2.resize(img, (200, 120), interpolation=cv2.INTER_AREA)
+    bg_small = cv2.resize(road, (200, 120), interpolation=cv2.INTER_AREA)
+    testable = np.full((120, 200), 255, np.uint8)
+    r = detect_moving(img, small, bg_small, testable, c, 0.5, gates)
+    assert len(r.boxes) == 2 and all(max(iou(b, car) for b in r.boxes) > 0.7 for car in cars)
+    uncapped = dataclasses.replace(gates, close_px=c.close_m / 0.08)
+    r = detect_moving(img, small, bg_small, testable, c, 0.5, uncapped)
+    assert len(r.boxes) == 1  # what the metric radius alone did
+
+
 def test_model_resolution_per_vehicle_is_kept_at_every_frame_size_without_a_scale():
     """Without a metric scale the background model keeps 1080p's model pixels per vehicle: a
     540p frame is modelled at full resolution, 720p at 0.75, 4K at a quarter; with one, the

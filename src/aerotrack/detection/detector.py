@@ -374,10 +374,13 @@ class MovingObjectDetector:
         if self.metres_per_unit:
             mpp = self.metres_per_unit * local_scale(H, np.array([shape[1] / 2, shape[0] / 2]))
             if mpp > 0 and math.isfinite(mpp):
+                # the closing bridges gaps of model pixels (noise), not of metres: it is never
+                # wider in model pixels than without a scale (DetectionConfig.close_m)
+                close = min(c.close_m / mpp, c.close_px * c.model_scale / self.scale)
                 return SizeGates(min_area_px=c.min_area_m2 / mpp ** 2,
-                              max_length_px=c.max_length_m / mpp,
-                              close_px=c.close_m / mpp, join_gap_px=c.join_gap_m / mpp,
-                              min_width_px=c.min_width_m / mpp)
+                                 max_length_px=c.max_length_m / mpp,
+                                 close_px=close, join_gap_px=c.join_gap_m / mpp,
+                                 min_width_px=c.min_width_m / mpp)
         k = pixel_gate_scale(shape, c.pixel_gates_reference_px)
         return SizeGates(c.min_area_px * k * k, c.max_length_px * k, c.close_px * k,
                          c.join_gap_px * k, c.min_width_px * k)
