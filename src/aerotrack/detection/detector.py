@@ -374,9 +374,13 @@ class MovingObjectDetector:
         if self.metres_per_unit:
             mpp = self.metres_per_unit * local_scale(H, np.array([shape[1] / 2, shape[0] / 2]))
             if mpp > 0 and math.isfinite(mpp):
-                # the closing bridges gaps of model pixels (noise), not of metres: it is never
-                # wider in model pixels than without a scale (DetectionConfig.close_m)
-                close = min(c.close_m / mpp, c.close_px * c.model_scale / self.scale)
+                # the closing bridges gaps of model pixels (noise), not of metres: where close_m
+                # spans more model pixels than the closing has without a scale, the vehicles are
+                # resolved and get close_resolved_px (DetectionConfig.close_m)
+                close = c.close_m / mpp
+                if close * self.scale > c.close_px * c.model_scale:
+                    close = (c.close_resolved_px if c.close_resolved_px > 0
+                             else c.close_px * c.model_scale) / self.scale
                 return SizeGates(min_area_px=c.min_area_m2 / mpp ** 2,
                                  max_length_px=c.max_length_m / mpp,
                                  close_px=close, join_gap_px=c.join_gap_m / mpp,
@@ -712,7 +716,8 @@ def _validate(c: DetectionConfig) -> None:
         ("seed_sigma", c.seed_sigma >= 0),
         ("gain_block_px", c.gain_block_px >= 0), ("close_m", c.close_m >= 0),
         ("exposure_tolerance", c.exposure_tolerance >= 0),
-        ("close_px", c.close_px >= 0), ("min_area_m2", c.min_area_m2 >= 0),
+        ("close_px", c.close_px >= 0), ("close_resolved_px", c.close_resolved_px >= 0),
+        ("min_area_m2", c.min_area_m2 >= 0),
         ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
         ("max_length_px", c.max_length_px > 0), ("min_width_m", c.min_width_m >= 0),
         ("min_width_px", c.min_width_px >= 0),
