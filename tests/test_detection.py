@@ -553,17 +553,18 @@ def test_close_up_queued_vehicles_are_not_closed_into_one():
     """At 0.08 m per pixel (a low flight) two cars queued 1.2 m apart stay two detections with
     the map's scale: 0.8 m would be 5 model pixels and close the gap (up to 1.6 m), but where
     ``close_m`` spans more model pixels than the closing has without a scale (2) the vehicles
-    are resolved and the radius is ``close_resolved_px`` (1). At the usual 0.27 m per pixel
-    (1.5 model pixels) the metric radius is kept."""
+    are resolved and the radius is ``close_resolved_px`` (2; 0 means the same). At the usual
+    0.27 m per pixel (1.5 model pixels) the metric radius is kept."""
     c = DetectionConfig(shadow_suppression=False, gain_block_px=0)
     det = MovingObjectDetector(c, FPS, metres_per_unit=0.08)
     det.model_image(np.zeros((720, 1280, 3), np.uint8))  # sets the model scale (0.5)
     gates = det._gates(np.eye(3), (720, 1280))
     assert gates.close_px * det.scale == pytest.approx(c.close_resolved_px)
-    two = dataclasses.replace(c, close_resolved_px=0.0)
-    det2 = MovingObjectDetector(two, FPS, metres_per_unit=0.08)
-    det2.model_image(np.zeros((720, 1280, 3), np.uint8))
-    assert det2._gates(np.eye(3), (720, 1280)).close_px * det2.scale == pytest.approx(2.0)
+    for value, want in ((0.0, 2.0), (1.0, 1.0)):
+        other = MovingObjectDetector(dataclasses.replace(c, close_resolved_px=value), FPS,
+                                     metres_per_unit=0.08)
+        other.model_image(np.zeros((720, 1280, 3), np.uint8))
+        assert other._gates(np.eye(3), (720, 1280)).close_px * other.scale == pytest.approx(want)
     usual = MovingObjectDetector(c, FPS, metres_per_unit=0.27)
     usual.model_image(np.zeros((720, 1280, 3), np.uint8))
     assert usual._gates(np.eye(3), (720, 1280)).close_px == pytest.approx(c.close_m / 0.27)
