@@ -560,6 +560,8 @@ def test_close_up_queued_vehicles_are_not_closed_into_one():
     det.model_image(np.zeros((720, 1280, 3), np.uint8))  # sets the model scale (0.5)
     gates = det._gates(np.eye(3), (720, 1280))
     assert gates.close_px * det.scale == pytest.approx(c.close_resolved_px)
+    # boxes are joined across at most the model pixels they are without a scale, too
+    assert gates.join_gap_px * det.scale == pytest.approx(c.join_gap_px * c.model_scale)
     for value, want in ((0.0, 2.0), (1.0, 1.0)):
         other = MovingObjectDetector(dataclasses.replace(c, close_resolved_px=value), FPS,
                                      metres_per_unit=0.08)
@@ -567,7 +569,9 @@ def test_close_up_queued_vehicles_are_not_closed_into_one():
         assert other._gates(np.eye(3), (720, 1280)).close_px * other.scale == pytest.approx(want)
     usual = MovingObjectDetector(c, FPS, metres_per_unit=0.27)
     usual.model_image(np.zeros((720, 1280, 3), np.uint8))
-    assert usual._gates(np.eye(3), (720, 1280)).close_px == pytest.approx(c.close_m / 0.27)
+    g = usual._gates(np.eye(3), (720, 1280))
+    assert g.close_px == pytest.approx(c.close_m / 0.27)
+    assert g.join_gap_px == pytest.approx(c.join_gap_m / 0.27)
 
     rng = np.random.default_rng(3)
     road = np.clip(90 + rng.normal(0, 2, (240, 400, 3)), 0, 255).astype(np.uint8)

@@ -381,9 +381,11 @@ class MovingObjectDetector:
                 if close * self.scale > c.close_px * c.model_scale:
                     close = (c.close_resolved_px if c.close_resolved_px > 0
                              else c.close_px * c.model_scale) / self.scale
+                # likewise boxes are joined across at most the gap they are without a scale
+                join = min(c.join_gap_m / mpp, c.join_gap_px * c.model_scale / self.scale)
                 return SizeGates(min_area_px=c.min_area_m2 / mpp ** 2,
                                  max_length_px=c.max_length_m / mpp,
-                                 close_px=close, join_gap_px=c.join_gap_m / mpp,
+                                 close_px=close, join_gap_px=join,
                                  min_width_px=c.min_width_m / mpp)
         k = pixel_gate_scale(shape, c.pixel_gates_reference_px)
         return SizeGates(c.min_area_px * k * k, c.max_length_px * k, c.close_px * k,
