@@ -12,6 +12,13 @@ no other benchmark tunes on). K 0.25 / 1 / 1.43 / 2: cars about 64, 16, 11 and 8
 
     python benchmarks/altitude.py [--scales 0.25 1 1.43 2] [--modes map gsd nomap] [--jobs 2]
                                   [--set K=V] [--out altitude]
+                                  [--scenes SCENARIO:SEED:WxH ...] [--frames N]
+
+Other scenes and lengths (the low-flight scenes of ``detection.close_resolved_px``):
+
+    python benchmarks/altitude.py --scales 0.3 --modes map --frames 450 --out altitude-low \
+        --scenes convoy:33:1280x720 convoy:44:1280x720 dense:42:1280x720 dense:43:1280x720 \
+                 dense:48:1280x720 exits:46:1280x720 occlusion:34:1280x720 occlusion:47:1280x720
 
 Scenes are cached under ``$AEROTRACK_BENCH_WORK/altitude`` with the generator's source hash;
 results go to ``benchmarks/results/altitude.json``.
@@ -34,11 +41,13 @@ FRAMES = 600
 KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "LocA", "IDSW", "GT_IDs", "Pred_IDs")
 
 
-def scene(folder: Path, scenario: str, seed: int, size: str, k: float) -> Path:
+def scene(folder: Path, scenario: str, seed: int, size: str, k: float,
+          frames: int = FRAMES) -> Path:
     """The rendered scene, rendered again when the generator's code changed."""
-    return rendered_scene(folder, f"{scenario}_{seed}_{size}_x{k:g}",
+    name = f"{scenario}_{seed}_{size}_x{k:g}" + ("" if frames == FRAMES else f"_f{frames}")
+    return rendered_scene(folder, name,
                           ("--seed", str(seed), "--scenario", scenario, "--size", size,
-                           "--frames", str(FRAMES), "--gsd-scale", f"{k:g}"))
+                           "--frames", str(frames), "--gsd-scale", f"{k:g}"))
 
 
 def metres_per_pixel(d: Path) -> float:
@@ -56,9 +65,10 @@ def vehicle_length_px(d: Path) -> float:
     return float(np.median(np.maximum(gt[:, 4], gt[:, 5]))) if len(gt) else float("nan")
 
 
-def run_one(folder: Path, spec: tuple, k: float, mode: str, overrides: list[str]) -> dict:
+def run_one(folder: Path, spec: tuple, k: float, mode: str, overrides: list[str],
+            frames: int = FRAMES) -> dict:
     scenario, seed, size = spec
-    d = scene(folder, scenario, seed, size, k)
+    d = scene(folder, scenario, seed, size, k, frames)
     out = d.parent / f"{d.name}.{mode}.run"
     mpp = metres_per_pixel(d)
     geo = {"map": ["--map", str(d / "map.tif"), "--map-init", str(d / "map_init.txt")],
@@ -85,25 +95,42 @@ def main(argv=None) -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[],
                     help="SECTION.KEY=VALUE for every run (as aerotrack's --set), repeatable")
     ap.add_argument("--out", default="altitude", help="results name (benchmarks/results/NAME.json)")
+    ap.add_argument("--scenes", nargs="+", default=None, metavar="SCENARIO:SEED:WxH",
+                    help="scenes to fly (default: dense:3:1280x720 default:12:640x480)")
+    ap.add_argument("--frames", type=int, default=FRAMES, help="frames per scene")
     args = ap.parse_args(argv)
+    scenes = SCENES
+    if args.scenes:
+        try:
+            scenes = tuple((a, int(b), c) for a, b, c in (s.split(":") for s in args.scenes))
+        except ValueError:
+            ap.error("--scenes: give SCENARIO:SEED:WxH, e.g. dense:3:1280x720")
     folder = WORK / "altitude"
     folder.mkdir(parents=True, exist_ok=True)
     # render first (two at a time), then track
-    specs = [(s, k) for s in SCENES for k in args.scales]
+    specs = [(s, k) for s in scenes for k in args.scales]
     with ThreadPoolExecutor(max(1, args.jobs)) as ex:
-        list(ex.map(lambda sk: scene(folder, *sk[0], sk[1]), specs))
+        list(ex.map(lambda sk: scene(folder, *sk[0], sk[1], args.frames), specs))
     jobs = [(s, k, m) for s, k in specs for m in args.modes]
     with ThreadPoolExecutor(max(1, args.jobs)) as ex:
-        rows = list(ex.map(lambda j: run_one(folder, *j, args.overrides), jobs))
+        rows = list(ex.map(lambda j: run_one(folder, *j, args.overrides, args.frames), jobs))
     print(f"{'scene':<24}{'K':>6}{'m/px':>7}{'car px':>8}  {'mode':<6}"
           f"{'HOTA':>7}{'IDF1':>7}{'MOTA':>7}{'IDSW':>6}")
     for r in rows:
         print(f"{r['scene']:<24}{r['gsd_scale']:>6g}{r['metres_per_px']:>7.2f}"
               f"{r['car_length_px']:>8.1f}  {r['mode']:<6}{r['HOTA']:>7.3f}{r['IDF1']:>7.3f}"
               f"{r['MOTA']:>7.3f}{r['IDSW']:>6d}")
-    path = write_results(args.out, {"frames": FRAMES, "scenes": [list(s) for s in SCENES],
+    means = {}
+    for m in args.modes:
+        for k in args.scales:
+            sel = [r for r in rows if r["mode"] == m and r["gsd_scale"] == k]
+            means[f"{m} x{k:g}"] = {key: float(np.mean([r[key] for r in sel]))
+                                    for key in ("HOTA", "IDF1", "MOTA", "DetA", "AssA")}
+            print(f"mean {m:<6} x{k:<5g}" + "".join(f" {key} {v:.3f}"
+                                                  for key, v in means[f"{m} x{k:g}"].items()))
+    path = write_results(args.out, {"frames": args.frames, "scenes": [list(s) for s in scenes],
                                     "overrides": args.overrides, "generator": generator_version(),
-                                    "runs": rows})
+                                    "runs": rows, "mean": means})
     print(f"wrote {path}")
 
 
