@@ -699,3 +699,53 @@ def test_blob_confidence_rises_with_contrast_and_halves_for_ragged_blobs():
     # a box at least half filled is a solid blob; an empty-looking one scores half as much
     assert blob_confidence(2.0, 0.5) == blob_confidence(2.0, 1.0)
     assert blob_confidence(2.0, 0.0) == pytest.approx(0.5 * blob_confidence(2.0, 1.0))
+
+
+def _road(h: int = 60, w: int = 60) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return np.clip(100 + rng.normal(0, 3, (h, w, 3)), 0, 255).astype(np.uint8)
+
+
+def _rect_mask(shape, rects) -> np.ndarray:
+    m = np.zeros(shape[:2], np.uint8)
+    for x0, y0, x1, y1 in rects:
+        m[y0:y1, x0:x1] = 1
+    return m
+
+
+def test_colour_split_parts_a_dark_car_touching_a_white_van():
+    """Side by side, touching (no waist for the erosion): two pieces, each one vehicle."""
+    from aerotrack.detection.moving import split_by_colour
+
+    img = _road()
+    img[10:44, 12:26] = (35, 30, 30)      # dark car, 14 x 34 px
+    img[10:44, 26:41] = (230, 230, 225)   # white van beside it, 15 x 34 px
+    mask = _rect_mask(img.shape, [(12, 10, 41, 44)])
+    parts = split_by_colour(mask, img, typical=14 * 34, min_dist=40, min_width=5)
+    assert parts is not None and len(parts) == 2
+    boxes = sorted(cv2.boundingRect(p) for p in parts)
+    assert abs(boxes[0][0] - 12) <= 1 and abs(boxes[0][2] - 14) <= 1
+    assert abs(boxes[1][0] - 26) <= 1 and abs(boxes[1][2] - 15) <= 1
+
+
+def test_colour_split_leaves_single_two_tone_vehicles_whole():
+    """A truck with a dark cab, a van with dark windows, one car with a blurred rim: one piece."""
+    from aerotrack.detection.moving import split_by_colour
+
+    img = _road()
+    img[5:55, 20:36] = (40, 40, 200)     # red truck, 16 x 50 px
+    img[45:55, 20:36] = (30, 20, 20)     # its dark cab: a tenth of a car
+    truck = _rect_mask(img.shape, [(20, 5, 36, 55)])
+    assert split_by_colour(truck, img, typical=16 * 25, min_dist=40, min_width=5) is None
+
+    img = _road()
+    img[10:50, 20:36] = (225, 225, 225)  # white van with a dark windscreen band
+    img[14:19, 21:35] = (30, 30, 30)
+    van = _rect_mask(img.shape, [(20, 10, 36, 50)])
+    assert split_by_colour(van, img, typical=16 * 20, min_dist=40, min_width=5) is None
+
+    img = _road()
+    img[10:50, 18:38] = (160, 160, 160)  # rim: the edge blended with the road
+    img[13:47, 21:35] = (40, 40, 210)    # body
+    car = _rect_mask(img.shape, [(18, 10, 38, 50)])
+    assert split_by_colour(car, img, typical=20 * 20, min_dist=40, min_width=5) is None

@@ -343,6 +343,17 @@ class DetectionConfig:
         (real vehicles fall into pieces at their windscreens, and separated pieces exposed a
         pedestrian and a waiting car its ground truth omits; 0.6 and 1.0 x typical no better).
         Hence off.
+    split_colour_dist : float
+        A refined blob of at least ``split_area_ratio`` x the typical area whose pixels fall into
+        two colour clusters at least this far apart (CIE Lab, OpenCV's 8-bit scale), each one
+        compact, car-sized piece, is two touching vehicles (``moving.split_by_colour``): a dark
+        car beside a white van in the next lane, or behind it in a queue. 0 (the default)
+        disables; 40 is the measured setting. Off because tracking did not gain: on the 18
+        held-out generated scenes detection P/R at IoU 0.5 rose 0.8159/0.8211 -> 0.8170/0.8238,
+        but HOTA/IDF1 (MCMC seed 0) went 0.700/0.858 -> 0.695/0.852 (with ``gap_accel_mps2``
+        6, seeds 0-2: +0.001/+0.001), the identity benchmark's IDF1 (seeds 0-2) 0.866 ->
+        0.863 and Santiago's (seeds 0-2) HOTA/IDF1 0.666/0.887 -> 0.662/0.879 (docs/DESIGN.md,
+        "Colour split").
     join_parts_ratio : float
         Two blobs within twice the join gap are joined, closest first, when their union's
         oriented extent is at most this multiple of the frame's median blob length and width
@@ -581,6 +592,7 @@ class DetectionConfig:
     split_area_ratio: float = 1.7
     join_parts_ratio: float = 1.5
     split_full_ratio: float = 0.0
+    split_colour_dist: float = 0.0
     join_cab_ratio: float = 0.9
     shadow_suppression: bool = True
     shadow_alpha: float = 0.4

@@ -733,6 +733,7 @@ def _validate(c: DetectionConfig) -> None:
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
         ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("regrow_ghost_ratio", c.regrow_ghost_ratio >= 0),
         ("join_cab_ratio", c.join_cab_ratio >= 0), ("split_full_ratio", c.split_full_ratio >= 0),
+        ("split_colour_dist", c.split_colour_dist >= 0),
         ("box_edge_level", 0 <= c.box_edge_level < 1),
     ]
     for name, ok in checks:

@@ -15,6 +15,7 @@ Boxes are ``x, y, w, h`` in full-resolution frame pixels.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -394,6 +395,10 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
         pieces = separate_pieces(fg8, max(gates.min_area_px,
                                           config.split_full_ratio * full_typical),
                                  gates.min_width_px)
+    if pieces is None and config.split_colour_dist > 0 and typical > 0 \
+            and int(np.count_nonzero(fg8)) >= config.split_area_ratio * full_typical:
+        pieces = split_by_colour(fg8, crop, typical=full_typical,
+                                 min_dist=config.split_colour_dist, min_width=gates.min_width_px)
     out = []
     for piece, pb in pieces_of(fg8, pieces, b, (mx0, my0, mx1, my1), scale):
         kept = piece_mask(piece, region, close_full, gates)
@@ -489,6 +494,140 @@ def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list
     lut[nearest[seeds > 0]] = seeds[seeds > 0]
     owner = lut[nearest] * (mask > 0)
     return [(owner == i).astype(np.uint8) for i in range(1, len(big) + 1)]
+
+
+#: :func:`split_by_colour`: the two colours must lie this many times their pooled spread apart.
+COLOUR_SPLIT_CONTRAST = 2.5
+#: ... and each part's area must be between these multiples of the frame's typical blob area: two
+#: cars, not a truck's cab and its trailer, nor a van's windows and its roof.
+COLOUR_SPLIT_PART_AREA = (0.5, 1.6)
+#: ... and each part's largest connected piece must hold this share of its colour's pixels.
+COLOUR_SPLIT_COHERENCE = 0.75
+#: ... and at most this share of either piece may lie inside the other's convex hull.
+COLOUR_SPLIT_HULL_SHARE = 0.2
+#: ... and each piece must fill this share of its smallest enclosing (rotated) rectangle.
+COLOUR_SPLIT_RECTANGULAR = 0.65
+
+
+def split_by_colour(mask: np.ndarray, crop_bgr: np.ndarray, *, typical: float, min_dist: float,
+                    min_width: float) -> list[np.ndarray] | None:
+    """Masks of two touching vehicles of different colours in one refined blob, else None.
+
+    Two vehicles side by side in adjacent lanes, or nose to tail in a queue, often touch in the
+    residual (shadows and blur fill the lane line between them), so no erosion separates them
+    (:func:`.blobs.split_blob` needs a waist) and their pixels are one component
+    (:func:`separate_pieces`). Where their colours differ (most pairs: a dark car beside a
+    white van) each is a compact, car-sized region of one colour. The blob's pixels (CIE Lab)
+    are clustered by k-means in two and in three (deterministic farthest-point starts; the
+    third cluster takes the rims and windows, which pair with neither body), and a pair of
+    clusters is taken for two vehicles when their means are at least ``min_dist`` apart (Lab
+    units, OpenCV's 8-bit scale) and ``COLOUR_SPLIT_CONTRAST`` times their pooled spread, and
+    each of the two, smoothed by a 3x3 majority, has one connected piece holding
+    ``COLOUR_SPLIT_COHERENCE`` of its pixels, at least ``min_width`` thick, whose area is within
+    ``COLOUR_SPLIT_PART_AREA`` x ``typical`` (full-resolution pixels), that fills
+    ``COLOUR_SPLIT_RECTANGULAR`` of its smallest rotated rectangle (vehicles are rectangles from
+    above), and neither piece lies inside the other's convex hull (at most
+    ``COLOUR_SPLIT_HULL_SHARE`` of it). A two-tone single vehicle fails those tests: its windows
+    or cab are smaller than a car, a bus's roof larger, stripes are not one piece, and the rim
+    where its edge blends into the road is a ring around its body. The other pixels go to the
+    nearer piece. This is ours; neither paper splits blobs by colour.
+
+    Parameters
+    ----------
+    mask : ndarray (h, w) uint8
+        The blob's foreground at full resolution (after shadow removal), in ``crop_bgr``.
+    crop_bgr : ndarray (h, w, 3) uint8
+        The frame's pixels under ``mask``'s crop.
+    """
+    m = mask > 0
+    lo = COLOUR_SPLIT_PART_AREA[0]
+    if typical <= 0 or int(m.sum()) < 2 * lo * typical:
+        return None
+    X = cv2.cvtColor(crop_bgr, cv2.COLOR_BGR2LAB).astype(np.float32)[m]
+    for k in (2, 3):
+        fit = _kmeans(X, k)
+        if fit is None:
+            continue
+        of, C = fit
+        labels = np.zeros(m.shape, np.uint8)
+        labels[m] = of.astype(np.uint8) + 1
+        votes = np.stack([cv2.boxFilter((labels == c + 1).astype(np.float32), -1, (3, 3),
+                                        normalize=False) for c in range(k)])
+        smooth = (np.argmax(votes, axis=0).astype(np.uint8) + 1) * m
+        for a, b in itertools.combinations(range(k), 2):
+            both = (of == a) | (of == b)
+            dist = float(np.linalg.norm(C[a] - C[b]))
+            spread = float(np.sqrt(np.mean(((X[both] - C[of[both]]) ** 2).sum(1))))
+            if dist < min_dist or dist < COLOUR_SPLIT_CONTRAST * spread:
+                continue
+            seeds = _vehicle_cores(smooth, (a + 1, b + 1), typical, min_width)
+            if seeds is None:
+                continue
+            _, nearest = cv2.distanceTransformWithLabels(
+                (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+            lut = np.zeros(int(nearest.max()) + 1, np.int32)
+            lut[nearest[seeds > 0]] = seeds[seeds > 0]
+            owner = lut[nearest] * m
+            return [(owner == i).astype(np.uint8) for i in (1, 2)]
+    return None
+
+
+def _kmeans(X: np.ndarray, k: int, iters: int = 10) -> tuple[np.ndarray, np.ndarray] | None:
+    """Lloyd's k-means of the rows of ``X`` from a deterministic start (the row farthest from the
+    mean, then each next the row farthest from the centres so far): (labels, centres), or None
+    when a cluster empties."""
+    C = [X[np.argmax(((X - X.mean(0)) ** 2).sum(1))]]
+    for _ in range(k - 1):
+        d = np.min(np.stack([((X - c) ** 2).sum(1) for c in C]), axis=0)
+        C.append(X[np.argmax(d)])
+    C = np.stack(C)
+    of = np.zeros(len(X), np.int64)
+    for _ in range(iters):
+        of = np.argmin(((X[:, None, :] - C[None]) ** 2).sum(2), axis=1)
+        counts = np.bincount(of, minlength=k)
+        if counts.min() == 0:
+            return None
+        newC = np.stack([X[of == c].mean(0) for c in range(k)])
+        if np.allclose(newC, C, atol=0.05):
+            break
+        C = newC
+    return of, C
+
+
+def _vehicle_cores(smooth: np.ndarray, pair: tuple[int, int], typical: float,
+                   min_width: float) -> np.ndarray | None:
+    """Seeds (1, 2) of the two vehicles of colour clusters ``pair`` in the label image
+    ``smooth``, or None when they fail :func:`split_by_colour`'s shape tests."""
+    lo, hi = COLOUR_SPLIT_PART_AREA
+    seeds = np.zeros(smooth.shape, np.int32)
+    for i, c in enumerate(pair, start=1):
+        part = (smooth == c).astype(np.uint8)
+        cnt, cl, stats, _ = cv2.connectedComponentsWithStats(part, connectivity=4)
+        if cnt <= 1:
+            return None
+        j = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        area = int(stats[j, cv2.CC_STAT_AREA])
+        if area < COLOUR_SPLIT_COHERENCE * int(part.sum()) or not lo * typical <= area <= hi * typical:
+            return None
+        core = (cl == j).astype(np.uint8)
+        if min_width > 0:
+            dt = cv2.distanceTransform(pad0(core, 1), cv2.DIST_L2, 3)
+            if 2.0 * float(dt.max()) < min_width:
+                return None
+        seeds[core > 0] = i
+    # two vehicles lie beside each other; a vehicle's rim (its edge blended with the road) is a
+    # ring whose hull holds the body
+    for i in (1, 2):
+        pts = cv2.findNonZero((seeds == i).astype(np.uint8))
+        (_, _), (rw, rh), _ = cv2.minAreaRect(pts)
+        if len(pts) < COLOUR_SPLIT_RECTANGULAR * (rw + 1) * (rh + 1):
+            return None
+        hull = np.zeros(seeds.shape, np.uint8)
+        cv2.fillConvexPoly(hull, cv2.convexHull(pts), 1)
+        other = seeds == 3 - i
+        if np.count_nonzero(hull[other]) > COLOUR_SPLIT_HULL_SHARE * np.count_nonzero(other):
+            return None
+    return seeds
 
 
 def pieces_of(mask: np.ndarray, pieces: list[np.ndarray] | None, blob: Blob,
