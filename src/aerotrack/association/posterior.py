@@ -151,6 +151,48 @@ def partial_allowed(f, f_whole, params):
     return params.shape[0] > 11 and abs(f - f_whole) <= params[11]
 
 
+#: :func:`link_step`'s d^2 of a link refused by :func:`gap_motion_ok` (outside every gate).
+REFUSED_D2 = 1e12
+
+
+@njit(cache=True)
+def gap_motion_ok(x, P, dt, z, params):
+    """Whether a link bridging ``dt`` seconds of missed detections is physically possible.
+
+    The Kalman gate alone lets a track that coasted for most of a second take a detection that
+    implies a reversal or a jump into the next lane: its white-noise acceleration (``accel_std``,
+    high enough to follow the frame-to-frame jitter of blob centres) spreads the prediction over
+    metres, and a vehicle passing the other way under the same occluder falls inside. Over such
+    a gap the observation's offset from the constant-velocity prediction ``x + v dt`` is split
+    along and across the track's heading (when it moves faster than 2 m/s; else both limits are
+    the larger), and each part may be at most ``a dt^2 / 2`` for the largest acceleration along
+    (``params[12]``, m/s^2; 0 disables) or across (``params[14]``) plus one standard deviation
+    of the predicted position (the filtered velocity's over ``dt`` and both ends' position
+    noise). ``params[13]``: the shortest gap tested, seconds (over shorter ones the noise
+    dominates). Ours, not Yu & Medioni's.
+    """
+    if params.shape[0] < 15 or params[12] <= 0.0 or dt < params[13]:
+        return True
+    s = 0.5 * (abs(z[2]) + abs(z[3]))
+    sp2 = params[2] * params[2] + (params[3] * s) ** 2
+    ex = z[0] - x[0] - x[4] * dt
+    ey = z[1] - x[1] - x[5] * dt
+    speed = np.sqrt(x[4] * x[4] + x[5] * x[5])
+    a_along, a_across = params[12], params[14]
+    if speed > 2.0:
+        ux, uy = x[4] / speed, x[5] / speed
+        e_al, e_ac = ex * ux + ey * uy, -ex * uy + ey * ux
+        v_al = ux * ux * P[4, 4] + 2.0 * ux * uy * P[4, 5] + uy * uy * P[5, 5]
+        v_ac = uy * uy * P[4, 4] - 2.0 * ux * uy * P[4, 5] + ux * ux * P[5, 5]
+    else:
+        e_al, e_ac = ex, ey
+        v_al, v_ac = P[4, 4], P[5, 5]
+        a_along = a_across = max(a_along, a_across)
+    lim_al = 0.5 * a_along * dt * dt + np.sqrt(v_al * dt * dt + 2.0 * sp2)
+    lim_ac = 0.5 * a_across * dt * dt + np.sqrt(v_ac * dt * dt + 2.0 * sp2)
+    return abs(e_al) <= lim_al and abs(e_ac) <= lim_ac
+
+
 @njit(cache=True)
 def link_step(x, P, dt, z, params, partial=False):
     """One Kalman link: predict ``dt`` s ahead from (x, P), update with ``z``.
@@ -184,6 +226,8 @@ def link_step(x, P, dt, z, params, partial=False):
     0.011 / 0.023 on Santiago.
     """
     xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
+    if not gap_motion_ok(x, P, dt, z, params):
+        return xp, Pp, REFUSED_D2, -0.5 * REFUSED_D2
     R = measurement_noise_nb(z[2:4], params[2], params[3], params[4], params[5])
     xn, Pn, ll, d2 = update_nb(xp, Pp, z, R)
     logdet_r = 0.0
@@ -301,6 +345,8 @@ def children_scores(x, P, f_end, h_end, lh_end, Z, F, LAB, H, LH, fps, params, r
         if gap != last_gap:
             xp, Pp = predict_nb(x, P, transition_nb(dt), process_noise_nb(dt, params[0], params[1]))
             last_gap = gap
+        if not gap_motion_ok(x, P, dt, Z[j], params):
+            continue
         d2, dlogdet = _d2_predicted(xp, Pp, Z[j], params)
         if d2 <= gate2:
             s = 0.5 * (gate2 - d2 - dlogdet)
