@@ -682,14 +682,20 @@ class AssociationConfig:
     gate_chi2 : float
         Gate on the squared Mahalanobis distance of a link (4 degrees of freedom). A link scores
         ``0.5 * (gate_chi2 - d^2)``: larger admits sloppier links and rewards good ones more.
-    gap_accel_mps2, gap_lateral_mps2, gap_min_s : float
+    gap_accel_mps2, gap_lateral_mps2, gap_min_s, gap_size_change : float
         A link bridging at least ``gap_min_s`` of missed detections is refused when the
         observation lies farther from the constant-velocity prediction, along the track's
         heading or across it, than these accelerations reach over the gap (``a t^2 / 2``, plus
         one standard deviation of the prediction; ``posterior.gap_motion_ok``): a vehicle does
         not turn round or change lanes in under a second, but the Kalman gate, as wide as
         ``accel_std_mps2`` makes it, let a track that coasted under an occluder take the vehicle
-        coming the other way in the next lane. Applied only with a known scale (a map or
+        coming the other way in the next lane. An observation whose box area differs from the
+        track's by more than ``gap_size_change`` (a share) is not tested: a part of a vehicle
+        coming out from under a tree, whose centre runs ahead of it (0 tests every link;
+        with the gate on, seeds 0-2: identity IDF1 0.848 -> 0.863, occlusions 20-22 -> 22-23
+        of 31, held-out HOTA/IDF1 0.698/0.857 -> 0.695/0.853, against 0.866 and 0.693/0.849
+        with the gate off).
+        Applied only with a known scale (a map or
         ``--gsd``), as ``split_accel_mps2``: with a scale estimated from box sizes it cut
         truck4's tiny truck into pieces (best single ID 0.658 -> 0.437). ``gap_accel_mps2`` 0
         (the default) disables; 6 with ``gap_lateral_mps2`` 3 is the measured setting. Off
@@ -840,6 +846,7 @@ class AssociationConfig:
     gap_accel_mps2: float = 0.0
     gap_lateral_mps2: float = 3.0
     gap_min_s: float = 0.25
+    gap_size_change: float = 0.3
     miss_cost: float = 0.3
     birth_cost: float = 16.0
     app_weight: float = 1.0

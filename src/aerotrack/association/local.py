@@ -78,7 +78,7 @@ class LocalAssociator:
                 or not 0 < config.partial_max_area <= 1 or config.partial_max_run_s < 0):
             raise ConfigError("config association.partial_score and partial_max_run_s must be "
                               ">= 0, partial_min_inside and partial_max_area in (0, 1]")
-        for name in ("gap_accel_mps2", "gap_min_s", "gap_lateral_mps2"):
+        for name in ("gap_accel_mps2", "gap_min_s", "gap_lateral_mps2", "gap_size_change"):
             if getattr(config, name) < 0:
                 raise ConfigError(f"config association.{name}: must be >= 0")
         if not 0 < config.extend_gamma < 1:
@@ -139,7 +139,7 @@ class LocalAssociator:
                              [c.partial_score, c.partial_min_inside, c.gate_chi2,
                               c.partial_max_area, round(c.partial_max_run_s * self.fps),
                               c.gap_accel_mps2 if self.scale_known else 0.0, c.gap_min_s,
-                              c.gap_lateral_mps2]])
+                              c.gap_lateral_mps2, c.gap_size_change]])
         params = SamplerParams(
             fps=self.fps, kf=kf, kf_back=np.where(np.arange(len(kf)) == 7, 0.0, kf),
             reach_mps=c.max_speed_mps, max_gap=self.max_gap,

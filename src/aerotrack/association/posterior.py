@@ -173,6 +173,12 @@ def gap_motion_ok(x, P, dt, z, params):
     """
     if params.shape[0] < 15 or params[12] <= 0.0 or dt < params[13]:
         return True
+    if params.shape[0] > 15 and params[15] > 0.0:
+        # a box whose area differs from the track's is a part of the vehicle (coming out from
+        # under a tree, or going in): its centre runs ahead of the vehicle's
+        ratio = abs(z[2] * z[3]) / max(abs(x[2] * x[3]), 1e-12)
+        if abs(ratio - 1.0) > params[15]:
+            return True
     s = 0.5 * (abs(z[2]) + abs(z[3]))
     sp2 = params[2] * params[2] + (params[3] * s) ** 2
     ex = z[0] - x[0] - x[4] * dt
