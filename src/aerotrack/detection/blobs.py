@@ -155,6 +155,17 @@ def _attach_unseeded(labels: np.ndarray, stats: np.ndarray, seeded: np.ndarray,
     return owner
 
 
+def nearest_seed(seeds: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Each pixel of ``mask`` labelled with its nearest seed (``seeds`` > 0, int labels; L2
+    distance): (h, w) int32, 0 outside ``mask``."""
+    # the distance transform labels every zero (seed) pixel; map those labels to the seeds'
+    _, nearest = cv2.distanceTransformWithLabels(
+        (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, np.int32)
+    lut[nearest[seeds > 0]] = seeds[seeds > 0]
+    return lut[nearest] * (mask > 0)
+
+
 def split_blob(blob: Blob, *, min_area: float, max_radius: int) -> list[Blob]:
     """Split a blob that merges several vehicles.
 
@@ -181,13 +192,7 @@ def split_blob(blob: Blob, *, min_area: float, max_radius: int) -> list[Blob]:
         seeds = np.zeros_like(labels)
         for i, k in enumerate(big, start=1):
             seeds[labels == k] = i
-        # Nearest core of every pixel: distance transform labels of the zero (core) pixels.
-        _, nearest = cv2.distanceTransformWithLabels(
-            (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-        zero_labels = nearest[seeds > 0]
-        lut = np.zeros(int(nearest.max()) + 1, np.int32)
-        lut[zero_labels] = seeds[seeds > 0]
-        owner = lut[nearest] * (m > 0)
+        owner = nearest_seed(seeds, m)  # every pixel to its nearest core
         parts = []
         for i in range(1, len(big) + 1):
             pm = owner == i

@@ -32,6 +32,7 @@ from .blobs import (
     join_cabs,
     join_fragments,
     join_vehicle_parts,
+    nearest_seed,
     open2,
     regrow_small,
     split_blob,
@@ -488,11 +489,7 @@ def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list
     seeds = np.zeros(labels.shape, np.int32)
     for i, k in enumerate(big, start=1):
         seeds[labels == k] = i
-    _, nearest = cv2.distanceTransformWithLabels((seeds == 0).astype(np.uint8), cv2.DIST_L2, 5,
-                                                 labelType=cv2.DIST_LABEL_PIXEL)
-    lut = np.zeros(int(nearest.max()) + 1, np.int32)
-    lut[nearest[seeds > 0]] = seeds[seeds > 0]
-    owner = lut[nearest] * (mask > 0)
+    owner = nearest_seed(seeds, mask)
     return [(owner == i).astype(np.uint8) for i in range(1, len(big) + 1)]
 
 
@@ -563,11 +560,7 @@ def split_by_colour(mask: np.ndarray, crop_bgr: np.ndarray, *, typical: float, m
             seeds = _vehicle_cores(smooth, (a + 1, b + 1), typical, min_width)
             if seeds is None:
                 continue
-            _, nearest = cv2.distanceTransformWithLabels(
-                (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-            lut = np.zeros(int(nearest.max()) + 1, np.int32)
-            lut[nearest[seeds > 0]] = seeds[seeds > 0]
-            owner = lut[nearest] * m
+            owner = nearest_seed(seeds, m)
             return [(owner == i).astype(np.uint8) for i in (1, 2)]
     return None
 
