@@ -568,3 +568,43 @@ def test_an_estimated_scale_judges_small_tracks_by_its_own_threshold():
     estimated = finish_tracks([copy.deepcopy(t)], cfg, FPS, metres_per_unit=MPU,
                               registrations=identity, scale_estimated=True)
     assert len(known) == 1 and estimated == []
+
+
+def test_merged_boxes_do_not_pull_the_vehicle_towards_its_neighbour():
+    """Every third detection of a car merges it with the car beside it (a box twice as tall,
+    its centre 10 px off) and the car leaves through the frame's right edge at the end: the
+    reported boxes follow the car's own boxes, not the merged ones' centres; without the size
+    test (``size_outlier_ratio`` 0) the smoothed centre sits about 3 px towards the neighbour.
+    The border pass at the end must keep the down-weighting too."""
+    rng = np.random.default_rng(3)
+    L, W = 45.0, 20.0
+    pts, truth = [], []
+    for k in range(1, 121):
+        true = np.array([300 + 3.0 * k - L / 2, 300 - W / 2, L, W])
+        box = true.copy()
+        box[:2] += rng.normal(0, 0.3, 2)
+        if k % 3 == 0:  # merged with the neighbour below it
+            box[3] += W
+        x1 = min(box[0] + box[2], 640.0)
+        box[2] = x1 - box[0]
+        if box[2] <= 5:
+            break
+        pts.append(TrackPoint(frame=k, box=box, world=box[:2] + box[2:] / 2, conf=1.0))
+        truth.append(true)
+    truth = np.array(truth)
+    regs = {k: Registration(index=k, H=np.eye(3)) for k in range(1, len(pts) + 1)}
+    cfg = FinishConfig(fill_gaps_s=0.0)
+    assert cfg.size_outlier_ratio > 0
+
+    def centre_error(config):
+        (out,) = finish_tracks([Track(id=1, points=[dataclasses.replace(p) for p in pts])],
+                               config, FPS, metres_per_unit=MPU, registrations=regs,
+                               frame_size=(640, 480))
+        boxes = _boxes(out)
+        inside = truth[:, 0] + L < 630  # the frames before the border
+        return np.abs((boxes[:, 1] + boxes[:, 3] / 2) - 300)[inside].mean()
+
+    assert centre_error(cfg) < 1.0
+    assert centre_error(dataclasses.replace(cfg, size_outlier_ratio=0.0)) > 2.0
+    with pytest.raises(ConfigError, match="size_outlier_ratio"):
+        TrackFinisher(FinishConfig(size_outlier_ratio=0.9))

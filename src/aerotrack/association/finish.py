@@ -13,7 +13,9 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
    in-view points (missed frames are predicted), then the Rauch-Tung-Striebel backward pass, in
    world coordinates. Robust (:func:`robust_smooth`): observations far from the smoothed path
    (squared Mahalanobis residual above ``outlier_chi2``) get their noise scaled up and the run is
-   smoothed again.
+   smoothed again. Once the vehicle's size is known (step 2), observations whose box is far
+   from it (``size_outlier_ratio``: a blob merged with a neighbour, a fragment) have biased
+   centres: the track is smoothed once more with their noise raised.
 2. **One size per vehicle**: a vehicle's size on the ground does not change; partial and merged
    blobs do. Sizes are estimated per run of consecutive in-view frames (a tracklet: a wrong link
    between two vehicles must not give one the other's size), in one of two ways
@@ -105,6 +107,11 @@ SIZE_MODES = ("auto", "oriented", "window", "detection")
 
 
 # -- smoothing -------------------------------------------------------------------------------------
+
+#: Factor on the observation-noise variance of a box far from the vehicle's size
+#: (``FinishConfig.size_outlier_ratio``): 5x the standard deviation.
+SIZE_OUTLIER_NOISE = 25.0
+
 
 def rts_smooth(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray, kf: ConstantVelocityKF
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -397,6 +404,9 @@ class TrackFinisher:
         if not (0.0 <= self.config.absorbed_ratio < 1.0 and self.config.absorbed_speed > 0):
             raise ConfigError("config finish.absorbed_ratio must be in [0, 1) and "
                               "finish.absorbed_speed > 0")
+        if not (self.config.size_outlier_ratio == 0 or self.config.size_outlier_ratio > 1):
+            raise ConfigError(f"config finish.size_outlier_ratio: "
+                              f"{self.config.size_outlier_ratio} must be 0 (off) or > 1")
         if not 0.0 < self.config.max_overlap <= 1.0:
             raise ConfigError(f"config finish.max_overlap: {self.config.max_overlap} "
                               "must be in (0, 1]")
@@ -518,6 +528,21 @@ class TrackFinisher:
                 continue
             new[run] = self._run_boxes(run, mode, xs, boxes, J, Hinv, times, full, mpu,
                                        absorbed=regs is not None)
+        inflate = None
+        if c.smooth and c.size_outlier_ratio > 0:
+            # a merged blob's or a fragment's centre is off the vehicle's: smooth again with
+            # those centres down-weighted (their box size is already left out of ``new``)
+            area = boxes[:, 2] * boxes[:, 3]
+            ref = new[:, 2] * new[:, 3]
+            off = measured & ~edge & ((area > c.size_outlier_ratio * ref)
+                                      | (area * c.size_outlier_ratio < ref))
+            if off.any():
+                inflate = np.where(off, SIZE_OUTLIER_NOISE, 1.0)
+                if not edge.any():  # else the border pass below smooths with it
+                    xs2 = self._smooth(times, frames, world, sizes, measured, kf, mpu, inflate)
+                    new[:, :2] += (_project(Hinv, xs2[:, None, :2])
+                                   - _project(Hinv, xs[:, None, :2]))[:, 0]
+                    xs = xs2
         if c.smooth and edge.any():
             # a border-clipped box: its inner edges are right; rebuild its centre with the full
             # size, and smooth again with the rebuilt centres
@@ -525,7 +550,7 @@ class TrackFinisher:
             for i in np.flatnonzero(edge):
                 cx, cy = self._unclipped_centre(boxes[i], new[i], frame_size)
                 world2[i] = apply_homography(np.linalg.inv(Hinv[i]), np.array([[cx, cy]]))[0]
-            xs2 = self._smooth(times, frames, world2, sizes, measured, kf, mpu)
+            xs2 = self._smooth(times, frames, world2, sizes, measured, kf, mpu, inflate)
             new[:, :2] += (_project(Hinv, xs2[:, None, :2]) - _project(Hinv, xs[:, None, :2]))[:, 0]
             xs = xs2
         if c.clip_to_frame and frame_size is not None:
@@ -592,9 +617,11 @@ class TrackFinisher:
         c_px = _project(Hinv[run], xs[run, None, :2])[:, 0]
         return np.column_stack([c_px - wh / 2, wh])
 
-    def _smooth(self, times, frames, world, sizes, measured, kf, mpu) -> np.ndarray:
+    def _smooth(self, times, frames, world, sizes, measured, kf, mpu,
+                inflate: np.ndarray | None = None) -> np.ndarray:
         """Robust RTS over each run of consecutive frames; (N, 6) states (unsmoothed rows copied
-        for runs with fewer than two measurements)."""
+        for runs with fewer than two measurements). ``inflate`` (N,): factors on each
+        observation's noise variance."""
         c = self.config
         n = len(times)
         xs = np.column_stack([world, sizes, np.zeros((n, 2))])
@@ -609,6 +636,8 @@ class TrackFinisher:
             zs = np.column_stack([world[r], sizes[r]])
             zs[~measured[r]] = np.nan
             Rs = _noise(np.nan_to_num(sizes[r]), c.pos_std_m / mpu, c.pos_frac, 0.3 / mpu, 0.1)
+            if inflate is not None:
+                Rs = Rs * inflate[r][:, None, None]
             x_r, _ = robust_smooth(times[r], zs, Rs, kf, c.outlier_chi2, c.robust_iters)
             xs[r] = x_r
             # points of the run outside the measured span (bridged ends) keep constant velocity
