@@ -298,6 +298,35 @@ def test_window_sizes_match_numpy_quantiles():
         assert np.allclose(out[i], ref)
 
 
+def test_window_sizes_pool_only_observations_facing_the_same_way():
+    """A 45 x 20 px vehicle comes into view turning through 90 degrees in its first second: its
+    box goes from 45 x 20 to 20 x 45 through squarer boxes. At the start of a track the window
+    is one-sided, so a plain 2 s window gives the first frames the boxes of after the turn; with
+    headings each point's window holds only the boxes of its own heading (modulo 180 degrees:
+    driving back the other way is the same box)."""
+    t = np.arange(150) / 30.0
+    theta = np.clip(t / 1.0, 0.0, 1.0) * np.pi / 2
+    c, s_ = np.abs(np.cos(theta)), np.abs(np.sin(theta))
+    sizes = np.column_stack([45 * c + 20 * s_, 45 * s_ + 20 * c])
+    headings = theta.copy()
+    headings[-30:] -= np.pi  # a U-turn at the end: the same box
+    valid = np.ones(len(t), bool)
+    turn = t < 1.0
+    gated = window_sizes(t, sizes, valid, 2.0, 0.5, headings, math.radians(20))
+    plain = window_sizes(t, sizes, valid, 2.0, 0.5)
+    err_gated = np.abs(gated - sizes)[turn].mean()
+    err_plain = np.abs(plain - sizes)[turn].mean()
+    assert err_gated < 0.5 * err_plain
+    assert np.allclose(gated[~turn], sizes[~turn])
+    # unknown headings (NaN, never moving) are pooled with every point
+    assert np.allclose(window_sizes(t, sizes, valid, 2.0, 0.5, np.full(len(t), np.nan), 0.3),
+                       plain)
+    # a point whose heading no other point shares keeps the plain window: never empty
+    lone = headings.copy()
+    lone[100] = 1.0
+    assert np.all(np.isfinite(window_sizes(t, sizes, valid, 2.0, 0.5, lone, math.radians(20))))
+
+
 def test_short_gaps_between_tracklets_become_bridged():
     track, regs, truth = _vehicle(partial=0.0, n=90)
     for p in track.points[40:49]:  # 9 frames (0.3 s) between two tracklets
@@ -550,9 +579,10 @@ def test_a_waiting_vehicle_half_absorbed_keeps_its_size():
     image = finish_tracks([shrunk(_stopping(), waits)], cfg, FPS, metres_per_unit=MPU)
     assert np.allclose([p.box[2:] for p in image[0].points if p.frame in waits][-10:], [18, 10],
                        atol=1.0)
-    fast = finish_tracks([shrunk(_stopping(n_drive=120, n_stand=0), range(20, 50))], cfg, FPS,
+    # a fragment for 2 s (the size window's width) while driving fast stays a fragment
+    fast = finish_tracks([shrunk(_stopping(n_drive=120, n_stand=0), range(20, 80))], cfg, FPS,
                          metres_per_unit=MPU, registrations=IDENT)
-    assert np.allclose([p.box[2:] for p in fast[0].points if p.frame in range(20, 50)][5:-5],
+    assert np.allclose([p.box[2:] for p in fast[0].points if p.frame in range(20, 80)][5:-5],
                        [18, 10], atol=1.0)
 
 

@@ -287,9 +287,15 @@ def oriented_size(boxes: np.ndarray, jacobians: np.ndarray, headings: np.ndarray
 
 
 def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window_s: float,
-                 quantile: float) -> np.ndarray:
+                 quantile: float, headings: np.ndarray | None = None,
+                 max_turn: float = 0.0) -> np.ndarray:
     """Per-point size (N, 2): the ``quantile`` of the valid ``sizes`` (N, 2) within
-    ``window_s / 2`` seconds of each point (the whole track's if none is that close)."""
+    ``window_s / 2`` seconds of each point (the whole track's if none is that close).
+
+    With ``headings`` (N,, radians, NaN where unknown) and ``max_turn`` > 0, only points whose
+    heading is within ``max_turn`` of the point's own (modulo half a turn: a box is the same
+    driving either way) count, when at least one does: during a turn a vehicle's box changes its
+    aspect, and a window across the turn would mix the two."""
     out = np.full(sizes.shape, np.nan)
     tv, sv = times[valid], sizes[valid]
     if not len(tv):
@@ -300,6 +306,13 @@ def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window
     k = max(int(m.max()), 1)
     idx = lo[:, None] + np.arange(k)[None]
     inside = idx < hi[:, None]
+    if headings is not None and max_turn > 0:
+        hv = headings[valid][np.minimum(idx, len(tv) - 1)]
+        d = np.abs((hv - headings[:, None] + np.pi / 2) % np.pi - np.pi / 2)
+        same = inside & ~(d > max_turn)  # NaN headings compare False: kept
+        keep = same.any(axis=1)
+        inside = np.where(keep[:, None], same, inside)
+        m = inside.sum(axis=1)
     win = np.where(inside[:, :, None], sv[np.minimum(idx, len(sv) - 1)], np.inf)
     win = np.sort(win, axis=1)  # (N, k, 2), the window's values first
     # linear interpolation between order statistics, as numpy's default quantile
@@ -524,9 +537,11 @@ class TrackFinisher:
                 # observations nearest in time rather than from faint blobs
                 both = np.union1d(run, np.flatnonzero(full))
                 new[run] = self._run_boxes(both, "window", xs, boxes, J, Hinv, times, full,
-                                           mpu)[np.searchsorted(both, run)]
+                                           mpu, registered=regs is not None
+                                           )[np.searchsorted(both, run)]
                 continue
             new[run] = self._run_boxes(run, mode, xs, boxes, J, Hinv, times, full, mpu,
+                                       registered=regs is not None,
                                        absorbed=regs is not None)
         inflate = None
         if c.smooth and c.size_outlier_ratio > 0:
@@ -592,10 +607,11 @@ class TrackFinisher:
         return out
 
     def _run_boxes(self, run, mode, xs, boxes, J, Hinv, times, full, mpu,
-                   absorbed: bool = False) -> np.ndarray:
+                   registered: bool = False, absorbed: bool = False) -> np.ndarray:
         """(len(run), 4) frame-pixel boxes of one run of consecutive frames (see ``size_mode``);
-        ``absorbed``: check for a vehicle half absorbed by the background (:meth:`_unabsorbed`;
-        only on registered frames, where the world is the ground and speeds are real)."""
+        ``registered``: the world is the ground (``size_window_s`` and ``size_turn_deg``, else
+        ``size_window_image_s``); ``absorbed``: check for a vehicle half absorbed by the
+        background (:meth:`_unabsorbed`; only on registered frames, where speeds are real)."""
         c = self.config
         if mode == "oriented":
             head = _headings(xs[run, 4:6], c.min_heading_speed_mps / mpu)
@@ -608,7 +624,13 @@ class TrackFinisher:
         if mode == "window":
             scale = np.sqrt(np.abs(np.linalg.det(J[run])))
             norm = boxes[run, 2:4] / scale[:, None]
-            wh = window_sizes(times[run], norm, full[run], c.size_window_s, c.size_quantile)
+            # on registered frames sizes are on the ground: a longer window, and only the
+            # observations facing the same way
+            head = _headings(xs[run, 4:6], c.min_heading_speed_mps / mpu) \
+                if registered and c.size_turn_deg > 0 else None
+            window = c.size_window_s if registered else c.size_window_image_s
+            wh = window_sizes(times[run], norm, full[run], window, c.size_quantile, head,
+                              math.radians(c.size_turn_deg))
             if absorbed and c.absorbed_ratio > 0:
                 wh = self._unabsorbed(wh, norm, times[run], full[run], xs[run, 4:6])
             wh = np.where(np.isfinite(wh), wh, norm) * scale[:, None]
