@@ -626,8 +626,12 @@ class TrackFinisher:
             norm = boxes[run, 2:4] / scale[:, None]
             # on registered frames sizes are on the ground: a longer window, and only the
             # observations facing the same way
-            head = _headings(xs[run, 4:6], c.min_heading_speed_mps / mpu) \
-                if registered and c.size_turn_deg > 0 else None
+            head = None
+            if registered and c.size_turn_deg > 0:
+                # where it moves too slowly for a heading, a point pools with every other
+                vel = xs[run, 4:6]
+                head = np.where(np.hypot(vel[:, 0], vel[:, 1]) >= c.min_heading_speed_mps / mpu,
+                                np.arctan2(vel[:, 1], vel[:, 0]), np.nan)
             window = c.size_window_s if registered else c.size_window_image_s
             wh = window_sizes(times[run], norm, full[run], window, c.size_quantile, head,
                               math.radians(c.size_turn_deg))
