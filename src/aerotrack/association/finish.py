@@ -22,9 +22,11 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
    (``size_mode``):
 
    * ``window`` (default): per image axis, a quantile of the boxes' sides, normalised by the
-     local scale of that frame's homography, over a short time window (:func:`window_sizes`);
-     the box is centred on the smoothed ground point. It follows turns and camera rotation
-     through the window, and needs no heading.
+     local scale of that frame's homography, over a short time window (:func:`window_sizes`;
+     on registered frames 2 s, pooling only observations whose smoothed heading is close to
+     the point's own, so that a turn does not mix the vehicle's two aspects; 1 s in image
+     coordinates); the box is centred on the smoothed ground point. It follows turns and
+     camera rotation through the window, and needs no vehicle model.
    * ``oriented``: one length and width per run (:func:`oriented_size`): each box gives a length
      estimate through the local Jacobian of the world -> frame homography at the smoothed
      heading, the run's length is their quantile, the width from the median aspect; each box is
