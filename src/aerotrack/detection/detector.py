@@ -602,12 +602,21 @@ class MovingObjectDetector:
         of the frame, a ghost's an edge of the background only (:func:`ghost_score` below
         ``ghost_part_ratio``). A ghost part is not kept out, so the samples ahead vote it back
         to road; keeping it out made ghosts hold themselves and boxes trail backwards.
+        A detection of which nearly all changed pixels stay (``stopping_share``) is a vehicle
+        coming to a stop unless its outline is weaker in the frame than in the background
+        (``stopping_outline_ratio``) or it does not look so halfway there
+        (``stopping_halfway_share``: the next car of a queue takes its place a lag later, while
+        the gap between them passes at half the lag): the centred window already holds the
+        stopping vehicle, so the outline test alone took it for a ghost and let the background
+        absorb it.
         Without a sample ahead (causal mode, end of video) ``moved`` is returned as is.
         """
         _, fut = self._changed(p, r, future=True)
         out = []
         ratio = self.config.ghost_part_ratio
-        for b, mv, fm in zip(r.model_blobs, moved, fut):
+        share = self.config.stopping_share
+        halfway = None
+        for k, (b, mv, fm) in enumerate(zip(r.model_blobs, moved, fut)):
             if mv is None or fm is None or ratio <= 0:
                 out.append(mv)
                 continue
@@ -615,14 +624,25 @@ class MovingObjectDetector:
             if part.sum() < 4:
                 out.append(mv & fm)
                 continue
-            vehicle = _outline_ratio(p.small, bg, b, part) >= ratio
+            score = _outline_ratio(p.small, bg, b, part)
+            vehicle = score >= ratio
+            if not vehicle and share > 0 and score >= self.config.stopping_outline_ratio \
+                    and part.sum() >= share * (b.mask & mv).sum():
+                # nothing of it moves on: a vehicle coming to a stop (see stopping_share), if
+                # it looks so halfway there too (not the next car of a queue taking its place)
+                if halfway is None:
+                    halfway = self._changed(p, r, halfway=True)[1]
+                hm = halfway[k]
+                vehicle = hm is not None and (part & ~hm).sum() >= \
+                    self.config.stopping_halfway_share * (b.mask & mv).sum()
             out.append(mv if vehicle else mv & fm)
         return out
 
-    def _changed(self, p: _Pending, r: FrameResult,
-                 future: bool = False) -> tuple[np.ndarray, list]:
+    def _changed(self, p: _Pending, r: FrameResult, future: bool = False,
+                 halfway: bool = False) -> tuple[np.ndarray, list]:
         """Which of each detection's pixels changed over ``stationary_lag_s`` (with ``future``:
-        against the newest sample at least that far ahead).
+        against the newest sample at least that far ahead; with ``halfway``: against the oldest
+        sample at least half of it ahead).
 
         Returns
         -------
@@ -640,7 +660,9 @@ class MovingObjectDetector:
         if n == 0:
             return out, moved
         c = p.frame.index
-        if future:
+        if halfway:
+            past = [i for i in self._samples if i >= c + self.lag // 2][:1]
+        elif future:
             past = [i for i in self._samples if i >= c + self.lag][-1:]
         else:
             past = [i for i in self._samples if i <= c - self.lag]
@@ -730,6 +752,9 @@ def _validate(c: DetectionConfig) -> None:
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),
         ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
+        ("stopping_share", 0 <= c.stopping_share <= 1),
+        ("stopping_outline_ratio", c.stopping_outline_ratio >= 0),
+        ("stopping_halfway_share", 0 <= c.stopping_halfway_share <= 1),
         ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
         ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("regrow_ghost_ratio", c.regrow_ghost_ratio >= 0),
         ("join_cab_ratio", c.join_cab_ratio >= 0), ("split_full_ratio", c.split_full_ratio >= 0),
