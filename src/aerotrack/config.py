@@ -449,8 +449,8 @@ class DetectionConfig:
         ahead (the next car stands where this one is), but not half a lag ahead (the gap between
         them is there). Without it (0) the demo lost HOTA/IDF1/MOTA 0.749/0.885/0.870 ->
         0.742/0.878/0.856 (one track's boxes shrank below IoU 0.5 for 33 frames, another lost
-        16 frames); 0.9 kept the
-        demo but gave back most of the standing vehicles (recall 0.454); 0.5 keeps both.
+        16 frames); 0.9 kept the demo but gave back most of the standing vehicles (recall
+        0.454); 0.5 and 0.25 keep both.
     ghost_ratio : float
         A blob whose frame pixels carry less than this fraction of the background's gradient
         energy is a ghost (a vehicle imprinted on the background, not in the frame) and dropped.
