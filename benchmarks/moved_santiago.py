@@ -36,7 +36,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 from common import SANTIAGO_DIR, WORK, aerotrack, require_data, write_results
-from detection import iou_matrix
 
 VARIANTS = ("original", "moved", "still", "720p", "540p")
 KEYS = ("HOTA", "IDF1", "MOTA", "DetA", "AssA", "LocA", "IDSW", "GT_IDs", "Pred_IDs")
@@ -127,24 +126,19 @@ def registration_error(run: Path, Ts: list[np.ndarray], size: tuple[int, int]) -
 def unannotated_tracks(tracks: np.ndarray, gt_path: Path, frames: tuple[int, int]) -> list[int]:
     """Ids of the tracks none of whose rows in ``frames`` (1-based, inclusive) overlaps a
     ground-truth box of its frame at IoU >= 0.5 (the ground truth 0-based, negative sizes
-    reflected). On Santiago these are movers its ground truth leaves out (cars creeping in the
-    queues, a car leaving a car park, a vehicle leaving the view; see the README): removing them shows what
-    the score is on the annotated vehicles alone, as a diagnosis, not as a score."""
+    reflected): :func:`aerotrack.evaluation.santiago.unannotated_movers` without its motion test.
+    On Santiago these are movers its ground truth leaves out (cars creeping in the queues, a car
+    leaving a car park, a vehicle leaving the view; ``benchmarks/santiago_gt.py``): removing them
+    shows what the score is on the annotated vehicles alone, as a diagnosis, not as a score."""
+    from aerotrack.evaluation.santiago import unannotated_movers
+
     gt = np.loadtxt(gt_path, delimiter=",", ndmin=2)
     for a, b in ((2, 4), (3, 5)):
         neg = gt[:, b] < 0
         gt[neg, a] += gt[neg, b]
         gt[neg, b] *= -1
     gt[:, 0] += 1
-    rows = tracks[(tracks[:, 0] >= frames[0]) & (tracks[:, 0] <= frames[1])]
-    gt_of = {int(f): gt[gt[:, 0] == f, 2:6] for f in np.unique(gt[:, 0])}
-
-    def on_annotated(row: np.ndarray) -> bool:
-        g = gt_of.get(int(row[0]))
-        return g is not None and bool((iou_matrix(row[2:6], g) >= 0.5).any())
-
-    return [int(tid) for tid in np.unique(rows[:, 1])
-            if not any(on_annotated(r) for r in rows[rows[:, 1] == tid])]
+    return unannotated_movers(gt, tracks, frames=frames, min_iou=0.5, min_move_lengths=0.0)
 
 
 def main(argv=None) -> None:
