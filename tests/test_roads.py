@@ -78,6 +78,32 @@ def test_an_off_road_target_falls_back_to_the_kalman_prediction_exactly():
     assert road_prediction(net, np.array([50.0, 30.0]), np.array([10 / FPS, 0.0]), 10, FPS, c) is None
 
 
+def test_a_vehicle_glimpsed_for_one_frame_drives_its_lane_at_the_speed_of_the_others():
+    # generated scenes: a vehicle seen in one frame (the video's first, or between two
+    # occluders) has no velocity; 1.8 m right of the centre-line it drives +x in right-hand
+    # traffic, -x in left-hand, at the other vehicles' speed (7 m/s here)
+    net = RoadNetwork([np.array([[0.0, 0.0], [200.0, 0.0]])], bounds=(-50, -50, 250, 50))
+    other = straight_track((20.0, -1.8), (-7.0, 0.0), track_id=2, first=70)  # last row at 100
+    glimpse = (np.array([1]), np.array([100]), np.array([[80.0, 1.8]]))
+    table = table_of(glimpse, other)
+    p = predict(table, net)
+    assert np.hypot(*(p[59] - (94.0, 1.8))) < 0.5, p[59]  # 2 s at 7 m/s
+    left = predict(table, net, config=replace(ContextConfig(), road_traffic_side="left"))
+    assert np.hypot(*(left[59] - (66.0, 1.8))) < 0.5, left[59]
+    # alone in the video: the configured typical speed
+    alone = predict(table_of(glimpse), net)
+    assert np.hypot(*(alone[59] - (80.0 + 2 * ContextConfig().road_glimpse_speed_mps, 1.8))) < 0.5
+    # on the centre-line either way is as likely, off the road there is no lane: it stays put,
+    # as without roads, and so does a vehicle seen long enough to have a velocity of its own
+    for xy in ([80.0, 0.2], [80.0, 20.0]):
+        t = table_of((np.array([1]), np.array([100]), np.array([xy])), other)
+        assert np.allclose(predict(t, net)[59], predict(t, None)[59])
+    parked = table_of(straight_track((80.0, 1.8), (0.0, 0.0), first=70), other)
+    assert np.hypot(*(predict(parked, net)[59] - (80.0, 1.8))) < 0.5
+    with pytest.raises(ConfigError, match="road_traffic_side"):
+        get_predictor("context", replace(ContextConfig(), road_traffic_side="middle"), FPS, roads=net)
+
+
 def cross_network():
     # a 4-way crossing at (100, 0): west-east road and south-north road
     return RoadNetwork([np.array([[0.0, 0.0], [200.0, 0.0]]), np.array([[100.0, -100.0], [100.0, 100.0]])],

@@ -1338,6 +1338,14 @@ class ContextConfig:
         on (the generator's own rate is not assumed): with any ``kappa`` > 0 straight on has
         most of the weight and the median is the straight route (2 s: 0.677 as with ``none``;
         ``mean``: 0.626 / 0.626 / 0.628 for ``kappa`` 0 / 0.25 / 0.5).
+    road_glimpse_frames, road_traffic_side, road_lane_min_m, road_glimpse_speed_mps
+        ``context`` with roads: a target seen in fewer than ``road_glimpse_frames`` frames of its
+        last ``history_s`` has no velocity to speak of (a glimpse: the first frames of a video, a
+        vehicle seen between two occluders). Vehicles keep to one side of the road
+        (``road_traffic_side``, ``right`` or ``left``): one at least ``road_lane_min_m`` off the
+        nearest centre-line (within ``road_snap_m``) drives along it in the direction that puts
+        it on that side, at the median speed of the other objects seen moving so far (their last
+        second), or ``road_glimpse_speed_mps`` before any. ``road_glimpse_frames`` 0 disables.
     """
 
     history_s: float = 1.0
@@ -1381,6 +1389,10 @@ class ContextConfig:
     road_hedge: str = "median"
     road_vote_prior: float = 1.0
     road_straight_kappa: float = 0.0
+    road_glimpse_frames: int = 3
+    road_traffic_side: str = "right"
+    road_lane_min_m: float = 0.5
+    road_glimpse_speed_mps: float = 8.0
 
 
 @dataclass(frozen=True)

@@ -132,9 +132,10 @@ class ContextPredictor(MotionPredictor):
 
     def __init__(self, config=None, fps=30.0, metres_per_unit=None, roads=None) -> None:
         super().__init__(config, fps, metres_per_unit, roads)
-        from .roads import check_hedge
+        from .roads import check_hedge, check_traffic_side
 
         check_hedge(self.config.road_hedge)
+        check_traffic_side(self.config.road_traffic_side)
         self._index_table: TrackTable | None = None  # held, so its id cannot be reused
         self._index: PathIndex | None = None
 
@@ -195,6 +196,8 @@ class ContextPredictor(MotionPredictor):
         c = self.config
         p0, v0, Pv = kalman_state(fr, xy, self.fps, self.mpu, c)
         k = np.arange(1, h + 1)
+        if self.roads is not None and len(fr) < c.road_glimpse_frames:
+            v0 = self._glimpse_velocity(table, track_id, p0, T, v0)
         if table is not None and c.flow_radius_m > 0:
             index = self.index_for(table)
             radius = self.m(c.flow_radius_m)
@@ -228,6 +231,32 @@ class ContextPredictor(MotionPredictor):
             num += w[:, None] * np.where(np.isfinite(var)[:, None], est, 0.0)
             den += w
         return num / den[:, None]
+
+    def _glimpse_velocity(self, table, track_id: int, p0: np.ndarray, T: int,
+                          v0: np.ndarray) -> np.ndarray:
+        """Velocity (world units per frame) of a target seen too briefly to have one, from the
+        lane it is in (``road_traffic_side``) and the speed of the other objects seen so far;
+        ``v0`` when it is off-road or on the centre-line."""
+        c = self.config
+        u = self.roads.lane_heading(p0, self.m(c.road_snap_m), self.m(c.road_lane_min_m),
+                                    c.road_traffic_side)
+        if u is None:
+            return v0
+        speed = self.m(c.road_glimpse_speed_mps) / self.fps
+        if table is not None:
+            # each other object's mean speed over its rows of the last second (half of them seen)
+            window = max(2, int(round(self.fps)))
+            keep = (table.frames <= T) & (table.frames > T - window) & (table.ids != track_id)
+            _, first, n = np.unique(table.ids[keep], return_index=True, return_counts=True)
+            ok = n >= max(2, window // 2)
+            if ok.any():
+                f, xy = table.frames[keep], table.xy[keep]
+                a, b = first[ok], first[ok] + n[ok] - 1
+                s = np.hypot(*(xy[b] - xy[a]).T) / np.maximum(1, f[b] - f[a])
+                s = s[s * self.fps * self.mpu >= c.min_speed_mps]
+                if len(s):
+                    speed = float(np.median(s))
+        return u * speed
 
     def _path_estimate(self, table, track_id, fr, xy, T, p0, v0, k):
         """Path following: (positions (h, 2), variance (h,), inf where no predictor reaches)."""

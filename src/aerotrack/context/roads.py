@@ -390,6 +390,28 @@ class RoadNetwork:
         n = np.array([-td[1], td[0]])
         return int(self._se[k]), float(self._ss[k] + w[k]), direction, float((p - q[k]) @ n)
 
+    def lane_heading(self, p: np.ndarray, max_dist: float, min_offset: float,
+                     side: str = "right") -> np.ndarray | None:
+        """Unit heading of a vehicle at ``p`` whose velocity is unknown, from its lane: along the
+        nearest centre-line segment (within ``max_dist``), in the direction that puts ``p`` on the
+        ``side`` (``right`` or ``left``) of its travel. None when off-road or within
+        ``min_offset`` of the centre-line (either way is as likely)."""
+        ab = self._sb - self._sa
+        L = np.hypot(ab[:, 0], ab[:, 1])
+        t = ab / np.maximum(L, 1e-12)[:, None]
+        w = np.clip(((p - self._sa) * t).sum(-1), 0.0, L)
+        q = self._sa + w[:, None] * t
+        d = np.hypot(*(p - q).T)
+        k = int(np.argmin(d))
+        if d[k] > max_dist:
+            return None
+        n = np.array([-t[k][1], t[k][0]])  # right of travel along +t (y down)
+        off = float((p - q[k]) @ n)
+        if abs(off) < min_offset:
+            return None
+        along = 1.0 if (off > 0) == (side == "right") else -1.0
+        return t[k] * along
+
     def tangent_out(self, e: int, direction: int, reach: float) -> np.ndarray:
         """Unit heading leaving along edge e in ``direction``, over its first ``reach`` units."""
         ed = self.edges[e]
@@ -553,6 +575,12 @@ def _geometric_median(points: np.ndarray, w: np.ndarray, iters: int = 30) -> np.
 
 #: ``road_hedge`` values: how one point prediction is made of the weighted routes.
 HEDGES = ("none", "mean", "median")
+
+
+def check_traffic_side(side: str) -> None:
+    """Raise ConfigError for a ``road_traffic_side`` other than ``right`` or ``left``."""
+    if side not in ("right", "left"):
+        raise ConfigError(f"config context.road_traffic_side: unknown {side!r} (valid: right, left)")
 
 
 def check_hedge(kind: str) -> None:
