@@ -81,7 +81,8 @@ def test_an_off_road_target_falls_back_to_the_kalman_prediction_exactly():
 def test_a_vehicle_glimpsed_for_one_frame_drives_its_lane_at_the_speed_of_the_others():
     # generated scenes: a vehicle seen in one frame (the video's first, or between two
     # occluders) has no velocity; 1.8 m right of the centre-line it drives +x in right-hand
-    # traffic, -x in left-hand, at the other vehicles' speed (7 m/s here)
+    # traffic, -x in left-hand, at the other vehicles' speed (7 m/s here); right-hand is
+    # assumed until three moving vehicles say otherwise
     net = RoadNetwork([np.array([[0.0, 0.0], [200.0, 0.0]])], bounds=(-50, -50, 250, 50))
     other = straight_track((20.0, -1.8), (-7.0, 0.0), track_id=2, first=70)  # last row at 100
     glimpse = (np.array([1]), np.array([100]), np.array([[80.0, 1.8]]))
@@ -90,6 +91,11 @@ def test_a_vehicle_glimpsed_for_one_frame_drives_its_lane_at_the_speed_of_the_ot
     assert np.hypot(*(p[59] - (94.0, 1.8))) < 0.5, p[59]  # 2 s at 7 m/s
     left = predict(table, net, config=replace(ContextConfig(), road_traffic_side="left"))
     assert np.hypot(*(left[59] - (66.0, 1.8))) < 0.5, left[59]
+    # auto (the default) learns the side from the vehicles moving now: three keep left
+    lefties = [straight_track((20.0 + 30 * k, -1.8), (7.0, 0.0), track_id=3 + k, first=70)
+               for k in range(3)]
+    learned = predict(table_of(glimpse, *lefties), net)
+    assert np.hypot(*(learned[59] - (66.0, 1.8))) < 0.5, learned[59]
     # alone in the video: the configured typical speed
     alone = predict(table_of(glimpse), net)
     assert np.hypot(*(alone[59] - (80.0 + 2 * ContextConfig().road_glimpse_speed_mps, 1.8))) < 0.5

@@ -1342,10 +1342,11 @@ class ContextConfig:
         ``context`` with roads: a target seen in fewer than ``road_glimpse_frames`` frames of its
         last ``history_s`` has no velocity to speak of (a glimpse: the first frames of a video, a
         vehicle seen between two occluders). Vehicles keep to one side of the road
-        (``road_traffic_side``, ``right`` or ``left``): one at least ``road_lane_min_m`` off the
-        nearest centre-line (within ``road_snap_m``) drives along it in the direction that puts
-        it on that side, at the median speed of the other objects seen moving so far (their last
-        second), or ``road_glimpse_speed_mps`` before any. ``road_glimpse_frames`` 0 disables.
+        (``road_traffic_side``: ``right``, ``left``, or ``auto``, the side most of the other
+        objects moving in the last second keep to, right until three of them are on a road): one
+        at least ``road_lane_min_m`` off the nearest centre-line (within ``road_snap_m``) drives
+        along it in the direction that puts it on that side, at the median speed of those
+        objects, or ``road_glimpse_speed_mps`` before any. ``road_glimpse_frames`` 0 disables.
     """
 
     history_s: float = 1.0
@@ -1390,7 +1391,7 @@ class ContextConfig:
     road_vote_prior: float = 1.0
     road_straight_kappa: float = 0.0
     road_glimpse_frames: int = 3
-    road_traffic_side: str = "right"
+    road_traffic_side: str = "auto"
     road_lane_min_m: float = 0.5
     road_glimpse_speed_mps: float = 8.0
 

@@ -238,25 +238,40 @@ class ContextPredictor(MotionPredictor):
         lane it is in (``road_traffic_side``) and the speed of the other objects seen so far;
         ``v0`` when it is off-road or on the centre-line."""
         c = self.config
-        u = self.roads.lane_heading(p0, self.m(c.road_snap_m), self.m(c.road_lane_min_m),
-                                    c.road_traffic_side)
-        if u is None:
-            return v0
         speed = self.m(c.road_glimpse_speed_mps) / self.fps
+        side = "right" if c.road_traffic_side == "auto" else c.road_traffic_side
         if table is not None:
-            # each other object's mean speed over its rows of the last second (half of them seen)
+            # each other object's mean velocity over its rows of the last second (half of them
+            # seen): their median speed, and with ``auto`` the side of the road they keep to
             window = max(2, int(round(self.fps)))
             keep = (table.frames <= T) & (table.frames > T - window) & (table.ids != track_id)
             _, first, n = np.unique(table.ids[keep], return_index=True, return_counts=True)
             ok = n >= max(2, window // 2)
-            if ok.any():
-                f, xy = table.frames[keep], table.xy[keep]
-                a, b = first[ok], first[ok] + n[ok] - 1
-                s = np.hypot(*(xy[b] - xy[a]).T) / np.maximum(1, f[b] - f[a])
-                s = s[s * self.fps * self.mpu >= c.min_speed_mps]
-                if len(s):
-                    speed = float(np.median(s))
-        return u * speed
+            f, xy = table.frames[keep], table.xy[keep]
+            a, b = first[ok], first[ok] + n[ok] - 1
+            v = (xy[b] - xy[a]) / np.maximum(1, f[b] - f[a])[:, None]
+            moving = np.hypot(*v.T) * self.fps * self.mpu >= c.min_speed_mps
+            if moving.any():
+                speed = float(np.median(np.hypot(*v[moving].T)))
+            if c.road_traffic_side == "auto":
+                side = self._traffic_side(xy[b][moving], v[moving]) or side
+        u = self.roads.lane_heading(p0, self.m(c.road_snap_m), self.m(c.road_lane_min_m), side)
+        return v0 if u is None else u * speed
+
+    def _traffic_side(self, positions: np.ndarray, velocities: np.ndarray) -> str | None:
+        """``right`` or ``left``: the side of the road most of these moving objects keep to
+        (at least ``road_lane_min_m`` off a centre-line they drive along); None with fewer than
+        three such objects."""
+        c = self.config
+        right = left = 0
+        for p, v in zip(positions, velocities):
+            snap = self.roads.snap_state(p, v, self.m(c.road_snap_m), c.road_heading_deg)
+            if snap is not None and abs(snap[3]) >= self.m(c.road_lane_min_m):
+                right += snap[3] > 0
+                left += snap[3] < 0
+        if right + left < 3:
+            return None
+        return "right" if right >= left else "left"
 
     def _path_estimate(self, table, track_id, fr, xy, T, p0, v0, k):
         """Path following: (positions (h, 2), variance (h,), inf where no predictor reaches)."""

@@ -578,9 +578,10 @@ HEDGES = ("none", "mean", "median")
 
 
 def check_traffic_side(side: str) -> None:
-    """Raise ConfigError for a ``road_traffic_side`` other than ``right`` or ``left``."""
-    if side not in ("right", "left"):
-        raise ConfigError(f"config context.road_traffic_side: unknown {side!r} (valid: right, left)")
+    """Raise ConfigError for a ``road_traffic_side`` other than ``auto``, ``right`` or ``left``."""
+    if side not in ("auto", "right", "left"):
+        raise ConfigError(f"config context.road_traffic_side: unknown {side!r} "
+                          "(valid: auto, right, left)")
 
 
 def check_hedge(kind: str) -> None:
