@@ -338,6 +338,29 @@ def test_predict_command_follows_the_roads(tmp_path, capsys):
     assert np.hypot(*(last - want)) < 1.0, last
 
 
+def test_predict_command_drives_a_glimpse_on_the_right_in_north_up_coordinates(tmp_path, capsys):
+    """In a CRS's coordinates y grows northwards: a vehicle keeping right while driving east is
+    south of the centre-line (in map pixels, y down, it would be the other way round)."""
+    roads, _, _, _ = l_road_files(tmp_path)  # the L's first leg runs east along y = 4000000
+    x0, y0 = 660000.0, 4000000.0
+    tracks = tmp_path / "glimpses.csv"
+    # each seen in frame 1 only (and again long after, which a prediction from frame 1 ignores)
+    rows = [(1, 1, x0 + 30, y0 - 1.8), (1, 200, x0 + 40, y0 - 1.8),
+            (2, 1, x0 + 60, y0 + 1.8), (2, 200, x0 + 50, y0 + 1.8)]
+    tracks.write_text("".join(f"{f},{i},0,0,4,2,1,{x},{y},-1\n" for i, f, x, y in rows))
+    queries = tmp_path / "q.csv"
+    queries.write_text("id,last_seen,horizon\n1,1,60\n2,1,60\n")
+    out = tmp_path / "p.csv"
+    code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out, "--space",
+                           "map", "--roads", roads, "--crs", "EPSG:32611")
+    assert code == 0, err
+    rows = [ln.split(",") for ln in out.read_text().splitlines()[1:]]
+    end = {int(r[1]): np.array([float(r[3]), float(r[4])]) for r in rows if int(r[2]) == 61}
+    speed = ContextConfig().road_glimpse_speed_mps  # nothing else moves
+    assert np.hypot(*(end[1] - (x0 + 30 + 2 * speed, y0 - 1.8))) < 0.5, end[1]  # south: east
+    assert np.hypot(*(end[2] - (x0 + 60 - 2 * speed, y0 + 1.8))) < 0.5, end[2]  # north: west
+
+
 def test_bad_roads_options_exit_2_with_one_line_naming_the_file(tmp_path, capsys):
     roads, tracks, queries, _ = l_road_files(tmp_path)
     bad = tmp_path / "bad.geojson"

@@ -267,8 +267,9 @@ class ContextPredictor(MotionPredictor):
         for p, v in zip(positions, velocities):
             snap = self.roads.snap_state(p, v, self.m(c.road_snap_m), c.road_heading_deg)
             if snap is not None and abs(snap[3]) >= self.m(c.road_lane_min_m):
-                right += snap[3] > 0
-                left += snap[3] < 0
+                off = snap[3] * self.roads.right_sign  # > 0: right of its travel
+                right += off > 0
+                left += off < 0
         if right + left < 3:
             return None
         return "right" if right >= left else "left"

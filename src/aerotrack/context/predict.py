@@ -178,7 +178,7 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
             crs = "EPSG:4326"
         network = read_roads(roads, crs=crs, snap_m=config.roads_snap_m)
         if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
-            network = RoadNetwork(network.lines, mpu, config.roads_snap_m)
+            network = RoadNetwork(network.lines, mpu, config.roads_snap_m, y_down=network.y_down)
     preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,
                             label=f"--queries {queries}")
     atomic_write_text(out, format_predictions(qs, preds))

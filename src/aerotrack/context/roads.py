@@ -156,7 +156,7 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
         mpu = 111_320.0 * math.cos(math.radians(lat))
     else:
         mpu = float(dst.axis_info[0].unit_conversion_factor) if dst.axis_info else 1.0
-    return RoadNetwork(lines, metres_per_unit=mpu, snap_m=snap_m)
+    return RoadNetwork(lines, metres_per_unit=mpu, snap_m=snap_m, y_down=False)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -231,6 +231,10 @@ class RoadNetwork:
         Extent of the map, world units. A road end within ``snap_m`` of its edge is *open* (the
         road goes on beyond the map: a vehicle drives straight on); any other end is a dead end
         (a U-turn). Default: the lines' own bounding box.
+    y_down : bool
+        World y grows downwards (image and map pixels, the pipeline's world frame: the default);
+        False for a CRS's north-up coordinates (``read_roads(crs=...)``). Only which side of a
+        road is the right-hand side depends on it (:meth:`lane_heading`).
 
     Attributes
     ----------
@@ -247,8 +251,13 @@ class RoadNetwork:
     """
 
     def __init__(self, lines: list[np.ndarray], metres_per_unit: float = 1.0, snap_m: float = 5.0,
-                 bounds: tuple[float, float, float, float] | None = None) -> None:
+                 bounds: tuple[float, float, float, float] | None = None,
+                 y_down: bool = True) -> None:
         self.mpu = float(metres_per_unit)
+        #: +1 when the normal (-t_y, t_x) of a heading t points to the right of travel (world y
+        #: down), -1 when it points to the left (y up)
+        self.y_down = bool(y_down)
+        self.right_sign = 1.0 if y_down else -1.0
         clean = []
         for a in lines:
             a = np.asarray(a, dtype=np.float64).reshape(-1, 2)
@@ -405,7 +414,7 @@ class RoadNetwork:
         k = int(np.argmin(d))
         if d[k] > max_dist:
             return None
-        n = np.array([-t[k][1], t[k][0]])  # right of travel along +t (y down)
+        n = np.array([-t[k][1], t[k][0]]) * self.right_sign  # right of travel along +t
         off = float((p - q[k]) @ n)
         if abs(off) < min_offset:
             return None
