@@ -14,6 +14,12 @@ seconds on convoy:5, dark vehicles' shadows in their boxes on static scenes).
 ``--no-map`` tracks the same frames as a user without a map or ``--gsd`` would (registered to
 frame 1, the metric scale estimated from the objects): ``results/scenarios-nomap.json``.
 
+``--relink`` is for association, linking and finishing changes: it re-runs only those stages
+(``aerotrack track --from``) on the registrations and detections the last full run of each scene
+cached (``SCENE.run``; run once without ``--relink`` first, with the detection settings wanted),
+into ``SCENE.relink``, in about a minute instead of four; detection and registration overrides
+have no effect there. Its results go to ``results/scenarios-relink.json`` unless ``--out``.
+
 Scenes are cached under ``$AEROTRACK_BENCH_WORK/scenarios`` with the generator's source hash;
 results go to ``benchmarks/results/scenarios.json`` (per scene and the mean per scenario and
 overall).
@@ -40,10 +46,16 @@ def scene(folder: Path, scenario: str, seed: int) -> Path:
 
 
 def run_one(folder: Path, scenario: str, seed: int, overrides: list[str],
-            use_map: bool = True) -> dict:
-    d = scene(folder, scenario, seed)
+            use_map: bool = True, relink: bool = False) -> dict:
     out = folder / f"{scenario}_{seed}.{'run' if use_map else 'nomap.run'}"
     sets = [a for kv in overrides for a in ("--set", kv)]
+    if relink:
+        if not (out / "stages").is_dir():
+            raise SystemExit(f"scenarios.py --relink: {out} has no cached stages; run the "
+                             "benchmark once without --relink first")
+        sets = ["--from", str(out), *sets]
+        out = out.with_suffix(".relink")
+    d = scene(folder, scenario, seed)
     geo = ["--map", str(d / "map.tif"), "--map-init", str(d / "map_init.txt")] if use_map else []
     t0 = time.perf_counter()
     aerotrack("-q", "track", str(d / "frames"), "--out", str(out), *geo, "--seed", "0",
@@ -64,17 +76,22 @@ def main(argv=None) -> None:
                     help="configuration override for aerotrack track, SECTION.KEY=VALUE")
     ap.add_argument("--no-map", action="store_true",
                     help="track without the map (frames alone, no --map/--gsd)")
+    ap.add_argument("--relink", action="store_true",
+                    help="re-run association, linking and finishing only, on the detections the "
+                         "last full run cached (aerotrack track --from)")
     ap.add_argument("--out", default=None,
                     help="results name (benchmarks/results/NAME.json; default scenarios, or "
                          "scenarios-nomap with --no-map)")
     args = ap.parse_args(argv)
-    out_name = args.out or ("scenarios-nomap" if args.no_map else "scenarios")
+    out_name = args.out or ("scenarios-nomap" if args.no_map else "scenarios") + \
+        ("-relink" if args.relink and not args.out else "")
     folder = WORK / "scenarios"
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [(s, n) for n in args.seeds for s in args.scenarios]
     with ThreadPoolExecutor(max(1, args.jobs)) as pool:
         rows = list(pool.map(lambda j: run_one(folder, j[0], j[1], args.overrides,
-                                               use_map=not args.no_map), jobs))
+                                               use_map=not args.no_map, relink=args.relink),
+                             jobs))
     print(f"{'scene':14s} " + " ".join(f"{k:>8s}" for k in KEYS))
     for r in rows:
         print(f"{r['scene']:14s} " + " ".join(
@@ -87,7 +104,7 @@ def main(argv=None) -> None:
         print(f"mean {name:9s} HOTA {means[name]['HOTA']:.3f} IDF1 {means[name]['IDF1']:.3f} "
               f"MOTA {means[name]['MOTA']:.3f} IDSW {means[name]['IDSW']}")
     path = write_results(out_name, {"seeds": args.seeds, "scenarios": args.scenarios,
-                                    "map": not args.no_map,
+                                    "map": not args.no_map, "relink": args.relink,
                                     "overrides": args.overrides, "generator": generator_version(),
                                     "scenes": rows, "mean": means})
     print(f"wrote {path}")
