@@ -54,17 +54,13 @@ def picture(pred: np.ndarray, ids: list[int], out: Path) -> None:
 
     from aerotrack.evaluation.mot import fix_ground_truth
     from aerotrack.evaluation.santiago import load_santiago
+    from aerotrack.io.frames import open_source
     from aerotrack.io.output import atomic_write_bytes
 
     gt, _ = load_santiago(SANTIAGO_DIR)
     gt, _ = fix_ground_truth(gt)
-    cap = cv2.VideoCapture(str(SANTIAGO_DIR / "video_sift_estabilizado_filtrado.mp4"))
-    frames = []
-    while True:
-        ok, im = cap.read()
-        if not ok:
-            break
-        frames.append(im)
+    src = open_source(SANTIAGO_DIR / "video_sift_estabilizado_filtrado.mp4")
+    frames = {f.index: f.image for f in src.frames()}
     R, K = 40, 3
     tiles = []
     for tid in ids:
@@ -72,7 +68,7 @@ def picture(pred: np.ndarray, ids: list[int], out: Path) -> None:
         rows = rows[np.argsort(rows[:, 0])]
         for r in (rows[0], rows[len(rows) // 2], rows[-1]):
             f = int(r[0])
-            img = cv2.copyMakeBorder(frames[f - 1], R, R, R, R, cv2.BORDER_CONSTANT)
+            img = cv2.copyMakeBorder(frames[f], R, R, R, R, cv2.BORDER_CONSTANT)
             cx, cy = int(r[2] + r[4] / 2), int(r[3] + r[5] / 2)
             x0, y0 = cx - R, cy - R
             big = cv2.resize(img[y0 + R:y0 + 3 * R, x0 + R:x0 + 3 * R], (2 * R * K, 2 * R * K),
