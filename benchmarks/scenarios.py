@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -51,8 +52,9 @@ def run_one(folder: Path, scenario: str, seed: int, overrides: list[str],
     sets = [a for kv in overrides for a in ("--set", kv)]
     if relink:
         if not (out / "stages").is_dir():
-            raise SystemExit(f"scenarios.py --relink: {out} has no cached stages; run the "
-                             "benchmark once without --relink first")
+            print(f"scenarios.py --relink: {out} has no cached stages; run the benchmark once "
+                  "without --relink first", file=sys.stderr)
+            raise SystemExit(2)
         sets = ["--from", str(out), *sets]
         out = out.with_suffix(".relink")
     d = scene(folder, scenario, seed)
