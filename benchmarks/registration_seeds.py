@@ -1,13 +1,17 @@
 """Santiago end to end: how far HOTA/IDF1 move with no change to the method (a noise floor).
 
-Two sources of run-to-run variation, measured separately and together:
+Three sources of run-to-run variation, measured separately and together:
 
 * the MCMC seed of local association (``--seed``): the same registrations and detections,
   association and linking re-run (``aerotrack track --from``, which reuses them);
 * sub-pixel registration jitter: registration settings nudged by a few percent
   (``registration.max_features`` 400 -> 380/420, ``registration.ransac_threshold_px``
   2.0 -> 1.9/2.1), each a full run (registration, detection, association, linking), then the
-  same seeds on its detections.
+  same seeds on its detections;
+* the detection threshold one grey level either side of the default (``detection.min_threshold``
+  10, which Santiago's noise level makes the threshold: the residual is whole grey levels, so 9.7
+  lets 10 through, 11 and 12 need 12 and 13), each a full run, then the same seeds: how sharp a
+  peak the defaults sit on (2026-12-01: HOTA 0.670 at 10 against 0.639-0.648 beside it).
 
 A change to the method whose effect on Santiago is inside these spreads cannot be told from noise
 by one run; compare means over several seeds instead (the standard error of a mean over ``n``
@@ -42,6 +46,9 @@ VARIANTS = {
     "features420": ["registration.max_features=420"],
     "ransac1.9": ["registration.ransac_threshold_px=1.9"],
     "ransac2.1": ["registration.ransac_threshold_px=2.1"],
+    "threshold9.7": ["detection.min_threshold=9.7"],
+    "threshold11": ["detection.min_threshold=11"],
+    "threshold12": ["detection.min_threshold=12"],
 }
 
 
@@ -100,18 +107,24 @@ def main() -> None:
         print(f"{name:12} " + "  ".join(f"s{s} {v['HOTA']:.3f}/{v['IDF1']:.3f}"
                                           for s, v in scores[name].items()), flush=True)
     summary = {}
+    reg = [n for n in names if not n.startswith("threshold")]
+    thr = [n for n in names if n.startswith("threshold") or n == "default"]
     for metric in ("HOTA", "IDF1"):
         seed_only = [v[metric] for v in scores.get("default", {}).values()]
-        reg_only = [scores[n][0][metric] for n in names]
         per_variant = {n: spread([v[metric] for v in scores[n].values()]) for n in names}
         everything = [v[metric] for n in names for v in scores[n].values()]
         summary[metric] = {
             "seeds_default_registration": spread(seed_only) if seed_only else None,
-            "registration_variants_seed0": spread(reg_only),
+            "registration_variants_seed0":
+                spread([scores[n][0][metric] for n in reg]) if reg else None,
             "all_runs": spread(everything),
             "per_variant_over_seeds": per_variant,
             # between-variant spread of the seed means: registration jitter with MCMC averaged out
-            "registration_variants_seed_means": spread([p["mean"] for p in per_variant.values()]),
+            "registration_variants_seed_means":
+                spread([per_variant[n]["mean"] for n in reg]) if reg else None,
+            # the same for the detection threshold one grey level either side of the default
+            "threshold_variants_seed_means":
+                spread([per_variant[n]["mean"] for n in thr]) if len(thr) > 1 else None,
         }
     print(f"\nSantiago, {a.seeds} seeds x {len(names)} registration variants "
           f"(1-min load {min(load):.1f}-{max(load):.1f}):")
@@ -120,6 +133,7 @@ def main() -> None:
     for key, label in (("seeds_default_registration", "MCMC seeds (default registration)"),
                        ("registration_variants_seed0", "registration variants (seed 0)"),
                        ("registration_variants_seed_means", "registration variants (seed means)"),
+                       ("threshold_variants_seed_means", "threshold 9.7-12 (seed means)"),
                        ("all_runs", "all runs")):
         h, i = summary["HOTA"][key], summary["IDF1"][key]
         if h is None:
