@@ -126,7 +126,7 @@ def main() -> None:
             "threshold_variants_seed_means":
                 spread([per_variant[n]["mean"] for n in thr]) if len(thr) > 1 else None,
         }
-    print(f"\nSantiago, {a.seeds} seeds x {len(names)} registration variants "
+    print(f"\nSantiago, {a.seeds} seeds x {len(names)} variants "
           f"(1-min load {min(load):.1f}-{max(load):.1f}):")
     print(f"{'spread of':42} {'HOTA mean':>9} {'sd':>6} {'min-max':>13} {'IDF1 mean':>9} "
           f"{'sd':>6} {'min-max':>13}")
