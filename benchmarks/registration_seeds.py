@@ -52,11 +52,17 @@ VARIANTS = {
 }
 
 
+def _fail(message: str) -> None:
+    """One line on standard error, exit code 2 (bad input or a failed run)."""
+    print(f"registration_seeds.py: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def aerotrack(*args: str) -> subprocess.CompletedProcess:
     r = subprocess.run([sys.executable, "-m", "aerotrack", *args], capture_output=True, text=True,
                        check=False)
     if r.returncode != 0:
-        sys.exit(f"aerotrack {' '.join(args[:2])}: {r.stderr.strip().splitlines()[-1:]}")
+        _fail(f"aerotrack {' '.join(args[:2])}: {r.stderr.strip().splitlines()[-1:]}")
     return r
 
 
@@ -88,7 +94,7 @@ def main() -> None:
     names = [v for v in a.variants.split(",") if v]
     unknown = [v for v in names if v not in VARIANTS]
     if unknown:
-        sys.exit(f"--variants: unknown {unknown}; valid: {', '.join(VARIANTS)}")
+        _fail(f"--variants: unknown {', '.join(unknown)}; valid: {', '.join(VARIANTS)}")
     scores: dict[str, dict[int, dict]] = {}
     load = []
     t_start = time.perf_counter()
