@@ -250,6 +250,8 @@ def test_every_move_keeps_the_partition_valid(seed, n_obj, fp_rate, fragments):
     for d in frames:
         la.step(d)
         S = la.sampler
+        if S is None:  # no detection yet
+            continue
         _check_partition(S)
         for _ in range(30):
             S.step_mcmc()
@@ -619,3 +621,15 @@ def test_coasting_track_does_not_take_the_vehicle_coming_the_other_way():
     frames, truth = _frames({1: on}, 100)
     out = associate(frames, gate, FPS, metres_per_unit=1.0, seed=0)
     assert len(out) == 1 and out[0].points[0].frame == 1 and out[0].points[-1].frame == 100
+
+
+def test_histograms_may_start_after_empty_frames():
+    """External detections on a video: the first frames hold no detections (and so no colour
+    histograms), later ones carry them. With a known scale association used to fix "no
+    histograms" on the first, empty frame and then refused the rest."""
+    rng = np.random.default_rng(0)
+    frames, _ = _frames({1: _line(0, 0, 8, 0, range(6, 40), rng)}, 40,
+                        hist_of=lambda i: np.full(8, 1 / 8))
+    assert not len(frames[0]) and frames[0].hist is None and frames[10].hist is not None
+    out = associate(frames, AssociationConfig(), FPS, metres_per_unit=1.0, seed=0)
+    assert len(out) == 1 and len(out[0].points) == 34

@@ -123,6 +123,10 @@ class LocalAssociator:
 
     # ------------------------------------------------------------------ setup
     def _start(self, det: Detections) -> None:
+        if not len(det):
+            # wait for a frame with detections: the scale, and whether they carry histograms
+            # (external detections on a video whose first frames have none came with none)
+            return
         if self.mpu is None:
             if self.config.target_size_m > 0 and len(det):
                 size = self._sizes(det)
