@@ -860,6 +860,37 @@ class AssociationConfig:
     split_merged_min_obs_s, split_merged_max_age_s : float
         A track counts when observed for at least this long (in frames at the video's rate),
         the last time at most this long ago.
+    follow_stopped : bool
+        Follow vehicles that slow down and stop where the detector loses them, by
+        normalised cross-correlation with their last detected appearance
+        (:mod:`aerotrack.association.follow`); needs the frames (not with ``track --from``),
+        and a resumed run starts it afresh (its templates are not in the saved state). Off by
+        default: measured neutral (docs/DESIGN.md, "Following stopped vehicles").
+    follow_start_s : float
+        A track is followed when it was last detected at most this long ago.
+    follow_max_s : float
+        A follow lasts at most this long after the vehicle's last real detection.
+    follow_max_speed_mps : float
+        Only tracks no faster than this at their last observation are followed; it also bounds
+        how far the vehicle is looked for from one frame to the next.
+    follow_min_travel_m : float
+        Only tracks whose points spread over at least this many metres (seen driving).
+    follow_min_obs_s : float
+        Only tracks observed for at least this long (in frames at the video's rate).
+    follow_min_ncc : float
+        The least normalised cross-correlation of a match.
+    follow_min_contrast : float
+        A template whose grey levels' standard deviation is under this is not followed.
+    follow_margin_px : int
+        Pixels kept around each detection's box in the remembered patches.
+    follow_max_creep_m : float
+        A followed vehicle is at most this far (metres) from its last real detection.
+    follow_past_s : float
+        A track is followed only when the frame this long before its template's, at the same
+        ground place, does not match the template (the vehicle arrived there: a fixed pattern
+        detected by mistake matches itself).
+    follow_min_width_m, follow_min_area_m2 : float
+        A template box narrower or smaller than this (a fragment) is not followed.
     """
 
     window_s: float = 1.5
@@ -903,6 +934,19 @@ class AssociationConfig:
     split_merged_area_ratio: float = 1.4
     split_merged_min_obs_s: float = 0.5
     split_merged_max_age_s: float = 0.2
+    follow_stopped: bool = False
+    follow_start_s: float = 0.3
+    follow_max_s: float = 60.0
+    follow_max_speed_mps: float = 4.0
+    follow_min_travel_m: float = 4.0
+    follow_min_obs_s: float = 0.5
+    follow_min_ncc: float = 0.8
+    follow_min_contrast: float = 6.0
+    follow_margin_px: int = 2
+    follow_max_creep_m: float = 3.0
+    follow_past_s: float = 2.0
+    follow_min_width_m: float = 1.2
+    follow_min_area_m2: float = 3.0
 
 
 @dataclass(frozen=True)

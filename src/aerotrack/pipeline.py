@@ -142,6 +142,14 @@ class Pipeline:
         self._built_assoc = as_built(self.associator)
         if not associate:
             self.associator = None
+        # stopped-vehicle following: frames are held from their step until their detections
+        # are associated (the detector holds them as long, so this costs no memory)
+        self.follower = None
+        self._held: dict[int, np.ndarray] = {}
+        if self.associator is not None and config.association.follow_stopped:
+            from .association.follow import StopFollower
+
+            self.follower = StopFollower(config.association, self.fps, geomap=geomap)
         # the last stages' configuration errors surface now, not after the whole video
         from .association.finish import TrackFinisher
         from .association.linking import GlobalLinker
@@ -254,6 +262,8 @@ class Pipeline:
             self.detector.wide_threads = self._outer_threads
         if frame.image is not None:
             self._images[frame.index] = frame.image
+            if self.follower is not None:  # the detector holds it until its detections are final
+                self._held[frame.index] = frame.image
         if self.first_frame is None:
             self.first_frame = frame.index
         with self._timed("registration"):
@@ -324,6 +334,11 @@ class Pipeline:
                     continue
                 if self.config.association.split_merged and len(dets):
                     dets = self._split_merged(dets)
+                if self.follower is not None:
+                    dets = self.follower.step(dets, self._held.pop(dets.frame, None),
+                                              self.registrations.get(dets.frame), self.associator)
+                    for f in [f for f in self._held if f < dets.frame]:
+                        del self._held[f]  # frames that gave no detections (no registration)
                 self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
 
     def _split_merged(self, dets: Detections) -> Detections:

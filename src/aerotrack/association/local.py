@@ -233,6 +233,60 @@ class LocalAssociator:
             return np.zeros((0, 2)), np.zeros((0, 2)), []
         return np.asarray(centres) / self.mpu, np.abs(np.asarray(sizes)) / self.mpu, hists
 
+    def lost_tracks(self, frame: int, start_s: float, max_s: float, max_speed_mps: float,
+                    min_travel_m: float, min_obs: int) -> list[dict]:
+        """Tracks that may have stopped where the detector lost them, for
+        :class:`~aerotrack.association.follow.StopFollower`: last observed before ``frame``,
+        at most ``start_s`` seconds ago (a real detection) or in the frame before (a followed
+        one, for at most ``max_s`` since the last real one), at no more than ``max_speed_mps``,
+        observed at least ``min_obs`` times and spread over at least ``min_travel_m`` metres.
+        Each: ``tid``, ``frame`` and ``index`` of the last observation (its Detections row),
+        ``followed`` (whether that is a followed detection), ``last`` (its frame), ``world``
+        (the last observed ground point, world units)."""
+        S = self.sampler
+        if S is None or not self.mpu:
+            return []
+        out = []
+        s = S.store
+        for tid in sorted(S.tracks):
+            tr = S.tracks[tid]
+            if not len(tr):
+                continue
+            g = int(tr.nodes[-1])
+            f = int(s.frame[g - s.base])
+            if f >= frame:
+                continue
+            det, i = s.payload[g - s.base]
+            fol = det.extra.get("followed")
+            followed = bool(fol[i]) if fol is not None else False
+            if followed:
+                if f != frame - 1:
+                    continue
+                real = [int(n) for n in tr.nodes
+                        if not _is_followed(s.payload[int(n) - s.base])]
+                f_real = int(s.frame[real[-1] - s.base]) if real else \
+                    max((p.frame for p in self.points.get(tid, ()) if p.kind == "observed"),
+                        default=f)
+                if (frame - f_real) / self.fps > max_s:
+                    continue
+            elif (frame - f) / self.fps > start_s:
+                continue
+            x = tr.xs[-1]
+            if float(np.hypot(x[4], x[5])) > max_speed_mps:
+                continue
+            n_obs = len(tr) + sum(p.kind == "observed" for p in self.points.get(tid, ()))
+            if n_obs < min_obs:
+                continue
+            pos = s.z[tr.nodes - s.base, :2]
+            frozen = [p.world for p in self.points.get(tid, ())]
+            if frozen:
+                pos = np.vstack([pos, np.asarray(frozen, float) * self.mpu])
+            if float(np.hypot(*np.ptp(pos, axis=0))) < min_travel_m:
+                continue
+            out.append({"tid": tid, "frame": f, "index": int(i), "followed": followed,
+                        "last": f, "world": s.z[g - s.base, :2] / self.mpu})
+        return out
+
     # ------------------------------------------------------------------ per frame
     def _add(self, det: Detections) -> list[Tracklet]:
         S = self.sampler
@@ -472,6 +526,12 @@ class LocalAssociator:
             f, h = fg, S.hist_of(gg)
             chain.append(gg)
         return chain[::-1]
+
+
+def _is_followed(payload) -> bool:
+    det, i = payload
+    fol = det.extra.get("followed")
+    return fol is not None and bool(fol[i])
 
 
 def _point(det: Detections, i: int) -> TrackPoint:

@@ -1,0 +1,282 @@
+"""Following vehicles that slow down and stop where the detector loses them (ours, not the papers').
+
+A vehicle that brakes for a light or a queue fades from the sliding-window background's residual
+while it still creeps (2-4 m/s) and is gone once it stands: the window's median takes it in.
+Without pixels, a track that ends like that cannot be told from one that ended on a false alarm
+or went under a tree (``finish.hold_stops`` measured holds of such ends as more often wrong than
+right). Here the pixels are still at hand: before each frame's detections go to local
+association, every confirmed track that was seen driving (its points spread over
+``follow_min_travel_m``), was last seen at most ``follow_start_s`` ago at no more than
+``follow_max_speed_mps``, and has no detection at its predicted place, is looked for in the
+frame by normalised cross-correlation with the vehicle's last detected appearance (a grey patch of
+its last real detection's box, warped into this frame through both frames' homographies), within
+the distance it could have crept since. A match of at least ``follow_min_ncc`` becomes a
+detection flagged ``extra["followed"]`` at the match; local association then links it like any
+other. The template is never updated from a followed detection, so a follow cannot drift onto
+the road: when the vehicle drives off, the road at its place no longer matches and the follow
+ends; when it drives off and is detected again, the real detection takes over. A template with
+less contrast than ``follow_min_contrast`` grey levels (a dark car on dark asphalt) is not
+followed: its correlation with the road is noise. A follow lasts at most ``follow_max_s``.
+
+Frames are needed: with ``track --from`` (cached detections, no frames) nothing is followed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..types import Detections, Registration, apply_homography, local_scales
+
+__all__ = ["StopFollower"]
+
+
+@dataclass
+class _Template:
+    """A vehicle's appearance at its last real detection."""
+
+    frame: int
+    patch: np.ndarray  # grey uint8, the box plus ``margin`` px on each side (clipped)
+    origin: np.ndarray  # (2,) frame pixels of patch[0, 0]
+    box: np.ndarray  # (4,) x, y, w, h of the vehicle's box in that frame's pixels
+    H: np.ndarray  # that frame's homography (frame pixels -> world)
+
+
+class StopFollower:
+    """Adds ``followed`` detections of lost slow tracks to each frame (see the module doc).
+
+    Parameters
+    ----------
+    config : AssociationConfig
+        The ``follow_*`` settings.
+    fps : float
+        Frame rate.
+    """
+
+    def __init__(self, config, fps: float, geomap=None):
+        self.c = config
+        self.geomap = geomap
+        self.fps = float(fps)
+        self._cache: dict[int, dict[int, _Template]] = {}  # frame -> detection index -> template
+        self._tmpl: dict[int, _Template] = {}  # track id -> template of its last real detection
+        self._past: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (grey, H), sampled
+        self._moved: dict[tuple[int, int], bool] = {}  # (track, template frame) -> arrived there
+        self.n_followed = 0
+
+    # ------------------------------------------------------------------ per frame
+    def step(self, dets: Detections, image: np.ndarray | None, reg: Registration | None,
+             associator) -> Detections:
+        """``dets`` with the followed detections of ``dets.frame`` appended; remembers the
+        templates of its real detections."""
+        k = dets.frame
+        if image is None or reg is None or not associator.mpu:
+            return dets
+        grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        H = np.asarray(reg.H, dtype=np.float64)
+        keep = max(1, int(round((self.c.follow_start_s + 0.1) * self.fps)) + 1)
+        for f in [f for f in self._cache if f < k - keep]:
+            del self._cache[f]
+        new = self._follow(dets, grey, H, associator)
+        out = dets if new is None else _append(dets, new, image, H, self.geomap)
+        self._remember(dets, grey, H)
+        every = max(1, int(round(self.fps * PAST_EVERY_S)))
+        if k % every == 0:
+            self._past[k] = (grey, H)
+        horizon = int(round((self.c.follow_past_s + self.c.follow_start_s + 2 * PAST_EVERY_S)
+                            * self.fps))
+        for f in [f for f in self._past if f < k - horizon]:
+            del self._past[f]
+        if len(self._moved) > 4096:
+            self._moved.clear()
+        return out
+
+    def _arrived(self, tid: int, t: _Template, r_px: int) -> bool:
+        """Whether the vehicle of template ``t`` came to where it was then: the frame about
+        ``follow_past_s`` earlier, within ``r_px`` pixels of the same ground place, does not match
+        it (a false alarm on a fixed pattern, a tree's edge, a marking, matched itself and is
+        never followed)."""
+        key = (tid, t.frame)
+        if key not in self._moved:
+            want = t.frame - self.c.follow_past_s * self.fps
+            older = [f for f in self._past if f <= want]
+            if not older:
+                self._moved[key] = False  # nothing seen before it: cannot tell
+            else:
+                grey, H = self._past[max(older)]
+                m = _match(t, grey, H, None, r_px)
+                self._moved[key] = m is not None and m[0] < self.c.follow_min_ncc
+        return self._moved[key]
+
+    def _remember(self, dets: Detections, grey: np.ndarray, H: np.ndarray) -> None:
+        m = self.c.follow_margin_px
+        out = {}
+        followed = dets.extra.get("followed")
+        for i, b in enumerate(np.asarray(dets.boxes, dtype=np.float64)):
+            if followed is not None and followed[i]:
+                continue
+            x0, y0 = int(max(0, np.floor(b[0] - m))), int(max(0, np.floor(b[1] - m)))
+            x1 = int(min(grey.shape[1], np.ceil(b[0] + b[2] + m)))
+            y1 = int(min(grey.shape[0], np.ceil(b[1] + b[3] + m)))
+            if x1 - x0 < 3 or y1 - y0 < 3:
+                continue
+            out[i] = _Template(dets.frame, grey[y0:y1, x0:x1].copy(), np.array([x0, y0], float),
+                               b.copy(), H)
+        self._cache[dets.frame] = out
+
+    def _follow(self, dets: Detections, grey: np.ndarray, H: np.ndarray, associator):
+        c = self.c
+        k = dets.frame
+        cands = associator.lost_tracks(k, c.follow_start_s, c.follow_max_s,
+                                       c.follow_max_speed_mps, c.follow_min_travel_m,
+                                       max(2, round(c.follow_min_obs_s * self.fps)))
+        live = {cd["tid"] for cd in cands}
+        for tid in [t for t in self._tmpl if t not in live]:
+            del self._tmpl[tid]
+        if not cands:
+            return None
+        Hinv = np.linalg.inv(H)
+        boxes = np.asarray(dets.boxes, dtype=np.float64).reshape(-1, 4)
+        found = []
+        mpu = associator.mpu
+        for cd in cands:
+            tid = cd["tid"]
+            if not cd["followed"]:  # its last observation is a real detection: its template
+                t = self._cache.get(cd["frame"], {}).get(cd["index"])
+                if t is None:
+                    continue
+                self._tmpl[tid] = t
+            t = self._tmpl.get(tid)
+            if t is None or float(t.patch.std()) < c.follow_min_contrast:
+                continue
+            centre = apply_homography(Hinv, np.asarray(cd["world"], float)[None])[0]
+            if not np.all(np.isfinite(centre)):
+                continue
+            scale = float(local_scales(H, centre[None])[0]) * mpu  # metres per frame pixel
+            if not scale > 0:
+                continue
+            # a vehicle, not a fragment: the template's box in metres
+            tb = t.box[2:] * float(local_scales(t.H, (t.box[:2] + t.box[2:] / 2)[None])[0]) * mpu
+            if min(tb) < c.follow_min_width_m or tb[0] * tb[1] < c.follow_min_area_m2:
+                continue
+            # how far it may have crept since the track's last observation (a frame, when
+            # followed); a stopping vehicle creeps at most ``follow_max_creep_m`` more from its
+            # last real detection
+            dt = (k - cd["last"]) / self.fps
+            r = int(np.ceil(c.follow_max_speed_mps * dt / scale)) + 1
+            m = _match(t, grey, H, centre, r, boxes)
+            if m is None or not m[0] >= c.follow_min_ncc or not self._arrived(
+                    tid, t, int(np.ceil(PAST_RADIUS_M / scale)) + 1):
+                continue
+            best, x, y, tw, th = m
+            at = np.array([x + tw / 2, y + th / 2])
+            if float(np.hypot(*(apply_homography(H, at[None])[0]
+                                - apply_homography(t.H, (t.box[:2] + t.box[2:] / 2)[None])[0])
+                               )) * mpu > c.follow_max_creep_m:
+                continue
+            found.append(([x, y, tw, th], float(best)))
+        if not found:
+            return None
+        self.n_followed += len(found)
+        return found
+
+
+#: How often a frame is kept for :meth:`StopFollower._arrived`, seconds, and how far from the
+#: template's place (metres) the earlier frame is searched.
+PAST_EVERY_S = 0.2
+PAST_RADIUS_M = 0.5
+
+
+def _match(t: _Template, grey: np.ndarray, H: np.ndarray, centre: np.ndarray | None, r: int,
+           boxes: np.ndarray | None = None):
+    """Template ``t`` warped into the frame (``grey``, homography ``H``) and matched by
+    normalised cross-correlation within ``r`` pixels of ``centre`` (frame pixels; None: where
+    the template's own box lands). Returns ``(ncc, x, y, w, h)`` of the best match (box in frame
+    pixels), or None when the search leaves the frame or ``boxes`` (the frame's detections)
+    already hold something there."""
+    Hinv = np.linalg.inv(H)
+    G = Hinv @ t.H  # template frame pixels -> this frame's pixels
+    corners = np.array([[0, 0], [t.box[2], 0], [t.box[2], t.box[3]], [0, t.box[3]]],
+                       float) + t.box[:2]
+    ck = apply_homography(G, corners)
+    w, h = float(np.ptp(ck[:, 0])), float(np.ptp(ck[:, 1]))
+    if not (np.isfinite(w) and np.isfinite(h)) or w < 3 or h < 3:
+        return None
+    bc = apply_homography(G, (t.box[:2] + t.box[2:] / 2)[None])[0]
+    if centre is None:
+        centre = bc
+    if boxes is not None and len(boxes):
+        pb = np.array([centre[0] - w / 2, centre[1] - h / 2, w, h])
+        if np.any(_iou(pb, boxes) >= 0.2):
+            return None  # a detection already there: association takes that one
+    tw, th = int(round(w)), int(round(h))
+    # the vehicle's box (not the margin) warped to land centred in a tw x th template
+    T = np.array([[1, 0, tw / 2 - bc[0]], [0, 1, th / 2 - bc[1]], [0, 0, 1]])
+    O = np.array([[1, 0, t.origin[0]], [0, 1, t.origin[1]], [0, 0, 1]])
+    tmpl = cv2.warpPerspective(t.patch, T @ G @ O, (tw, th), flags=cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REPLICATE)
+    x0, y0 = int(round(centre[0] - tw / 2)) - r, int(round(centre[1] - th / 2)) - r
+    x1, y1 = x0 + tw + 2 * r, y0 + th + 2 * r
+    if x0 < 0 or y0 < 0 or x1 > grey.shape[1] or y1 > grey.shape[0]:
+        return None  # at the border: leaving the view, not standing
+    res = cv2.matchTemplate(grey[y0:y1, x0:x1], tmpl, cv2.TM_CCOEFF_NORMED)
+    _, best, _, loc = cv2.minMaxLoc(res)
+    return float(best), x0 + loc[0], y0 + loc[1], tw, th
+
+
+def _iou(b: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    x0 = np.maximum(b[0], boxes[:, 0])
+    y0 = np.maximum(b[1], boxes[:, 1])
+    x1 = np.minimum(b[0] + b[2], boxes[:, 0] + boxes[:, 2])
+    y1 = np.minimum(b[1] + b[3], boxes[:, 1] + boxes[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    return inter / (b[2] * b[3] + boxes[:, 2] * boxes[:, 3] - inter)
+
+
+def _append(dets: Detections, found, image: np.ndarray, H: np.ndarray, geomap) -> Detections:
+    """``dets`` with one row per ``(box, ncc)`` in ``found``, flagged ``extra["followed"]``."""
+    from ..detection import describe
+
+    boxes = np.array([b for b, _ in found], dtype=np.float64)
+    ncc = np.array([s for _, s in found])
+    n, m = len(dets), len(boxes)
+    centres = boxes[:, :2] + boxes[:, 2:] / 2
+    world = apply_homography(H, centres)
+    size_world = boxes[:, 2:] * local_scales(H, centres)[:, None]
+    hist, desc = describe(image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR),
+                          boxes)
+    extra = {}
+    for key, v in dets.extra.items():
+        v = np.asarray(v)
+        if key == "desc" and desc is not None and desc.shape[1:] == v.shape[1:]:
+            add = desc.astype(v.dtype)
+        else:
+            add = np.zeros((m, *v.shape[1:]), dtype=v.dtype)
+        extra[key] = np.concatenate([v, add]) if n else add
+    extra["followed"] = np.concatenate([np.asarray(dets.extra.get("followed", np.zeros(n, bool)),
+                                                   bool), np.ones(m, bool)])
+
+    def cat(a, b):
+        return None if a is None else np.concatenate([np.asarray(a).reshape(n, *np.shape(b)[1:]), b])
+
+    hist_all = None
+    if dets.hist is not None and hist is not None and hist.shape[1] == np.shape(dets.hist)[1]:
+        hist_all = cat(dets.hist, hist)
+    elif dets.hist is None and n == 0:
+        hist_all = hist
+    if dets.hist is not None and hist_all is None:
+        return dets  # appearance of another kind: leave the frame as it is
+    mapxy = lonlat = None
+    if dets.mapxy is not None and geomap is not None:
+        xy = geomap.pixel_to_crs(world)
+        mapxy = cat(dets.mapxy, xy)
+        if dets.lonlat is not None:
+            lonlat = cat(dets.lonlat, geomap.crs_to_lonlat(xy))
+    return Detections(frame=dets.frame,
+                      boxes=np.concatenate([np.asarray(dets.boxes, float).reshape(n, 4), boxes]),
+                      conf=np.concatenate([np.asarray(dets.conf, float), ncc * 0.5]),
+                      world=np.concatenate([np.asarray(dets.world, float).reshape(n, 2), world]),
+                      mapxy=mapxy, lonlat=lonlat, hist=hist_all,
+                      size_world=cat(dets.size_world, size_world),
+                      extra=extra)

@@ -1,0 +1,127 @@
+"""Following vehicles that stop where the detector loses them (association/follow.py): real
+frames and the real pipeline, detections given from outside so that the loss is known."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from aerotrack.config import Config
+from aerotrack.pipeline import Pipeline
+from aerotrack.types import Frame
+
+FPS = 30.0
+W, H = 320, 160
+CAR = (28, 12)  # px; 0.25 m/px: 7 x 3 m
+GSD = 0.25
+
+
+def _car_texture(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    tex = rng.integers(40, 230, size=(CAR[1], CAR[0], 3)).astype(np.uint8)
+    tex = cv2.GaussianBlur(tex, (3, 3), 0)  # a painted body, not pixel noise
+    tex[:, :4] = 250  # a bright front, a dark rear: contrast on any road
+    tex[:, -4:] = 20
+    return tex
+
+
+def _scene(x_of, n: int, detected, painted_at=None):
+    """Frames of a textured road with one car at ``x_of(f)`` (None: gone), and the detections
+    of the frames ``detected(f)`` says it was seen in (MOT rows). ``painted_at``: the car's
+    texture also painted on the road there (a fixed pattern)."""
+    rng = np.random.default_rng(0)
+    road = rng.normal(110, 6, size=(H, W, 3)).clip(0, 255).astype(np.uint8)
+    tex = _car_texture(1)
+    y = 70
+    if painted_at is not None:
+        road[y:y + CAR[1], painted_at:painted_at + CAR[0]] = tex
+    frames, dets = [], {}
+    for f in range(1, n + 1):
+        img = road.copy()
+        x = x_of(f)
+        if x is not None:
+            xi = int(round(x))
+            img[y:y + CAR[1], xi:xi + CAR[0]] = tex
+            if detected(f):
+                dets[f] = np.array([[f, -1, xi, y, CAR[0], CAR[1], 1.0]], float)
+        frames.append(Frame(f, img, (f - 1) / FPS))
+    return frames, dets
+
+
+def _track(frames, dets, follow: bool):
+    cfg = Config()
+    cfg = dataclasses.replace(cfg, association=dataclasses.replace(
+        cfg.association, follow_stopped=follow))
+    pipe = Pipeline(cfg, FPS, detections=dets, metres_per_unit=GSD, stabilised=True, seed=0)
+    for fr in frames:
+        pipe.step(fr)
+    return pipe.finish(), pipe
+
+
+V0 = 8.0 / GSD / FPS  # 8 m/s, px per frame
+ACC = 4.0 / GSD / FPS ** 2  # 4 m/s^2, px per frame^2
+BRAKE = 80  # the frame it starts braking in
+STOP_F = BRAKE + int(round(V0 / ACC))  # the frame it stands from (2 s later)
+STOP_X = 10 + V0 * (BRAKE - 60) + V0 * V0 / (2 * ACC)
+GO_F = STOP_F + 60  # stands 2 s
+
+
+def _stop_and_go(f):
+    """Enters at frame 61 at 8 m/s, brakes at 4 m/s^2 from frame 80 to a stop (frame 140), stands
+    2 s, then drives off at 4 m/s^2. The first 60 frames show the empty road (following compares
+    the place with how it looked 2 s before)."""
+    if f <= 60:
+        return None
+    if f <= BRAKE:
+        return 10 + V0 * (f - 60)
+    if f <= STOP_F:
+        t = f - BRAKE
+        return 10 + V0 * (BRAKE - 60) + V0 * t - 0.5 * ACC * t * t
+    if f <= GO_F:
+        return STOP_X
+    x = STOP_X + 0.5 * ACC * (f - GO_F) ** 2
+    return x if x + CAR[0] < W else None
+
+
+def _seen(f):
+    """Detected until it creeps under 2 m/s, lost while it stands, detected again once it has
+    driven off at 2 m/s."""
+    return f <= BRAKE + 45 or f >= GO_F + 15
+
+
+def _rows_at_stop(result, frames_range):
+    """Frames of ``frames_range`` in which some in-view track row overlaps the stopped car."""
+    out = set()
+    for t in result.tracks:
+        for p in t.points:
+            if (p.frame in frames_range and p.kind != "predicted" and p.box is not None
+                    and abs(p.box[0] - STOP_X) < 4 and abs(p.box[1] - 70) < 4):
+                out.add(p.frame)
+    return out
+
+
+def test_a_car_lost_while_stopping_is_followed_while_it_stands_and_not_after():
+    frames, dets = _scene(_stop_and_go, GO_F + 80, _seen)
+    base, _ = _track(frames, dets, follow=False)
+    res, pipe = _track(frames, dets, follow=True)
+    standing = range(STOP_F, GO_F)
+    assert len(_rows_at_stop(base, standing)) < 10  # without following: the stop is missing
+    held = _rows_at_stop(res, standing)
+    assert len(held) >= 0.9 * len(standing)
+    assert pipe.follower.n_followed >= 50
+    # the same identity before, during and after the stop
+    ids = {t.id for t in res.tracks for p in t.points
+           if p.kind == "observed" and p.frame in (BRAKE, STOP_F + 30, GO_F + 40)}
+    assert len(ids) == 1
+    # once the car has left its place (4 px by GO_F + 25), nothing is reported there
+    assert not _rows_at_stop(res, range(GO_F + 30, GO_F + 80))
+
+
+def test_a_fixed_pattern_is_not_followed():
+    # the same car, but its look-alike is painted on the road where it stops: the place looked
+    # the same before it arrived, so following cannot tell the car from the road
+    frames, dets = _scene(_stop_and_go, GO_F + 80, _seen, painted_at=int(round(STOP_X)))
+    _, pipe = _track(frames, dets, follow=True)
+    assert pipe.follower.n_followed == 0
