@@ -68,7 +68,7 @@ STOP_X = 10 + V0 * (BRAKE - 60) + V0 * V0 / (2 * ACC)
 GO_F = STOP_F + 60  # stands 2 s
 
 
-def _stop_and_go(f):
+def _stop_and_go(f, stand: int = GO_F - STOP_F):
     """Enters at frame 61 at 8 m/s, brakes at 4 m/s^2 from frame 80 to a stop (frame 140), stands
     2 s, then drives off at 4 m/s^2. The first 60 frames show the empty road (following compares
     the place with how it looked 2 s before)."""
@@ -79,9 +79,10 @@ def _stop_and_go(f):
     if f <= STOP_F:
         t = f - BRAKE
         return 10 + V0 * (BRAKE - 60) + V0 * t - 0.5 * ACC * t * t
-    if f <= GO_F:
+    go = STOP_F + stand
+    if f <= go:
         return STOP_X
-    x = STOP_X + 0.5 * ACC * (f - GO_F) ** 2
+    x = STOP_X + 0.5 * ACC * (f - go) ** 2
     return x if x + CAR[0] < W else None
 
 
@@ -125,3 +126,15 @@ def test_a_fixed_pattern_is_not_followed():
     frames, dets = _scene(_stop_and_go, GO_F + 80, _seen, painted_at=int(round(STOP_X)))
     _, pipe = _track(frames, dets, follow=True)
     assert pipe.follower.n_followed == 0
+
+
+def test_a_car_that_stood_before_it_was_lost_is_followed():
+    # the detector kept it for 3 s of standing (as hold_stopped does), then lost it for 2 s: the
+    # place is compared with how it looked before the car came, not 2 s before it was lost
+    stand = 150
+    frames, dets = _scene(lambda f: _stop_and_go(f, stand), STOP_F + stand + 60,
+                          lambda f: f <= STOP_F + 90 or f >= STOP_F + stand + 15)
+    res, pipe = _track(frames, dets, follow=True)
+    lost = range(STOP_F + 95, STOP_F + stand)
+    assert len(_rows_at_stop(res, lost)) >= 0.9 * len(lost)
+    assert pipe.follower.n_followed >= 40

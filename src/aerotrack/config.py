@@ -886,9 +886,9 @@ class AssociationConfig:
     follow_max_creep_m : float
         A followed vehicle is at most this far (metres) from its last real detection.
     follow_past_s : float
-        A track is followed only when the frame this long before its template's, at the same
-        ground place, does not match the template (the vehicle arrived there: a fixed pattern
-        detected by mistake matches itself).
+        A track is followed only when its place, as it looked this long before the track came
+        within a metre of it, does not match the template (the vehicle arrived there: a fixed
+        pattern detected by mistake matches itself).
     follow_min_width_m, follow_min_area_m2 : float
         A template box narrower or smaller than this (a fragment) is not followed.
     """

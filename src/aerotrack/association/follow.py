@@ -18,6 +18,13 @@ ends; when it drives off and is detected again, the real detection takes over. A
 less contrast than ``follow_min_contrast`` grey levels (a dark car on dark asphalt) is not
 followed: its correlation with the road is noise. A follow lasts at most ``follow_max_s``.
 
+A false alarm on a fixed pattern (a tree's edge drifting with parallax, a marking) that moved
+like a vehicle matches its own place forever. So a track is followed only when its place, as it
+looked ``follow_past_s`` before the track came within ``REF_MOVE_M`` of it, does not match the
+template: the vehicle arrived there. The follower keeps, per track, a patch of that place from
+that earlier frame (taken while the track still moved, kept while it stands, however long), and a
+frame every ``PAST_EVERY_S`` for ``follow_past_s`` and a little more.
+
 Frames are needed: with ``track --from`` (cached detections, no frames) nothing is followed.
 """
 
@@ -35,7 +42,8 @@ __all__ = ["StopFollower"]
 
 @dataclass
 class _Template:
-    """A vehicle's appearance at its last real detection."""
+    """A grey patch of a frame around a box: a vehicle's appearance at its last real detection,
+    or the place a track came to, as it looked before."""
 
     frame: int
     patch: np.ndarray  # grey uint8, the box plus ``margin`` px on each side (clipped)
@@ -62,7 +70,9 @@ class StopFollower:
         self._cache: dict[int, dict[int, _Template]] = {}  # frame -> detection index -> template
         self._tmpl: dict[int, _Template] = {}  # track id -> template of its last real detection
         self._past: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (grey, H), sampled
-        self._moved: dict[tuple[int, int], bool] = {}  # (track, template frame) -> arrived there
+        self._moved: dict[tuple, bool] = {}  # (track, template frame, ref frame) -> arrived
+        # track id -> (ground point, the place's patch from before the track came there)
+        self._ref: dict[int, tuple[np.ndarray, _Template]] = {}
         self.n_followed = 0
 
     # ------------------------------------------------------------------ per frame
@@ -78,6 +88,7 @@ class StopFollower:
         keep = max(1, int(round((self.c.follow_start_s + 0.1) * self.fps)) + 1)
         for f in [f for f in self._cache if f < k - keep]:
             del self._cache[f]
+        self._update_refs(k, associator)
         new = self._follow(dets, grey, H, associator)
         out = dets if new is None else _append(dets, new, image, H, self.geomap)
         self._remember(dets, grey, H)
@@ -92,21 +103,59 @@ class StopFollower:
             self._moved.clear()
         return out
 
-    def _arrived(self, tid: int, t: _Template, r_px: int) -> bool:
-        """Whether the vehicle of template ``t`` came to where it was then: the frame about
-        ``follow_past_s`` earlier, within ``r_px`` pixels of the same ground place, does not match
-        it (a false alarm on a fixed pattern, a tree's edge, a marking, matched itself and is
-        never followed)."""
-        key = (tid, t.frame)
-        if key not in self._moved:
-            want = t.frame - self.c.follow_past_s * self.fps
+    def _update_refs(self, k: int, associator) -> None:
+        """For every track detected in the frame before ``k``: when it is more than
+        ``REF_MOVE_M`` from where its reference was taken (or has none), a patch of that place
+        from the kept frame at least ``follow_past_s`` older. A vehicle that stands keeps the
+        reference of the place as it was before it came there, however long it stands."""
+        mpu = associator.mpu
+        live = set()
+        for e in associator.track_ends():
+            live.add(e["tid"])
+            if e["followed"] or e["frame"] != k - 1:
+                continue
+            old = self._ref.get(e["tid"])
+            if old is not None and float(np.hypot(*(old[0] - e["world"]))) * mpu <= REF_MOVE_M:
+                continue
+            want = e["frame"] - self.c.follow_past_s * self.fps
             older = [f for f in self._past if f <= want]
             if not older:
-                self._moved[key] = False  # nothing seen before it: cannot tell
-            else:
-                grey, H = self._past[max(older)]
-                m = _match(t, grey, H, None, r_px)
-                self._moved[key] = m is not None and m[0] < self.c.follow_min_ncc
+                self._ref.pop(e["tid"], None)
+                continue
+            f = max(older)
+            grey, H = self._past[f]
+            c = apply_homography(np.linalg.inv(H), np.asarray(e["world"], float)[None])[0]
+            scale = float(local_scales(H, c[None])[0]) * mpu
+            if not (np.all(np.isfinite(c)) and scale > 0):
+                continue
+            w, h = e["box"][2:]
+            m = int(np.ceil(PAST_RADIUS_M / scale)) + 4 + int(np.ceil(0.3 * max(w, h)))
+            x0, y0 = int(max(0, np.floor(c[0] - w / 2 - m))), int(max(0, np.floor(c[1] - h / 2 - m)))
+            x1 = int(min(grey.shape[1], np.ceil(c[0] + w / 2 + m)))
+            y1 = int(min(grey.shape[0], np.ceil(c[1] + h / 2 + m)))
+            if x1 - x0 < 3 or y1 - y0 < 3:
+                continue
+            self._ref[e["tid"]] = (np.asarray(e["world"], float).copy(), _Template(
+                f, grey[y0:y1, x0:x1].copy(), np.array([x0, y0], float),
+                np.array([c[0] - w / 2, c[1] - h / 2, w, h]), H))
+        for tid in [t for t in self._ref if t not in live]:
+            del self._ref[tid]
+
+    def _arrived(self, tid: int, t: _Template, r_px: int) -> bool:
+        """Whether the vehicle of template ``t`` came to where it stands: the place, as it
+        looked at least ``follow_past_s`` before the track came within ``REF_MOVE_M`` of it,
+        does not match the template within ``r_px`` pixels (a false alarm on a fixed pattern,
+        a tree's edge or a marking matches itself there and is never followed)."""
+        ref = self._ref.get(tid)
+        if ref is None:
+            return False  # nothing seen of the place before: cannot tell
+        r = ref[1]
+        key = (tid, t.frame, r.frame)
+        if key not in self._moved:
+            # the reference patch as a small frame: its pixels -> world
+            Hp = r.H @ np.array([[1, 0, r.origin[0]], [0, 1, r.origin[1]], [0, 0, 1]], float)
+            m = _match(t, r.patch, Hp, None, r_px)
+            self._moved[key] = m is not None and m[0] < self.c.follow_min_ncc
         return self._moved[key]
 
     def _remember(self, dets: Detections, grey: np.ndarray, H: np.ndarray) -> None:
@@ -186,6 +235,9 @@ class StopFollower:
 #: template's place (metres) the earlier frame is searched.
 PAST_EVERY_S = 0.2
 PAST_RADIUS_M = 0.5
+#: A track's reference of its place is taken again once it is this far (metres) from where the
+#: last one was taken.
+REF_MOVE_M = 1.0
 
 
 def _match(t: _Template, grey: np.ndarray, H: np.ndarray, centre: np.ndarray | None, r: int,

@@ -233,6 +233,26 @@ class LocalAssociator:
             return np.zeros((0, 2)), np.zeros((0, 2)), []
         return np.asarray(centres) / self.mpu, np.abs(np.asarray(sizes)) / self.mpu, hists
 
+    def track_ends(self) -> list[dict]:
+        """Each track's last observation in the window: ``tid``, its ``frame``, ``index`` (its
+        Detections row), ``followed`` and ``world`` (ground point, world units)."""
+        S = self.sampler
+        if S is None or not self.mpu:
+            return []
+        s = S.store
+        out = []
+        for tid in sorted(S.tracks):
+            tr = S.tracks[tid]
+            if not len(tr):
+                continue
+            g = int(tr.nodes[-1])
+            det, i = s.payload[g - s.base]
+            out.append({"tid": tid, "frame": int(s.frame[g - s.base]), "index": int(i),
+                        "followed": _is_followed((det, i)),
+                        "box": np.asarray(det.boxes[i], float),
+                        "world": s.z[g - s.base, :2] / self.mpu})
+        return out
+
     def lost_tracks(self, frame: int, start_s: float, max_s: float, max_speed_mps: float,
                     min_travel_m: float, min_obs: int) -> list[dict]:
         """Tracks that may have stopped where the detector lost them, for
