@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from ..types import Detections, Registration, apply_homography, local_scales
+from .posterior import iou_xywh_centre
 
 __all__ = ["StopFollower"]
 
@@ -212,7 +213,7 @@ class StopFollower:
             # how far it may have crept since the track's last observation (a frame, when
             # followed); a stopping vehicle creeps at most ``follow_max_creep_m`` more from its
             # last real detection
-            dt = (k - cd["last"]) / self.fps
+            dt = (k - cd["frame"]) / self.fps
             r = int(np.ceil(c.follow_max_speed_mps * dt / scale)) + 1
             m = _match(t, grey, H, centre, r, boxes)
             if m is None or not m[0] >= c.follow_min_ncc or not self._arrived(
@@ -260,7 +261,7 @@ def _match(t: _Template, grey: np.ndarray, H: np.ndarray, centre: np.ndarray | N
         centre = bc
     if boxes is not None and len(boxes):
         pb = np.array([centre[0] - w / 2, centre[1] - h / 2, w, h])
-        if np.any(_iou(pb, boxes) >= 0.2):
+        if np.any(iou_xywh_centre(_centred(pb), _centred(boxes)) >= 0.2):
             return None  # a detection already there: association takes that one
     tw, th = int(round(w)), int(round(h))
     # the vehicle's box (not the margin) warped to land centred in a tw x th template
@@ -277,13 +278,10 @@ def _match(t: _Template, grey: np.ndarray, H: np.ndarray, centre: np.ndarray | N
     return float(best), x0 + loc[0], y0 + loc[1], tw, th
 
 
-def _iou(b: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    x0 = np.maximum(b[0], boxes[:, 0])
-    y0 = np.maximum(b[1], boxes[:, 1])
-    x1 = np.minimum(b[0] + b[2], boxes[:, 0] + boxes[:, 2])
-    y1 = np.minimum(b[1] + b[3], boxes[:, 1] + boxes[:, 3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    return inter / (b[2] * b[3] + boxes[:, 2] * boxes[:, 3] - inter)
+def _centred(boxes: np.ndarray) -> np.ndarray:
+    """(N, 4) ``x, y, w, h`` boxes as ``centre x, centre y, w, h``."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    return np.column_stack([b[:, :2] + b[:, 2:] / 2, b[:, 2:]])
 
 
 def _append(dets: Detections, found, image: np.ndarray, H: np.ndarray, geomap) -> Detections:

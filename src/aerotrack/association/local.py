@@ -255,31 +255,20 @@ class LocalAssociator:
 
     def lost_tracks(self, frame: int, start_s: float, max_s: float, max_speed_mps: float,
                     min_travel_m: float, min_obs: int) -> list[dict]:
-        """Tracks that may have stopped where the detector lost them, for
-        :class:`~aerotrack.association.follow.StopFollower`: last observed before ``frame``,
+        """The :meth:`track_ends` of tracks that may have stopped where the detector lost them,
+        for :class:`~aerotrack.association.follow.StopFollower`: last observed before ``frame``,
         at most ``start_s`` seconds ago (a real detection) or in the frame before (a followed
         one, for at most ``max_s`` since the last real one), at no more than ``max_speed_mps``,
-        observed at least ``min_obs`` times and spread over at least ``min_travel_m`` metres.
-        Each: ``tid``, ``frame`` and ``index`` of the last observation (its Detections row),
-        ``followed`` (whether that is a followed detection), ``last`` (its frame), ``world``
-        (the last observed ground point, world units)."""
+        observed at least ``min_obs`` times and spread over at least ``min_travel_m`` metres."""
         S = self.sampler
-        if S is None or not self.mpu:
-            return []
         out = []
-        s = S.store
-        for tid in sorted(S.tracks):
-            tr = S.tracks[tid]
-            if not len(tr):
-                continue
-            g = int(tr.nodes[-1])
-            f = int(s.frame[g - s.base])
+        for e in self.track_ends():
+            tid, f = e["tid"], e["frame"]
             if f >= frame:
                 continue
-            det, i = s.payload[g - s.base]
-            fol = det.extra.get("followed")
-            followed = bool(fol[i]) if fol is not None else False
-            if followed:
+            tr = S.tracks[tid]
+            s = S.store
+            if e["followed"]:
                 if f != frame - 1:
                     continue
                 real = [int(n) for n in tr.nodes
@@ -303,8 +292,7 @@ class LocalAssociator:
                 pos = np.vstack([pos, np.asarray(frozen, float) * self.mpu])
             if float(np.hypot(*np.ptp(pos, axis=0))) < min_travel_m:
                 continue
-            out.append({"tid": tid, "frame": f, "index": int(i), "followed": followed,
-                        "last": f, "world": s.z[g - s.base, :2] / self.mpu})
+            out.append(e)
         return out
 
     # ------------------------------------------------------------------ per frame
