@@ -7,8 +7,10 @@ import dataclasses
 
 import cv2
 import numpy as np
+import pytest
 
 from aerotrack.config import Config
+from aerotrack.errors import ConfigError
 from aerotrack.pipeline import Pipeline
 from aerotrack.types import Frame
 
@@ -138,3 +140,11 @@ def test_a_car_that_stood_before_it_was_lost_is_followed():
     lost = range(STOP_F + 95, STOP_F + stand)
     assert len(_rows_at_stop(res, lost)) >= 0.9 * len(lost)
     assert pipe.follower.n_followed >= 40
+
+
+def test_a_correlation_above_one_is_refused():
+    cfg = Config()
+    cfg = dataclasses.replace(cfg, association=dataclasses.replace(
+        cfg.association, follow_stopped=True, follow_min_ncc=1.5))
+    with pytest.raises(ConfigError, match="follow_min_ncc"):
+        Pipeline(cfg, FPS, metres_per_unit=GSD, stabilised=True)

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..errors import ConfigError
 from ..types import Detections, Registration, apply_homography, local_scales
 from .posterior import iou_xywh_centre
 
@@ -65,6 +66,9 @@ class StopFollower:
     """
 
     def __init__(self, config, fps: float, geomap=None):
+        if not config.follow_min_ncc <= 1.0:
+            raise ConfigError("config association.follow_min_ncc: a normalised cross-correlation "
+                              f"is at most 1, got {config.follow_min_ncc!r}")
         self.c = config
         self.geomap = geomap
         self.fps = float(fps)
