@@ -7,7 +7,7 @@ or went under a tree (``finish.hold_stops`` measured holds of such ends as more 
 right). Here the pixels are still at hand: before each frame's detections go to local
 association, every confirmed track that was seen driving (its points spread over
 ``follow_min_travel_m``), was last seen at most ``follow_start_s`` ago at no more than
-``follow_max_speed_mps``, and has no detection at its predicted place, is looked for in the
+``follow_max_speed_mps``, and has no detection at its last place, is looked for in the
 frame by normalised cross-correlation with the vehicle's last detected appearance (a grey patch of
 its last real detection's box, warped into this frame through both frames' homographies), within
 the distance it could have crept since. A match of at least ``follow_min_ncc`` becomes a
