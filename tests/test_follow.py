@@ -142,6 +142,40 @@ def test_a_car_that_stood_before_it_was_lost_is_followed():
     assert pipe.follower.n_followed >= 40
 
 
+def _write_scene(folder, frames, dets):
+    """The frames as PNG files in ``folder/frames`` and the detections as a MOT file: the
+    inputs of ``aerotrack track``."""
+    from aerotrack.io.mot import write_mot
+
+    (folder / "frames").mkdir(parents=True)
+    for fr in frames:
+        cv2.imwrite(str(folder / "frames" / f"{fr.index:05d}.png"), fr.image)
+    write_mot(folder / "dets.txt", np.vstack([dets[f] for f in sorted(dets)]))
+    return folder / "frames", folder / "dets.txt"
+
+
+def test_summary_counts_the_followed_detections(tmp_path, capsys):
+    """summary.json says how many detections the follower added (they are not among the
+    detector's: ``counts.detections``), and says nothing of following when it is off."""
+    import json
+
+    from conftest import run_cli
+
+    frames, dets = _scene(_stop_and_go, GO_F + 80, _seen)
+    folder, rows = _write_scene(tmp_path, frames, dets)
+    counts = {}
+    for follow in ("false", "true"):
+        out = tmp_path / follow
+        code, _, err = run_cli(capsys, "-q", "track", folder, "--detections", rows, "--out", out,
+                               "--fps", FPS, "--gsd", GSD, "--set",
+                               f"association.follow_stopped={follow}")
+        assert code == 0, err
+        counts[follow] = json.loads((out / "summary.json").read_text())["counts"]
+    assert "followed_detections" not in counts["false"]
+    assert counts["true"]["followed_detections"] >= 50  # the car through its 2 s stop
+    assert counts["true"]["detections"] == counts["false"]["detections"] == len(dets)
+
+
 def test_a_correlation_above_one_is_refused():
     cfg = Config()
     cfg = dataclasses.replace(cfg, association=dataclasses.replace(

@@ -151,6 +151,8 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
             "predicted_rows": int(len(predicted)),
             "registered_frames": len(result.registrations),
             "registration_failures": len(failures),
+            # with association.follow_stopped (single process): what the stop follower added
+            **({} if result.followed is None else {"followed_detections": result.followed}),
         },
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
         "frames_per_second": round(result.frames / total, 2) if total > 0 else None,

@@ -57,6 +57,9 @@ class Result:
         work shares the machine, where wall seconds say more about the load than the stage.
     frames : int
         Number of frames processed.
+    followed : int or None
+        Detections the stop follower added (``association.follow_stopped``; None when it is
+        off, and from segment-parallel runs): associated like the others, not in ``detections``.
     """
 
     tracks: list[Track]
@@ -70,6 +73,7 @@ class Result:
     frames: int = 0
     first_frame: int = 1
     last_frame: int = 0
+    followed: int | None = None
 
 
 class Pipeline:
@@ -586,7 +590,8 @@ class Pipeline:
                       metres_per_unit=self.metres_per_unit, timings=dict(self.timings),
                       cpu_timings=dict(self.cpu_timings),
                       frames=self.n_frames, first_frame=self.first_frame or 1,
-                      last_frame=self.last_frame)
+                      last_frame=self.last_frame,
+                      followed=None if self.follower is None else self.follower.n_followed)
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,

@@ -78,7 +78,7 @@ class StopFollower:
         self._moved: dict[tuple, bool] = {}  # (track, template frame, ref frame) -> arrived
         # track id -> (ground point, the place's patch from before the track came there)
         self._ref: dict[int, tuple[np.ndarray, _Template]] = {}
-        self.n_followed = 0
+        self.n_followed = 0  # followed detections added so far
 
     # ------------------------------------------------------------------ per frame
     def step(self, dets: Detections, image: np.ndarray | None, reg: Registration | None,
@@ -96,6 +96,7 @@ class StopFollower:
         self._update_refs(k, associator)
         new = self._follow(dets, grey, H, associator)
         out = dets if new is None else _append(dets, new, image, H, self.geomap)
+        self.n_followed += len(out) - len(dets)
         self._remember(dets, grey, H)
         every = max(1, int(round(self.fps * PAST_EVERY_S)))
         if k % every == 0:
@@ -230,10 +231,7 @@ class StopFollower:
                                )) * mpu > c.follow_max_creep_m:
                 continue
             found.append(([x, y, tw, th], float(best)))
-        if not found:
-            return None
-        self.n_followed += len(found)
-        return found
+        return found or None
 
 
 #: How often a frame is kept for :meth:`StopFollower._arrived`, seconds, and how far from the
