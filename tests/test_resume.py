@@ -622,3 +622,78 @@ def test_a_run_resumed_at_its_last_frame_leaves_no_state_behind(tmp_path, video_
     assert resumed.frames == 120
     assert not (out.partial / "state.npz").exists()
     assert not (out.partial / "state-tracklets").exists()
+
+
+# -- following stopped vehicles (association.follow_stopped) across an interruption ---------------
+def _following(**assoc):
+    import dataclasses
+
+    from aerotrack.config import Config
+
+    cfg = Config()
+    return dataclasses.replace(cfg, association=dataclasses.replace(
+        cfg.association, follow_stopped=True, **assoc))
+
+
+@pytest.fixture(scope="module")
+def stop_scene(tmp_path_factory):
+    """test_follow's car, lost by its (given) detections while it brakes and stands 2 s."""
+    from test_follow import GO_F, _scene, _seen, _stop_and_go, _write_scene
+
+    frames, dets = _scene(_stop_and_go, GO_F + 80, _seen)
+    return _write_scene(tmp_path_factory.mktemp("stop"), frames, dets)
+
+
+def _tracks_csv(result, folder) -> bytes:
+    from aerotrack.outputs import write_outputs
+
+    out = OutputDir(folder)
+    write_outputs(result, out, config=_following(), geomap=None)
+    return (out.path / "tracks.csv").read_bytes()
+
+
+@pytest.mark.parametrize("stop_at", [135, 170])
+def test_an_interrupted_run_goes_on_following_where_it_stopped(tmp_path, stop_scene, stop_at):
+    """Interrupted while the car stands lost (followed since about frame 126), the resumed run
+    takes the follower's templates and references back and writes the uninterrupted run's
+    tracks.csv byte for byte (it restarted following before: the stand was lost)."""
+    from test_follow import FPS, GSD
+
+    from aerotrack.io import open_source
+
+    frames, rows = stop_scene
+
+    def follow_run(**kw):
+        return run(open_source(frames, FPS), detections=read_mot(rows), config=_following(),
+                   fps=FPS, metres_per_unit=GSD, seed=3, **kw)
+
+    full = follow_run()
+    assert full.followed >= 50
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(KeyboardInterrupt):
+        follow_run(checkpoint_dir=out.partial, checkpoint_every=50, progress=interrupt_at(stop_at))
+    resumed = follow_run(checkpoint_dir=out.partial, checkpoint_every=50, resume=True)
+    assert _tracks_csv(resumed, tmp_path / "b") == _tracks_csv(full, tmp_path / "a")
+    assert resumed.followed == full.followed
+
+
+def test_frames_the_follower_holds_at_an_interruption_are_read_again(tmp_path, video_frames):
+    """The built-in detector: at frame 83 the frames of 69-83 wait for their detections, and
+    the follower finds a vehicle in 73-77 of them. The state refers to those frames and to the
+    grey frames the follower keeps (14 of them: without following the file is no smaller);
+    the resumed run reads them again and equals the uninterrupted one."""
+    full = _video_run(video_frames, config=_following())
+    assert full.followed > 0
+    sizes = {}
+    for follow in (False, True):
+        out = OutputDir(tmp_path / str(follow))
+        with pytest.raises(KeyboardInterrupt):
+            _video_run(video_frames, config=_following() if follow else None,
+                       checkpoint_dir=out.partial, checkpoint_every=30,
+                       progress=interrupt_at(83))
+        sizes[follow] = (out.partial / "state.npz").stat().st_size
+    assert sizes[True] < 1.1 * sizes[False], sizes
+    resumed = _video_run(video_frames, config=_following(), checkpoint_dir=out.partial,
+                         checkpoint_every=30, resume=True)
+    assert _everything(full) == _everything(resumed)
+    assert resumed.followed == full.followed

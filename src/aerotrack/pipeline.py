@@ -146,14 +146,14 @@ class Pipeline:
         self._built_assoc = as_built(self.associator)
         if not associate:
             self.associator = None
-        # stopped-vehicle following: frames are held from their step until their detections
+        # stopped-vehicle following: it holds frames from their step until their detections
         # are associated (the detector holds them as long, so this costs no memory)
         self.follower = None
-        self._held: dict[int, np.ndarray] = {}
         if self.associator is not None and config.association.follow_stopped:
             from .association.follow import StopFollower
 
             self.follower = StopFollower(config.association, self.fps, geomap=geomap)
+            self._built_follower = as_built(self.follower)
         # the last stages' configuration errors surface now, not after the whole video
         from .association.finish import TrackFinisher
         from .association.linking import GlobalLinker
@@ -267,7 +267,7 @@ class Pipeline:
         if frame.image is not None:
             self._images[frame.index] = frame.image
             if self.follower is not None:  # the detector holds it until its detections are final
-                self._held[frame.index] = frame.image
+                self.follower.hold(frame.index, frame.image)
         if self.first_frame is None:
             self.first_frame = frame.index
         with self._timed("registration"):
@@ -339,10 +339,8 @@ class Pipeline:
                 if self.config.association.split_merged and len(dets):
                     dets = self._split_merged(dets)
                 if self.follower is not None:
-                    dets = self.follower.step(dets, self._held.pop(dets.frame, None),
-                                              self.registrations.get(dets.frame), self.associator)
-                    for f in [f for f in self._held if f < dets.frame]:
-                        del self._held[f]  # frames that gave no detections (no registration)
+                    dets = self.follower.step(dets, self.registrations.get(dets.frame),
+                                              self.associator)
                 self.tracklets.extend(_thin_appearance(t) for t in self.associator.step(dets))
 
     def _split_merged(self, dets: Detections) -> Detections:
@@ -398,13 +396,15 @@ class Pipeline:
         self._since_checkpoint = 0
 
     def save_state(self) -> bool:
-        """Save the registrar's, detector's and local association's working state after the
-        last frame (on Ctrl-C, between two frames, after :meth:`checkpoint`), so :meth:`restore`
-        continues exactly; the finished tracklets spilled so far are linked beside it
-        (``state-tracklets/``), so that association is not replayed over the whole video.
+        """Save the registrar's, detector's and local association's (with the stop follower's)
+        working state after the last frame (on Ctrl-C, between two frames, after
+        :meth:`checkpoint`), so :meth:`restore` continues exactly; the finished tracklets
+        spilled so far are linked beside it (``state-tracklets/``), so that association is not
+        replayed over the whole video.
         Returns False (and saves nothing) when the registrar or detector holds a value the state
         codec cannot write (:mod:`aerotrack.io.state`); resume then restarts from the checkpoints
-        alone. When only association's state cannot be written, resume replays association."""
+        alone. When only association's state cannot be written, resume replays association (and
+        following starts again: the checkpoints hold no followed detections)."""
         from .io.checkpoint import TrackletSpill
         from .io.state import (
             STATE_TRACKLETS,
@@ -420,14 +420,18 @@ class Pipeline:
         stages = {"registrar": (self.registrar, self._built["registrar"])}
         if self.detector is not None:
             stages["detector"] = (self.detector, self._built["detector"])
-        frames = Rereadable(dict(self._images), self._derive())
+        frames = Rereadable(dict(self._images), self._derive(),
+                            {} if self.follower is None else self.follower.kept())
         extra = {"frame_size": list(self.frame_size)}
         drop_state(self.checkpoint_dir)
         if isinstance(self.tracklets, TrackletSpill) and self.associator is not None:
-            # association's window and the tracklets it finished: resume need not replay it
+            # association's window and the tracklets it finished: resume need not replay it;
+            # the follower goes with it (it follows association's tracks)
+            local = {"associator": (self.associator, self._built_assoc)}
+            if self.follower is not None:
+                local["follower"] = (self.follower, self._built_follower)
             try:
-                save_state(self.checkpoint_dir, self.last_frame,
-                           {**stages, "associator": (self.associator, self._built_assoc)},
+                save_state(self.checkpoint_dir, self.last_frame, {**stages, **local},
                            extra={**extra, "tracklets": self.tracklets.link_into(
                                Path(self.checkpoint_dir) / STATE_TRACKLETS)},
                            shared=(self.geomap,), frames=frames)
@@ -447,8 +451,12 @@ class Pipeline:
 
     def _derive(self) -> dict:
         """What the stages make from a frame and keep beside it (the detector's model-resolution
-        copy): state.npz refers to it instead of holding it (:mod:`aerotrack.io.state`)."""
-        return {} if self.detector is None else {"model": self.detector.model_image}
+        copy, the follower's grey frame): state.npz refers to it instead of holding it
+        (:mod:`aerotrack.io.state`)."""
+        out = {} if self.detector is None else {"model": self.detector.model_image}
+        if self.follower is not None:
+            out["grey"] = self.follower.grey
+        return out
 
     def _reread(self, source, indices: list[int]) -> dict[int, np.ndarray]:
         """Frames ``indices`` of ``source`` as the stages were given them (undistorted)."""
@@ -513,12 +521,15 @@ class Pipeline:
                 self.registrar = self.detector = None  # made again at the restart
             else:
                 assoc = stages.pop("associator", None)
+                follow = stages.pop("follower", None)
                 for name, (_, attrs) in stages.items():
                     apply_state(getattr(self, name), attrs)
                 if assoc is not None and isinstance(self.tracklets, TrackletSpill) \
                         and self.tracklets.adopt(Path(self.checkpoint_dir) / STATE_TRACKLETS,
                                                  extra.get("tracklets")):
                     apply_state(self.associator, assoc[1])  # no replay: as it stood
+                    if follow is not None and self.follower is not None:
+                        apply_state(self.follower, follow[1])
                     self.detections = [_light(d) for d in dets]
                     self._remember_boxes(dets[-1] if dets else None)
                     self._skip_until = last_det

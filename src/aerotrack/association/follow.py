@@ -26,6 +26,11 @@ that earlier frame (taken while the track still moved, kept while it stands, how
 frame every ``PAST_EVERY_S`` for ``follow_past_s`` and a little more.
 
 Frames are needed: with ``track --from`` (cached detections, no frames) nothing is followed.
+The follower holds each frame from the pipeline's step until its detections are associated (the
+detector holds it as long). Its state (templates, references, the frames it holds and keeps) is
+saved when a run is interrupted, beside local association's (:mod:`aerotrack.io.state`), so
+``--resume`` goes on following as the uninterrupted run does; the frames are saved as
+references to the input and read again.
 """
 
 from __future__ import annotations
@@ -78,17 +83,25 @@ class StopFollower:
         self._moved: dict[tuple, bool] = {}  # (track, template frame, ref frame) -> arrived
         # track id -> (ground point, the place's patch from before the track came there)
         self._ref: dict[int, tuple[np.ndarray, _Template]] = {}
+        self._held: dict[int, np.ndarray] = {}  # frame -> image, until its detections come
         self.n_followed = 0  # followed detections added so far
 
     # ------------------------------------------------------------------ per frame
-    def step(self, dets: Detections, image: np.ndarray | None, reg: Registration | None,
-             associator) -> Detections:
-        """``dets`` with the followed detections of ``dets.frame`` appended; remembers the
-        templates of its real detections."""
+    def hold(self, index: int, image: np.ndarray) -> None:
+        """Keep frame ``index``'s image until :meth:`step` gets its detections."""
+        self._held[index] = image
+
+    def step(self, dets: Detections, reg: Registration | None, associator) -> Detections:
+        """``dets`` with the followed detections of ``dets.frame`` appended, found in the frame
+        :meth:`hold` kept for it (none without one); remembers the templates of its real
+        detections. Frames held before ``dets.frame`` (they gave no detections) are let go."""
         k = dets.frame
+        image = self._held.pop(k, None)
+        for f in [f for f in self._held if f < k]:
+            del self._held[f]
         if image is None or reg is None or not associator.mpu:
             return dets
-        grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        grey = self.grey(image)
         H = np.asarray(reg.H, dtype=np.float64)
         keep = max(1, int(round((self.c.follow_start_s + 0.1) * self.fps)) + 1)
         for f in [f for f in self._cache if f < k - keep]:
@@ -108,6 +121,17 @@ class StopFollower:
         if len(self._moved) > 4096:
             self._moved.clear()
         return out
+
+    @staticmethod
+    def grey(image: np.ndarray) -> np.ndarray:
+        """The grey frame (uint8, frame pixels) the follower matches in."""
+        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+
+    def kept(self) -> dict[int, dict[str, np.ndarray]]:
+        """Frame -> ``{"grey": grey}`` of the frames kept for :meth:`_arrived` (:meth:`grey`
+        of frames no stage holds any more): a saved state refers to them instead of holding
+        them (:class:`aerotrack.io.state.Rereadable`)."""
+        return {f: {"grey": grey} for f, (grey, _) in self._past.items()}
 
     def _update_refs(self, k: int, associator) -> None:
         """For every track detected in the frame before ``k``: when it is more than

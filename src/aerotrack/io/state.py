@@ -24,7 +24,9 @@ not yet final (half a background window of full frames, ``detection.window_s * f
 their model-resolution copies, all of which the input gives again: the pipeline passes the frames
 the stages still hold (:class:`Rereadable`), and an array equal to one of them, or to what a stage
 derives from one (``MovingObjectDetector.model_image``), byte for byte, is saved as a reference
-(frame, kind, CRC-32). ``--resume`` reads those frames again (a video is sought to the first,
+(frame, kind, CRC-32); so is what a stage keeps of a frame no stage holds whole any more, made
+by one of those functions (:attr:`Rereadable.kept`: the stop follower's grey frames of the last
+few seconds). ``--resume`` reads those frames again (a video is sought to the first,
 :meth:`~aerotrack.io.frames.VideoSource.frames`), makes the derived arrays again and checks every
 CRC: an input that now gives other pixels (a replaced file, a video whose seeking lands elsewhere)
 raises :class:`FramesChanged`, and the run resumes from its checkpoints alone, with a warning,
@@ -45,7 +47,9 @@ then takes them back instead of replaying association over every checkpointed fr
 after 1500 frames at 640x480 took 4.0 CPU s with the replay and 0.35 CPU s without (association
 runs at a few hundred frames per CPU second: replaying an hour of video would take minutes).
 Without them (the folder removed, or association holding a value the codec cannot write)
-association is replayed, with the same result.
+association is replayed, with the same result. The stop follower (``association.follow_stopped``)
+is saved with association, its state referring to association's tracks; when association is
+replayed, following starts again.
 """
 
 from __future__ import annotations
@@ -138,10 +142,15 @@ class Rereadable:
         Name -> a function of one image making an array the stages keep beside it (the
         detector's model-resolution copy: ``MovingObjectDetector.model_image``). It must be
         deterministic: the resumed run calls it again on the re-read image.
+    kept : mapping of int -> mapping of str -> ndarray
+        Frame index -> name -> what ``derive[name]`` made of that frame's image, for frames no
+        stage holds whole any more (the stop follower's grey frames,
+        ``StopFollower.kept``): saved as references too, their frames read again on resume.
     """
 
     images: Mapping[int, np.ndarray]
     derive: Mapping[str, Callable[[np.ndarray], np.ndarray]] = field(default_factory=dict)
+    kept: Mapping[int, Mapping[str, np.ndarray]] = field(default_factory=dict)
 
     def kinds(self) -> dict[str, Callable[[np.ndarray], np.ndarray]]:
         return {"image": lambda img: img, **self.derive}
@@ -152,6 +161,9 @@ class Rereadable:
         for index, img in self.images.items():
             for kind, fn in self.kinds().items():
                 a = fn(img)
+                out.setdefault((a.shape, a.dtype.str, _crc(a)), (int(index), kind))
+        for index, arrays in self.kept.items():
+            for kind, a in arrays.items():
                 out.setdefault((a.shape, a.dtype.str, _crc(a)), (int(index), kind))
         return out
 
@@ -165,7 +177,7 @@ class _Encoder:
         self.arrays: dict[str, np.ndarray] = {}
         self.memo: dict[int, int] = {}  # id -> node number: shared objects stay shared
         self.keep: list[Any] = []  # holds encoded objects alive, so their ids are not reused
-        self.lookup = frames.lookup() if frames is not None and frames.images else {}
+        self.lookup = frames.lookup() if frames is not None else {}
         self.shapes = {(k[0], k[1]) for k in self.lookup}
         self.referenced = 0  # bytes left out as frame references
 
