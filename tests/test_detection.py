@@ -59,6 +59,7 @@ class Mover:
     size: tuple  # (w, h) world pixels
     path: callable  # t -> (x, y) world top-left
     shadow: bool = False
+    darken: float = 0.0  # > 0: drawn as the ground beneath times this (a dark grey vehicle)
 
 
 def render(movers, n_frames: int, parked=(), seed: int = 1, shadow_dy: int = 0):
@@ -78,7 +79,11 @@ def render(movers, n_frames: int, parked=(), seed: int = 1, shadow_dy: int = 0):
             if m.shadow:
                 sh = img[int(y) + h:int(y) + h + shadow_dy, int(x):int(x) + w].astype(np.float32)
                 img[int(y) + h:int(y) + h + shadow_dy, int(x):int(x) + w] = (sh * 0.6).astype(np.uint8)
-            cv2.rectangle(img, (int(x), int(y)), (int(x) + w - 1, int(y) + h - 1), m.colour, -1)
+            if m.darken > 0:
+                body = img[int(y):int(y) + h, int(x):int(x) + w].astype(np.float32)
+                img[int(y):int(y) + h, int(x):int(x) + w] = (body * m.darken).astype(np.uint8)
+            else:
+                cv2.rectangle(img, (int(x), int(y)), (int(x) + w - 1, int(y) + h - 1), m.colour, -1)
             boxes.append((x, y, w, h))
         A = camera(t)
         frame = cv2.warpPerspective(img, np.linalg.inv(A), (FRAME_W, FRAME_H), flags=cv2.INTER_LINEAR)
@@ -211,6 +216,40 @@ def test_shadow_suppression_removes_a_cast_shadow():
     true_h = np.median([g[0][3] for g in gt])  # 12.6; the shadow adds 8
     assert heights[False] >= true_h + 6
     assert heights[True] <= heights[False] - 4
+
+
+def test_dark_vehicle_keeps_no_shadow_once_the_light_ones_have_gone():
+    """A dark grey car is shadow-like itself and is kept whole with its shadow; the offset the
+    lighter cars' removed shadows measured is taken off its box, also in frames where no light
+    car is left to measure it (``shadow_trim_pool_s``)."""
+    light = [Mover((230, 230, 240), (20, 11), linear(x, y, 45, 0), shadow=True)
+             for x, y in ((330, 250), (300, 300))]
+    dark = Mover((0, 0, 0), (24, 12), linear(200, 340, 12, -4), shadow=True, darken=0.55)
+    frames, regs, gt = render([*light, dark], 70, shadow_dy=8)
+    true_h = np.median([g[2][3] for g in gt])
+    heights = {}
+    for pool in (0.0, 60.0):
+        out = run(frames, regs, DetectionConfig(window_s=2.0, shadow_trim_pool_s=pool))
+        late = [(d, g) for d, g in zip(out, gt)
+                if d.frame > 45 and inside(g[2]) and not any(inside(b) for b in g[:2])]
+        assert len(late) >= 10
+        heights[pool] = np.median([d.boxes[np.argmax([iou(b, g[2]) for b in d.boxes]), 3]
+                                   for d, g in late if len(d)])
+    assert heights[0.0] >= true_h + 5  # its own shadow (8 px) in its box
+    assert abs(heights[60.0] - true_h) <= 3
+
+
+def test_pooled_shadow_offset_turns_with_the_camera():
+    from aerotrack.detection.shadows import ShadowOffsets
+
+    pool = ShadowOffsets(span_s=10.0, min_samples=2)
+    turned = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # frame -> plane
+    # shadows reaching 6 px past the right side in a frame turned by 90 degrees
+    pool.add(0.0, turned, np.array([[50, 50, 0, 0, 6, 0], [80, 40, 0, 0, 6, 0]], float))
+    assert pool.growth(np.eye(3), np.array([[10.0, 10.0]])) == pytest.approx(
+        np.array([[0, 0, 0, 6]]))  # on the plane they reach 6 px past the bottom
+    pool.add(20.0, np.eye(3), None)  # older than the span: forgotten
+    assert pool.growth(np.eye(3), np.array([[10.0, 10.0]])) is None
 
 
 def test_shadow_mask_known_answer():

@@ -45,6 +45,7 @@ from .moving import (
 )
 from .persistence import PersistenceTracker
 from .residual import ghost_score, pad0, residual_image
+from .shadows import ShadowOffsets
 
 log = logging.getLogger(__name__)
 
@@ -277,6 +278,9 @@ class MovingObjectDetector:
         self.last_result: FrameResult | None = None
         # (made again with the first frame's scale, if that differs)
         self._persist = PersistenceTracker(config, fps, self.scale) if config.persist else None
+        #: The sun's shadow offset measured over recent frames (``shadow_trim_pool_s``).
+        self._shadows = (ShadowOffsets(config.shadow_trim_pool_s)
+                         if config.shadow_trim_pool_s > 0 else None)
         #: When True, ``debug_frames`` collects ``(index, image, residual, boxes, stationary)``
         #: of every finalised frame (the caller drains it).
         self.keep_debug = False
@@ -303,6 +307,8 @@ class MovingObjectDetector:
             self._start = frame.index
             if self._persist is not None:
                 self._persist.reset()
+            if self._shadows is not None:
+                self._shadows.clear()
         if self._first is None:
             self._first = frame.index
         if self._start is None:
@@ -491,7 +497,14 @@ class MovingObjectDetector:
         with cv_threads(self.wide_threads):
             bg, testable = self._background(p)
         gates = self._gates(Hc, p.frame.image.shape[:2])
-        r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates)
+        prior = None
+        if self._shadows is not None:
+            pool = self._shadows
+            prior = lambda centres: pool.growth(Hc, centres)
+        r = detect_moving(p.frame.image, p.small, bg, testable, self.config, self.scale, gates,
+                          shadow_prior=prior)
+        if self._shadows is not None:
+            self._shadows.add(p.frame.time, Hc, r.shadow_samples)
         if self._persist is not None:
             r = self._add_persistent(p, r, bg, testable)
         self.last_result = r
@@ -748,6 +761,7 @@ def _validate(c: DetectionConfig) -> None:
         ("pixel_gates_reference_px", c.pixel_gates_reference_px >= 0),
         ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
         ("shadow_trim_share", 0 < c.shadow_trim_share <= 1),
+        ("shadow_trim_pool_s", c.shadow_trim_pool_s >= 0),
         ("shadow_chroma_px", c.shadow_chroma_px >= 0),
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),
@@ -764,3 +778,4 @@ def _validate(c: DetectionConfig) -> None:
     for name, ok in checks:
         if not ok:
             raise ConfigError(f"config detection.{name}: out of range ({getattr(c, name)!r})")
+

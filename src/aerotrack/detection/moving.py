@@ -38,7 +38,7 @@ from .blobs import (
     split_blob,
 )
 from .residual import border_fill_mask, gain_normalise, ghost_score, pad0, robust_sigma, smoothed_residual
-from .shadows import remove_shadows, shadow_mask, trim_shadow_side
+from .shadows import remove_shadows, shadow_mask, trim_boxes, trim_shadow_side
 
 
 @dataclass
@@ -64,6 +64,9 @@ class FrameResult:
         Model-resolution residual (for debug pictures).
     persistent : ndarray, shape (N,) bool, optional
         True for detections found by multi-frame persistence (None: none were).
+    shadow_samples : ndarray, shape (K, 6), optional
+        Box centre ``x, y`` and shadow growth (left, top, right, bottom) of the vehicles whose
+        shadows were removed (:func:`.shadows.trim_shadow_side`), frame pixels.
     """
 
     boxes: np.ndarray
@@ -75,6 +78,7 @@ class FrameResult:
     threshold: float = 0.0
     residual: np.ndarray | None = None
     persistent: np.ndarray | None = None
+    shadow_samples: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -165,6 +169,9 @@ def model_scale_for(shape: tuple[int, ...], config: DetectionConfig,
 #: Full-resolution pixels of a blob's region count as vehicle above this fraction of the
 #: model-resolution threshold (the threshold of a regrown blob's fainter pixels likewise).
 FULL_THRESHOLD_FRACTION = 0.8
+#: Vehicles whose shadows were removed that a frame needs to measure the sun's offset itself
+#: (:func:`.shadows.trim_shadow_side`); with fewer, the detector's pooled offset applies.
+TRIM_MIN_SAMPLES = 2
 #: Components of a refined piece smaller than this fraction of its largest are dropped as stray
 #: noise pixels.
 STRAY_FRACTION = 0.15
@@ -172,7 +179,7 @@ STRAY_FRACTION = 0.15
 
 def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
                   testable: np.ndarray, config: DetectionConfig, scale: float,
-                  gates: SizeGates) -> FrameResult:
+                  gates: SizeGates, shadow_prior=None) -> FrameResult:
     """Detect moving blobs in one frame against its background.
 
     Parameters
@@ -190,6 +197,11 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
         Model / full resolution.
     gates : SizeGates
         Size gates in full-resolution pixels for this frame.
+    shadow_prior : callable, optional
+        ``(N, 2)`` box centres -> ``(N, 4)`` shadow growth (left, top, right, bottom), or None
+        while it knows too little (``shadow_trim_pool_s``): taken off dark vehicles' boxes in
+        a frame with fewer than two vehicles whose shadows were removed, which measure it
+        otherwise; without it such frames are not trimmed.
 
     Returns
     -------
@@ -202,15 +214,25 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
              for d in refine_blob(b, image, small, bgn, thr, config, scale, gates,
                                   typical=typical, faint=f)]
     boxes = np.asarray([d.box for d in found], np.float64).reshape(-1, 4)
+    with_growth = [(d.box, d.growth) for d in found if d.growth is not None]
+    shadow_samples = np.array([[b[0] + 0.5 * b[2], b[1] + 0.5 * b[3], *g]
+                               for b, g in with_growth], np.float64).reshape(-1, 6)
     if config.shadow_suppression and config.shadow_trim:
-        boxes = trim_shadow_side(boxes, np.asarray([d.dark for d in found], bool),
-                                 [d.growth for d in found if d.growth is not None])
+        dark = np.asarray([d.dark for d in found], bool)
+        if len(with_growth) >= TRIM_MIN_SAMPLES or shadow_prior is None:
+            boxes = trim_shadow_side(boxes, dark, [g for _, g in with_growth],
+                                     min_samples=TRIM_MIN_SAMPLES)
+        elif dark.any():
+            grow = shadow_prior(boxes[:, :2] + 0.5 * boxes[:, 2:])
+            if grow is not None:
+                boxes = trim_boxes(boxes, dark, grow)
     return FrameResult(
         boxes=boxes,
         conf=np.asarray([d.conf for d in found], np.float64),
         masks=[d.mask for d in found], crops=[d.crop for d in found],
         model_blobs=[d.blob for d in found],
         contrast=np.asarray([d.contrast for d in found], np.float64), threshold=thr, residual=res,
+        shadow_samples=shadow_samples,
     )
 
 
