@@ -408,7 +408,8 @@ class DetectionConfig:
         samples. 0 disables (each frame alone). Measured against 0 (2026-12-02, MCMC seed 0
         unless said): twelve fresh generated scenes (seeds 51, 52, every scenario) HOTA/IDF1/
         MOTA 0.722/0.843/0.788 -> 0.736/0.862/0.832 (static:51 +0.055 HOTA, static:52 +0.038,
-        convoy:51 +0.036, none lower by over 0.001); the 18 held-out scenes, seeds 0-2,
+        convoy:51 +0.036, none lower by over 0.001), twelve more (seeds 61, 62)
+        0.650/0.781/0.702 -> 0.654/0.783/0.711; the 18 held-out scenes, seeds 0-2,
         0.713/0.862/0.824 -> 0.715/0.860/0.826 (static camera MOTA 0.809 -> 0.823); identity
         benchmark IDF1/HOTA 0.880/0.738 -> 0.883/0.741; the demo 0.749/0.885/0.870 ->
         0.748/0.887/0.873; Santiago's detections and truck4's coverage (0.663) unchanged.
