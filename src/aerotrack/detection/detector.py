@@ -778,4 +778,3 @@ def _validate(c: DetectionConfig) -> None:
     for name, ok in checks:
         if not ok:
             raise ConfigError(f"config detection.{name}: out of range ({getattr(c, name)!r})")
-

@@ -22,6 +22,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..types import homography_jacobian
+
 
 def shadow_mask(image_bgr: np.ndarray, background_bgr: np.ndarray, *, alpha: float = 0.4,
                 beta: float = 0.9, tau_s: float = 0.15, tau_h: float = 50.0,
@@ -178,28 +180,13 @@ def trim_boxes(boxes: np.ndarray, dark: np.ndarray, grow: np.ndarray, *, min_px:
     return boxes
 
 
-def homography_jacobians(H: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(N, 2, 2) derivatives of the homography ``H`` (3x3) at ``points`` (N, 2)."""
-    H = np.asarray(H, np.float64)
-    p = np.asarray(points, np.float64).reshape(-1, 2)
-    w = H[2, 0] * p[:, 0] + H[2, 1] * p[:, 1] + H[2, 2]
-    u = (H[0, 0] * p[:, 0] + H[0, 1] * p[:, 1] + H[0, 2]) / w
-    v = (H[1, 0] * p[:, 0] + H[1, 1] * p[:, 1] + H[1, 2]) / w
-    J = np.empty((len(p), 2, 2))
-    J[:, 0, 0] = (H[0, 0] - u * H[2, 0]) / w
-    J[:, 0, 1] = (H[0, 1] - u * H[2, 1]) / w
-    J[:, 1, 0] = (H[1, 0] - v * H[2, 0]) / w
-    J[:, 1, 1] = (H[1, 1] - v * H[2, 1]) / w
-    return J
-
-
 class ShadowOffsets:
     """The sun's shadow offset, pooled over the last ``span_s`` seconds on the ground plane.
 
     :func:`trim_shadow_side` measures the offset in each frame from the lighter vehicles whose
     shadows were removed, and needs two of them: in a frame with fewer (a quiet road, mostly
-    dark cars), a dark vehicle's box kept its shadow (held-out generated scenes: half the
-    frames with a dark vehicle on static:52, whose dark cars' boxes then had twice their area).
+    dark cars), a dark vehicle's box kept its shadow (the fresh generated scene static:52: half
+    the frames with a dark vehicle, whose boxes then had twice their area).
     The sun does not move in minutes, so every measured growth (left, top, right, bottom) is
     kept as an offset vector ``(right - left, bottom - top)`` on the registered plane (through
     the homography's derivative at the vehicle), and a frame short of samples takes the
@@ -228,7 +215,7 @@ class ShadowOffsets:
             return
         s = np.asarray(samples, np.float64).reshape(-1, 6)
         o = np.stack([s[:, 4] - s[:, 2], s[:, 5] - s[:, 3]], axis=1)
-        o = np.einsum("nij,nj->ni", homography_jacobians(H, s[:, :2]), o)
+        o = np.einsum("nij,nj->ni", _jacobians(H, s[:, :2]), o)
         self.times = np.concatenate([self.times, np.full(len(s), float(t))])
         self.offsets = np.concatenate([self.offsets, o])
 
@@ -239,7 +226,13 @@ class ShadowOffsets:
         if len(self.times) < self.min_samples:
             return None
         o = np.median(self.offsets, axis=0)
-        J = homography_jacobians(H, centres)
+        J = _jacobians(H, centres)
         f = np.linalg.solve(J, np.broadcast_to(o, (len(J), 2))[..., None])[..., 0]
         return np.stack([np.maximum(-f[:, 0], 0), np.maximum(-f[:, 1], 0),
                          np.maximum(f[:, 0], 0), np.maximum(f[:, 1], 0)], axis=1)
+
+
+def _jacobians(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) derivatives of one homography ``H`` at ``points`` (N, 2)."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    return homography_jacobian(np.broadcast_to(np.asarray(H, np.float64), (len(p), 3, 3)), p)
