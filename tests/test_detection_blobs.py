@@ -347,3 +347,31 @@ def test_piece_mask_keeps_a_vehicle_and_drops_strays_and_thin_lines():
     long = np.zeros((40, 120), np.uint8)
     long[10:22, 5:100] = 1  # longer than max_length_px
     assert piece_mask(long, np.ones(long.shape, bool), 1.0, gates) is None
+
+
+def test_same_structure_tells_a_sharpened_wall_line_from_a_car_over_a_lane_line():
+    """A thin bright line next to a dark strip (a wall and its shadow) rendered sharper in the
+    frame than in the warped background leaves residual along the line, but the frame's pixels
+    there correlate with the background's; a car crossing a lane line covers it and does not."""
+    from aerotrack.detection.moving import same_structure
+
+    bg = np.full((30, 40, 3), 90, np.uint8)
+    bg[12:15, 5:35] = 200  # the wall's top, blurred by the warps
+    bg[15:19, 5:35] = 30  # its shadow
+    bg = cv2.GaussianBlur(bg, (0, 0), 1.0)
+    frame = np.full((30, 40, 3), 90, np.uint8)
+    frame[12:15, 5:35] = 230
+    frame[15:19, 5:35] = 20
+    frame = cv2.GaussianBlur(frame, (0, 0), 0.4)
+    resid = np.abs(frame.astype(int) - bg.astype(int)).max(axis=2)
+    line = resid > 12
+    assert line.sum() > 30
+    assert same_structure(frame, bg, line) > 0.8
+    # a car over a lane line: the same background, something new on top
+    car = bg.copy()
+    car[8:22, 12:22] = (40, 40, 160)
+    mask = np.zeros((30, 40), bool)
+    mask[8:22, 12:22] = True
+    assert same_structure(car, bg, mask) < 0.5
+    # a car on plain road: nothing to correlate with
+    assert same_structure(car, np.full_like(bg, 90), mask) == 0.0

@@ -762,6 +762,7 @@ def _validate(c: DetectionConfig) -> None:
         ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
         ("shadow_trim_share", 0 < c.shadow_trim_share <= 1),
         ("shadow_trim_pool_s", c.shadow_trim_pool_s >= 0),
+        ("structure_ncc", 0 <= c.structure_ncc <= 1),
         ("shadow_chroma_px", c.shadow_chroma_px >= 0),
         ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
         ("min_conf", 0 <= c.min_conf <= 1),

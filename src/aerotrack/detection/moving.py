@@ -428,6 +428,8 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
         if kept is None:
             continue
         fgm, (x0, y0, x1, y1), area = kept
+        if config.structure_ncc > 0 and same_structure(crop, bg_crop, fgm) >= config.structure_ncc:
+            continue
         contrast = float(res_full[fgm].mean()) / thr
         conf = blob_confidence(contrast, area / float((x1 - x0) * (y1 - y0)))
         if conf < config.min_conf:
@@ -442,6 +444,36 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
                            crop=(fx0 + int(x0), fy0 + int(y0), fx0 + int(x1), fy0 + int(y1)),
                            blob=pb, dark=is_dark, growth=growth))
     return out
+
+
+#: Least grey-level spread of the background around a blob for :func:`same_structure` to judge it
+#: (a vehicle on plain road has nothing to correlate with).
+STRUCTURE_MIN_STD = 6.0
+
+
+def same_structure(crop: np.ndarray, bg_crop: np.ndarray, mask: np.ndarray,
+                   margin: int = 0) -> float:
+    """Normalised cross-correlation of the frame and its background (grey) over the blob's
+    pixels ``mask`` (grown by ``margin`` pixels): near 1 where the blob is the background's own
+    structure with another contrast or sharpness (a thin bright wall or lane line rendered
+    sharper than the warped samples keep it), low where something new covers the ground. 0
+    where the background there is too plain to tell (spread under ``STRUCTURE_MIN_STD``).
+    On the blob's own pixels it separates better than with a margin (generated convoy:21,
+    frames 420-620: NCC >= 0.8 for 66% of the detections on nothing and none of the 368 within
+    IoU 0.5 of a vehicle; with a 2 px margin 63% and 3%)."""
+    k = 2 * margin + 1
+    m = cv2.dilate(mask.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+    a = cv2.cvtColor(np.ascontiguousarray(crop), cv2.COLOR_BGR2GRAY)[m].astype(np.float64)
+    b = cv2.cvtColor(np.ascontiguousarray(bg_crop), cv2.COLOR_BGR2GRAY)[m].astype(np.float64)
+    if len(a) < 3:
+        return 0.0
+    a -= a.mean()
+    b -= b.mean()
+    sb = float(np.sqrt((b * b).mean()))
+    sa = float(np.sqrt((a * a).mean()))
+    if sb < STRUCTURE_MIN_STD or sa <= 0:
+        return 0.0
+    return float((a * b).mean() / (sa * sb))
 
 
 def piece_mask(piece: np.ndarray, region: np.ndarray, close_px: float, gates: SizeGates
