@@ -74,6 +74,45 @@ def test_image_folder_source_streams_sorted(tmp_path):
     assert src.size == (10, 8)
 
 
+@pytest.mark.parametrize("suffix", [".tif", ".png"])
+def test_sixteen_bit_frames_keep_their_contrast_under_one_map(tmp_path, suffix):
+    """A radiometric thermal camera writes 16-bit frames over a narrow band of its 14-bit range:
+    read as 8 bits by their top byte they are blank (a 1000-count scene in 4 grey levels). They
+    are stretched by one map for the folder, so a hot vehicle stands out by most of the range
+    and the road keeps its grey level in every frame, whatever else enters the view."""
+    road = 7200
+    for i in range(5):
+        img = np.full((40, 60), road, np.uint16)
+        img[10:18, 5 + 8 * i:25 + 8 * i] = 8100  # a warm engine, moving right
+        if i == 3:
+            img[30:36, 40:50] = 9000  # something hotter enters once
+        cv2.imwrite(str(tmp_path / f"{i:03d}{suffix}"), img)
+    assert (cv2.imread(str(tmp_path / f"000{suffix}"), cv2.IMREAD_COLOR).std() < 2)  # the old way
+    src = open_source(tmp_path)
+    lo, hi = src.depth_range
+    assert lo == pytest.approx(road) and hi >= 8100
+    frames = [f.image for f in src]
+    assert all(f.dtype == np.uint8 and f.shape == (40, 60, 3) for f in frames)
+    assert {int(f[38, 2, 0]) for f in frames} == {0}  # the road: one value in every frame
+    assert all(int(f[14, 20 + 8 * i, 1]) - int(f[38, 2, 1]) > 100 for i, f in enumerate(frames))
+    assert int(frames[3][33, 45, 2]) == 255
+
+
+def test_float_frames_are_mapped_and_nan_is_not_an_error(tmp_path):
+    img = np.linspace(20.0, 35.0, 40 * 60, dtype=np.float32).reshape(40, 60)  # degrees Celsius
+    img[0, 0] = np.nan
+    cv2.imwrite(str(tmp_path / "a.tif"), img)
+    f = next(iter(open_source(tmp_path)))
+    assert f.image.dtype == np.uint8 and f.image[-1, -1, 0] > 250 and f.image[0, 1, 0] < 3
+
+
+def test_eight_bit_grey_frames_read_as_before(tmp_path):
+    cv2.imwrite(str(tmp_path / "a.png"), np.full((8, 10), 77, np.uint8))
+    src = open_source(tmp_path)
+    assert src.depth_range is None
+    assert next(iter(src)).image.shape == (8, 10, 3) and int(next(iter(src)).image[0, 0, 2]) == 77
+
+
 def test_image_folder_mixed_sizes_named(tmp_path):
     cv2.imwrite(str(tmp_path / "a.png"), np.zeros((8, 10, 3), np.uint8))
     cv2.imwrite(str(tmp_path / "b.png"), np.zeros((9, 10, 3), np.uint8))

@@ -212,11 +212,24 @@ class VideoSource(FrameSource):
         return -1
 
 
+#: Images sampled across a folder of 16-bit or floating-point frames to fix their 8-bit mapping.
+DEPTH_SAMPLE_FILES = 9
+#: Percentiles of the sampled values mapped to 0 and 255.
+DEPTH_PERCENTILES = (0.1, 99.9)
+
+
 class ImageFolderSource(FrameSource):
     """A folder of images, frame n = n-th image file in lexicographic order of names.
 
     Files whose suffix is not an image type are ignored. All images must have the size of the
-    first one; a different size is an error naming the file.
+    first one; a different size is an error naming the file. Grey and colour images of 8 bits
+    are read as BGR. Frames of more bits (16-bit TIFF or PNG, as radiometric thermal cameras
+    write them, often over a narrow band of a 14-bit range) or floating point are mapped to 8
+    bits by one linear map for the whole folder (:attr:`depth_range`): the 0.1 and 99.9
+    percentiles of ``DEPTH_SAMPLE_FILES`` images spread over the folder go to 0 and 255.
+    Reading them as OpenCV does by default (the top 8 bits) leaves a 14-bit sensor a few grey
+    levels, a blank frame; a per-frame stretch would change every pixel's value whenever a hot
+    object enters, which the background would take for motion.
     """
 
     def __init__(self, path: str | Path, fps: float | None = None) -> None:
@@ -228,15 +241,60 @@ class ImageFolderSource(FrameSource):
         )
         if not self.files:
             raise InputError(f"{self.path}: folder holds no image files")
+        #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
+        self.depth_range: tuple[float, float] | None = None
+        raw = self._decode(self.files[0])
+        if raw.dtype != np.uint8:
+            self.depth_range = self._depth_range(raw)
+            logging.getLogger(__name__).info(
+                "%s: %s images mapped to 8 bits linearly from %g-%g (one map for every frame)",
+                self.path, raw.dtype, *self.depth_range)
         first = self._read(self.files[0])
         self.size = (first.shape[1], first.shape[0])
         self.count = len(self.files)
 
-    def _read(self, p: Path) -> np.ndarray:
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    @staticmethod
+    def _decode(p: Path) -> np.ndarray:
+        img = cv2.imread(str(p), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
         if img is None:
             raise InputError(f"{p}: cannot decode image")
         return img
+
+    def _depth_range(self, first: np.ndarray) -> tuple[float, float]:
+        """The folder's (low, high) percentiles over images spread across it (see the class)."""
+        n = len(self.files)
+        picks = sorted({round(k * (n - 1) / max(DEPTH_SAMPLE_FILES - 1, 1))
+                        for k in range(DEPTH_SAMPLE_FILES)})
+        values = []
+        for k in picks:
+            img = first if k == 0 else self._decode(self.files[k])
+            v = np.asarray(img, np.float64)[::4, ::4].ravel()
+            values.append(v[np.isfinite(v)])
+        v = np.concatenate(values)
+        if not len(v):
+            raise InputError(f"{self.files[0]}: image holds no finite values")
+        lo, hi = (float(x) for x in np.percentile(v, DEPTH_PERCENTILES))
+        return lo, (hi if hi > lo else lo + 1.0)
+
+    def _read(self, p: Path) -> np.ndarray:
+        if self.depth_range is None:
+            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            if img is None:
+                raise InputError(f"{p}: cannot decode image")
+            return img
+        img = self._decode(p)
+        if img.dtype == np.uint8:  # an 8-bit file among deeper ones: as it is
+            img8 = img
+        else:
+            lo, hi = self.depth_range
+            f = np.nan_to_num(np.asarray(img, np.float32), nan=lo, posinf=hi, neginf=lo)
+            f = (f - np.float32(lo)) * np.float32(255.0 / (hi - lo)) + np.float32(0.5)
+            img8 = np.clip(f, 0, 255).astype(np.uint8)
+        if img8.ndim == 2:
+            return cv2.cvtColor(img8, cv2.COLOR_GRAY2BGR)
+        if img8.shape[2] == 4:
+            return cv2.cvtColor(img8, cv2.COLOR_BGRA2BGR)
+        return np.ascontiguousarray(img8[:, :, :3])
 
     def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
         last = len(self.files) if stop is None else min(stop, len(self.files))
