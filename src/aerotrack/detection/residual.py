@@ -85,8 +85,7 @@ def ghost_score(small: np.ndarray, bg: np.ndarray, mask: np.ndarray) -> float:
     return float((ei[mask].sum() + 1.0) / (eb[mask].sum() + 1.0))
 
 
-def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0,
-                   soft: bool = False) -> np.ndarray:
+def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0) -> np.ndarray:
     """Per-pixel largest absolute channel difference, (H, W) uint8.
 
     With ``tolerance_px`` = r > 0 the difference is taken to the nearest value of the background
@@ -97,9 +96,6 @@ def residual_image(image: np.ndarray, bg: np.ndarray, tolerance_px: int = 0,
     if tolerance_px <= 0:
         return channel_max(cv2.absdiff(image, bg))
     k = np.ones((2 * tolerance_px + 1,) * 2, np.uint8)
-    if soft:
-        spread = cv2.subtract(cv2.dilate(bg, k), cv2.erode(bg, k))
-        return channel_max(cv2.subtract(cv2.absdiff(image, bg), cv2.multiply(spread, 0.5)))
     d = cv2.add(cv2.subtract(image, cv2.dilate(bg, k)), cv2.subtract(cv2.erode(bg, k), image))
     return channel_max(d)
 
