@@ -182,3 +182,45 @@ def test_a_correlation_above_one_is_refused():
         cfg.association, follow_stopped=True, follow_min_ncc=1.5))
     with pytest.raises(ConfigError, match="follow_min_ncc"):
         Pipeline(cfg, FPS, metres_per_unit=GSD, stabilised=True)
+
+
+def test_a_follower_counts_only_the_frames_it_is_told_to_and_follows_alike():
+    """A segment of a parallel run counts the followed detections of the frames it owns (its
+    warm-up and tail belong to its neighbours); what it follows does not change."""
+    frames, dets = _scene(_stop_and_go, GO_F + 80, _seen)
+    runs = []
+    for count in (None, (1, STOP_F + 20), (STOP_F + 21, len(frames))):
+        cfg = Config()
+        cfg = dataclasses.replace(cfg, association=dataclasses.replace(
+            cfg.association, follow_stopped=True))
+        pipe = Pipeline(cfg, FPS, detections=dets, metres_per_unit=GSD, stabilised=True, seed=0)
+        pipe.follower.count_frames = count
+        for fr in frames:
+            pipe.step(fr)
+        res = pipe.finish()
+        runs.append((res.followed, [(p.frame, tuple(p.box)) for t in res.tracks
+                                    for p in t.points]))
+    (n_all, rows_all), (n_a, rows_a), (n_b, rows_b) = runs
+    assert n_all >= 50 and 0 < n_a < n_all and 0 < n_b < n_all and n_a + n_b == n_all
+    assert rows_a == rows_all == rows_b
+
+
+def test_segments_report_the_followed_detections(tmp_path):
+    """``--workers`` runs say how many detections the follower added, as one process does."""
+    from aerotrack.io import open_source, read_mot
+    from aerotrack.parallel import assemble, gather_segments, make_tasks, plan_segments
+    from aerotrack.pipeline import run
+
+    frames, dets = _scene(_stop_and_go, GO_F + 80, _seen)
+    folder, rows = _write_scene(tmp_path, frames, dets)
+    cfg = Config()
+    cfg = dataclasses.replace(cfg, association=dataclasses.replace(
+        cfg.association, follow_stopped=True))
+    det_rows = read_mot(rows)
+    single = run(open_source(folder, FPS), config=cfg, fps=FPS, detections=det_rows,
+                 metres_per_unit=GSD)
+    segs = plan_segments(1, len(frames), fps=FPS, segment_s=100.0, overlap_s=4.5)
+    tasks = make_tasks(folder, config=cfg, fps=FPS, segments=segs, detections=det_rows,
+                       metres_per_unit=GSD)
+    par, _ = assemble(gather_segments(None, tasks), config=cfg, fps=FPS)
+    assert single.followed >= 50 and par.followed == single.followed

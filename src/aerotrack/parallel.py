@@ -362,6 +362,8 @@ class SegmentResult:
     pid: int = 0
     wall_s: float = 0.0  # the whole task on the worker: opening the input, reading, every stage
     cpu_s: float = 0.0  # CPU seconds of the worker process meanwhile (all its threads)
+    #: Detections the stop follower added in the frames the segment owns (None: it is off).
+    followed: int | None = None
     started: float = 0.0  # time.time() on the worker when the task started and ended (the
     ended: float = 0.0  # timeline of a run: dispatch, imbalance, return of results)
 
@@ -427,6 +429,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
                     detections=per_frame,
                     metres_per_unit=None if geomap is not None else task.metres_per_unit,
                     undistort=task.undistort, regions=task.regions)
+    if pipe.follower is not None:
+        pipe.follower.count_frames = (seg.own_start, seg.own_stop)
     if task.input_path is None:
         for index in range(seg.start, seg.stop + 1, task.stride):
             pipe.step_detections_only(index)
@@ -443,6 +447,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     return SegmentResult(segment=seg, registrations=dict(pipe.registrations),
                          detections=list(pipe.detections), tracklets=list(tracklets),
                          frame_size=pipe.frame_size, timings=dict(pipe.timings), pid=os.getpid(),
+                         followed=None if pipe.follower is None else pipe.follower.n_followed,
                          wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
                          started=started, ended=time.time())
 
@@ -988,7 +993,9 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     result = Result(tracks=tracks, registrations=regs, detections=dets, fps=fps,
                     frame_size=frame_size, metres_per_unit=mpu, timings=timings, frames=frames,
                     first_frame=segs[0].own_start if segs else 1,
-                    last_frame=segs[-1].own_stop if segs else 0)
+                    last_frame=segs[-1].own_stop if segs else 0,
+                    followed=(None if all(getattr(r, "followed", None) is None for r in results)
+                              else sum(getattr(r, "followed", None) or 0 for r in results)))
     return result, report
 
 

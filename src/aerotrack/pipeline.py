@@ -59,7 +59,8 @@ class Result:
         Number of frames processed.
     followed : int or None
         Detections the stop follower added (``association.follow_stopped``; None when it is
-        off, and from segment-parallel runs): associated like the others, not in ``detections``.
+        off; a segment-parallel run counts each segment's own frames): associated like the
+        others, not in ``detections``.
     """
 
     tracks: list[Track]

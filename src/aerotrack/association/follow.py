@@ -84,7 +84,10 @@ class StopFollower:
         # track id -> (ground point, the place's patch from before the track came there)
         self._ref: dict[int, tuple[np.ndarray, _Template]] = {}
         self._held: dict[int, np.ndarray] = {}  # frame -> image, until its detections come
-        self.n_followed = 0  # followed detections added so far
+        self.n_followed = 0  # followed detections added so far (in ``count_frames``)
+        #: (first, last) frame whose followed detections ``n_followed`` counts (None: all): a
+        #: segment of a parallel run counts only the frames it owns.
+        self.count_frames: tuple[int, int] | None = None
 
     # ------------------------------------------------------------------ per frame
     def hold(self, index: int, image: np.ndarray) -> None:
@@ -109,7 +112,8 @@ class StopFollower:
         self._update_refs(k, associator)
         new = self._follow(dets, grey, H, associator)
         out = dets if new is None else _append(dets, new, image, H, self.geomap)
-        self.n_followed += len(out) - len(dets)
+        if self.count_frames is None or self.count_frames[0] <= k <= self.count_frames[1]:
+            self.n_followed += len(out) - len(dets)
         self._remember(dets, grey, H)
         every = max(1, int(round(self.fps * PAST_EVERY_S)))
         if k % every == 0:
