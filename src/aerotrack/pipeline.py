@@ -221,6 +221,9 @@ class Pipeline:
             self.detector = MovingObjectDetector(self.config.detection, self.fps, geomap=self.geomap,
                                                  metres_per_unit=self.metres_per_unit)
             self.detector.keep_debug = self.debug
+            from .geo.roi import frame_mask
+
+            self.detector.frame_mask = frame_mask(self.regions, frame_size)
         # what the constructors made: save_state leaves it out (the resumed run makes it again)
         self._built = {"registrar": as_built(self.registrar)}
         if self.detector is not None:

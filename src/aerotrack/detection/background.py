@@ -227,6 +227,7 @@ def warp_samples(
     ref_holes_for: Sequence[bool] | None = None,
     exposure_ref: np.ndarray | None = None,
     exposure_tolerance: float = 0.04,
+    mask: np.ndarray | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """The samples of :func:`window_background` warped into the reference frame, with their
     validity; several window medians (:func:`subset_median`) can then share the warps.
@@ -235,6 +236,9 @@ def warp_samples(
     exposure (:func:`exposure_gain`) differs from the reference's by more than
     ``exposure_tolerance`` is scaled to it, so that the median ranks the samples by their noise
     and not by the camera's auto-exposure.
+
+    ``mask`` (uint8, the samples' own pixels, 0 where not to use them: a burned-in caption fixed
+    on the screen) makes those pixels of every sample invalid.
 
     Returns
     -------
@@ -259,6 +263,9 @@ def warp_samples(
         if ref_holes is not None and len(ref_holes) and (ref_holes_for is None or ref_holes_for[k]):
             polys.extend(ref_holes)
         _fill(valid, polys, 0)
+        if mask is not None and mask.shape == (sh, sw):
+            valid = cv2.bitwise_and(valid, (warp(mask, M, (w, h), nearest=True) > 0)
+                                    .astype(np.uint8))
         if ref_small is not None:
             g = exposure_gain(ref_small, wimg, valid)
             if abs(g - 1.0) > exposure_tolerance:

@@ -281,6 +281,11 @@ class MovingObjectDetector:
         #: The sun's shadow offset measured over recent frames (``shadow_trim_pool_s``).
         self._shadows = (ShadowOffsets(config.shadow_trim_pool_s)
                          if config.shadow_trim_pool_s > 0 else None)
+        #: (H, W) uint8, 255 on the frame pixels to work on (``geo.roi.frame_mask``: frame-space
+        #: ignore / include regions), or None for all: elsewhere no detection is looked for and
+        #: no sample enters the background.
+        self.frame_mask: np.ndarray | None = None
+        self._mask_small: np.ndarray | None = None
         #: When True, ``debug_frames`` collects ``(index, image, residual, boxes, stationary)``
         #: of every finalised frame (the caller drains it).
         self.keep_debug = False
@@ -483,7 +488,8 @@ class MovingObjectDetector:
         warped = warp_samples([s.small for s in chosen], to_ref, [s.holes for s in chosen],
                               size, ref_holes, [not s.known for s in chosen],
                               exposure_ref=ref_small if tol > 0 else None,
-                              exposure_tolerance=tol)
+                              exposure_tolerance=tol, mask=self._small_mask(chosen[0].small)
+                              if chosen else None)
         out = []
         for j, (lo, hi) in enumerate(windows):
             which = [k for k, i in enumerate(idx) if lo <= i <= hi]
@@ -491,11 +497,27 @@ class MovingObjectDetector:
             out.append((bg, count, len(which)))
         return out
 
+    def _small_mask(self, small: np.ndarray) -> np.ndarray | None:
+        """:attr:`frame_mask` at the model's resolution (the size of ``small``), or None."""
+        if self.frame_mask is None:
+            return None
+        h, w = small.shape[:2]
+        if self._mask_small is None or self._mask_small.shape != (h, w):
+            self._mask_small = cv2.resize(self.frame_mask, (w, h),
+                                          interpolation=cv2.INTER_NEAREST)
+        return self._mask_small
+
     def _finalise(self, p: _Pending) -> Detections:
         c = p.frame.index
         Hc = np.asarray(p.reg.H, dtype=np.float64)
         with cv_threads(self.wide_threads):
             bg, testable = self._background(p)
+        mask = self._small_mask(p.small)
+        if mask is not None:
+            # no sample holds those pixels: the frame itself stands in for their background, so
+            # that they leave no residual and do not skew the gain normalisation around them
+            testable = np.minimum(testable, mask)
+            bg = np.where((mask == 0)[..., None], p.small, bg)
         gates = self._gates(Hc, p.frame.image.shape[:2])
         prior = None
         if self._shadows is not None:
