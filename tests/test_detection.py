@@ -427,15 +427,16 @@ def test_cli_detect_on_narrow_band_sixteen_bit_frames(tmp_path):
     assert 0.7 * counts["grey8"] <= counts["raw14"] <= 1.3 * counts["grey8"]
 
 
-def test_frame_mask_keeps_inside_includes_and_outside_ignores():
+def test_frame_mask_covers_frame_space_ignore_regions_only():
     from aerotrack.geo.roi import Region, frame_mask
 
     sq = lambda x0, y0, x1, y1: np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float)
-    assert frame_mask([Region([[sq(0, 0, 5, 5)]], space="world")], (20, 10)) is None
-    m = frame_mask([Region([[sq(2, 2, 17, 9), sq(4, 4, 6, 6)]], space="frame", mode="include"),
-                    Region([[sq(12, 0, 20, 10)]], space="frame", mode="ignore")], (20, 10))
-    assert m.shape == (10, 20) and m[3, 3] == 255 and m[5, 5] == 0  # the include's hole
-    assert m[0, 0] == 0 and m[3, 14] == 0 and m[8, 10] == 255
+    assert frame_mask([Region([[sq(0, 0, 5, 5)]], space="world", mode="ignore"),
+                       Region([[sq(0, 0, 5, 5)]], space="frame", mode="include")], (20, 10)) is None
+    m = frame_mask([Region([[sq(2, 2, 17, 9), sq(4, 4, 6, 6)]], space="frame", mode="ignore"),
+                    Region([[sq(0, 0, 30, 30)]], space="frame", mode="include")], (20, 10))
+    assert m.shape == (10, 20) and m[3, 3] == 0 and m[5, 5] == 255  # the ignore region's hole
+    assert m[0, 0] == 255 and m[8, 18] == 255
 
 
 def test_a_caption_burned_into_the_frames_is_masked_by_a_frame_space_ignore_region():

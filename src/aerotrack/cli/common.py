@@ -50,7 +50,7 @@ ignore_option = click.option(
     "--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
     help="Region whose detections are ignored (same formats as --roi). In frame coordinates "
          "(a burned-in caption or timestamp) its pixels are also kept out of detection and "
-         "the background.")
+         "of the background.")
 frames_option = click.option(
     "--frames", "frame_range", default=None, metavar="A:B",
     help="Process frames A..B only (1-based, inclusive; either end may be empty).")

@@ -93,26 +93,27 @@ class Region:
 
 
 def frame_mask(regions, size: tuple[int, int]) -> np.ndarray | None:
-    """The frame pixels the frame-space ``regions`` leave to work on: (H, W) uint8, 255 inside
-    every ``include`` region and outside every ``ignore`` region, 0 elsewhere (``size`` is
-    (W, H)); None without frame-space regions. The detector neither looks for vehicles there
-    nor lets those pixels into its background (a burned-in caption or timestamp stays put on
-    the screen while the ground moves under it, so it differs from every background sample)."""
+    """The frame pixels the frame-space ``ignore`` regions leave to work on: (H, W) uint8, 0
+    inside any of them, 255 elsewhere (``size`` is (W, H)); None without such regions. The
+    detector neither looks for vehicles there nor lets those pixels into its background (a
+    burned-in caption or timestamp stays put on the screen while the ground moves under it, so
+    it differs from every background sample). ``include`` regions still act on detections only:
+    a vehicle crossing a region of interest's edge keeps its whole box."""
     import cv2
 
-    frame_regions = [r for r in regions or [] if r.space == "frame"]
-    if not frame_regions:
+    ignore = [r for r in regions or [] if r.space == "frame" and r.mode == "ignore"]
+    if not ignore:
         return None
     w, h = size
-    keep = np.full((h, w), 255, np.uint8)
-    for r in frame_regions:
-        inside = np.zeros((h, w), np.uint8)
+    inside = np.zeros((h, w), np.uint8)
+    for r in ignore:
         for rings in r.polygons:
-            cv2.fillPoly(inside, [np.round(rings[0]).astype(np.int32)], 255)
+            one = np.zeros((h, w), np.uint8)
+            cv2.fillPoly(one, [np.round(rings[0]).astype(np.int32)], 255)
             for hole in rings[1:]:
-                cv2.fillPoly(inside, [np.round(hole).astype(np.int32)], 0)
-        keep = np.minimum(keep, inside if r.mode == "include" else 255 - inside)
-    return keep
+                cv2.fillPoly(one, [np.round(hole).astype(np.int32)], 0)
+            inside = np.maximum(inside, one)
+    return 255 - inside
 
 
 def _ring(coords: Any, label: str) -> np.ndarray:
