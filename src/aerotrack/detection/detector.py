@@ -281,8 +281,8 @@ class MovingObjectDetector:
         #: The sun's shadow offset measured over recent frames (``shadow_trim_pool_s``).
         self._shadows = (ShadowOffsets(config.shadow_trim_pool_s)
                          if config.shadow_trim_pool_s > 0 else None)
-        #: (H, W) uint8, 255 on the frame pixels to work on (``geo.roi.frame_mask``: frame-space
-        #: ignore / include regions), or None for all: elsewhere no detection is looked for and
+        #: (H, W) uint8, 255 on the frame pixels to work on, 0 under frame-space ignore regions
+        #: (``geo.roi.frame_mask``), or None for all: under them no detection is looked for and
         #: no sample enters the background.
         self.frame_mask: np.ndarray | None = None
         self._mask_small: np.ndarray | None = None
