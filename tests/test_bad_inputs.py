@@ -727,3 +727,131 @@ def test_unwritable_output_refused_first_naming_option(tmp_path, capsys, video, 
     err = expect_error(capsys, [f"{option} {bad}", "is a file, not a folder"], *argv)
     assert "failed" not in err
     assert not (tmp_path / "m.png").exists()
+
+
+# -- found by a robustness probe (2026-12-02) ----------------------------------------------------
+@pytest.mark.parametrize("setting,frag", [
+    ("registration.scale=5", "registration.scale"),
+    ("detection.window_s=0", "detection.window_s"),
+    ("registration.max_features=0", "registration.max_features"),
+])
+def test_overwrite_with_a_bad_setting_keeps_the_previous_results(tmp_path, capsys, video,
+                                                                  setting, frag):
+    """Registration and detection settings used to be checked when their stage was built, at the
+    first frame: by then ``--overwrite`` had emptied the folder of the results it was to
+    replace, and a bad value lost them."""
+    out = tmp_path / "o"
+    code, _, err = run_cli(capsys, "track", video, "--out", out)
+    assert code == 0, err
+    before = {name: (out / name).read_bytes() for name in RESULT_FILES}
+    expect_error(capsys, [frag], "track", video, "--out", out, "--overwrite", "--set", setting)
+    assert {name: (out / name).read_bytes() for name in RESULT_FILES} == before
+    expect_error(capsys, [frag], "detect", video, "--out", tmp_path / "d", "--set", setting,
+                 out_dir=tmp_path / "d")
+
+
+def test_from_refuses_the_options_it_would_ignore(tmp_path, capsys, video):
+    out = tmp_path / "o"
+    assert run_cli(capsys, "track", video, "--out", out)[0] == 0
+    again = tmp_path / "again"
+    expect_error(capsys, ["--from", "INPUT", "--frames"], "track", video, "--from", out,
+                 "--frames", "1:3", "--out", again, out_dir=again)
+    expect_error(capsys, ["--stride"], "track", "--from", out, "--stride", "2", "--out", again,
+                 out_dir=again)
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", again)
+    assert code == 0, err
+
+
+def test_resume_and_overwrite_refused_even_when_finished(tmp_path, capsys, dets):
+    out = tmp_path / "o"
+    assert run_cli(capsys, "track", "--detections", dets, "--out", out)[0] == 0
+    expect_error(capsys, ["--resume", "--overwrite"], "track", "--detections", dets, "--out", out,
+                 "--resume", "--overwrite")
+
+
+def test_folder_of_other_files_says_so(tmp_path, capsys, dets):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    err = expect_error(capsys, ["notes.txt", "did not write"], "track", "--detections", dets,
+                       "--out", out)
+    assert "--overwrite" not in err  # which would then be refused
+    assert (out / "notes.txt").read_text() == "keep me"
+
+
+def test_frames_beyond_what_a_truncated_video_holds(tmp_path, capsys):
+    """The header promises 40 frames, 20 decode: --frames 30:40 is an error, not an empty run."""
+    full = write_video(tmp_path / "v.avi", [textured(seed=i) for i in range(40)])
+    data = full.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[:len(data) // 2])
+    for cmd in ("track", "detect"):
+        expect_error(capsys, ["cut.avi", "30:40", "truncated"], cmd, cut, "--frames", "30:40",
+                     "--out", tmp_path / cmd, out_dir=tmp_path / cmd)
+
+
+def test_truncated_jpeg_is_named(tmp_path, capsys):
+    d = tmp_path / "f"
+    d.mkdir()
+    for i in range(6):
+        cv2.imwrite(str(d / f"{i + 1:04d}.jpg"), textured(shift=(0, i)))
+    p = d / "0004.jpg"
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
+    code, _, err = run_cli(capsys, "track", d, "--out", tmp_path / "o")
+    assert code == 0, err
+    warned = [ln for ln in err.splitlines() if "truncated JPEG" in ln]
+    assert len(warned) == 1 and "0004.jpg" in warned[0], err
+
+
+def test_render_refuses_another_input(tmp_path, capsys, video):
+    out = tmp_path / "o"
+    assert run_cli(capsys, "track", video, "--out", out)[0] == 0
+    other = write_frames(tmp_path / "other", [textured(h=90, w=120) for _ in range(3)])
+    expect_error(capsys, ["120x90", "160x120"], "render", other, out, "--out",
+                 tmp_path / "r.mp4", "--no-pictures")
+    assert not (tmp_path / "r.mp4").exists()
+
+
+def test_detections_with_a_byte_order_mark(tmp_path, capsys):
+    p = tmp_path / "bom.txt"
+    p.write_bytes("\ufeff1,-1,10,10,8,4,0.9\n2,-1,12,10,8,4,0.9\n".encode())
+    code, _, err = run_cli(capsys, "track", "--detections", p, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["counts"]["detections"] == 2
+
+
+def test_report_with_an_empty_ground_truth(tmp_path, capsys, dets):
+    out = tmp_path / "o"
+    assert run_cli(capsys, "track", "--detections", dets, "--out", out)[0] == 0
+    empty = tmp_path / "gt.txt"
+    empty.write_text("")
+    expect_error(capsys, ["--gt", "no rows"], "report", out, "--gt", empty)
+    assert not (out / "report.html").exists()
+
+
+def test_batch_checks_settings_once_before_any_input(tmp_path, capsys, video):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    (inputs / "a.avi").write_bytes(video.read_bytes())
+    expect_error(capsys, ["registration.scale"], "batch", inputs, "--out", tmp_path / "runs",
+                 "--set", "registration.scale=5", out_dir=tmp_path / "runs")
+    expect_error(capsys, ["--fps"], "batch", inputs, "--out", tmp_path / "runs", "--fps", "0",
+                 out_dir=tmp_path / "runs")
+
+
+def test_map_init_accepts_a_frame_wider_than_the_map():
+    """A 4000 x 300 frame over a 1300 px tile (what ``aerotrack synth --size 4000x300`` makes):
+    its centre is on the map, its corners far beyond the map's edges; it used to be refused as
+    'does not land on the map' with a centre in the middle of the map."""
+    from types import SimpleNamespace
+
+    from aerotrack.cli.track_cmd import _check_overlap
+    from aerotrack.errors import GeoreferenceError
+
+    geomap = SimpleNamespace(width=1300, height=1300)
+    H = np.array([[1.2, 0, 650 - 1.2 * 2000], [0, 1.2, 650 - 1.2 * 150], [0, 0, 1]])
+    _check_overlap((4000, 300), H, geomap, "h.txt")
+    toward_horizon = H.copy()
+    toward_horizon[2] = [0, -0.00665, 1 + 0.00665 * 150]  # the bottom row nearly at infinity
+    with pytest.raises(GeoreferenceError, match="corner"):
+        _check_overlap((4000, 300), toward_horizon, geomap, "h.txt")

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import click
 
-from .common import config_option, fps_option, root_flags, seed_option, set_option
+from .common import (
+    check_positive,
+    config_option,
+    fps_option,
+    root_flags,
+    seed_option,
+    set_option,
+)
 
 log = logging.getLogger("aerotrack")
 
@@ -54,12 +61,14 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     from ..errors import InputError
     from ..io.output import check_writable
     from ..parallel import ParallelConfig, dask_client, plan_batch, run_batch
+    from ..pipeline import check_config
 
-    if gsd is not None and not gsd > 0:
-        raise InputError(f"--gsd {gsd}: must be a positive number of metres per pixel")
+    check_positive(gsd, "--gsd", "a positive number of metres per pixel")
+    check_positive(fps, "--fps")
     if not segment_s > 0:
         raise InputError(f"--segment-s {segment_s}: must be positive")
     config = load_config(config_path, overrides)
+    check_config(config, fps)  # once, before any input is tracked
     check_writable(out_dir, "--out", folder=True)  # once, not once per input
     items = plan_batch(input_dir, out_dir)
     unusable = unusable_videos(input_dir)

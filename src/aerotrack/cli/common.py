@@ -157,6 +157,7 @@ def check_overwrite(out_dir, overwrite: bool) -> None:
     """``--overwrite`` replaces aerotrack results only: a folder holding anything else (a home
     folder given as --out by mistake) is refused rather than emptied."""
     from ..errors import OutputError
+    from ..io.output import is_aerotrack_output
 
     p = Path(out_dir)
     if not overwrite or not p.is_dir():
@@ -165,22 +166,3 @@ def check_overwrite(out_dir, overwrite: bool) -> None:
     if foreign:
         raise OutputError(f"--out {p}: holds files aerotrack did not write (e.g. {foreign[0]!r}); "
                           "--overwrite only replaces aerotrack results")
-
-
-#: Top-level names any aerotrack command writes into an output folder.
-OUTPUT_NAMES = {
-    "tracks.csv", "predicted.csv", "detections.csv", "registration.csv", "tracks.geojson",
-    "config.toml", "summary.json", "observations.csv", "observations.gpkg",
-    "observations.parquet", "stages", ".partial", "overlay.webm", "overlay.mp4", "map.png",
-    "spacetime.png", "registration.png", "report.html", "debug.mp4",
-    # synth
-    "frames", "gt.txt", "states.csv", "homographies.csv", "map.tif", "map_init.txt",
-    "map_init_gcps.csv", "map_init_lonlat.csv", "occluders.csv", "occluders.geojson",
-    "roads.geojson", "scenario.json",
-    # demo
-    "scene", "run",
-}
-
-
-def is_aerotrack_output(name: str) -> bool:
-    return name in OUTPUT_NAMES or (name.startswith(".") and name.endswith(".tmp"))

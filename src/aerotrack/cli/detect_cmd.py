@@ -75,6 +75,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     from ..config import load_config
     from ..errors import InputError
     from ..io.output import OutputDir
+    from ..pipeline import check_config
     from .track_cmd import check_frame_range, load_inputs, load_regions, parse_frame_range
 
     config = load_config(config_path, overrides)
@@ -85,6 +86,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
         input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path)
     check_frame_range(frame_range, start, source.count)
     regions = load_regions(roi_paths, ignore_paths, geomap)
+    check_config(config, fps)  # before --out is touched
     check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
@@ -129,6 +131,12 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
             interrupted, result = exc, exc.partial_result
         finally:
             close()
+        if interrupted is None and not result.frames:
+            from ..errors import InputError
+            from .track_cmd import no_frames_read
+
+            raise InputError(no_frames_read(getattr(source, "path", "INPUT"),
+                                            f"{start}:{stop}" if stop else None, source.count))
         stopper.writing(partial=interrupted is not None)
         rows = detection_rows(result)
         write_mot(out.file("detections.csv"), rows)

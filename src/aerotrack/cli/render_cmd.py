@@ -78,6 +78,11 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     style = OverlayStyle(trail_s=trail_s, max_width=max_width)
     out = Path(out_path) if out_path else results.path / "overlay.webm"
     source = open_source(input_path, results.fps)  # fail fast on a bad input
+    size = results.summary.get("frame_size")
+    if size and tuple(size) != tuple(source.size):
+        raise InputError(f"{input_path}: frames are {source.size[0]}x{source.size[1]}, but the run "
+                         f"in {run_dir} tracked {size[0]}x{size[1]} frames (its summary.json): "
+                         "give the input that run tracked")
     from ..io.output import check_writable
 
     check_writable(out, "--out")  # before rendering, not after

@@ -41,8 +41,10 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     results = RunResults.load(run_dir)
     if video_width < 16:
         raise InputError(f"--video-width {video_width}: must be at least 16 pixels")
-    if gt_path is not None and not Path(gt_path).is_file():
-        raise InputError(f"--gt {gt_path}: file not found")
+    if gt_path is not None:
+        from ..io.mot import read_mot
+
+        read_mot(gt_path, option="--gt", strict=False, allow_empty=False)  # before any work
     if input_path is not None and not Path(input_path).exists():
         raise InputError(f"--input {input_path}: no such file or folder")
     from ..io.output import check_writable

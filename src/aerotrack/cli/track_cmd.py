@@ -80,8 +80,11 @@ class GracefulStop:
             return
         if self.stop_signal is not None:
             raise Interrupted(signum, self.note)
+        import signal
+
         self.stop_signal = signum
-        log.warning("interrupt: stopping after this frame (Ctrl-C again to stop at once)")
+        again = "Ctrl-C" if signum == signal.SIGINT else "the signal"
+        log.warning("interrupt: stopping after this frame (%s again to stop at once)", again)
 
     def wrap(self, progress):
         """The progress callback, raising :class:`Interrupted` after the frame a signal came in."""
@@ -204,16 +207,23 @@ def _check_overlap(size, H_init, geomap, map_init_path) -> None:
 
     w, h = size
     corners = apply_homography(H_init, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
-    inside = ((corners[:, 0] > -geomap.width) & (corners[:, 0] < 2 * geomap.width)
-              & (corners[:, 1] > -geomap.height) & (corners[:, 1] < 2 * geomap.height))
     centre = apply_homography(H_init, np.array([[w / 2, h / 2]], float))[0]
-    if not np.all(np.isfinite(corners)) or not (0 <= centre[0] <= geomap.width
-                                                and 0 <= centre[1] <= geomap.height) \
-            or not inside.any():
+    where = f"--map-init {map_init_path}: frame 1"
+    if not (np.all(np.isfinite(corners)) and np.all(np.isfinite(centre))):
+        raise GeoreferenceError(f"{where} maps to infinity (a degenerate homography)")
+    if not (0 <= centre[0] <= geomap.width and 0 <= centre[1] <= geomap.height):
         raise GeoreferenceError(
-            f"--map-init {map_init_path}: frame 1 does not land on the map (its centre maps to "
-            f"map pixel {centre[0]:.0f},{centre[1]:.0f}; the map is {geomap.width}x{geomap.height})"
-        )
+            f"{where} does not land on the map (its centre maps to map pixel "
+            f"{centre[0]:.0f},{centre[1]:.0f}; the map is {geomap.width}x{geomap.height})")
+    # A frame may be larger than the map (a wide frame over a small tile), but a corner 20 map
+    # sizes away means a homography that nearly reaches the horizon or points the wrong way.
+    far = 20 * max(geomap.width, geomap.height)
+    if np.any(np.abs(corners - centre) > far):
+        k = int(np.argmax(np.abs(corners - centre).max(axis=1)))
+        raise GeoreferenceError(
+            f"{where}'s corner {k + 1} maps to map pixel {corners[k, 0]:.0f},"
+            f"{corners[k, 1]:.0f}, more than 20 map sizes from its centre: is the homography "
+            "frame -> map pixels?")
 
 
 def load_regions(roi_paths, ignore_paths, geomap) -> list:
@@ -233,6 +243,14 @@ def check_frame_range(frame_range: str | None, start: int, last: int) -> None:
 
     if frame_range is not None and last and start > last:
         raise InputError(f"--frames {frame_range}: starts after the input's last frame ({last})")
+
+
+def no_frames_read(input_path, frame_range: str | None, count: int) -> str:
+    """The error for a run that read no frame: a truncated video whose header promises more
+    frames than its data holds, asked for frames beyond what decodes."""
+    asked = f" of --frames {frame_range}" if frame_range else ""
+    return (f"{input_path}: no frame{asked} could be read (the header says {count} frames; "
+            "the file may be truncated)")
 
 
 def parse_frame_range(text: str | None) -> tuple[int, int | None]:
@@ -324,10 +342,23 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     from ..errors import InputError
     from ..io.output import OutputDir
     from ..outputs import write_outputs
-    from ..pipeline import run
+    from ..pipeline import check_config, run
 
     config = load_config(config_path, overrides)
+    if resume and overwrite:
+        raise InputError("--resume and --overwrite: give one (continue the run in --out, or "
+                         "start it again)")
     if from_dir is not None:
+        given = [name for name, value in (
+            ("INPUT", input_path), ("--detections", detections_path), ("--frames", frame_range),
+            ("--stride", stride != 1), ("--map-init", map_init_path),
+            ("--telemetry", telemetry_path), ("--intrinsics", intrinsics_path),
+            ("--roi", roi_paths), ("--ignore-region", ignore_paths), ("--resume", resume),
+            ("--workers", workers), ("--scheduler", scheduler)) if value]
+        if given:
+            raise InputError(f"--from {from_dir}: re-runs association on that run's cached "
+                             f"registrations and detections, so {', '.join(given)} cannot be "
+                             "given with it (they were the earlier run's)")
         return _track_from_cache(ctx, from_dir, out_dir, config, map_path, seed, gsd, fps,
                                  min_speed, out_crs, overwrite, roads_path=roads_path)
     start, stop = parse_frame_range(frame_range)
@@ -349,6 +380,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     check_frame_range(frame_range, start, last)
+    check_config(config, fps, detector=dets is None)  # before --out is touched
 
     def where(path):
         return str(Path(path).resolve()) if path is not None else None
@@ -393,6 +425,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                          **({"roads": roads} if roads is not None else {}))
         finally:
             close()
+        if source is not None and not result.frames:
+            raise InputError(no_frames_read(input_path, frame_range, source.count))
         stopper.writing()
         if dets is None and geomap is None and gsd is None:
             from ..detection.moving import small_vehicles_hint
@@ -512,7 +546,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     from ..geo import GeoMap
     from ..io.output import OutputDir
     from ..outputs import write_outputs
-    from ..pipeline import run_cached
+    from ..pipeline import check_config, run_cached
 
     check_positive(fps, "--fps")
     check_positive(gsd, "--gsd", "a positive number of metres per pixel")
@@ -530,6 +564,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     fps = fps or prev.get("fps") or 30.0
     mpu = None if geomap else (gsd or prev.get("metres_per_unit"))
     roads = load_roads(roads_path, geomap, config)
+    check_config(config, fps, detector=False)  # before --out is touched
     same = Path(out_dir).resolve() == Path(from_dir).resolve()
     out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
     t0 = time.perf_counter()

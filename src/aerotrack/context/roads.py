@@ -126,7 +126,7 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
     if not p.is_file():
         raise InputError(f"{label}: file not found")
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(p.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{label}: cannot read as GeoJSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(doc, dict):

@@ -44,6 +44,7 @@ from .moving import (
     shadows_beside_detections_removed,
 )
 from .persistence import PersistenceTracker
+from .persistence import validate as check_persistence
 from .residual import ghost_score, pad0, residual_image
 from .shadows import ShadowOffsets
 
@@ -253,7 +254,7 @@ class MovingObjectDetector:
                  metres_per_unit: float | None = None) -> None:
         if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
             raise ConfigError(f"detection: fps must be positive, got {fps!r}")
-        _validate(config)
+        check_config(config)
         self.config = config
         self.fps = float(fps)
         self.geomap = geomap
@@ -766,7 +767,8 @@ class MovingObjectDetector:
             del self._samples[i]
 
 
-def _validate(c: DetectionConfig) -> None:
+def check_config(c: DetectionConfig) -> None:
+    """Raise :class:`ConfigError` naming the first out-of-range detection parameter."""
     checks = [
         ("window_s", c.window_s > 0), ("sample_every_s", c.sample_every_s > 0),
         ("update_every_s", c.update_every_s > 0), ("model_scale", 0 < c.model_scale <= 1),
@@ -801,3 +803,5 @@ def _validate(c: DetectionConfig) -> None:
     for name, ok in checks:
         if not ok:
             raise ConfigError(f"config detection.{name}: out of range ({getattr(c, name)!r})")
+    if c.persist:
+        check_persistence(c)

@@ -38,7 +38,7 @@ def read_zero_based_mot(path: str | Path, *, option: str | None = None, strict: 
     if not p.is_file():
         raise InputError(f"{label}: file not found")
     lines = []
-    for line in p.read_text(encoding="utf-8").splitlines():
+    for line in p.read_text(encoding="utf-8-sig").splitlines():
         s = line.strip()
         if s and not s.startswith("#"):
             head, sep, rest = s.replace(",", " ", 1).partition(" ")

@@ -243,6 +243,7 @@ class ImageFolderSource(FrameSource):
             raise InputError(f"{self.path}: folder holds no image files")
         #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
         self.depth_range: tuple[float, float] | None = None
+        self._warned: set[Path] = set()  # truncated JPEGs already reported
         raw = self._decode(self.files[0])
         if raw.dtype != np.uint8:
             self.depth_range = self._depth_range(raw)
@@ -277,6 +278,11 @@ class ImageFolderSource(FrameSource):
         return lo, (hi if hi > lo else lo + 1.0)
 
     def _read(self, p: Path) -> np.ndarray:
+        if p.suffix.lower() in (".jpg", ".jpeg") and p not in self._warned and not jpeg_complete(p):
+            self._warned.add(p)
+            logging.getLogger(__name__).warning(
+                "%s: truncated JPEG (no end-of-image marker): what is missing decodes grey, "
+                "and that frame's detections and registration suffer", p)
         if self.depth_range is None:
             img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
@@ -307,6 +313,21 @@ class ImageFolderSource(FrameSource):
                     f"{self.size[0]}x{self.size[1]} like the first image"
                 )
             yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+
+
+def jpeg_complete(path: Path) -> bool:
+    """Whether a JPEG file ends with its end-of-image marker (FF D9; a few padding bytes after
+    it are allowed). libjpeg decodes a truncated file without an error, filling what is missing
+    with grey, and says so only on the process's standard error, without the file's name."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, 2)
+            size = fh.tell()
+            fh.seek(max(0, size - 64))
+            tail = fh.read()
+    except OSError:
+        return True  # the decoder reports unreadable files
+    return b"\xff\xd9" in tail
 
 
 def open_source(path: str | Path, fps: float | None = None) -> FrameSource:

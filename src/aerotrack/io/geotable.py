@@ -68,7 +68,7 @@ def read_registration_csv(path: str | Path) -> dict[int, np.ndarray]:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: file not found")
-    lines = p.read_text(encoding="utf-8").splitlines()
+    lines = p.read_text(encoding="utf-8-sig").splitlines()
     if not lines:
         raise FormatError(f"{p}: file is empty")
     header = [h.strip() for h in lines[0].split(",")]

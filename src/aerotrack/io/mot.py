@@ -100,7 +100,7 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
     if p.is_dir():
         raise InputError(f"{label}: is a folder, expected a MOTChallenge text file")
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{label}: cannot read ({exc})") from None
     data = parse_mot_text(text, label)

@@ -136,6 +136,10 @@ class OutputDir:
         if p.is_dir():
             entries = [e for e in p.iterdir()]
             if entries and not (overwrite or resume):
+                foreign = sorted(e.name for e in entries if not is_aerotrack_output(e.name))
+                if foreign:
+                    raise OutputError(f"{option} {p}: folder holds files aerotrack did not write "
+                                      f"(e.g. {foreign[0]!r}); give a new or empty folder")
                 raise OutputError(
                     f"{option} {p}: folder already holds results; use --overwrite or --resume"
                 )
@@ -176,3 +180,23 @@ class OutputDir:
         dest = self.path / keep_as
         shutil.rmtree(dest, ignore_errors=True)
         os.replace(self.partial, dest)
+
+
+#: Top-level names any aerotrack command writes into an output folder.
+OUTPUT_NAMES = {
+    "tracks.csv", "predicted.csv", "detections.csv", "registration.csv", "tracks.geojson",
+    "config.toml", "summary.json", "observations.csv", "observations.gpkg",
+    "observations.parquet", "stages", ".partial", "overlay.webm", "overlay.mp4", "map.png",
+    "spacetime.png", "registration.png", "report.html", "debug.mp4",
+    # synth
+    "frames", "gt.txt", "states.csv", "homographies.csv", "map.tif", "map_init.txt",
+    "map_init_gcps.csv", "map_init_lonlat.csv", "occluders.csv", "occluders.geojson",
+    "roads.geojson", "scenario.json",
+    # demo
+    "scene", "run",
+}
+
+
+def is_aerotrack_output(name: str) -> bool:
+    """Whether an entry named ``name`` at the top of a folder is one aerotrack writes."""
+    return name in OUTPUT_NAMES or (name.startswith(".") and name.endswith(".tmp"))

@@ -99,7 +99,7 @@ def _evaluation(results: RunResults, gt_path: str | Path | None) -> tuple[dict |
         return None, f"evaluation unavailable ({exc})"
     from ..io.mot import read_mot
 
-    gt = read_mot(gt_path, option="--gt", strict=False)
+    gt = read_mot(gt_path, option="--gt", strict=False, allow_empty=False)
     return evaluate(gt, results.tracks), f"tracks.csv against {Path(gt_path).name}"
 
 
