@@ -633,3 +633,27 @@ def test_histograms_may_start_after_empty_frames():
     assert not len(frames[0]) and frames[0].hist is None and frames[10].hist is not None
     out = associate(frames, AssociationConfig(), FPS, metres_per_unit=1.0, seed=0)
     assert len(out) == 1 and len(out[0].points) == 34
+
+
+@pytest.mark.parametrize("first", [1, 2])
+def test_every_other_frame_loses_no_tracklet(first):
+    """``--stride 2`` feeds every other frame; the associator takes the frames between as empty.
+    Tracks ending in one of those used to have their tracklets dropped (the empty frame's
+    finished tracks were not returned), so which vehicles survived depended on whether the
+    run started on an odd or an even frame."""
+    n = 150
+    frames_used = list(range(first, n + 1, 2))
+    tracks = {0: _line(0, 0, 8, 0, [f for f in frames_used if f <= 60]),
+              1: _line(0, 20, 8, 0, [f for f in frames_used if f <= 70]),
+              2: _line(0, 40, 8, 0, [f for f in frames_used if f <= 81]),
+              3: _line(0, 60, 8, 0, frames_used)}
+    frames, truth = _frames(tracks, n)
+    la = LocalAssociator(AssociationConfig(), FPS, metres_per_unit=1.0, seed=0)
+    out = []
+    for d in frames:
+        if d.frame in frames_used:
+            out += la.step(d)
+    out += la.flush()
+    ids = _identities(out, truth)
+    assert sorted({v for seq in ids.values() for v in seq}) == [0, 1, 2, 3]
+    assert len(out) == 4

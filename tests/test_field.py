@@ -548,3 +548,32 @@ def test_telemetry_map_init_end_to_end(geomap, tmp_path):
     corners = np.array([[0, 0], [800, 0], [800, 450], [0, 450]], float)
     err = np.linalg.norm(apply_homography(H, corners) - apply_homography(H_true, corners), axis=1)
     assert "coarse-aligned" in note and err.mean() * geomap.metres_per_pixel < 0.5
+
+
+def test_observation_table_sizes_on_frames_without_a_homography(geomap, tmp_path):
+    """With ``--stride 2`` the tracks also give the skipped frames, which have no homography of
+    their own: their sizes come from the nearest registered frame (they were left empty). A
+    heading that rounds to 360.00 is written 0.00."""
+    fps = 10.0
+    geod = Geod(ellps="WGS84")
+    n = 12
+    lon, lat, _ = geod.fwd(np.full(n, LON0), np.full(n, LAT0), np.full(n, 359.999),
+                           10.0 * np.arange(n) / fps)
+    mappx = geomap.lonlat_to_pixel(np.column_stack([lon, lat]))
+    ll = geomap.pixel_to_lonlat(mappx[0] + [[0, 0], [1, 0], [0, 1]])
+    mx, my = (geod.inv(*ll[0], *ll[k])[2] for k in (1, 2))
+    homs, rows = {}, []
+    for i in range(n):
+        H = np.array([[0.5 / mx, 0, mappx[i, 0] - 320 * 0.5 / mx],
+                      [0, 0.5 / my, mappx[i, 1] - 240 * 0.5 / my], [0, 0, 1]])
+        if i % 2 == 0:  # frames 1, 3, 5, ... registered
+            homs[i + 1] = H
+        rows.append([i + 1, 7, 320 - 1.8, 240 - 4.6, 3.6, 9.2, 1, lon[i], lat[i], -1])
+    out = write_observation_table(tmp_path / "o.csv", np.array(rows), geomap, fps,
+                                  homographies=homs, formats=("csv",))
+    with open(out["csv"], newline="") as fh:
+        table = list(csv.DictReader(fh))
+    assert all(t["length_m"] != "" for t in table)
+    assert [float(t["length_m"]) for t in table] == pytest.approx([4.6] * n, rel=0.02)
+    headings = [t["heading_deg"] for t in table if t["heading_deg"]]
+    assert headings and "360.00" not in headings and "0.00" in headings

@@ -483,3 +483,31 @@ def test_detections_mask_the_registration_features_unless_disabled():
             pipe.step(f)
         boxes = pipe._exclude_boxes()
         assert (boxes is not None and len(boxes) > 0) if on else boxes is None
+
+
+def test_frames_skipped_by_stride_are_not_failures(caplog):
+    """``--stride 2`` gives the registrar every other frame. It used to count the frame numbers
+    between two registered frames as failed frames: every frame then forced a map refinement
+    and a new keyframe (all 150 of a 300-frame stride run 'refined', 3x slower) and logged
+    'registered ... after 1 failed frames'."""
+    import logging
+
+    from aerotrack.synth import Scenario
+
+    sc = Scenario(seed=3, frames=40, size=(480, 360), fps=10.0)
+    geomap = sc.world.geomap
+    geomap._image = sc.world.image
+    try:
+        reg = None
+        with caplog.at_level(logging.INFO, logger="aerotrack.registration"):
+            for frame, H_true, _ in sc.frames():
+                if frame.index % 2 == 0:
+                    continue
+                if reg is None:
+                    reg = FrameRegistrar(RegistrationConfig(), sc.fps, geomap, H_true)
+                r = reg.step(frame)
+                assert corner_error(r.H, H_true, *sc.size) < 1.0, (frame.index, r)
+        assert reg.counts["ok"] >= 12 and reg.counts["refined"] <= 6, reg.counts
+        assert "failed frames" not in caplog.text
+    finally:
+        geomap._image = None

@@ -268,3 +268,30 @@ def test_report_shows_the_runs_warnings(tmp_path):
     text = build_report(run).read_text()
     assert '<section id="hints"><h2>Warnings</h2>' in text
     assert "small &lt;9 px&gt;: give --gsd" in text
+
+
+def test_render_draws_the_frames_the_run_tracked(tmp_path):
+    """A ``--frames 4:9`` run is drawn on frames 4..9 by default, not on the whole input."""
+    from aerotrack.cli.main import main
+
+    run = make_run(tmp_path, n_frames=12)
+    summary = json.loads((run / "summary.json").read_text())
+    summary.update(first_frame=4, last_frame=9)
+    (run / "summary.json").write_text(json.dumps(summary))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in range(1, 13):
+        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    main(["-q", "render", str(frames), str(run), "--out", str(tmp_path / "o.mp4"), "--no-pictures"])
+    cap = cv2.VideoCapture(str(tmp_path / "o.mp4"))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == 6
+    main(["-q", "render", str(frames), str(run), "--out", str(tmp_path / "all.mp4"),
+          "--no-pictures", "--start", "1", "--stop", "12"])
+    cap = cv2.VideoCapture(str(tmp_path / "all.mp4"))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == 12

@@ -180,11 +180,13 @@ class LocalAssociator:
         if (S.store.hist is None) != (det.hist is None) and len(det):
             raise InputError(f"association: frame {det.frame}: colour histograms present in some "
                              "frames and missing in others")
-        # frames skipped by the caller are empty frames
+        # frames skipped by the caller (--stride, a frame without detections) are empty frames;
+        # tracks can end in them, and their tracklets are final like any other
+        out = []
         if self.last_frame is not None:
             for f in range(self.last_frame + 1, det.frame):
-                self._add(Detections.empty(f))
-        out = self._add(det)
+                out.extend(self._add(Detections.empty(f)))
+        out.extend(self._add(det))
         self.last_frame = det.frame
         self.stats["frames"] += 1
         return out

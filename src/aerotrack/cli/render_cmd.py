@@ -41,8 +41,10 @@ def load_map(results, map_path):
               help="Seconds of trail drawn behind each target.")
 @click.option("--max-width", type=int, default=None,
               help="Downscale wider frames to this width (smaller files).")
-@click.option("--start", type=int, default=1, show_default=True, help="First frame (1-based).")
-@click.option("--stop", type=int, default=None, help="Last frame (inclusive). Default: the end.")
+@click.option("--start", type=int, default=None,
+              help="First frame (1-based). Default: the run's first frame.")
+@click.option("--stop", type=int, default=None,
+              help="Last frame (inclusive). Default: the run's last frame.")
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
               help="The run's map raster (default: the map named in DIR/summary.json).")
 @click.option("--pictures/--no-pictures", default=True, show_default=True,
@@ -68,6 +70,11 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     from ..viz import OverlayStyle, RunResults, render_overlay
 
     results = RunResults.load(run_dir)
+    # by default the frames the run tracked (a --frames A:B run is drawn on A..B, not the video)
+    if start is None:
+        start = int(results.summary.get("first_frame") or 1)
+    if stop is None and results.summary.get("last_frame"):
+        stop = int(results.summary["last_frame"])
     if start < 1 or (stop is not None and stop < start):
         raise InputError(f"--start {start}" + (f" --stop {stop}" if stop is not None else "")
                          + ": need 1 <= --start <= --stop")

@@ -436,10 +436,11 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                 log.warning(hint)
                 notes = {**notes, "hints": [hint]}
         info = {
-            "input": str(input_path) if input_path else None,
-            "detections": str(detections_path) if detections_path else None,
-            "map": str(map_path) if map_path else None,
-            "roads": str(roads_path) if roads_path else None,
+            # absolute, so that --from, render and report find them from any folder
+            "input": where(input_path),
+            "detections": where(detections_path),
+            "map": where(map_path),
+            "roads": where(roads_path),
             "seed": seed,
             "wall_time_s": round(time.perf_counter() - t0, 3),
             **notes,
@@ -573,7 +574,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
                         if prev.get("frame_size") else None, min_speed_mps=min_speed,
                         roads=roads)
     info = {"input": prev.get("input"), "detections": prev.get("detections"),
-            "map": str(map_path) if map_path else None, "seed": seed, "from": str(from_dir),
+            "map": str(Path(map_path).resolve()) if map_path else None, "seed": seed,
+            "from": str(from_dir),
             "wall_time_s": round(time.perf_counter() - t0, 3)}
     summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                             out_crs=out_crs)

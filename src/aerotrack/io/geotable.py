@@ -230,9 +230,23 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     # Box ground sizes via the frame's homography (or a frame GSD).
     length = np.full(n, np.nan)
     width = np.full(n, np.nan)
+    # A frame without a homography of its own (skipped by --stride, or a row bridged over a
+    # frame that failed) takes the nearest registered frame's within half a second: the camera
+    # hardly moves in between, and the box is the track's, not that frame's measurement.
+    registered = np.array(sorted(homs), dtype=np.int64)
+    reach = max(1, int(round(0.5 * fps)))
+
+    def homography_near(f: int):
+        if f in homs or not len(registered):
+            return homs.get(f)
+        k = int(np.searchsorted(registered, f))
+        near = [registered[j] for j in (k - 1, k) if 0 <= j < len(registered)]
+        best = min(near, key=lambda g: abs(int(g) - f))
+        return homs[int(best)] if abs(int(best) - f) <= reach else None
+
     for i in range(n):
         bx, by, bw, bh = boxes[i]
-        H = homs.get(int(frame[i]))
+        H = homography_near(int(frame[i]))
         if H is not None:
             mids = np.array([[bx, by + bh / 2], [bx + bw, by + bh / 2],
                              [bx + bw / 2, by], [bx + bw / 2, by + bh]])
@@ -255,12 +269,19 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     return cols, crs_name
 
 
-def _fmt(v: Any, digits: int) -> str:
+def _fmt(v: Any, digits: int, turn: bool = False) -> str:
+    """``v`` as text with ``digits`` decimals; ``turn``: an angle in [0, 360), so a value that
+    rounds to 360 is written as 0."""
     if isinstance(v, (str, np.str_)):
         return str(v)
     if isinstance(v, (int, np.integer)):
         return str(int(v))
-    return "" if not np.isfinite(v) else f"{v:.{digits}f}"
+    if not np.isfinite(v):
+        return ""
+    text = f"{v:.{digits}f}"
+    if turn and float(text) >= 360.0:
+        text = f"{0.0:.{digits}f}"
+    return text
 
 
 _DIGITS = {"time_s": 4, "lon": 8, "lat": 8, "x": 3, "y": 3, "speed_mps": 3, "heading_deg": 2,
@@ -272,7 +293,8 @@ def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
     with atomic_write(path, "w", encoding="utf-8", newline="\n") as fh:
         fh.write(",".join(COLUMNS) + "\n")
         for i in range(n):
-            fh.write(",".join(_fmt(cols[c][i], _DIGITS.get(c, 0)) for c in COLUMNS) + "\n")
+            fh.write(",".join(_fmt(cols[c][i], _DIGITS.get(c, 0), c == "heading_deg")
+                              for c in COLUMNS) + "\n")
 
 
 def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:

@@ -129,6 +129,9 @@ class FrameRegistrar:
         self._key_n = 1  # features the keyframe started with
         self._M_key_last = np.eye(3)  # keyframe -> last good frame, tracking-scale pixels
         self._good_index, self._good_time = 0, 0.0  # last frame registered
+        # frames given to step() since the last registered one (1: it was the previous frame;
+        # counted in steps, not frame numbers, so that --stride is not taken for failures)
+        self._since_good = 0
         self._motion = np.eye(3)  # last frame-to-frame motion, full-res frame pixels
         self._H_last: np.ndarray | None = None
         self._last_refine = -math.inf
@@ -146,6 +149,7 @@ class FrameRegistrar:
             ``x, y, w, h`` boxes in the previous frame's pixels (its detections): no features are
             taken there, so moving vehicles do not pull the estimate.
         """
+        self._since_good += 1
         try:
             reg = self._step(frame, exclude_boxes)
         except cv2.error as exc:  # a frame OpenCV chokes on is a failed frame, not a crash
@@ -201,7 +205,7 @@ class FrameRegistrar:
         if not est:
             return self._lost(frame, gray, est.reason, common)
         self._lost_gray, self._lost_run = None, 0
-        gap = frame.index - self._good_index
+        gap = self._since_good  # 1 unless frames failed since the last registered one
         refine_due = False
         if self._map_gray is not None:
             due = (cfg.refine_every_s > 0 and frame.time - self._last_refine >= cfg.refine_every_s - 1e-9)
@@ -229,6 +233,7 @@ class FrameRegistrar:
                      frame.index, self._ref_index, gap - 1)
         self._M_key_last = M_small
         self._good_index, self._good_time = frame.index, frame.time
+        self._since_good = 0
         status = "ok"
         if refine_due:
             H, status, _ = self._refine(frame, H)
@@ -273,6 +278,7 @@ class FrameRegistrar:
                 reason = f"{reason}; {why}" if why else reason
         self._set_keyframe(frame, gray, H, None, mask)
         self._good_index, self._good_time = frame.index, frame.time
+        self._since_good = 0
         return Registration(frame.index, normalize(H), status, 0, float("nan"), float("nan"), reason)
 
     def _refine(self, frame: Frame, H: np.ndarray, search_scale: float = 1.0
