@@ -855,3 +855,18 @@ def test_map_init_accepts_a_frame_wider_than_the_map():
     toward_horizon[2] = [0, -0.00665, 1 + 0.00665 * 150]  # the bottom row nearly at infinity
     with pytest.raises(GeoreferenceError, match="corner"):
         _check_overlap((4000, 300), toward_horizon, geomap, "h.txt")
+
+
+def test_resume_of_a_finished_run_refuses_other_options(tmp_path, capsys, video):
+    """It compared INPUT, --detections and --seed only: another --frames, --stride or config
+    was answered 'already finished, nothing to resume' with exit 0."""
+    out = tmp_path / "o"
+    assert run_cli(capsys, "track", video, "--out", out)[0] == 0
+    code, _, err = run_cli(capsys, "track", video, "--out", out, "--resume")
+    assert code == 0 and "already finished" in err
+    expect_error(capsys, ["finished run", "--frames"], "track", video, "--out", out, "--resume",
+                 "--frames", "2:5")
+    expect_error(capsys, ["finished run", "--stride"], "track", video, "--out", out, "--resume",
+                 "--stride", "2")
+    expect_error(capsys, ["finished run", "config"], "track", video, "--out", out, "--resume",
+                 "--set", "detection.threshold_sigma=5")

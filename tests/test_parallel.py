@@ -479,3 +479,36 @@ def test_client_warm_up_runs_linking_for_real():
     parallel._LINKING_WARM.clear()
     assert parallel.warm_up_linking() > 0 and parallel._LINKING_WARM.is_set()
     assert parallel.warm_up_linking() == 0.0
+
+
+def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path):
+    """A terminal's Ctrl-C reaches every process of the foreground group. The local cluster's
+    workers used to die of it mid-segment while the main process waited for their results
+    forever (a second Ctrl-C then left no finished segment). Now the workers ignore it: the run
+    stops with exit code 130 and keeps the finished work for --resume."""
+    import subprocess
+
+    frames = tmp_path / "frames"
+    render_scene(frames, n=400, seed=3)
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "aerotrack", "-v", "track", str(frames), "--out",
+                          str(out), "--fps", str(FPS), "--workers", "2"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    err = ""
+    try:
+        t0 = time.time()
+        while "segments of about" not in err and time.time() - t0 < 120:  # the cluster is up
+            line = p.stderr.readline()
+            if not line:
+                break
+            err += line
+        time.sleep(3)
+        os.killpg(p.pid, signal.SIGINT)
+        rest = p.communicate(timeout=150)[1]
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.communicate()
+        pytest.fail(f"no exit within 150 s of Ctrl-C: {err[-500:]}")
+    assert p.returncode == 130, err + rest
+    assert (out / ".partial").is_dir()

@@ -511,3 +511,45 @@ def test_frames_skipped_by_stride_are_not_failures(caplog):
         assert "failed frames" not in caplog.text
     finally:
         geomap._image = None
+
+
+def test_carry_placement_to_a_later_first_frame():
+    """``--frames A:B`` with ``--map-init`` (frame 1's placement): frame A's placement comes from
+    registering frames 1..A. Frame 1's placement itself is many map pixels off at frame A."""
+    from aerotrack.registration.registrar import carry_placement
+    from aerotrack.synth import Scenario
+
+    sc = Scenario(seed=3, frames=40, size=(480, 360), fps=10.0)
+    geomap = sc.world.geomap
+    geomap._image = sc.world.image
+    try:
+        truth = {f.index: H for f, H, _ in sc.frames()}
+        frames = {f.index: f for f, _, _ in sc.frames()}
+
+        class Source:
+            def frames(self, start=1, stop=None, stride=1):
+                return (frames[i] for i in range(start, (stop or 40) + 1, stride))
+
+        start = 35
+        assert corner_error(truth[1], truth[start], *sc.size) > 5.0
+        H = carry_placement(Source(), truth[1], start, geomap, sc.fps, RegistrationConfig())
+        assert corner_error(H, truth[start], *sc.size) < 1.0
+    finally:
+        geomap._image = None
+
+
+def test_frames_range_with_a_map_starts_where_frame_1_puts_it(tmp_path):
+    from aerotrack.cli.main import main
+    from aerotrack.io.geotable import read_registration_csv
+
+    scene = tmp_path / "s"
+    main(["-q", "synth", "--out", str(scene), "--frames", "110", "--size", "320x240",
+          "--seed", "7"])
+    truth = np.loadtxt(scene / "homographies.csv", delimiter=",", skiprows=1)
+    truth = {int(r[0]): r[1:10].reshape(3, 3) for r in truth}
+    assert corner_error(truth[1], truth[100], 320, 240) > 20.0  # beyond map refinement's reach
+    main(["-q", "detect", str(scene / "frames"), "--out", str(tmp_path / "d"), "--map",
+          str(scene / "map.tif"), "--map-init", str(scene / "map_init.txt"), "--frames", "100:110"])
+    regs = read_registration_csv(tmp_path / "d" / "registration.csv")
+    assert min(regs) == 100
+    assert corner_error(regs[100], truth[100], 320, 240) < 1.0

@@ -708,6 +708,26 @@ def _distributed():
 
 
 @contextlib.contextmanager
+def _children_ignore_sigint() -> Iterator[None]:
+    """Start processes that ignore SIGINT (an ignored signal stays ignored in a child, and Python
+    then installs no KeyboardInterrupt handler). Ctrl-C in a terminal goes to the whole process
+    group: the local cluster's workers died of it mid-task while the main process, which stops
+    gracefully after its current work, waited for their results forever. Now only the main
+    process hears Ctrl-C; it cancels or collects the segments and closes the cluster."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator:
     """A ``distributed.Client``: on an existing scheduler, or on a new local cluster.
 
@@ -739,7 +759,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     import dask
 
     # read by the scheduler, each worker's nanny and the client when they are created
-    with dask.config.set(WORKER_CONFIG):
+    with dask.config.set(WORKER_CONFIG), _children_ignore_sigint():
         cluster = distributed.LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
             dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR,

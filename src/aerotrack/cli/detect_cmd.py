@@ -83,7 +83,8 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
         raise InputError("--stabilised: not with --map (frames are registered to the map)")
     start, stop = parse_frame_range(frame_range)
     source, _, geomap, H_init, undistort, _ = load_inputs(
-        input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path)
+        input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path,
+        start=start, config=config)
     check_frame_range(frame_range, start, source.count)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_config(config, fps)  # before --out is touched

@@ -105,8 +105,13 @@ class GracefulStop:
 
 
 def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
-                telemetry_path=None, intrinsics_path=None):
-    """Open and validate every input before any work starts (so bad input fails fast)."""
+                telemetry_path=None, intrinsics_path=None, start: int = 1, config=None):
+    """Open and validate every input before any work starts (so bad input fails fast).
+
+    With ``start`` > 1 (``--frames A:B``) the map placement returned is frame A's: the
+    telemetry's at that frame, or ``--map-init`` (frame 1's) carried to frame A by registering
+    the frames before it (:func:`~aerotrack.registration.registrar.carry_placement`, with
+    ``config``'s registration settings)."""
     from ..errors import InputError
     from ..geo import GeoMap, read_map_init
     from ..io import open_source
@@ -143,7 +148,9 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
             from ..geo.telemetry import read_telemetry, telemetry_map_init
 
             tel = read_telemetry(telemetry_path, fps=source.fps)
-            first = next(iter(source.frames(stop=1)))
+            first = next(iter(source.frames(start=start, stop=start)), None)
+            if first is None:
+                raise InputError(f"{input_path}: frame {start} cannot be read")
             if undistort is not None:
                 first = undistort(first)
             H_init, notes["telemetry"] = telemetry_map_init(tel, first, geomap, source.fps)
@@ -153,6 +160,14 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
             init_label = map_init_path
         if source is not None:
             _check_overlap(source.size, H_init, geomap, init_label)
+            if start > 1 and telemetry_path is None:
+                from ..config import Config
+                from ..registration.registrar import carry_placement
+
+                log.info("--frames from %d: registering frames 1-%d to carry --map-init (frame "
+                         "1's placement) to frame %d", start, start - 1, start)
+                H_init = carry_placement(source, H_init, start, geomap, source.fps,
+                                         (config or Config()).registration, undistort)
     return source, dets, geomap, H_init, undistort, notes
 
 
@@ -366,7 +381,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
-        intrinsics_path)
+        intrinsics_path, start=start, config=config)
     roads = load_roads(roads_path, geomap, config)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     if out_crs is not None:
@@ -394,7 +409,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "min_speed": min_speed, "config": dumps_config(config),
     }
     check_overwrite(out_dir, overwrite)
-    if resume and finished_run(out_dir, input_path, detections_path, seed):
+    if resume and finished_run(out_dir, input_path, detections_path, seed, manifest):
         if not root_flags(ctx)[0]:
             click.echo(f"aerotrack: {out_dir}: the run is already finished; nothing to resume "
                        "(--overwrite runs it again)", err=True)
@@ -465,7 +480,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
 MANIFEST = "run.json"
 
 
-def finished_run(out_dir, input_path, detections_path, seed) -> bool:
+def finished_run(out_dir, input_path, detections_path, seed, manifest: dict | None = None
+                 ) -> bool:
     """``--resume`` on a folder whose run finished (``summary.json``, no ``.partial/``): True when
     it was made from the same INPUT, --detections and --seed (there is nothing to continue);
     refused when from others (resuming cannot change what a finished run used)."""
@@ -493,7 +509,29 @@ def finished_run(out_dir, input_path, detections_path, seed) -> bool:
         names = ", ".join("INPUT" if k == "input" else f"--{k}" for k in changed)
         raise InputError(f"--resume {out}: holds a finished run made with another {names}; "
                          "use --overwrite to run again")
+    # everything else it was started with (its .partial/run.json, kept in stages/)
+    kept = out / "stages" / MANIFEST
+    if manifest is not None and kept.is_file():
+        try:
+            started = json.loads(kept.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            started = None
+        if isinstance(started, dict):
+            names = _changed_options(started, manifest)
+            if names:
+                raise InputError(f"--resume {out}: holds a finished run made with another "
+                                 f"{names}; use --overwrite to run again")
     return True
+
+
+def _changed_options(before: dict, manifest: dict) -> str:
+    """The options (as the user names them) whose values differ between two run manifests."""
+    import json
+
+    now = json.loads(json.dumps(manifest))  # tuples -> lists, as read back
+    changed = [k for k in now if k in before and before[k] != now[k]]
+    label = {"input": "INPUT", "config": "config (--config, --set or defaults)"}
+    return ", ".join(label.get(k, "--" + k.replace("_", "-")) for k in changed)
 
 
 def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
@@ -514,11 +552,8 @@ def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
         except (OSError, ValueError):
             before = None
         if isinstance(before, dict):
-            now = json.loads(json.dumps(manifest))  # tuples -> lists, as read back
-            changed = [k for k in now if k in before and before[k] != now[k]]
-            if changed:
-                label = {"input": "INPUT", "config": "config (--config, --set or defaults)"}
-                names = ", ".join(label.get(k, "--" + k.replace("_", "-")) for k in changed)
+            names = _changed_options(before, manifest)
+            if names:
                 raise InputError(f"--resume {path.parent.parent}: the interrupted run was started "
                                  f"with another {names}; give the same inputs and options, or "
                                  "use --overwrite to start again")

@@ -384,3 +384,20 @@ def read_registration_csv(path: str | Path) -> list[Registration]:
 def _num(text: str) -> float:
     """A CSV number; empty means unknown (NaN), as aerotrack.outputs writes it."""
     return float(text) if text.strip() else float("nan")
+
+
+def carry_placement(source, H_first: np.ndarray, start: int, geomap, fps: float,
+                    config: RegistrationConfig, undistort=None) -> np.ndarray:
+    """Frame ``start``'s pixels -> map pixels, from ``H_first`` (frame 1's, as ``--map-init``
+    gives it): frames 1 to ``start`` registered in order, refined against the map as in a run.
+
+    A run of ``--frames A:B`` used to take frame 1's placement for frame A: on a generated scene
+    whose camera moved 50 map pixels by frame 100, every map position of the run was 8 m off
+    (and map refinement, which searches a few pixels, never caught it)."""
+    registrar = FrameRegistrar(config, fps, geomap=geomap, H_init=H_first)
+    H = np.asarray(H_first, np.float64)
+    for frame in source.frames(1, start):
+        if undistort is not None:
+            frame = undistort(frame)
+        H = registrar.step(frame).H
+    return H
