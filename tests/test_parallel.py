@@ -389,6 +389,15 @@ def test_batch_tracks_each_input_once_and_skips_finished(tmp_path, scene, client
         s2 = json.loads((out2 / name / "summary.json").read_text())
         assert s2["frames"] == 45
         assert s2["counts"]["detections"] == summary["counts"]["detections"]
+    # each output folder is a `track` folder: its stages/ serve `track --from` (either engine),
+    # and summary.json names the input by its absolute path
+    assert summary["input"] == str((inp / "flight_a").resolve())
+    for folder in (out / "flight_a", out2 / "flight_a"):
+        again = tmp_path / f"again_{folder.parent.name}"
+        r = CliRunner().invoke(cli, ["track", "--from", str(folder), "--out", str(again),
+                                     "--gsd", "0.3"], catch_exceptions=False)
+        assert r.exit_code == 0, r.output
+        assert (again / "detections.csv").read_text() == (folder / "detections.csv").read_text()
 
 
 def test_track_command_runs_on_the_cluster(tmp_path, scene, client):

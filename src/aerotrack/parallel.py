@@ -1246,10 +1246,16 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 result, _ = assemble(results, config=config, fps=src.fps,
                                      metres_per_unit=metres_per_unit, stride=stride,
                                      parallel=parallel)
-            info = {"input": str(it.input), "seed": seed,
+            info = {"input": str(Path(it.input).resolve()), "seed": seed,
                     "wall_time_s": round(time.perf_counter() - t0, 3)}
             summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
-            folder.finish()
+            if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them
+                from .io.checkpoint import save_chunk
+
+                save_chunk(folder.partial, 0, [result.registrations[k]
+                                               for k in sorted(result.registrations)],
+                           list(result.detections))
+            folder.finish(keep_as="stages")  # like `aerotrack track`: `track --from` reuses them
         except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
             fail(it, exc)
             continue
