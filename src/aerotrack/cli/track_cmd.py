@@ -510,18 +510,24 @@ def finished_run(out_dir, input_path, detections_path, seed, manifest: dict | No
         raise InputError(f"--resume {out}: holds a finished run made with another {names}; "
                          "use --overwrite to run again")
     # everything else it was started with (its .partial/run.json, kept in stages/)
-    kept = out / "stages" / MANIFEST
-    if manifest is not None and kept.is_file():
-        try:
-            started = json.loads(kept.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            started = None
-        if isinstance(started, dict):
-            names = _changed_options(started, manifest)
-            if names:
-                raise InputError(f"--resume {out}: holds a finished run made with another "
-                                 f"{names}; use --overwrite to run again")
+    started = _read_manifest(out / "stages" / MANIFEST) if manifest is not None else None
+    if started is not None:
+        names = _changed_options(started, manifest)
+        if names:
+            raise InputError(f"--resume {out}: holds a finished run made with another "
+                             f"{names}; use --overwrite to run again")
     return True
+
+
+def _read_manifest(path: Path) -> dict | None:
+    """A run's manifest (``run.json``), or None when missing or unreadable."""
+    import json
+
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
 
 
 def _changed_options(before: dict, manifest: dict) -> str:
@@ -547,11 +553,8 @@ def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
 
     path = Path(partial) / MANIFEST
     if resume and path.is_file():
-        try:
-            before = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            before = None
-        if isinstance(before, dict):
+        before = _read_manifest(path)
+        if before is not None:
             names = _changed_options(before, manifest)
             if names:
                 raise InputError(f"--resume {path.parent.parent}: the interrupted run was started "
