@@ -803,6 +803,27 @@ def test_truncated_jpeg_is_named(tmp_path, capsys):
     assert len(warned) == 1 and "0004.jpg" in warned[0], err
 
 
+def test_truncated_jpeg_leaves_no_nameless_decoder_message(tmp_path, capfd, caplog):
+    """libjpeg prints "Premature end of JPEG file" on descriptor 2 itself; the reader names the
+    file in its own warning, so the decoder's line must not reach the terminal (nor with -q)."""
+    from aerotrack.io.frames import ImageFolderSource
+
+    d = tmp_path / "f"
+    d.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(d / f"{i + 1:04d}.jpg"), textured(shift=(0, i)))
+    p = d / "0002.jpg"
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
+    frames = list(ImageFolderSource(d).frames())
+    err = capfd.readouterr().err
+    assert len(frames) == 3 and frames[1].image.shape == (120, 160, 3)
+    assert "Premature end" not in err, err
+    assert "0002.jpg: truncated JPEG" in caplog.text
+    import sys
+    print("still there", file=sys.stderr)  # descriptor 2 restored
+    assert "still there" in capfd.readouterr().err
+
+
 def test_render_refuses_another_input(tmp_path, capsys, video):
     out = tmp_path / "o"
     assert run_cli(capsys, "track", video, "--out", out)[0] == 0

@@ -13,9 +13,12 @@ decode nearly the whole video first, and that cost would grow with the video's l
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
 import queue
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -278,11 +281,18 @@ class ImageFolderSource(FrameSource):
         return lo, (hi if hi > lo else lo + 1.0)
 
     def _read(self, p: Path) -> np.ndarray:
-        if p.suffix.lower() in (".jpg", ".jpeg") and p not in self._warned and not jpeg_complete(p):
-            self._warned.add(p)
-            logging.getLogger(__name__).warning(
-                "%s: truncated JPEG (no end-of-image marker): what is missing decodes grey, "
-                "and that frame's detections and registration suffer", p)
+        truncated = p.suffix.lower() in (".jpg", ".jpeg") and not jpeg_complete(p)
+        if truncated:
+            if p not in self._warned:
+                self._warned.add(p)
+                logging.getLogger(__name__).warning(
+                    "%s: truncated JPEG (no end-of-image marker): what is missing decodes grey, "
+                    "and that frame's detections and registration suffer", p)
+            with stderr_silenced():  # libjpeg's own nameless "Premature end of JPEG file"
+                return self._read_decoded(p)
+        return self._read_decoded(p)
+
+    def _read_decoded(self, p: Path) -> np.ndarray:
         if self.depth_range is None:
             img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
@@ -313,6 +323,40 @@ class ImageFolderSource(FrameSource):
                     f"{self.size[0]}x{self.size[1]} like the first image"
                 )
             yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+
+
+_STDERR_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def stderr_silenced() -> Iterator[None]:
+    """The process's standard error (file descriptor 2) sent to the null device for the block.
+
+    libjpeg reports a truncated file by printing to descriptor 2 itself, below Python, and
+    without the file's name; the reader has already named the file in a warning, so the
+    decoder's line is only noise, and it ignored ``-q``. Whatever another thread writes to
+    standard error during the decode (a few milliseconds) is lost too; only truncated files are
+    decoded this way.
+    """
+    fd = 2  # C's stderr, whatever sys.stderr is
+    with _STDERR_LOCK:
+        try:
+            saved = os.dup(fd)
+        except OSError:  # no descriptor 2 (a daemon): nothing to silence
+            yield
+            return
+        try:
+            if sys.stderr is not None:
+                sys.stderr.flush()
+            null = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(null, fd)
+            finally:
+                os.close(null)
+            yield
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
 
 
 def jpeg_complete(path: Path) -> bool:
