@@ -521,3 +521,5 @@ def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path):
         pytest.fail(f"no exit within 150 s of Ctrl-C: {err[-500:]}")
     assert p.returncode == 130, err + rest
     assert (out / ".partial").is_dir()
+    # it says what it waits for: the running segments, not "this frame"
+    assert "when the running segments are finished" in rest, rest

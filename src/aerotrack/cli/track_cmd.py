@@ -48,9 +48,12 @@ class GracefulStop:
     NOTE = ("; finished work is kept in the output folder's .partial/ "
             "(continue with --resume)")
 
-    def __init__(self, note: str | None = None) -> None:
+    def __init__(self, note: str | None = None, until: str = "after this frame") -> None:
         #: completes the line ``aerotrack: interrupted`` of a second, immediate signal
         self.note = self.NOTE if note is None else note
+        #: when the run stops after a first signal, for its message ("after this frame"; a
+        #: ``--workers`` run stops once the segments running on the cluster are finished)
+        self.until = until
         self.stop_signal: int | None = None
         self.phase = "frames"
         self._previous: dict[int, object] = {}
@@ -84,7 +87,7 @@ class GracefulStop:
 
         self.stop_signal = signum
         again = "Ctrl-C" if signum == signal.SIGINT else "the signal"
-        log.warning("interrupt: stopping after this frame (%s again to stop at once)", again)
+        log.warning("interrupt: stopping %s (%s again to stop at once)", self.until, again)
 
     def wrap(self, progress):
         """The progress callback, raising :class:`Interrupted` after the frame a signal came in."""
@@ -430,7 +433,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         from ..parallel import run_on_dask
 
         run = partial(run_on_dask, workers=workers, scheduler=scheduler)
-    with cleanup, GracefulStop() as stopper:
+    until = ("when the running segments are finished (they are kept)"
+             if workers is not None or scheduler is not None else "after this frame")
+    with cleanup, GracefulStop(until=until) as stopper:
         try:
             result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
                          detections=dets, metres_per_unit=None if geomap else gsd,
