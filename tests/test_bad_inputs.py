@@ -536,11 +536,20 @@ def test_synth_bad_gsd_scale(tmp_path, capsys, value):
                  "--frames", "2", "--gsd-scale", value, out_dir=tmp_path / "s")
 
 
-def test_eval_frames_without_ground_truth(tmp_path, capsys, dets):
+def test_eval_frames_without_ground_truth(tmp_path, capsys):
     gt = tmp_path / "gt.txt"
     gt.write_text("1,1,10,10,8,4,1\n2,1,12,10,8,4,1\n")
-    expect_error(capsys, ["--frames", "ends at frame 2"], "eval", "--gt", gt, "--pred", dets,
+    expect_error(capsys, ["--frames", "ends at frame 2"], "eval", "--gt", gt, "--pred", gt,
                  "--frames", "50:60")
+
+
+def test_eval_refuses_detections_as_tracks(tmp_path, capsys, dets):
+    """A detections file (id -1) scored as tracks was one track with several boxes a frame:
+    HOTA 0.975 and MOTA 1.000 on generated ground truth with no identity at all."""
+    gt = tmp_path / "gt.txt"
+    gt.write_text("1,1,10,10,8,4,1\n2,1,12,10,8,4,1\n")
+    expect_error(capsys, ["--pred", "dets.txt line 1", "ids >= 0"], "eval", "--gt", gt,
+                 "--pred", dets)
 
 
 @pytest.fixture

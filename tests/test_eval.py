@@ -322,3 +322,171 @@ def test_santiago_one_based_tracks_and_gt_zero_based_flag(shared_data, tmp_path,
                            "--json"], capsys)
     assert code == 0, err
     assert json.loads(out)["IDF1"] == pytest.approx(0.842, abs=0.005)
+
+
+# --------------------------------------------------------------------------- found by a probe
+
+def _write(path, rows, sep=","):
+    path.write_text("".join(sep.join(f"{v:g}" for v in r) + "\n" for r in rows))
+    return path
+
+
+def test_cli_zero_based_files_separated_by_tabs(tmp_path, capsys):
+    """The 0-based shift used to split on commas and spaces only: tab-separated files were
+    scored one frame off (HOTA 0.561 for a perfect prediction) or refused at frame 0."""
+    gt = _two_targets(6)
+    zero = gt.copy()
+    zero[:, 0] -= 1
+    _write(tmp_path / "gt0.txt", zero[:, :7], sep="\t")
+    write_mot(tmp_path / "pred.txt", gt)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt0.txt"), "--pred",
+                           str(tmp_path / "pred.txt"), "--gt-zero-based", "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["MOTA"] == pytest.approx(1.0)
+
+
+def test_cli_zero_based_ignore_regions_are_shifted(tmp_path, capsys):
+    """--ignore is numbered as the ground truth: with --zero-based its frame 0 is frame 1."""
+    gt = _two_targets(4)
+    zero = gt.copy()
+    zero[:, 0] -= 1
+    pred = np.vstack([zero, [[0, 9, 300, 300, 10, 10, 1, -1, -1, -1]]])  # a false alarm at 0
+    write_mot(tmp_path / "gt.txt", gt)
+    _write(tmp_path / "gt0.txt", zero)
+    _write(tmp_path / "pred0.txt", pred)
+    _write(tmp_path / "ign0.txt", [[0, -1, 290, 290, 40, 40, 1]])  # covers the false alarm
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt0.txt"), "--pred",
+                           str(tmp_path / "pred0.txt"), "--zero-based", "--ignore",
+                           str(tmp_path / "ign0.txt"), "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["MOTA"] == pytest.approx(1.0)  # the false alarm was ignored
+
+
+@pytest.mark.parametrize("content, fragment", [
+    (b"\xff\xfe\x00garbage\n", "cannot read"),
+    (b"0.5,1,10,10,5,5,1\n", "line 1"),
+    (b"-1,1,10,10,5,5,1\n", "got -1"),
+])
+def test_cli_zero_based_bad_files_are_one_line_errors(tmp_path, capsys, content, fragment):
+    write_mot(tmp_path / "pred.txt", _two_targets(3))
+    (tmp_path / "bad.txt").write_bytes(content)
+    code, _, err = _run(["eval", "--gt", str(tmp_path / "bad.txt"), "--pred",
+                         str(tmp_path / "pred.txt"), "--gt-zero-based"], capsys)
+    assert code == 2 and "Traceback" not in err, err
+    assert fragment in err and "bad.txt" in err and err.strip().count("\n") == 0, err
+
+
+def test_repeated_frame_id_with_large_or_negative_ids(tmp_path, capsys):
+    """(frame, id) used to be packed as frame * 1e9 + id: ids past 1e9 collided and the message
+    named the wrong frame."""
+    gt = _two_targets(2)
+    big = gt.copy()
+    big[big[:, 1] == 1, 1] = 1_500_000_000
+    big[big[:, 1] == 2, 1] = 500_000_000
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "big.txt", big)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "big.txt"), "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["MOTA"] == pytest.approx(1.0)
+    twice = np.vstack([gt, gt[2:3]])
+    twice[-1, 2] += 5
+    write_mot(tmp_path / "twice.txt", twice)
+    code, _, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                         str(tmp_path / "twice.txt")], capsys)
+    assert code == 2 and "(2, 1)" in err, err
+
+
+def test_cli_gt_with_two_boxes_for_one_id_names_the_file(tmp_path, capsys):
+    gt = _two_targets(2)
+    bad = np.vstack([gt, gt[:1] + [0, 0, 5, 0, 0, 0, 0, 0, 0, 0]])
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "bad_gt.txt", bad)
+    code, _, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--gt",
+                         str(tmp_path / "bad_gt.txt"), "--pred", str(tmp_path / "gt.txt"),
+                         "--pred", str(tmp_path / "gt.txt")], capsys)
+    assert code == 2 and "--gt" in err and "bad_gt.txt" in err and "(1, 1)" in err, err
+
+
+def test_cli_geo_error_uses_the_scoring_window(tmp_path, capsys):
+    """--geo-crs measured every frame, --frames or not."""
+    gt = _two_targets(4)
+    gt[:, 7], gt[:, 8] = 500000.0, 4000000.0
+    pred = gt.copy()
+    pred[pred[:, 0] == 1, 7] += 500.0  # frame 1 is 500 m off
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "pred.txt", pred)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "gt.txt"), "--pred",
+                           str(tmp_path / "pred.txt"), "--geo-crs", "EPSG:32633", "--frames",
+                           "2:4", "--json"], capsys)
+    assert code == 0, err
+    geo = json.loads(out)["geo_error"]
+    assert geo["matches"] == 6 and geo["mean_m"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_stray_huge_frame_number_is_scored_quickly(tmp_path, capsys):
+    """TrackEval's arrays were built for every frame up to the last: one ground-truth row at
+    frame 50 000 000 took minutes and gigabytes. Only occupied frames are handed over now (the
+    metrics skip empty frames, so the scores are those of the full loop)."""
+    gt = _two_targets(5)
+    far = np.vstack([gt, [[50_000_000, 7, 10, 10, 20, 10, 1, -1, -1, -1]]])
+    r = evaluate(far, gt)
+    assert r["FN"] == 1 and r["TP"] == 10 and r["IDSW"] == 0
+
+
+def test_sparse_frames_give_the_scores_of_every_frame():
+    """Gaps (frames with neither true nor predicted boxes) do not change any score: compared
+    with the same rows packed into consecutive frames."""
+    rng = np.random.default_rng(3)
+    gt = _two_targets(30)
+    pred = gt.copy()
+    pred[:, 2:4] += rng.normal(0, 3, (len(pred), 2))
+    pred[(pred[:, 0] > 10) & (pred[:, 0] < 15) & (pred[:, 1] == 1), 1] = 2  # a swap
+    pred[(pred[:, 0] > 10) & (pred[:, 0] < 15) & (pred[:, 1] == 2) & (pred[:, 3] < 100), 1] = 1
+    pred = pred[~((pred[:, 0] == 20) & (pred[:, 1] == 1))]
+    spread = lambda a: np.column_stack([a[:, 0] * 7 - 3, a[:, 1:]])  # noqa: E731
+    a, b = evaluate(gt, pred), evaluate(spread(gt), spread(pred))
+    for k in ("HOTA", "MOTA", "IDF1", "IDSW", "Frag", "MT", "TP", "FP", "FN"):
+        assert a[k] == pytest.approx(b[k]), k
+
+
+def test_evaluate_checks_its_arrays():
+    gt = _two_targets(3)
+    nan = gt.copy()
+    nan[0, 2] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        evaluate(gt, nan)
+    with pytest.raises(InputError, match="repeated"):
+        evaluate(gt, np.vstack([gt, gt[:1]]))
+    zero = gt.copy()
+    zero[:, 0] -= 1
+    with pytest.raises(InputError, match="1-based"):
+        evaluate(gt, zero)
+    with pytest.raises(InputError, match="scoring window"):
+        evaluate(gt, gt, frames=(0, 4))
+    with pytest.raises(InputError, match="expected"):
+        evaluate_sequences({"a": (gt,)})
+    empty = evaluate(gt, np.zeros((0, 10)))
+    assert np.isnan(empty["LocA"]) and empty["FN"] == len(gt)
+
+
+def test_cli_motchallenge_folder_layout(tmp_path, capsys):
+    """SEQ/gt/gt.txt (MOTChallenge) is read; a README.txt beside UAVDT's *_gt.txt is not a
+    sequence."""
+    for seq, n in (("A", 5), ("B", 8)):
+        (tmp_path / "mot" / seq / "gt").mkdir(parents=True)
+        write_mot(tmp_path / "mot" / seq / "gt" / "gt.txt", _two_targets(n))
+    (tmp_path / "runs").mkdir()
+    write_mot(tmp_path / "runs" / "A.txt", _two_targets(5))
+    write_mot(tmp_path / "runs" / "B.txt", _two_targets(8))
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "mot"), "--pred",
+                           str(tmp_path / "runs"), "--json"], capsys)
+    assert code == 0, err
+    assert set(json.loads(out)["sequences"]) == {"A", "B"}
+    (tmp_path / "uavdt").mkdir()
+    write_mot(tmp_path / "uavdt" / "A_gt.txt", _two_targets(5))
+    (tmp_path / "uavdt" / "README.txt").write_text("UAVDT ground truth\n")
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "uavdt"), "--pred",
+                           str(tmp_path / "runs"), "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["MOTA"] == pytest.approx(1.0)

@@ -12,10 +12,11 @@ import numpy as np
 from ..errors import InputError
 from ..evaluation import (
     METRIC_KEYS,
+    drop_exact_duplicates,
     evaluate_sequences,
     fix_ground_truth,
-    read_zero_based_mot,
 )
+from ..evaluation.mot import scored_rows
 from ..io.mot import read_mot
 
 log = logging.getLogger(__name__)
@@ -32,10 +33,19 @@ def _seq_name(path: Path) -> str:
 
 
 def _gt_files(folder: Path) -> list[Path]:
+    """The ground-truth files of a folder: MOTChallenge's SEQ/gt/gt.txt, else UAVDT's *_gt.txt
+    (a README.txt beside them is not a sequence), else every .txt and .csv file."""
+    mot = sorted(d / "gt" / "gt.txt" for d in folder.iterdir() if (d / "gt" / "gt.txt").is_file())
+    if mot:
+        return mot
     files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix in _MOT_EXTS
                    and not p.stem.endswith(_GT_SKIP_SUFFIXES))
+    named = [p for p in files if p.stem.endswith("_gt")]
+    if named:
+        return named
     if not files:
-        raise InputError(f"--gt {folder}: folder holds no .txt or .csv ground-truth files")
+        raise InputError(f"--gt {folder}: folder holds no ground truth (SEQ/gt/gt.txt, "
+                         "*_gt.txt, or .txt/.csv files)")
     return files
 
 
@@ -124,8 +134,8 @@ def _table(rows: list[tuple[str, dict]]) -> str:
 @click.command("eval")
 @click.option("--gt", "gts", multiple=True, required=True, metavar="FILE|DIR",
               help="Ground truth (MOTChallenge rows, 1-based frames). Repeat for several "
-                   "sequences, or give a folder (e.g. UAVDT's *_gt.txt; *_gt_whole and "
-                   "*_gt_ignore are skipped).")
+                   "sequences, or give a folder: MOTChallenge's SEQ/gt/gt.txt, else UAVDT's "
+                   "*_gt.txt (*_gt_whole and *_gt_ignore skipped), else every .txt/.csv.")
 @click.option("--pred", "preds", multiple=True, required=True, metavar="FILE|DIR",
               help="Predicted tracks, one per --gt in the same order, or a folder holding SEQ.txt, "
                    "SEQ.csv or SEQ/tracks.csv for each ground-truth sequence SEQ.")
@@ -137,8 +147,8 @@ def _table(rows: list[tuple[str, dict]]) -> str:
               help="IoU a match needs for MOTA/IDSW/Frag and IDF1 (HOTA integrates over "
                    "0.05..0.95).")
 @click.option("--frames", "frames", default=None, metavar="FIRST:LAST",
-              help="Score only these 1-based frames (default: 1 to the ground truth's last frame; "
-                   "predictions beyond it are always dropped).")
+              help="Score only these 1-based frames; predictions outside them are dropped "
+                   "(default: 1 to the ground truth's last frame).")
 @click.option("--zero-based", is_flag=True,
               help="Both files number frames from 0 (as Santiago's published files do): add 1.")
 @click.option("--gt-zero-based", is_flag=True,
@@ -175,21 +185,17 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     """
     window = _parse_frames(frames)
     seqs = {}
+    gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
     for name, g, p, ign in _pair(gts, preds, ignores):
-        if zero_based or gt_zero_based:
-            gt = read_zero_based_mot(g, option="--gt")
-        else:
-            gt = read_mot(g, option="--gt", strict=False, allow_empty=False)
-        if zero_based:
-            pred = read_zero_based_mot(p, option="--pred", strict=True)
-        else:
-            pred = read_mot(p, option="--pred", strict=True)
-        if not len(gt):
-            raise InputError(f"--gt {g}: no rows")
+        gt = read_mot(g, option="--gt", strict=False, allow_empty=False, zero_based=gt_zero)
+        pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
         if fix_gt:
-            gt, fix = fix_ground_truth(gt)
-            click.echo(f"aerotrack: --fix-gt {g}: {fix.describe()}", err=True)
-        ignore = read_mot(ign, option="--ignore", strict=False) if ign is not None else None
+            gt, fix = fix_ground_truth(gt, f"--gt {g}")
+            log.info("--fix-gt %s: %s", g, fix.describe())
+        else:
+            drop_exact_duplicates(gt, f"--gt {g}")  # refuses a (frame, id) with two boxes
+        ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
+                  if ign is not None else None)
         seqs[name] = (gt, pred, ignore)
     if window is not None and not any(((g[:, 0] >= window[0]) & (g[:, 0] <= window[1])).any()
                                       for g, _, _ in seqs.values()):
@@ -203,10 +209,12 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     if geo_crs is not None:
         from ..evaluation.geo import geo_errors
 
-        # frames are per sequence: offset them so sequences never mix
+        # the rows the scores were computed on (window, ignore regions, duplicates); frames are
+        # per sequence: offset them so sequences never mix
         off = 0
         parts_g, parts_p = [], []
-        for g, p, _ in seqs.values():
+        for name, (g, p, ign) in seqs.items():
+            g, p, _, _ = scored_rows(g, p, ignore=ign, frames=window, name=name)
             g, p = g.copy(), p.copy()
             g[:, 0] += off
             p[:, 0] += off

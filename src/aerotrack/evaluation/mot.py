@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..io.mot import repeated_frame_id
 
 log = logging.getLogger(__name__)
 
@@ -82,13 +83,16 @@ class GroundTruthFix:
         return "; ".join(parts) if parts else "nothing to change"
 
 
-def drop_exact_duplicates(rows: np.ndarray) -> tuple[np.ndarray, tuple[tuple[int, int], ...]]:
+def drop_exact_duplicates(rows: np.ndarray, label: str = "ground truth"
+                          ) -> tuple[np.ndarray, tuple[tuple[int, int], ...]]:
     """Drop rows that repeat an earlier row's frame, id and box exactly.
 
     Parameters
     ----------
     rows : (N, >=6) float array
         MOT rows.
+    label : str
+        Names the rows in the error (``--gt FILE``).
 
     Returns
     -------
@@ -103,7 +107,7 @@ def drop_exact_duplicates(rows: np.ndarray) -> tuple[np.ndarray, tuple[tuple[int
         A (frame, id) occurs twice with different boxes: that is not a harmless duplicate and no
         metric is defined for it.
     """
-    rows = _as_rows(rows, "ground truth")
+    rows = _as_rows(rows, label)
     if len(rows) == 0:
         return rows, ()
     _, first = np.unique(rows[:, :6], axis=0, return_index=True)
@@ -111,16 +115,16 @@ def drop_exact_duplicates(rows: np.ndarray) -> tuple[np.ndarray, tuple[tuple[int
     keep[first] = True
     dropped = tuple((int(r[0]), int(r[1])) for r in rows[~keep])
     kept = rows[keep]
-    fid = kept[:, 0] * 1e9 + kept[:, 1]
-    uniq, counts = np.unique(fid, return_counts=True)
-    if np.any(counts > 1):
-        k = uniq[counts > 1][0]
-        raise InputError(f"ground truth: (frame, id) = ({int(k // 1e9)}, {int(k % 1e9)}) occurs "
-                         "twice with different boxes")
+    rep = repeated_frame_id(kept)
+    if len(rep):
+        f, i = kept[rep[0], :2]
+        raise InputError(f"{label}: (frame, id) = ({int(f)}, {int(i)}) occurs twice with "
+                         "different boxes")
     return kept, dropped
 
 
-def fix_ground_truth(rows: np.ndarray) -> tuple[np.ndarray, GroundTruthFix]:
+def fix_ground_truth(rows: np.ndarray, label: str = "ground truth"
+                     ) -> tuple[np.ndarray, GroundTruthFix]:
     """Correct a flawed ground truth: reflect negative boxes and drop exact duplicates.
 
     A box stored with a negative width is taken to have been written from its right edge:
@@ -137,7 +141,7 @@ def fix_ground_truth(rows: np.ndarray) -> tuple[np.ndarray, GroundTruthFix]:
     fix : GroundTruthFix
         What changed; ``fix.describe()`` says it in one line.
     """
-    rows, dups = drop_exact_duplicates(rows)
+    rows, dups = drop_exact_duplicates(rows, label)
     rows = np.array(rows, copy=True)
     neg_w = rows[:, 4] < 0
     neg_h = rows[:, 5] < 0
@@ -210,12 +214,40 @@ def _box_ious(gt_boxes: np.ndarray, pred_boxes: np.ndarray) -> np.ndarray:
 
 
 def _as_rows(rows: np.ndarray, label: str) -> np.ndarray:
-    a = np.asarray(rows, dtype=np.float64)
+    """``rows`` as an (N, >=6) float array of MOT rows: finite boxes, frames integers >= 1."""
+    try:
+        a = np.asarray(rows, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{label}: expected an (N, >=6) array of MOT rows") from None
     if a.size == 0:
         return np.zeros((0, 10))
     if a.ndim != 2 or a.shape[1] < 6:
         raise InputError(f"{label}: expected MOT rows of at least 6 columns, got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a[:, :6]).all(axis=1))
+    if len(bad):
+        raise InputError(f"{label}: row {bad[0]} holds NaN or infinity in its first 6 columns")
+    bad = np.flatnonzero((a[:, 0] < 1) | (a[:, 0] != np.round(a[:, 0])))
+    if len(bad):
+        raise InputError(f"{label}: row {bad[0]} has frame {a[bad[0], 0]:g}; frames are 1-based "
+                         "integers (add 1 to 0-based ones)")
     return a
+
+
+def _check_tracks(pred: np.ndarray, label: str) -> None:
+    """Predicted rows must be tracks: ids >= 0, one row per (frame, id), no negative sizes."""
+    if not len(pred):
+        return
+    bad = np.flatnonzero(pred[:, 1] < 0)
+    if len(bad):
+        raise InputError(f"{label}: row {bad[0]} has id {pred[bad[0], 1]:g}; tracks need ids >= 0 "
+                         "(detections with id -1 are not tracks)")
+    bad = np.flatnonzero((pred[:, 4] < 0) | (pred[:, 5] < 0))
+    if len(bad):
+        raise InputError(f"{label}: row {bad[0]} has a negative box width or height")
+    rep = repeated_frame_id(pred)
+    if len(rep):
+        f, i = pred[rep[0], :2]
+        raise InputError(f"{label}: repeated (frame, id) = ({int(f)}, {int(i)})")
 
 
 def sequence_data(gt: np.ndarray, pred: np.ndarray, *, frames: tuple[int, int] | None = None
@@ -241,8 +273,8 @@ def sequence_data(gt: np.ndarray, pred: np.ndarray, *, frames: tuple[int, int] |
         last = int(gt[:, 0].max()) if len(gt) else (int(pred[:, 0].max()) if len(pred) else 1)
         frames = (1, last)
     first, last = int(frames[0]), int(frames[1])
-    if last < first:
-        raise InputError(f"scoring window {first}..{last} is empty")
+    if first < 1 or last < first:
+        raise InputError(f"scoring window {first}..{last}: expected 1 <= first <= last")
     in_gt = (gt[:, 0] >= first) & (gt[:, 0] <= last)
     in_pred = (pred[:, 0] >= first) & (pred[:, 0] <= last)
     if (~in_pred).any():
@@ -252,12 +284,21 @@ def sequence_data(gt: np.ndarray, pred: np.ndarray, *, frames: tuple[int, int] |
     gt_uid, gt_lab = np.unique(gt[:, 1], return_inverse=True)
     pr_uid, pr_lab = np.unique(pred[:, 1], return_inverse=True)
     T = last - first + 1
-    gt_t = gt[:, 0].astype(int) - first
-    pr_t = pred[:, 0].astype(int) - first
+    # Only frames holding a true or a predicted box are handed over: TrackEval's metrics skip a
+    # frame with neither (CLEAR's "previous frame" survives it), and a window of 50 million
+    # frames (one stray frame number) would otherwise take minutes and gigabytes.
+    # ``num_timesteps`` stays the window's length (reported as frames).
+    gt_f, pr_f = gt[:, 0].astype(np.int64), pred[:, 0].astype(np.int64)
+    occupied = np.union1d(gt_f, pr_f)
     gt_ids, tr_ids, sims = [], [], []
-    for t in range(T):
-        gi = np.flatnonzero(gt_t == t)
-        pi = np.flatnonzero(pr_t == t)
+    g_order, p_order = np.argsort(gt_f, kind="stable"), np.argsort(pr_f, kind="stable")
+    g_lo = np.searchsorted(gt_f[g_order], occupied, "left")
+    g_hi = np.searchsorted(gt_f[g_order], occupied, "right")
+    p_lo = np.searchsorted(pr_f[p_order], occupied, "left")
+    p_hi = np.searchsorted(pr_f[p_order], occupied, "right")
+    for k in range(len(occupied)):
+        gi = g_order[g_lo[k]:g_hi[k]]
+        pi = p_order[p_lo[k]:p_hi[k]]
         gt_ids.append(gt_lab[gi].astype(int))
         tr_ids.append(pr_lab[pi].astype(int))
         if len(gi) and len(pi):
@@ -286,7 +327,7 @@ def _check_iou(iou_threshold: float) -> None:
 
 
 def _prepare_gt(gt: np.ndarray, label: str) -> np.ndarray:
-    gt, dups = drop_exact_duplicates(_as_rows(gt, label))
+    gt, dups = drop_exact_duplicates(_as_rows(gt, label), label)
     if dups:
         log.warning("%s: dropped %s", label, GroundTruthFix(duplicates=dups).describe()
                     .removeprefix("dropped "))
@@ -308,18 +349,47 @@ class SequenceScore:
     summary: dict = field(default_factory=dict)
 
 
-def _score_sequence(name: str, gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float,
-                    ignore: np.ndarray | None, frames: tuple[int, int] | None) -> SequenceScore:
-    gt = _prepare_gt(gt, f"ground truth {name}" if name else "ground truth")
-    pred = _as_rows(pred, "prediction")
+def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None = None,
+                frames: tuple[int, int] | None = None, name: str = ""
+                ) -> tuple[np.ndarray, np.ndarray, int, tuple[int, int]]:
+    """The rows a sequence is scored on: ``(gt, pred, predictions dropped in ignore regions,
+    scoring window)``.
+
+    The ground truth loses exact duplicates (with a warning); both lose boxes in ``ignore``
+    regions (:func:`drop_ignored`; annotated boxes too, or a perfect prediction would lose them)
+    and rows outside the scoring window ``frames`` (default ``1..`` the ground truth's last
+    frame). Predictions must be tracks (ids >= 0, one row per frame and id, no negative size).
+    ``eval --geo-crs`` measures its distances on the same rows.
+    """
+    suffix = f" {name}" if name else ""
+    gt = _prepare_gt(gt, "ground truth" + suffix)
+    pred = _as_rows(pred, "prediction" + suffix)
+    _check_tracks(pred, "prediction" + suffix)
     n_ignored = 0
     if ignore is not None:
-        # Annotated boxes inside an ignore region go too, or a perfect prediction would lose them.
+        ignore = _as_rows(ignore, "ignore regions" + suffix)
         pred, n_ignored = drop_ignored(pred, ignore)
         gt, n_gt = drop_ignored(gt, ignore)
         if n_gt:
             log.info("%s: %d ground-truth boxes in ignore regions dropped", name or "ground truth",
                      n_gt)
+    if frames is None:
+        frames = (1, int(gt[:, 0].max()) if len(gt) else
+                  (int(pred[:, 0].max()) if len(pred) else 1))
+    first, last = int(frames[0]), int(frames[1])
+    if first < 1 or last < first:
+        raise InputError(f"scoring window {first}..{last}: expected 1 <= first <= last")
+    in_pred = (pred[:, 0] >= first) & (pred[:, 0] <= last)
+    if (~in_pred).any():
+        log.info("dropped %d prediction rows outside the scoring frames %d..%d",
+                 int((~in_pred).sum()), first, last)
+    gt = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)]
+    return gt, pred[in_pred], n_ignored, (first, last)
+
+
+def _score_sequence(name: str, gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float,
+                    ignore: np.ndarray | None, frames: tuple[int, int] | None) -> SequenceScore:
+    gt, pred, n_ignored, frames = scored_rows(gt, pred, ignore=ignore, frames=frames, name=name)
     data = sequence_data(gt, pred, frames=frames)
     raw = {k: m.eval_sequence(data) for k, m in _metrics(iou_threshold).items()}
     s = SequenceScore(name, raw, n_ignored)
@@ -338,7 +408,9 @@ def summarise(raw: Mapping[str, Mapping]) -> dict:
     h, c, i, n = raw["HOTA"], raw["CLEAR"], raw["Identity"], raw["Count"]
     out = {
         "HOTA": float(np.mean(h["HOTA"])), "DetA": float(np.mean(h["DetA"])),
-        "AssA": float(np.mean(h["AssA"])), "LocA": float(np.mean(h["LocA"])),
+        "AssA": float(np.mean(h["AssA"])),
+        # TrackEval reports LocA 1 when nothing matched (0/0 guarded by 1e-10): undefined here
+        "LocA": float(np.mean(h["LocA"])) if np.sum(h["HOTA_TP"]) > 0 else float("nan"),
         "MOTA": float(c["MOTA"]), "MOTP": float(c["MOTP"]), "IDF1": float(i["IDF1"]),
         "IDSW": int(c["IDSW"]), "Frag": int(c["Frag"]),
         "GT_IDs": int(n["GT_IDs"]), "Pred_IDs": int(n["IDs"]),
@@ -407,6 +479,8 @@ def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: floa
         raise InputError("no sequences to evaluate")
     scores = {}
     for name, entry in sequences.items():
+        if not isinstance(entry, Sequence) or not 2 <= len(entry) <= 3:
+            raise InputError(f"sequence {name!r}: expected (gt, pred) or (gt, pred, ignore)")
         gt, pred = entry[0], entry[1]
         ign = entry[2] if len(entry) > 2 else None
         scores[name] = _score_sequence(name, gt, pred, iou_threshold=iou_threshold, ignore=ign,

@@ -13,8 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FormatError, InputError
-from ..io.mot import parse_mot_text
+from ..io.mot import read_mot
 from .mot import evaluate
 
 #: Inclusive 1-based scoring window of the published protocol (0-based frames 1..97).
@@ -26,41 +25,12 @@ SANTIAGO_BASELINES = {
 }
 
 
-def read_zero_based_mot(path: str | Path, *, option: str | None = None, strict: bool = False
-                        ) -> np.ndarray:
-    """Read a MOT file whose frames are 0-based, returning 1-based rows (N, 10) sorted by frame, id.
-
-    Malformed lines raise ``FormatError`` naming the (1-based) line. ``strict`` refuses negative
-    sizes and repeated (frame, id) as :func:`aerotrack.io.mot.read_mot` does.
-    """
-    p = Path(path)
-    label = f"{option} {p}" if option else str(p)
-    if not p.is_file():
-        raise InputError(f"{label}: file not found")
-    lines = []
-    for line in p.read_text(encoding="utf-8-sig").splitlines():
-        s = line.strip()
-        if s and not s.startswith("#"):
-            head, sep, rest = s.replace(",", " ", 1).partition(" ")
-            try:
-                head = str(int(float(head)) + 1)
-            except ValueError:
-                pass  # parse_mot_text names the line
-            s = head + sep + rest
-        lines.append(s)
-    rows = parse_mot_text("\n".join(lines), label)
-    if strict and len(rows):
-        neg = np.flatnonzero((rows[:, 4] < 0) | (rows[:, 5] < 0))
-        if len(neg):
-            raise FormatError(f"{label}: row {neg[0] + 1} has a negative box width or height")
-        key = rows[:, 0] * 1e9 + rows[:, 1]
-        uniq, counts = np.unique(key, return_counts=True)
-        if np.any(counts > 1) and np.any(rows[:, 1] >= 0):
-            k = uniq[counts > 1][0]
-            raise FormatError(f"{label}: repeated (frame, id) = ({int(k // 1e9) - 1}, "
-                              f"{int(k % 1e9)}) (0-based frame)")
-    order = np.lexsort((rows[:, 1], rows[:, 0])) if len(rows) else np.zeros(0, int)
-    return rows[order]
+def read_zero_based_mot(path: str | Path, *, option: str | None = None, strict: bool = False,
+                        tracks: bool = False) -> np.ndarray:
+    """Read a MOT file whose frames are 0-based, returning 1-based rows (N, 10) sorted by frame, id
+    (:func:`aerotrack.io.mot.read_mot` with ``zero_based=True``; ``strict`` and ``tracks`` as
+    there)."""
+    return read_mot(path, option=option, strict=strict, zero_based=True, tracks=tracks)
 
 
 def load_santiago(folder: str | Path, tracks: str | Path | np.ndarray | None = None

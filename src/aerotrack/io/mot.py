@@ -19,26 +19,37 @@ _HEADER_FIELD = re.compile(r"^[A-Za-z_][\w.()\-]*$")
 MOT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "conf", "x", "y", "z")
 
 
-def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6) -> np.ndarray:
+def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6,
+                   zero_based: bool = False) -> np.ndarray:
     """Parse MOT rows into an (N, 10) float64 array.
 
-    Blank lines and lines starting with ``#`` are skipped; fields are comma- or
-    whitespace-separated. A first row whose every field is a word (a header such as
+    Blank lines and lines starting with ``#`` are skipped; fields are comma-, tab- or
+    space-separated. A first row whose every field is a word (a header such as
     ``frame,id,x,y,w,h,conf``, as exported by pandas and most detector scripts) is skipped too.
+    With ``zero_based`` the file numbers frames from 0 and 1 is added to every frame.
 
     Raises
     ------
     FormatError
         A row has fewer than ``min_columns`` or more than 10 fields, a non-numeric or non-finite
-        cell, or a frame number that is not a positive integer. The message names the line.
+        cell, or a frame number that is not a positive (zero_based: non-negative) integer. The
+        message names the line.
     """
+    return _parse(text, name, min_columns=min_columns, zero_based=zero_based)[0]
+
+
+def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = False
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, 1-based line number of each row) of :func:`parse_mot_text`."""
     rows: list[list[float]] = []
+    linenos: list[int] = []
     first = True
+    lowest = 0 if zero_based else 1
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
-        parts = [p for p in s.replace(",", " ").split()]
+        parts = s.replace(",", " ").split()
         if first and all(_HEADER_FIELD.match(p) for p in parts):
             first = False
             continue
@@ -54,15 +65,18 @@ def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6) -> 
             raise FormatError(f"{name} line {lineno}: non-numeric value {bad!r}") from None
         if not all(np.isfinite(vals)):
             raise FormatError(f"{name} line {lineno}: NaN or infinite value")
-        if vals[0] < 1 or not float(vals[0]).is_integer():
-            raise FormatError(
-                f"{name} line {lineno}: frame must be a positive integer (1-based), got {parts[0]}"
-            )
+        if vals[0] < lowest or not float(vals[0]).is_integer():
+            kind = "a non-negative integer (0-based)" if zero_based else \
+                "a positive integer (1-based)"
+            raise FormatError(f"{name} line {lineno}: frame must be {kind}, got {parts[0]}")
+        if zero_based:
+            vals[0] += 1.0
         vals += [1.0, -1.0, -1.0, -1.0][len(vals) - 6:] if len(vals) < 10 else []
         rows.append(vals[:10])
+        linenos.append(lineno)
     if not rows:
-        return np.zeros((0, 10))
-    return np.asarray(rows, dtype=np.float64)
+        return np.zeros((0, 10)), np.zeros(0, int)
+    return np.asarray(rows, dtype=np.float64), np.asarray(linenos)
 
 
 def _is_float(s: str) -> bool:
@@ -73,9 +87,20 @@ def _is_float(s: str) -> bool:
     return True
 
 
+def repeated_frame_id(rows: np.ndarray) -> np.ndarray:
+    """Indices of the rows whose (frame, id) an earlier row already has (any ids, any size)."""
+    if not len(rows):
+        return np.zeros(0, int)
+    _, first = np.unique(np.asarray(rows, np.float64)[:, :2], axis=0, return_index=True)
+    seen = np.zeros(len(rows), bool)
+    seen[first] = True
+    return np.flatnonzero(~seen)
+
+
 def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True,
-             allow_empty: bool = True) -> np.ndarray:
-    """Read a MOTChallenge file into an (N, 10) array sorted by (frame, id).
+             allow_empty: bool = True, zero_based: bool = False, tracks: bool = False
+             ) -> np.ndarray:
+    """Read a MOTChallenge file into an (N, 10) array sorted by (frame, id), 1-based frames.
 
     Parameters
     ----------
@@ -84,10 +109,16 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
     option : str, optional
         Command-line option the file came from, for messages (``--pred``).
     strict : bool
-        Refuse boxes with a negative width or height and exact-duplicate (frame, id) rows
-        (``--pred``, ``--detections``). Ground truth is read with ``strict=False``.
+        Refuse boxes with a negative width or height and repeated (frame, id) rows
+        (``--pred``, ``--detections``; rows with id -1, detections, may share a frame).
+        Ground truth is read with ``strict=False``.
     allow_empty : bool
         Whether a file with no rows is acceptable.
+    zero_based : bool
+        The file numbers frames from 0 (Santiago's published files): 1 is added.
+    tracks : bool
+        The rows are tracks (``eval --pred``, ``predict``): every id must be >= 0. A file of
+        detections (id -1) would otherwise be scored as one track with many boxes a frame.
 
     Raises
     ------
@@ -103,23 +134,25 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
         text = p.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{label}: cannot read ({exc})") from None
-    data = parse_mot_text(text, label)
+    data, linenos = _parse(text, label, zero_based=zero_based)
     if not len(data) and not allow_empty:
         raise InputError(f"{label}: no rows")
+    shown = "0-based " if zero_based else ""
+    if tracks and len(data) and np.any(data[:, 1] < 0):
+        k = int(np.flatnonzero(data[:, 1] < 0)[0])
+        raise FormatError(f"{label} line {linenos[k]}: track id {data[k, 1]:g}; tracks need ids "
+                          ">= 0 (a file of detections, id -1, is not a tracks file)")
     if strict and len(data):
         neg = np.flatnonzero((data[:, 4] < 0) | (data[:, 5] < 0))
         if len(neg):
-            raise FormatError(f"{label}: row {neg[0] + 1} has a negative box width or height")
-        ids = data[:, 1]
-        has_ids = np.any(ids >= 0)
-        if has_ids:
-            key = data[:, 0] * 1e9 + ids
-            uniq, counts = np.unique(key, return_counts=True)
-            if np.any(counts > 1):
-                k = uniq[counts > 1][0]
-                raise FormatError(
-                    f"{label}: repeated (frame, id) = ({int(k // 1e9)}, {int(k % 1e9)})"
-                )
+            raise FormatError(f"{label} line {linenos[neg[0]]}: negative box width or height")
+        with_id = np.flatnonzero(data[:, 1] >= 0)
+        rep = with_id[repeated_frame_id(data[with_id])]
+        if len(rep):
+            k = int(rep[0])
+            frame = int(data[k, 0]) - (1 if zero_based else 0)
+            raise FormatError(f"{label} line {linenos[k]}: repeated (frame, id) = ({frame}, "
+                              f"{int(data[k, 1])}){' (' + shown.strip() + ' frame)' if shown else ''}")
     order = np.lexsort((data[:, 1], data[:, 0])) if len(data) else np.zeros(0, int)
     return data[order]
 
