@@ -444,7 +444,7 @@ def test_sparse_frames_give_the_scores_of_every_frame():
     pred[(pred[:, 0] > 10) & (pred[:, 0] < 15) & (pred[:, 1] == 1), 1] = 2  # a swap
     pred[(pred[:, 0] > 10) & (pred[:, 0] < 15) & (pred[:, 1] == 2) & (pred[:, 3] < 100), 1] = 1
     pred = pred[~((pred[:, 0] == 20) & (pred[:, 1] == 1))]
-    spread = lambda a: np.column_stack([a[:, 0] * 7 - 3, a[:, 1:]])  # noqa: E731
+    spread = lambda a: np.column_stack([a[:, 0] * 7 - 3, a[:, 1:]])
     a, b = evaluate(gt, pred), evaluate(spread(gt), spread(pred))
     for k in ("HOTA", "MOTA", "IDF1", "IDSW", "Frag", "MT", "TP", "FP", "FN"):
         assert a[k] == pytest.approx(b[k]), k

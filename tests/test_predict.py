@@ -162,3 +162,31 @@ def test_pedestrians_zara01_context_beats_last_step_velocity(shared_data, tmp_pa
     fde = np.hypot(*(pred[:, -1] - truth[:, -1]).T).mean()
     fde_cv = np.hypot(*(cv[:, -1] - truth[:, -1]).T).mean()
     assert len(queries) > 400 and fde < 0.95 * fde_cv, (fde, fde_cv)
+
+
+def test_map_space_leaves_out_rows_without_a_map_position(tmp_path, capsys):
+    """x, y = -1 marks a row with no map position; --space map used it as a coordinate and the
+    prediction jumped from (500020, 4000010) towards (-1, -1)."""
+    rows = [f"{f},1,0,0,4,2,1,{500000 + f:.1f},{4000000 + f / 2:.1f},-1" for f in range(1, 18)]
+    rows += [f"{f},1,0,0,4,2,1,-1,-1,-1" for f in range(18, 21)]
+    tracks = tmp_path / "t.csv"
+    tracks.write_text("\n".join(rows) + "\n")
+    q = tmp_path / "q.csv"
+    q.write_text("\ufeff# a comment\nid,last_seen,horizon\n1,17,3\n")  # BOM and comment accepted
+    out = tmp_path / "p.csv"
+    _run(["predict", str(tracks), "--queries", str(q), "--out", str(out), "--space", "map",
+          "--method", "constant-velocity"])
+    pred = np.array([[float(v) for v in ln.split(",")] for ln in out.read_text().splitlines()[1:]])
+    assert np.allclose(pred[:, 3], [500018, 500019, 500020], atol=0.01), pred
+    assert out.read_text().splitlines()[1].split(",")[3] == "500018.0000000"  # 7 decimals
+
+
+def test_detections_are_not_tracks(tmp_path, capsys):
+    tracks = tmp_path / "d.csv"
+    tracks.write_text("1,-1,10,10,4,4,0.9\n1,-1,30,10,4,4,0.9\n2,-1,11,10,4,4,0.9\n")
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,1,3\n")
+    with pytest.raises(SystemExit) as exc:
+        _run(["predict", str(tracks), "--queries", str(q), "--out", str(tmp_path / "o.csv")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "d.csv line 1" in err and "ids >= 0" in err, err

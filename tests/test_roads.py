@@ -440,3 +440,24 @@ def test_track_with_roads_on_dask_matches_the_single_process(tmp_path, capsys):
     assert read("dask", "tracks.csv") == read("one", "tracks.csv")
     assert read("dask", "predicted.csv") == read("one", "predicted.csv")
     assert read("plain", "predicted.csv") != read("one", "predicted.csv")
+
+
+def test_predict_names_a_bad_crs_and_warns_when_roads_are_elsewhere(tmp_path, capsys):
+    """A wrong --crs was blamed on --roads, and one that put the roads far from the tracks
+    (lon/lat tracks read as UTM) dropped the roads silently."""
+    roads, _, _, _ = l_road_files(tmp_path)
+    tracks = tmp_path / "t.csv"
+    x0, y0 = 660000.0, 4000000.0
+    tracks.write_text("".join(f"{f},1,0,0,4,2,1,{x0 + 30 + f},{y0 - 1.8},-1\n" for f in range(1, 11)))
+    queries = tmp_path / "q.csv"
+    queries.write_text("id,last_seen,horizon\n1,10,5\n")
+    out = tmp_path / "p.csv"
+    code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out,
+                           "--space", "map", "--roads", roads, "--crs", "FOO")
+    assert code == 2 and "--crs FOO" in err and not out.exists(), err
+    code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out,
+                           "--space", "map", "--roads", roads, "--crs", "EPSG:32633")
+    assert code == 0 and "no road within" in err, err
+    code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out,
+                           "--space", "map", "--roads", roads, "--crs", "EPSG:32611")
+    assert code == 0 and "no road within" not in err, err

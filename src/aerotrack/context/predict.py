@@ -9,6 +9,7 @@ x, y map columns (``space="map"``). The prediction at frame f uses only the targ
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,8 @@ from ..errors import FormatError, InputError
 from ..io.mot import read_mot
 from ..io.output import atomic_write_text
 from .motion import TrackTable, get_predictor
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Query", "read_queries", "tracks_table", "scale_of", "predict_queries", "format_predictions",
            "run_predict"]
@@ -52,10 +55,11 @@ def read_queries(path: str | Path) -> list[Query]:
     if not p.is_file():
         raise InputError(f"--queries {p}: file not found")
     try:
-        lines = p.read_text(encoding="utf-8").splitlines()
+        lines = p.read_text(encoding="utf-8-sig").splitlines()  # a BOM, as Excel writes
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"--queries {p}: cannot read ({exc})") from None
-    rows = [(n, ln) for n, ln in enumerate(lines, start=1) if ln.strip()]
+    rows = [(n, ln) for n, ln in enumerate(lines, start=1)
+            if ln.strip() and not ln.lstrip().startswith("#")]  # comments, as in MOT files
     if not rows:
         raise FormatError(f"--queries {p}: empty, expected a header id,last_seen,horizon")
     header = tuple(c.strip().lower() for c in rows[0][1].split(","))
@@ -93,6 +97,11 @@ def tracks_table(rows: np.ndarray, space: str = "image", name: str = "TRACKS") -
         xy = rows[:, 7:9]
         if len(rows) and np.all(xy == -1):
             raise InputError(f"{name}: --space map needs the x,y map columns, but they are all -1")
+        placed = ~np.all(xy == -1, axis=1)  # -1, -1: no map position in this row (MOT's blank)
+        if not placed.all():
+            log.info("%s: %d rows without a map position (x, y = -1) left out", name,
+                     int((~placed).sum()))
+            rows, xy = rows[placed], xy[placed]
     return TrackTable.from_arrays(rows[:, 1], rows[:, 0], xy)
 
 
@@ -143,11 +152,13 @@ def predict_queries(table: TrackTable, queries: list[Query], method: str, config
     return out
 
 
-def format_predictions(queries: list[Query], preds: list[np.ndarray]) -> str:
+def format_predictions(queries: list[Query], preds: list[np.ndarray], decimals: int = 6) -> str:
+    """The output CSV; ``decimals`` 7 for map coordinates (lon/lat to about 1 cm, as tracks.csv)."""
     lines = [OUTPUT_HEADER]
+    d = int(decimals)
     for n, (q, p) in enumerate(zip(queries, preds)):
         for k in range(q.horizon):
-            lines.append(f"{n},{q.id},{q.last_seen + k + 1},{p[k, 0]:.6f},{p[k, 1]:.6f}")
+            lines.append(f"{n},{q.id},{q.last_seen + k + 1},{p[k, 0]:.{d}f},{p[k, 1]:.{d}f}")
     return "\n".join(lines) + "\n"
 
 
@@ -164,7 +175,7 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
     get_predictor(method, config, fps)  # fail on a bad method before reading anything
     if roads is not None and space != "map":
         raise InputError(f"--roads {roads}: needs --space map (the roads are in map coordinates)")
-    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False)
+    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True)
     table = tracks_table(rows, space, name=str(tracks))
     qs = read_queries(queries)
     mpu = metres_per_unit or scale_of(rows, space, config)
@@ -176,10 +187,36 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
             if scale_of(rows, "map", config) == 1.0:
                 raise InputError(f"--roads {roads}: give --crs, the CRS of the tracks' x,y columns")
             crs = "EPSG:4326"
+        else:
+            from pyproj import CRS
+            from pyproj.exceptions import CRSError
+
+            try:
+                CRS.from_user_input(crs)
+            except CRSError:
+                raise InputError(f"--crs {crs}: not a CRS pyproj knows (e.g. EPSG:32611)") from None
         network = read_roads(roads, crs=crs, snap_m=config.roads_snap_m)
         if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
             network = RoadNetwork(network.lines, mpu, config.roads_snap_m, y_down=network.y_down)
+        _check_roads_near(network, table, roads, crs, mpu)
     preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,
                             label=f"--queries {queries}")
-    atomic_write_text(out, format_predictions(qs, preds))
+    atomic_write_text(out, format_predictions(qs, preds, 7 if space == "map" else 6))
     return sum(q.horizon for q in qs)
+
+
+def _check_roads_near(network, table: TrackTable, roads, crs, mpu: float,
+                      within_m: float = 1000.0) -> None:
+    """Warn when no road passes within ``within_m`` of the tracks: the roads then change no
+    prediction, which is what a wrong ``--crs`` does silently (lon/lat tracks read as UTM)."""
+    pts = [table.track(i)[1] for i in table.track_ids()]
+    if not pts or not getattr(network, "lines", None):
+        return
+    xy = np.vstack(pts)
+    lo, hi = xy.min(axis=0) - within_m / mpu, xy.max(axis=0) + within_m / mpu
+    boxes = np.array([np.r_[np.min(ln, axis=0)[:2], np.max(ln, axis=0)[:2]]
+                      for ln in network.lines])  # each line's bounding box
+    if not np.any(np.all(boxes[:, :2] <= hi, axis=1) & np.all(boxes[:, 2:] >= lo, axis=1)):
+        log.warning("--roads %s: no road within %.0f m of the tracks in %s; the roads change no "
+                    "prediction (is --crs the CRS of the tracks' x,y columns?)", roads, within_m, crs)
+
