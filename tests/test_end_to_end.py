@@ -107,3 +107,30 @@ def test_python_detect_equals_the_detections_of_run(scene):
     for da, db in zip(a.detections, b.detections):
         np.testing.assert_array_equal(da.boxes, db.boxes)
         np.testing.assert_allclose(da.world, db.world)
+
+
+def test_python_api_takes_paths_and_checks_its_arguments(scene, tmp_path):
+    """pipeline.run("frames/") raised AttributeError ('str' object has no attribute 'fps'),
+    detections="gt.txt" a TypeError, H_init=np.eye(2) an IndexError nine frames deep."""
+    from aerotrack.errors import InputError
+
+    gt = io.mot.read_mot(scene / "gt.txt", strict=False)
+    first = gt[gt[:, 0] <= 20]
+    by_path = pipeline.run(scene / "frames", stop=20)
+    by_source = pipeline.run(io.open_source(scene / "frames"), stop=20)
+    assert len(by_path.tracks) == len(by_source.tracks) and by_path.frames == by_source.frames
+    assert pipeline.detect(str(scene / "frames"), stop=5).frames
+    (tmp_path / "d.txt").write_text("".join(
+        f"{int(r[0])},-1,{r[2]:.2f},{r[3]:.2f},{r[4]:.2f},{r[5]:.2f},1\n" for r in first))
+    from_file = pipeline.run(detections=tmp_path / "d.txt")
+    from_rows = pipeline.run(detections=np.column_stack([first[:, 0], -np.ones(len(first)),
+                                                         first[:, 2:6]]))
+    assert len(from_file.tracks) == len(from_rows.tracks) > 0
+    geomap = GeoMap(scene / "map.tif")
+    for kwargs, needle in (({"detections": np.zeros((3, 4))}, r"shape \(3, 4\)"),
+                           ({"source": 42}, "FrameSource"),
+                           ({"source": scene / "frames", "geomap": geomap, "H_init": np.eye(2)},
+                            "3x3"),
+                           ({"source": scene / "frames", "geomap": geomap}, "needs H_init")):
+        with pytest.raises(InputError, match=needle):
+            pipeline.run(**kwargs)

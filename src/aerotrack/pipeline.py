@@ -731,10 +731,14 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
 
     Parameters
     ----------
-    source : FrameSource, optional
-        Frames; may be None when ``detections`` is given (association alone, image coordinates).
-    detections : ndarray (N, 10), optional
-        External MOT detection rows (1-based frames); replace the built-in detector.
+    source : FrameSource or path, optional
+        Frames (a path is opened with :func:`aerotrack.io.open_source`); may be None when
+        ``detections`` is given (association alone, image coordinates).
+    detections : ndarray (N, 6..10) or path, optional
+        External MOT detection rows (1-based frames), or a MOTChallenge file of them; they
+        replace the built-in detector.
+    H_init : ndarray (3, 3), optional
+        Frame 1 (of the video, whatever ``start`` is) -> ``geomap`` pixels; needed with a map.
     progress : callable, optional
         Called with the number of frames done after each frame.
     checkpoint_dir : path, optional
@@ -762,6 +766,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     config = config or Config()
     if source is None and detections is None:
         raise InputError("give an INPUT video/folder or --detections")
+    source, detections, H_init = _api_inputs(source, detections, H_init, geomap, fps)
     if fps is None:
         fps = source.fps if source is not None else 30.0
     per_frame = _group_rows(detections) if detections is not None else None
@@ -841,6 +846,9 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
     >>> sum(len(d) for d in result.detections)                      # doctest: +SKIP
     """
     config = config or Config()
+    if source is None:
+        raise InputError("detect needs a source (a video, an image folder, or a FrameSource)")
+    source, _, H_init = _api_inputs(source, None, H_init, geomap, None)
     pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init,
                     metres_per_unit=metres_per_unit, undistort=undistort, regions=regions,
                     spill=False, associate=False, debug=debug is not None, stabilised=stabilised)
@@ -900,6 +908,52 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
         pipe.first_frame, pipe.last_frame, pipe.n_frames = frames[0], frames[-1], len(frames)
     pipe._associate(sorted(dets, key=lambda d: d.frame))
     return pipe.finish()
+
+
+def _api_inputs(source, detections, H_init, geomap, fps):
+    """The Python API's inputs checked as the command line checks them: paths opened or read,
+    arrays of the right shape (one-line :class:`InputError` instead of an error frames deep)."""
+    from .io import open_source
+    from .io.mot import read_mot
+
+    if isinstance(source, (str, Path)):
+        source = open_source(source, fps)
+    elif source is not None and not (hasattr(source, "frames") and hasattr(source, "fps")):
+        raise InputError(f"source: expected a path or a FrameSource (aerotrack.io.open_source), "
+                         f"got {type(source).__name__}")
+    if isinstance(detections, (str, Path)):
+        detections = read_mot(detections, option="detections", strict=True)
+    elif detections is not None:
+        try:
+            d = np.asarray(detections, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError("detections: expected an (N, 6..10) array of MOT rows") from None
+        if d.size == 0:
+            d = np.zeros((0, 10))
+        if d.ndim != 2 or not 6 <= d.shape[1] <= 10:
+            raise InputError(f"detections: expected an (N, 6..10) array of MOT rows (frame, id, "
+                             f"x, y, w, h, conf, ...), got shape {d.shape}")
+        if not np.isfinite(d[:, :6]).all() or np.any(d[:, 0] < 1) \
+                or np.any(d[:, 0] != np.round(d[:, 0])) or np.any(d[:, 4:6] < 0):
+            raise InputError("detections: frames must be 1-based integers and boxes finite with "
+                             "sizes >= 0")
+        if d.shape[1] < 10:  # conf 1, x, y, z -1, as the file reader fills them
+            d = np.hstack([d, np.array([1.0, -1.0, -1.0, -1.0])[d.shape[1] - 6:]
+                           * np.ones((len(d), 1))])
+        detections = d
+    if H_init is not None:
+        try:
+            H = np.asarray(H_init, dtype=np.float64)
+        except (TypeError, ValueError):
+            H = np.zeros(0)
+        if H.shape != (3, 3) or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-12:
+            raise InputError(f"H_init: expected an invertible 3x3 homography (frame 1 -> map "
+                             f"pixels), got shape {H.shape}")
+        H_init = H
+    if geomap is not None and H_init is None:
+        raise InputError("geomap needs H_init (frame 1 -> map pixels; geo.read_map_init reads "
+                         "a --map-init file)")
+    return source, detections, H_init
 
 
 def _group_rows(rows: np.ndarray) -> dict[int, np.ndarray]:
