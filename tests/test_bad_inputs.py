@@ -298,7 +298,10 @@ def test_detect_output_holds_results(tmp_path, capsys, video):
     o = tmp_path / "o"
     o.mkdir()
     (o / "detections.csv").write_text("")
-    expect_error(capsys, ["--overwrite"], "detect", video, "--out", o)
+    err = expect_error(capsys, ["--overwrite"], "detect", video, "--out", o)
+    assert "--resume" not in err  # detect has no --resume
+    (o / "tracks.csv").write_text("")
+    err = expect_error(capsys, ["--overwrite", "--resume"], "track", video, "--out", o)
 
 
 @pytest.mark.parametrize("extra,needle", [
@@ -900,3 +903,26 @@ def test_resume_of_a_finished_run_refuses_other_options(tmp_path, capsys, video)
                  "--stride", "2")
     expect_error(capsys, ["finished run", "config"], "track", video, "--out", out, "--resume",
                  "--set", "detection.threshold_sigma=5")
+
+
+def test_a_second_signal_while_detect_flushes_keeps_the_finished_frames(tmp_path, capsys,
+                                                                        monkeypatch):
+    """A second Ctrl-C landing in the detector's flush after the last frame raised
+    AttributeError ('Interrupted' object has no attribute 'partial_result') and the output
+    folder, finished detections included, was deleted."""
+    import signal
+
+    from aerotrack.cli.common import Interrupted
+    from aerotrack.pipeline import Pipeline
+
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(12)])
+
+    def second_signal(self):
+        raise Interrupted(signal.SIGINT, "")
+
+    monkeypatch.setattr(Pipeline, "finish_local", second_signal)
+    out = tmp_path / "o"
+    code, _, err = run_cli(capsys, "detect", frames, "--out", out)
+    assert code == 130 and "Traceback" not in err, err
+    assert (out / "detections.csv").is_file() and (out / "registration.csv").is_file(), err
+    assert len((out / "registration.csv").read_text().splitlines()) == 13  # header + 12 frames

@@ -876,11 +876,11 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
             done += 1
             if progress:
                 progress(done)
+        pipe.finish_local()  # flushes the detector's window (a second Ctrl-C may land here)
+        drain()
     except BaseException as exc:
         exc.partial_result = result()
         raise
-    pipe.finish_local()  # flushes the detector's window
-    drain()
     return result()
 
 

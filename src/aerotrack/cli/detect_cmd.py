@@ -129,6 +129,8 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
                             progress=stopper.wrap(progress),
                             debug=debug if debug_video else None)
         except Interrupted as exc:  # keep what is final: the frames the detector finished
+            if getattr(exc, "partial_result", None) is None:
+                raise
             interrupted, result = exc, exc.partial_result
         finally:
             close()

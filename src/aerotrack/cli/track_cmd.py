@@ -418,7 +418,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                        "(--overwrite runs it again)", err=True)
         return
     cleanup = CleanupOnBadInput(out_dir, resume=resume)  # before the folder is made
-    out = OutputDir(out_dir, overwrite=overwrite, resume=resume)
+    out = OutputDir(out_dir, overwrite=overwrite, resume=resume, resumable=True)
     with cleanup:
         resume_manifest(out.partial, manifest, resume)
     quiet, verbose = root_flags(ctx)

@@ -122,10 +122,13 @@ class OutputDir:
         What to do with a folder that already holds results (mutually exclusive).
     option : str
         Option name used in messages (``--out``).
+    resumable : bool
+        Whether the command has ``--resume`` (``track``, ``batch``), for the message that refuses
+        a folder holding results.
     """
 
     def __init__(self, path: str | Path, *, overwrite: bool = False, resume: bool = False,
-                 option: str = "--out") -> None:
+                 option: str = "--out", resumable: bool = False) -> None:
         if overwrite and resume:
             raise OutputError("--overwrite and --resume cannot be used together")
         self.path = Path(path)
@@ -140,9 +143,8 @@ class OutputDir:
                 if foreign:
                     raise OutputError(f"{option} {p}: folder holds files aerotrack did not write "
                                       f"(e.g. {foreign[0]!r}); give a new or empty folder")
-                raise OutputError(
-                    f"{option} {p}: folder already holds results; use --overwrite or --resume"
-                )
+                raise OutputError(f"{option} {p}: folder already holds results; use --overwrite"
+                                  + (" or --resume" if resumable else ""))
             if overwrite:
                 for e in entries:
                     if e.is_dir() and not e.is_symlink():
