@@ -295,3 +295,90 @@ def test_render_draws_the_frames_the_run_tracked(tmp_path):
     while cap.read()[0]:
         n += 1
     assert n == 12
+
+
+def _frames_count(path: Path) -> tuple[int, int]:
+    cap = cv2.VideoCapture(str(path))
+    n, width = 0, int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+    while cap.read()[0]:
+        n += 1
+    return n, width
+
+
+def test_report_covers_the_frames_the_run_tracked(tmp_path, capsys):
+    """A --frames 4:9 run: the report said "9 frames, 0.9 s", its scrubber and overlay started at
+    frame 1 (frames the run never tracked), and --gt scored frames outside the run."""
+    import re
+
+    from aerotrack.cli.main import main
+
+    run = make_run(tmp_path, with_map=False, n_frames=12)
+    summary = json.loads((run / "summary.json").read_text())
+    summary.update(first_frame=4, last_frame=9, frames=6)
+    (run / "summary.json").write_text(json.dumps(summary))
+    rows = np.loadtxt(run / "tracks.csv", delimiter=",")
+    write_mot(run / "tracks.csv", rows[(rows[:, 0] >= 4) & (rows[:, 0] <= 9)])
+    write_mot(tmp_path / "gt.txt", rows)  # ground truth of all 12 frames
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in range(1, 13):
+        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 20 * f, np.uint8))
+    main(["-q", "report", str(run), "--input", str(frames), "--gt", str(tmp_path / "gt.txt")])
+    text = (run / "report.html").read_text()
+    cards = {k: v for v, k in re.findall(r'<div class="card"><b>([^<]*)</b><span>([^<]*)<',
+                                                text)}
+    assert cards["frames"] == "6" and cards["duration"] == "0.6 s", cards
+    scrub = json.loads(re.search(r'id="scrubdata"[^>]*>(.*?)</script>', text, re.DOTALL).group(1))
+    assert [f for f, _ in scrub] == [4, 5, 6, 7, 8, 9]
+    assert _frames_count(run / "overlay.webm")[0] == 6
+    assert "frames 4-9" in text  # the evaluation is over the run's frames: nothing missed
+    # the track map without a map is drawn over the run's first frame (grey 80), not frame 1
+    from aerotrack.viz import RunResults
+
+    assert RunResults.load(run).reference_image(frames).mean() == pytest.approx(80, abs=1)
+
+
+def test_report_refuses_another_input_and_respects_video_width(tmp_path, capsys):
+    from aerotrack.cli.main import main
+
+    run = make_run(tmp_path, n_frames=12)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in range(1, 13):
+        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    other = tmp_path / "other"
+    other.mkdir()
+    for f in range(1, 13):
+        cv2.imwrite(str(other / f"{f:06d}.png"), np.full((H // 2, W // 2, 3), 100, np.uint8))
+    with pytest.raises(SystemExit) as exc:
+        main(["report", str(run), "--input", str(other)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "160x120" in err and "320x240" in err, err
+    assert not (run / "report.html").exists()
+    main(["-q", "render", str(frames), str(run), "--no-pictures"])  # a full-width overlay.webm
+    before = (run / "overlay.webm").read_bytes()
+    main(["-q", "report", str(run), "--input", str(frames), "--video-width", "160"])
+    import base64
+    import re
+
+    text = (run / "report.html").read_text()
+    data = re.search(r'src="data:video/webm;base64,([^"]+)"', text).group(1)
+    (tmp_path / "embedded.webm").write_bytes(base64.b64decode(data))
+    assert _frames_count(tmp_path / "embedded.webm")[1] == 160  # not the 320-wide overlay
+    assert (run / "overlay.webm").read_bytes() == before  # the user's overlay is kept
+
+
+def test_render_refuses_a_bad_map_before_rendering(tmp_path, capsys):
+    from aerotrack.cli.main import main
+
+    run = make_run(tmp_path, n_frames=12)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for f in range(1, 13):
+        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    (tmp_path / "afile").write_text("not a raster")
+    with pytest.raises(SystemExit) as exc:
+        main(["render", str(frames), str(run), "--out", str(tmp_path / "x.mp4"), "--map",
+              str(tmp_path / "afile")])
+    assert exc.value.code == 2 and "afile" in capsys.readouterr().err
+    assert not (tmp_path / "x.mp4").exists()

@@ -16,11 +16,7 @@ def write_pictures(results, geomap, input_path) -> list[Path]:
     """Write ``map.png``, ``spacetime.png`` and ``registration.png`` into the run folder."""
     from ..viz.mapplot import write_pictures as write
 
-    background = None
-    if geomap is None and input_path is not None:
-        from ..io.frames import open_source
-
-        background = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+    background = results.reference_image(input_path) if geomap is None else None
     return write(results, geomap, background=background)
 
 
@@ -70,14 +66,17 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     from ..viz import OverlayStyle, RunResults, render_overlay
 
     results = RunResults.load(run_dir)
+    given_stop = stop is not None
     # by default the frames the run tracked (a --frames A:B run is drawn on A..B, not the video)
     if start is None:
         start = int(results.summary.get("first_frame") or 1)
     if stop is None and results.summary.get("last_frame"):
         stop = int(results.summary["last_frame"])
-    if start < 1 or (stop is not None and stop < start):
-        raise InputError(f"--start {start}" + (f" --stop {stop}" if stop is not None else "")
-                         + ": need 1 <= --start <= --stop")
+    if start < 1:
+        raise InputError(f"--start {start}: frames are numbered from 1")
+    if stop is not None and stop < start:
+        raise InputError(f"--start {start} --stop {stop}: need --start <= --stop"
+                         + ("" if given_stop else " (--stop defaults to the run's last frame)"))
     if not (trail_s >= 0 and trail_s < float("inf")):
         raise InputError(f"--trail-s {trail_s}: must be a number of seconds >= 0")
     if max_width is not None and max_width < 16:
@@ -85,14 +84,13 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     style = OverlayStyle(trail_s=trail_s, max_width=max_width)
     out = Path(out_path) if out_path else results.path / "overlay.webm"
     source = open_source(input_path, results.fps)  # fail fast on a bad input
-    size = results.summary.get("frame_size")
-    if size and tuple(size) != tuple(source.size):
-        raise InputError(f"{input_path}: frames are {source.size[0]}x{source.size[1]}, but the run "
-                         f"in {run_dir} tracked {size[0]}x{size[1]} frames (its summary.json): "
-                         "give the input that run tracked")
+    results.check_input(source, input_path)
     from ..io.output import check_writable
 
     check_writable(out, "--out")  # before rendering, not after
+    geomap = load_map(results, map_path) if pictures else None  # a bad --map: before rendering
+    if pictures:
+        check_writable(results.path / "map.png", "DIR")
     quiet, verbose = root_flags(ctx)
     n = source.count
     if n and start > n:
@@ -106,7 +104,7 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
         close()
     written = [out]
     if pictures:
-        written += write_pictures(results, load_map(results, map_path), input_path)
+        written += write_pictures(results, geomap, input_path)
     if not quiet:
         for p in written:
             click.echo(f"wrote {p}")

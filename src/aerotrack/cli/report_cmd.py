@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .common import make_progress, root_flags
+
 
 @click.command("report")
 @click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
@@ -19,7 +21,8 @@ import click
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
               help="Report file to write. Default: DIR/report.html.")
 @click.option("--video-width", type=int, default=960, show_default=True,
-              help="Width of the embedded overlay video.")
+              help="Width of the embedded overlay video at most (a wider DIR/overlay.webm is "
+                   "not embedded: one this wide is rendered for the report).")
 @click.option("--video/--no-video", default=True, show_default=True,
               help="Render DIR/overlay.webm from the input (when missing) and embed it.")
 @click.pass_context
@@ -55,9 +58,16 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
         from ..geo import GeoMap
 
         geomap = GeoMap(map_path)
-    out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
-                       out_path=out_path, options=ReportOptions(video_width=video_width, render_video=video,
-                                             max_video_mb=80.0 if video else 0.0))
-    quiet = bool(ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    quiet, verbose = root_flags(ctx)
+    last = results.last_frame
+    progress, close = make_progress(last - results.first_frame + 1 if last else None, "report",
+                                    quiet, verbose)  # while the overlay video is rendered
+    try:
+        out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
+                           out_path=out_path, progress=progress,
+                           options=ReportOptions(video_width=video_width, render_video=video,
+                                                 max_video_mb=80.0 if video else 0.0))
+    finally:
+        close()
     if not quiet:
         click.echo(f"wrote {out}")

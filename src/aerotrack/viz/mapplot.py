@@ -5,7 +5,8 @@ global backend switch), so they work headless and in threads.
 
 * :func:`plot_map`: tracks on the map raster (lon/lat axes and a scale bar), coloured by ID; in-view
   parts solid, predicted (out-of-view) parts dashed, re-acquisitions starred. Without a map, the
-  tracks are drawn in frame 1's pixels (through ``registration.csv``) over frame 1 when available.
+  tracks are drawn in the pixels of the run's first frame (frame 1, or A of ``--frames A:B``;
+  through ``registration.csv``) over that frame when available.
 * :func:`plot_space_time`: tracklets in (x, y, time), coloured by ID, as in Yu & Medioni's figure 6.
 * :func:`plot_registration`: inliers, inlier ratio and reprojection error of ``registration.csv``
   over time, with the frames whose homography was carried forward or reset marked.
@@ -211,7 +212,7 @@ def _extent(points: np.ndarray, bounds: tuple[float, float, float, float] | None
 
 def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None = None,
              metres_per_unit: float | None = None, title: str | None = None):
-    """Tracks drawn on the map (or on frame 1 without a map).
+    """Tracks drawn on the map (or on the run's first frame without a map).
 
     Parameters
     ----------
@@ -219,9 +220,10 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     geomap : GeoMap, optional
         The run's map; positions are map pixels from the rows' map CRS ``x, y``.
     background : ndarray (H, W, 3) uint8 BGR, optional
-        Without a map: frame 1's image, drawn under the tracks (frame 1's pixels).
+        Without a map: the run's first frame (:meth:`RunResults.reference_image`), drawn under
+        the tracks (that frame's pixels).
     metres_per_unit : float, optional
-        Without a map: metres per frame-1 pixel, for a scale bar.
+        Without a map: metres per pixel of that frame, for a scale bar.
 
     Returns
     -------
@@ -262,8 +264,8 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     if geomap is not None:
         _lonlat_axes(ax, geomap, fs)
     else:
-        ax.set_xlabel("frame 1 x (px)", fontsize=fs)
-        ax.set_ylabel("frame 1 y (px)", fontsize=fs)
+        ax.set_xlabel(f"frame {results.first_frame} x (px)", fontsize=fs)
+        ax.set_ylabel(f"frame {results.first_frame} y (px)", fontsize=fs)
     if unit_per_m:
         _scale_bar(ax, unit_per_m, ax.get_xlim(), ax.get_ylim(), fs)
     n_re = sum(len(tv.reacquisitions()) for tv in tracks)
@@ -301,8 +303,8 @@ def _lonlat_axes(ax, geomap, fs: float) -> None:
 def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float | None = None):
     """Tracks in (x, y, time), coloured by ID (Yu & Medioni 2007, fig. 6).
 
-    x, y are metres east/north in a local frame with a map (or with ``metres_per_unit``), frame 1's
-    pixels otherwise (y pointing down, as in the image). In-view parts solid, predicted parts dashed.
+    x, y are metres east/north in a local frame with a map (or with ``metres_per_unit``), the run's
+    first frame's pixels otherwise (y pointing down, as in the image). In-view parts solid, predicted parts dashed.
     """
     tracks = results.track_views(geomap)
     metres_per_unit = metres_per_unit or results.metres_per_unit
@@ -354,8 +356,8 @@ def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float 
         ax.set_xlabel("east (m)", fontsize=fs, labelpad=10)
         ax.set_ylabel("north (m)", fontsize=fs, labelpad=10)
     else:
-        ax.set_xlabel("frame 1 x (px)", fontsize=fs, labelpad=10)
-        ax.set_ylabel("frame 1 −y (px)", fontsize=fs, labelpad=10)
+        ax.set_xlabel(f"frame {results.first_frame} x (px)", fontsize=fs, labelpad=10)
+        ax.set_ylabel(f"frame {results.first_frame} −y (px)", fontsize=fs, labelpad=10)
     ax.set_zlabel("time (s)", fontsize=fs, labelpad=8)
     ax.tick_params(labelsize=fs * 0.8)
     ax.view_init(elev=22, azim=-58)

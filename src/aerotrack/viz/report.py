@@ -23,6 +23,7 @@ import html
 import json
 import logging
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -100,23 +101,27 @@ def _evaluation(results: RunResults, gt_path: str | Path | None) -> tuple[dict |
     from ..io.mot import read_mot
 
     gt = read_mot(gt_path, option="--gt", strict=False, allow_empty=False)
-    return evaluate(gt, results.tracks), f"tracks.csv against {Path(gt_path).name}"
+    window = (results.first_frame, results.last_frame or int(gt[:, 0].max()))
+    return (evaluate(gt, results.tracks, frames=window),
+            f"tracks.csv against {Path(gt_path).name}, frames {window[0]}-{window[1]} (the run's)")
 
 
 def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions) -> list[tuple[int, str]]:
     from ..io.frames import open_source
 
     source = open_source(input_path, results.fps)
+    first = results.first_frame  # the frames the run tracked (--frames A:B: A..B)
     last = results.last_frame or len(source)
     n = len(source) or last
     n = min(n, last) if last else n
-    if n <= 0 or opts.scrubber_frames <= 0:
+    if n < first or opts.scrubber_frames <= 0:
         return []
-    wanted = sorted(set(np.linspace(1, n, min(opts.scrubber_frames, n)).round().astype(int).tolist()))
+    count = min(opts.scrubber_frames, n - first + 1)
+    wanted = sorted(set(np.linspace(first, n, count).round().astype(int).tolist()))
     painter = OverlayPainter(results, OverlayStyle(trail_s=opts.trail_s))
     out = []
     wanted_set = set(wanted)
-    for frame in source.frames(stop=wanted[-1]):
+    for frame in source.frames(start=wanted[0], stop=wanted[-1]):
         if frame.index not in wanted_set:
             continue
         img = painter.draw(frame.image, frame.index)
@@ -132,7 +137,7 @@ def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions)
 
 def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                  gt_path: str | Path | None = None, geomap=None, out_path: str | Path | None = None,
-                 options: ReportOptions = ReportOptions()) -> Path:
+                 options: ReportOptions = ReportOptions(), progress=None) -> Path:
     """Write ``DIR/report.html`` (or ``out_path``) for the run in ``run_dir``.
 
     Parameters
@@ -149,6 +154,8 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         The run's map (default: the ``"map"`` of ``summary.json`` when it exists).
     out_path : path, optional
     options : ReportOptions
+    progress : callable, optional
+        Called with the frames written while the overlay video is rendered.
 
     Returns
     -------
@@ -165,12 +172,13 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
             log.warning("map %s not used: %s", results.map_path, exc)
     input_path = Path(input_path) if input_path is not None else results.input_path
 
-    def first_image():
-        if input_path is None or geomap is not None:
-            return None
+    if input_path is not None:  # the input the run tracked, before any work
         from ..io.frames import open_source
 
-        return next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+        results.check_input(open_source(input_path, results.fps), input_path, "--input")
+
+    def first_image():
+        return None if geomap is not None else results.reference_image(input_path)
 
     # pictures already written beside the results (by `aerotrack render`) are reused when newer
     # than tracks.csv
@@ -200,12 +208,8 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
             pictures[name] = _data_uri(png, "image/png")
 
     video_html = ""
-    video_path = run_dir / "overlay.webm"
-    if input_path is not None and options.render_video and not video_path.exists():
-        log.info("rendering %s", video_path)
-        render_overlay(input_path, results, video_path,
-                       style=OverlayStyle(trail_s=options.trail_s, max_width=options.video_width))
-    if video_path.exists() and options.max_video_mb > 0:
+    video_path = _report_video(run_dir, input_path, results, options, t_tracks, progress)
+    if video_path is not None and video_path.exists() and options.max_video_mb > 0:
         size_mb = video_path.stat().st_size / 1e6
         src = (_data_uri(video_path.read_bytes(), "video/webm") if size_mb <= options.max_video_mb
                else html.escape(video_path.name))
@@ -214,11 +218,49 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
     scrub = _scrubber_frames(input_path, results, options) if input_path is not None else []
     stats = track_stats(results, geomap)
     metrics, eval_note = _evaluation(results, gt_path)
+    if video_path is not None and video_path.parent != run_dir:
+        video_path.unlink(missing_ok=True)  # rendered for this report only
     page = _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path)
     out = Path(out_path) if out_path is not None else run_dir / "report.html"
     atomic_write_text(out, page)
     out.chmod(0o644)
     return out
+
+
+def _video_width(path: Path) -> int:
+    cap = cv2.VideoCapture(str(path))
+    try:
+        return int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) if cap.isOpened() else 0
+    finally:
+        cap.release()
+
+
+def _report_video(run_dir: Path, input_path, results: RunResults, options: ReportOptions,
+                  t_tracks: float, progress) -> Path | None:
+    """The overlay video the report embeds: ``DIR/overlay.webm`` when it is newer than
+    ``tracks.csv`` and no wider than ``options.video_width``; else, with the input, one rendered
+    at that width over the run's frames: into ``DIR/overlay.webm`` when there is none (kept
+    beside the results), into a temporary file otherwise (a user's own overlay is not
+    replaced) or when the run folder cannot be written. None: no video."""
+    video_path = run_dir / "overlay.webm"
+    if video_path.is_file() and video_path.stat().st_mtime >= t_tracks \
+            and 0 < _video_width(video_path) <= options.video_width:
+        return video_path
+    if input_path is None or not options.render_video:
+        return video_path if video_path.is_file() else None
+    target = video_path
+    if video_path.exists() or not os.access(run_dir, os.W_OK):
+        import tempfile
+
+        fd, tmp = tempfile.mkstemp(prefix="aerotrack-report-", suffix=".webm")
+        os.close(fd)
+        target = Path(tmp)
+    log.info("rendering %s (frames %d-%d, %d px wide at most)", target, results.first_frame,
+             results.last_frame, options.video_width)
+    render_overlay(input_path, results, target,
+                   style=OverlayStyle(trail_s=options.trail_s, max_width=options.video_width),
+                   start=results.first_frame, stop=results.last_frame or None, progress=progress)
+    return target
 
 
 def write_visuals(run_dir: str | Path, *, input_path: str | Path | None = None,
@@ -238,11 +280,7 @@ def write_visuals(run_dir: str | Path, *, input_path: str | Path | None = None,
 
         geomap = GeoMap(results.map_path)
     input_path = Path(input_path) if input_path is not None else results.input_path
-    background = None
-    if input_path is not None and geomap is None:
-        from ..io.frames import open_source
-
-        background = next(iter(open_source(input_path, results.fps).frames(stop=1))).image
+    background = results.reference_image(input_path) if geomap is None else None
     written = {p.stem: p for p in write_pictures(results, geomap, background=background)}
     report = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
                           options=options)
@@ -312,13 +350,14 @@ if(document.readyState==='complete')check();else window.addEventListener('load',
 def _cards(results: RunResults, stats: list[TrackStats]) -> str:
     s = results.summary
     counts = s.get("counts", {}) if isinstance(s.get("counts"), dict) else {}
-    n_frames = results.last_frame
+    n_frames = results.n_frames  # a --frames A:B run: B - A + 1, not B
     speeds = [t.mean_speed_kmh for t in stats if math.isfinite(t.mean_speed_kmh) and t.frames_in_view > 1]
     fails = s.get("registration_failures")
     n_fail = len(fails) if isinstance(fails, list) else fails if isinstance(fails, int) else None
     items = [
         (n_frames, "frames"), (f"{results.fps:g}", "frames / s"),
-        (f"{n_frames / results.fps:.1f} s" if n_frames else "–", "duration"),
+        (f"{(results.last_frame - results.first_frame + 1) / results.fps:.1f} s"
+         if n_frames else "–", "duration"),
         (len(stats), "tracks"), (len(results.tracks), "rows in view"),
         (len(results.predicted), "predicted rows"),
         (sum(t.reacquisitions for t in stats), "re-acquisitions"),

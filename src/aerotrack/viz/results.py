@@ -217,7 +217,55 @@ class RunResults:
         return {str(k): float(v) for k, v in t.items() if isinstance(v, (int, float))}
 
     @property
+    def first_frame(self) -> int:
+        """The run's first frame (``--frames A:B`` starts at A; its world without a map is frame
+        A's pixels)."""
+        n = self.summary.get("first_frame")
+        if isinstance(n, (int, float)) and n >= 1:
+            return int(n)
+        parts = [a[:, 0].min() for a in (self.tracks,) if len(a)]
+        if self.registration is not None and len(self.registration):
+            parts.append(self.registration.frames.min())
+        return int(min(parts)) if parts else 1
+
+    @property
+    def n_frames(self) -> int:
+        """Frames the run processed (``summary.json`` ``frames``; else its frame span)."""
+        n = self.summary.get("frames")
+        if isinstance(n, (int, float)) and n >= 0:
+            return int(n)
+        last = self.last_frame
+        return last - self.first_frame + 1 if last else 0
+
+    def reference_image(self, input_path) -> np.ndarray | None:
+        """The image of the run's first frame from ``input_path`` (the background of the track
+        map without a map: the world is that frame's pixels), or None."""
+        if input_path is None:
+            return None
+        from ..io.frames import open_source
+
+        first = self.first_frame
+        frame = next(iter(open_source(input_path, self.fps).frames(start=first, stop=first)),
+                     None)
+        return None if frame is None else frame.image
+
+    def check_input(self, source, input_path, option: str = "INPUT") -> None:
+        """Refuse an input whose frames are not the size the run tracked (its summary.json)."""
+        from ..errors import InputError
+
+        size = self.summary.get("frame_size")
+        if size and tuple(size) != tuple(source.size):
+            raise InputError(f"{option} {input_path}: frames are {source.size[0]}x"
+                             f"{source.size[1]}, but the run in {self.path} tracked {size[0]}x"
+                             f"{size[1]} frames (its summary.json): give the input that run "
+                             "tracked")
+
+    @property
     def last_frame(self) -> int:
+        """The run's last frame (``summary.json``; else the last frame any file holds)."""
+        n = self.summary.get("last_frame")
+        if isinstance(n, (int, float)) and n >= 1:
+            return int(n)
         parts = [a[:, 0].max() for a in (self.tracks, self.predicted) if len(a)]
         if self.registration is not None and len(self.registration):
             parts.append(self.registration.frames.max())
