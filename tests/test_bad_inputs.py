@@ -926,3 +926,20 @@ def test_a_second_signal_while_detect_flushes_keeps_the_finished_frames(tmp_path
     assert code == 130 and "Traceback" not in err, err
     assert (out / "detections.csv").is_file() and (out / "registration.csv").is_file(), err
     assert len((out / "registration.csv").read_text().splitlines()) == 13  # header + 12 frames
+
+
+def test_small_messages_found_by_a_probe(tmp_path, capsys):
+    """--frames past the end says where the input ends; -q silences mosaic; a frame 0 in a
+    1-based file hints at 0-based numbering; debug.mp4 is H.264 at the input's speed."""
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(8)])
+    code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "d", "--frames", "3:50",
+                           "--debug-video", "--stride", "2")
+    assert code == 0 and "ends at frame 8" in err, err
+    cap = cv2.VideoCapture(str(tmp_path / "d" / "debug.mp4"))
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode(errors="replace")
+    assert fourcc.lower() in ("avc1", "h264") and cap.get(cv2.CAP_PROP_FPS) == pytest.approx(15.0)  # 30 / 2
+    code, out, err = run_cli(capsys, "-q", "mosaic", frames, "--out", tmp_path / "m.png")
+    assert code == 0 and out == "" and err == "", (out, err)
+    gt = tmp_path / "gt0.txt"
+    gt.write_text("0,1,10,10,8,4,1\n")
+    expect_error(capsys, ["line 1", "0-based"], "eval", "--gt", gt, "--pred", gt)

@@ -85,7 +85,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     source, _, geomap, H_init, undistort, _ = load_inputs(
         input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path,
         start=start, config=config)
-    check_frame_range(frame_range, start, source.count)
+    check_frame_range(frame_range, start, source.count, stop)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_config(config, fps)  # before --out is touched
     check_overwrite(out_dir, overwrite)
@@ -112,7 +112,8 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
 
     def debug(item) -> None:
         nonlocal writer
-        writer = _write_debug(writer, debug_tmp, source.fps, *item)
+        # a --stride N video plays at the speed of the input
+        writer = _write_debug(writer, debug_tmp, source.fps / stride, *item)
 
     t0 = time.perf_counter()
     total = source.count
@@ -157,7 +158,8 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
                           f"; {out.path}/detections.csv holds the finished frames ({kept}: the "
                           "last half background window was not final yet)")
     dt = time.perf_counter() - t0
-    log.info("detect: %d frames, %d detections, %.1f frames/s -> %s", result.frames, len(rows),
+    log.info("detect: %d frame%s, %d detections, %.1f frames/s -> %s", result.frames,
+             "s" * (result.frames != 1), len(rows),
              result.frames / max(dt, 1e-9), out.path)
 
 
@@ -178,7 +180,22 @@ def _write_debug(writer, path: Path, fps: float, index, image, residual, boxes, 
     if scale < 1:
         pair = cv2.resize(pair, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     if writer is None:
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps,
-                                 (pair.shape[1], pair.shape[0]))
+        writer = _DebugVideo(path, (pair.shape[1], pair.shape[0]), fps)
     writer.write(pair)
     return writer
+
+
+class _DebugVideo:
+    """``debug.mp4`` in H.264 (browsers play it; OpenCV's own MP4 writer makes MPEG-4 part 2,
+    which they do not), through the overlay's encoder; ``release()`` finishes the file."""
+
+    def __init__(self, path: Path, size: tuple[int, int], fps: float) -> None:
+        from ..viz.video import VideoEncoder
+
+        self._enc = VideoEncoder(path, size, fps).__enter__()
+
+    def write(self, image) -> None:
+        self._enc.write(image)
+
+    def release(self) -> None:
+        self._enc.__exit__(None, None, None)

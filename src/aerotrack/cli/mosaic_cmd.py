@@ -99,5 +99,13 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
                 write()
             except OutputError as exc:
                 raise OutputError(f"{option} {exc}") from None
-    click.echo(f"{out}: {len(regs)} frames registered, every {stride}th painted "
-               f"({img.shape[1]}x{img.shape[0]} px)")
+    if not root_flags(ctx)[0]:  # -q: nothing but warnings and errors
+        every = "every frame" if stride == 1 else f"every {_ordinal(stride)} frame"
+        click.echo(f"{out}: {len(regs)} frame{'s' * (len(regs) != 1)} registered, {every} "
+                   f"painted ({img.shape[1]}x{img.shape[0]} px)")
+
+
+def _ordinal(n: int) -> str:
+    """2nd, 3rd, 11th, 21st, ..."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"

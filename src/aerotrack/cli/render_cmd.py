@@ -36,7 +36,8 @@ def load_map(results, map_path):
 @click.option("--trail-s", type=float, default=2.0, show_default=True,
               help="Seconds of trail drawn behind each target.")
 @click.option("--max-width", type=int, default=None,
-              help="Downscale wider frames to this width (smaller files).")
+              help="Downscale wider frames to this width (smaller files; an odd size is padded "
+                   "to an even one, which the codecs need).")
 @click.option("--start", type=int, default=None,
               help="First frame (1-based). Default: the run's first frame.")
 @click.option("--stop", type=int, default=None,

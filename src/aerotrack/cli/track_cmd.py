@@ -255,12 +255,17 @@ def load_regions(roi_paths, ignore_paths, geomap) -> list:
                for p in ignore_paths])
 
 
-def check_frame_range(frame_range: str | None, start: int, last: int) -> None:
-    """Refuse a ``--frames`` range that starts after the input's ``last`` frame (0: unknown)."""
+def check_frame_range(frame_range: str | None, start: int, last: int,
+                      stop: int | None = None) -> None:
+    """Refuse a ``--frames`` range that starts after the input's ``last`` frame (0: unknown);
+    say so when it ends after it (the run is cut at ``last``)."""
     from ..errors import InputError
 
     if frame_range is not None and last and start > last:
         raise InputError(f"--frames {frame_range}: starts after the input's last frame ({last})")
+    if frame_range is not None and last and stop is not None and stop > last:
+        log.warning("--frames %s: the input ends at frame %d; frames %d-%d are processed",
+                    frame_range, last, start, last)
 
 
 def no_frames_read(input_path, frame_range: str | None, count: int) -> str:
@@ -397,7 +402,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         except CRSError:
             raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
-    check_frame_range(frame_range, start, last)
+    check_frame_range(frame_range, start, last, stop)
     check_config(config, fps, detector=dets is None)  # before --out is touched
 
     def where(path):
