@@ -523,3 +523,37 @@ def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path):
     assert (out / ".partial").is_dir()
     # it says what it waits for: the running segments, not "this frame"
     assert "when the running segments are finished" in rest, rest
+
+
+def test_a_bad_scheduler_address_is_refused_within_seconds(tmp_path, client):
+    """A malformed address raised a traceback; a refused port or unknown host took the
+    client's 20 s; an HTTP server (the dashboard's port) hung for ever. Each is now one line
+    within seconds, before --out is made; the real scheduler passes."""
+    import http.server
+    import threading
+
+    from aerotrack.parallel import check_scheduler
+
+    check_scheduler(client.scheduler.address)
+    server = http.server.HTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        for address, needle in (("notanaddress", "not a scheduler address"),
+                                ("tcp://127.0.0.1:1", "cannot connect"),
+                                (f"tcp://127.0.0.1:{server.server_port}", "no Dask scheduler")):
+            t0 = time.perf_counter()
+            with pytest.raises(InputError, match=needle):
+                check_scheduler(address, timeout=2.0)
+            assert time.perf_counter() - t0 < 12, address
+    finally:
+        server.shutdown()
+        server.server_close()
+    from aerotrack.cli.main import cli
+
+    frames = tmp_path / "frames"
+    render_scene(frames, n=10)
+    out = tmp_path / "run"
+    r = CliRunner().invoke(cli, ["track", str(frames), "--out", str(out), "--scheduler",
+                                 "notanaddress"])
+    assert isinstance(r.exception, InputError) and "not a scheduler address" in str(r.exception)
+    assert not out.exists()

@@ -707,6 +707,62 @@ def _distributed():
     return distributed
 
 
+def check_scheduler(address: str, timeout: float = 5.0) -> None:
+    """Refuse, within seconds, a ``--scheduler`` address that is not a running Dask scheduler.
+
+    ``distributed.Client`` takes a malformed address with a traceback, retries a refused
+    connection or a failed name lookup for its whole timeout, reads a non-Dask server's reply as
+    a message length (an attempt to allocate exabytes: "out of memory"), and waits for ever on a
+    server that waits for a request (an HTTP port, such as the dashboard's). Here the address is
+    parsed, a plain TCP connection is tried, then Dask's own handshake and an ``identity``
+    request are given ``timeout`` seconds each.
+
+    Raises
+    ------
+    InputError
+        One line naming ``--scheduler`` and what is wrong.
+    """
+    import asyncio
+    import socket
+
+    distributed = _distributed()
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    label = f"--scheduler {address}"
+    try:
+        scheme, loc = parse_address(address)
+        host, port = parse_host_port(loc) if scheme in ("tcp", "tls") else (None, None)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"{label}: not a scheduler address like tcp://host:8786 ({exc})") from None
+    if host is not None:
+        try:
+            socket.create_connection((host, port), timeout=timeout).close()
+        except OSError as exc:
+            why = exc.strerror or type(exc).__name__
+            raise InputError(f"{label}: cannot connect ({why})") from None
+
+    async def identity():
+        comm = await asyncio.wait_for(distributed.comm.connect(address, timeout=timeout), timeout)
+        try:
+            await asyncio.wait_for(comm.write({"op": "identity", "reply": True}), timeout)
+            return await asyncio.wait_for(comm.read(), timeout)
+        finally:
+            comm.abort()
+
+    try:
+        reply = asyncio.run(identity())
+    except TimeoutError:
+        raise InputError(f"{label}: no Dask scheduler answered within {timeout:g} s (a "
+                         "scheduler listens on tcp://host:8786 by default; 8787 is its "
+                         "dashboard)") from None
+    except Exception as exc:  # noqa: BLE001 - whatever a foreign server's bytes raise
+        # (MemoryError: a foreign reply read as a frame length)
+        raise InputError(f"{label}: not a Dask scheduler (reading its reply: "
+                         f"{type(exc).__name__})") from None
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        raise InputError(f"{label}: not a Dask scheduler (it answered {str(reply)[:60]!r})")
+
+
 @contextlib.contextmanager
 def _children_ignore_sigint() -> Iterator[None]:
     """Start processes that ignore SIGINT (an ignored signal stays ignored in a child, and Python
@@ -745,6 +801,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     if scheduler is not None and workers is not None:
         raise InputError("--workers and --scheduler cannot be used together")
     if scheduler is not None:
+        check_scheduler(scheduler)
         try:
             client = distributed.Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as exc:

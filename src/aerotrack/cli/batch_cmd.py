@@ -60,7 +60,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     from ..config import load_config
     from ..errors import InputError
     from ..io.output import check_writable
-    from ..parallel import ParallelConfig, dask_client, plan_batch, run_batch
+    from ..parallel import ParallelConfig, check_scheduler, dask_client, plan_batch, run_batch
     from ..pipeline import check_config
 
     check_positive(gsd, "--gsd", "a positive number of metres per pixel")
@@ -69,6 +69,10 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         raise InputError(f"--segment-s {segment_s}: must be positive")
     config = load_config(config_path, overrides)
     check_config(config, fps)  # once, before any input is tracked
+    if scheduler is not None:
+        if workers is not None:
+            raise InputError("--workers and --scheduler cannot be used together")
+        check_scheduler(scheduler)
     check_writable(out_dir, "--out", folder=True)  # once, not once per input
     items = plan_batch(input_dir, out_dir)
     unusable = unusable_videos(input_dir)

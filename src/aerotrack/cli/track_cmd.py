@@ -404,6 +404,12 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     check_frame_range(frame_range, start, last, stop)
     check_config(config, fps, detector=dets is None)  # before --out is touched
+    if scheduler is not None:
+        from ..parallel import check_scheduler
+
+        if workers is not None:
+            raise InputError("--workers and --scheduler cannot be used together")
+        check_scheduler(scheduler)
 
     def where(path):
         return str(Path(path).resolve()) if path is not None else None
