@@ -461,3 +461,30 @@ def test_predict_names_a_bad_crs_and_warns_when_roads_are_elsewhere(tmp_path, ca
     code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out,
                            "--space", "map", "--roads", roads, "--crs", "EPSG:32611")
     assert code == 0 and "no road within" not in err, err
+
+
+def test_track_from_keeps_the_runs_roads_and_its_own_folder(scene, tmp_path, capsys):
+    """--from re-ran association without the earlier run's --roads (predictions as without
+    roads), into its own folder without --overwrite; a bad --out-crs left a half-written
+    folder."""
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, "track", "--detections", scene / "gt.txt", "--map",
+                           scene / "map.tif", "--map-init", scene / "map_init.txt", "--roads",
+                           scene / "roads.geojson", "--out", out)
+    assert code == 0, err
+    again = tmp_path / "again"
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", again)
+    assert code == 0, err
+    assert (again / "predicted.csv").read_text() == (out / "predicted.csv").read_text()
+    assert json.loads((again / "summary.json").read_text())["roads"] == str(scene / "roads.geojson")
+    before = (out / "tracks.csv").read_text()
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", out)
+    assert code == 2 and "--overwrite" in err and (out / "tracks.csv").read_text() == before, err
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", out, "--overwrite")
+    assert code == 0 and (out / "stages").is_dir(), err
+    bad = tmp_path / "bad"
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", bad, "--out-crs", "EPSG:4326")
+    assert code == 2 and "--out-crs" in err and not bad.exists(), err
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "far", "--out-crs",
+                           "EPSG:32633")
+    assert code == 0 and "distorted" in err, err

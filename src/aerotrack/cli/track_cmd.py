@@ -392,15 +392,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         intrinsics_path, start=start, config=config)
     roads = load_roads(roads_path, geomap, config)
     regions = load_regions(roi_paths, ignore_paths, geomap)
-    if out_crs is not None:
-        from pyproj import CRS
-        from pyproj.exceptions import CRSError
-
-        try:
-            if CRS.from_user_input(out_crs).is_geographic:
-                raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
-        except CRSError:
-            raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
+    check_out_crs(out_crs, geomap)
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     check_frame_range(frame_range, start, last, stop)
     check_config(config, fps, detector=dets is None)  # before --out is touched
@@ -472,6 +464,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             "detections": where(detections_path),
             "map": where(map_path),
             "roads": where(roads_path),
+            "min_speed": min_speed,
             "seed": seed,
             "wall_time_s": round(time.perf_counter() - t0, 3),
             **notes,
@@ -580,6 +573,36 @@ def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
     atomic_write_text(path, json.dumps(manifest, indent=1) + "\n")
 
 
+def check_out_crs(out_crs: str | None, geomap=None) -> None:
+    """``--out-crs``: a projected CRS pyproj knows; a warning when the map lies outside the area
+    the CRS is defined for (UTM 33N for Las Vegas: x of -4 000 km, distances distorted)."""
+    if out_crs is None:
+        return
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    from ..errors import InputError
+
+    try:
+        crs = CRS.from_user_input(out_crs)
+    except CRSError:
+        raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
+    if crs.is_geographic:
+        raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
+    area = crs.area_of_use
+    if geomap is None or area is None:
+        return
+    import numpy as np
+
+    lon, lat = geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0]
+    margin = 1.0  # degrees: a map just across a zone border is fine
+    if not (area.west - margin <= lon <= area.east + margin
+            and area.south - margin <= lat <= area.north + margin):
+        log.warning("--out-crs %s: defined for %s (lon %.0f..%.0f, lat %.0f..%.0f), but the map "
+                    "is at lon %.3f, lat %.3f: its coordinates there are distorted", out_crs,
+                    area.name, area.west, area.east, area.south, area.north, lon, lat)
+
+
 def load_roads(roads_path, geomap, config):
     """``--roads``: the road network on the map (world = map pixels), or None."""
     if roads_path is None:
@@ -618,9 +641,21 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     geomap = GeoMap(map_path) if map_path else None
     fps = fps or prev.get("fps") or 30.0
     mpu = None if geomap else (gsd or prev.get("metres_per_unit"))
+    if roads_path is None and prev.get("roads"):  # the earlier run's roads, as its other inputs
+        if Path(prev["roads"]).is_file():
+            roads_path = prev["roads"]
+        else:
+            log.warning("--from %s: its roads %s are gone; predictions without roads (give "
+                        "--roads)", from_dir, prev["roads"])
     roads = load_roads(roads_path, geomap, config)
+    if min_speed is None:
+        min_speed = prev.get("min_speed")
+    check_out_crs(out_crs, geomap)
     check_config(config, fps, detector=False)  # before --out is touched
     same = Path(out_dir).resolve() == Path(from_dir).resolve()
+    if same and not overwrite:
+        raise InputError(f"--out {out_dir}: is the --from folder; its results are replaced only "
+                         "with --overwrite (its stages/ are kept)")
     out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
     t0 = time.perf_counter()
     result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
@@ -629,7 +664,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
                         roads=roads)
     info = {"input": prev.get("input"), "detections": prev.get("detections"),
             "map": str(Path(map_path).resolve()) if map_path else None, "seed": seed,
-            "from": str(from_dir),
+            "from": str(from_dir), "min_speed": min_speed,
+            "roads": str(Path(roads_path).resolve()) if roads_path else None,
             "wall_time_s": round(time.perf_counter() - t0, 3)}
     summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                             out_crs=out_crs)
