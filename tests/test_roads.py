@@ -488,3 +488,52 @@ def test_track_from_keeps_the_runs_roads_and_its_own_folder(scene, tmp_path, cap
     code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "far", "--out-crs",
                            "EPSG:32633")
     assert code == 0 and "distorted" in err, err
+
+
+def test_roads_and_regions_off_the_map_are_not_silent(scene, tmp_path, capsys):
+    """Swapped lon/lat roads, roads 5 degrees away, NaN or one-vertex lines and an --roi off the
+    map were all accepted silently (the roi left an empty result, the roads changed nothing).
+    A run with a map and no track still writes observations.csv/.gpkg (empty)."""
+    from aerotrack.geo import GeoMap
+
+    net = json.loads((scene / "roads.geojson").read_text())
+    feats = net["features"]
+
+    def write(name, features):
+        path = tmp_path / name
+        path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+        return path
+
+    swapped = write("swapped.geojson", [
+        {**f, "geometry": {**f["geometry"], "coordinates": [c[::-1] for c in
+                                                             f["geometry"]["coordinates"]]}}
+        for f in feats])
+    with pytest.raises(InputError, match="not lon/lat"):
+        read_roads(swapped, geomap=GeoMap(scene / "map.tif"))
+    far = write("far.geojson", [
+        {**f, "geometry": {**f["geometry"], "coordinates": [[c[0] + 5, c[1]] for c in
+                                                            f["geometry"]["coordinates"]]}}
+        for f in feats])
+    broken = write("broken.geojson", feats + [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "LineString",
+                                                           "coordinates": [[-115.1, 36.1]]}}])
+    args = ["track", "--detections", scene / "gt.txt", "--map", scene / "map.tif", "--map-init",
+            scene / "map_init.txt"]
+    code, _, err = run_cli(capsys, *args, "--roads", far, "--out", tmp_path / "far")
+    assert code == 0 and "no road crosses the map" in err, err
+    code, _, err = run_cli(capsys, *args, "--roads", broken, "--out", tmp_path / "broken")
+    assert code == 0 and "1 line left out" in err, err
+    roi = tmp_path / "roi.geojson"
+    roi.write_text(json.dumps({"type": "Polygon", "coordinates": [[
+        [36.1, -115.1], [36.2, -115.1], [36.2, -115.2], [36.1, -115.1]]]}))  # lat, lon swapped
+    code, _, err = run_cli(capsys, *args, "--roi", roi, "--out", tmp_path / "roi")
+    assert code == 2 and "--roi" in err and ("outside the map" in err or "no vertex" in err), err
+    code, _, err = run_cli(capsys, *args, "--ignore-region", roi, "--out", tmp_path / "ign")
+    assert code == 0 and "ignores nothing" in err, err
+    tiny = tmp_path / "tiny.txt"
+    tiny.write_text("1,-1,5,5,2,2,0.9\n")  # one detection: no track
+    code, _, err = run_cli(capsys, "track", "--detections", tiny, "--map", scene / "map.tif",
+                           "--map-init", scene / "map_init.txt", "--out", tmp_path / "none")
+    assert code == 0, err
+    assert (tmp_path / "none" / "observations.csv").read_text().startswith("frame,time_s,id,")
+    assert (tmp_path / "none" / "observations.gpkg").is_file()

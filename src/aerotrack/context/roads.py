@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +39,8 @@ from scipy.spatial import cKDTree
 
 from ..config import ContextConfig
 from ..errors import ConfigError, InputError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["HEDGES", "RoadNetwork", "RoadPrediction", "branch_probabilities", "hedge", "read_roads",
            "road_prediction"]
@@ -74,6 +77,7 @@ def _lines_of(doc: dict, label: str) -> list[np.ndarray]:
     else:
         geoms = [doc]
     out = []
+    skipped = 0
     for g in geoms:
         if not isinstance(g, dict):
             continue
@@ -86,8 +90,15 @@ def _lines_of(doc: dict, label: str) -> list[np.ndarray]:
                 raise InputError(f"{label}: a {kind} has malformed coordinates") from None
             if len(a) >= 2 and np.all(np.isfinite(a)):
                 out.append(a)
+            else:
+                skipped += 1
     if not out:
-        raise InputError(f"{label}: no LineString or MultiLineString road centre-lines")
+        raise InputError(f"{label}: no LineString or MultiLineString road centre-lines"
+                         + (f" ({skipped} with fewer than 2 vertices or a NaN one)"
+                            if skipped else ""))
+    if skipped:
+        log.warning("%s: %d line%s left out (fewer than 2 vertices, or a NaN or infinite "
+                    "vertex)", label, skipped, "s" * (skipped != 1))
     return out
 
 
@@ -133,6 +144,12 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
         raise InputError(f"{label}: not a GeoJSON object")
     src = _crs_of(doc, label)
     lines = _lines_of(doc, label)
+    if src.is_geographic:
+        allpts = np.vstack(lines)
+        if np.any(np.abs(allpts[:, 0]) > 180) or np.any(np.abs(allpts[:, 1]) > 90):
+            raise InputError(f"{label}: coordinates are not lon/lat (a latitude beyond 90 or a "
+                             "longitude beyond 180; GeoJSON is lon, lat: swapped? or give the "
+                             "file's CRS in its 'crs' member)")
     if geomap is not None:
         dst = CRS.from_user_input(geomap.crs.to_wkt())
     elif crs is not None:
@@ -149,6 +166,12 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
         raise InputError(f"{label}: coordinates fall outside the target CRS")
     if geomap is not None:
         lines = [geomap.crs_to_pixel(a) for a in lines]
+        allpx = np.vstack(lines)
+        lo, hi = allpx.min(axis=0), allpx.max(axis=0)
+        if not (hi[0] >= 0 and hi[1] >= 0 and lo[0] <= geomap.width and lo[1] <= geomap.height):
+            log.warning("%s: no road crosses the map (the roads span map pixels %.0f..%.0f x "
+                        "%.0f..%.0f, the map is %dx%d): they change no prediction", label, lo[0],
+                        hi[0], lo[1], hi[1], geomap.width, geomap.height)
         return RoadNetwork(lines, metres_per_unit=geomap.metres_per_pixel, snap_m=snap_m,
                            bounds=(0.0, 0.0, float(geomap.width), float(geomap.height)))
     if dst.is_geographic:

@@ -220,8 +220,31 @@ def read_region(path: str | Path, geomap: Any = None, *, mode: str = "include",
     if not polys:
         raise FormatError(f"{label}: no polygons found")
     polys = _to_world(polys, kind, crs, geomap, label)
+    if geomap is not None and kind != "frame":
+        _check_on_map(polys, geomap, label, mode)
     return Region(polygons=polys, space="frame" if kind == "frame" else "world", mode=mode,
                   source=label)
+
+
+def _check_on_map(polys, geomap: Any, label: str, mode: str) -> None:
+    """A region in ground coordinates that misses the map: an include region leaves nothing to
+    track (refused), an ignore region ignores nothing (a warning). Swapped lon/lat or a wrong
+    CRS are the usual causes."""
+    pts = np.vstack([ring for poly in polys for ring in poly])
+    finite = np.isfinite(pts).all(axis=1)
+    if finite.any():
+        lo, hi = pts[finite].min(axis=0), pts[finite].max(axis=0)
+        if hi[0] >= 0 and hi[1] >= 0 and lo[0] <= geomap.width and lo[1] <= geomap.height:
+            return
+    why = (f"lies outside the map ({geomap.width}x{geomap.height} px; the region spans map "
+           f"pixels {lo[0]:.0f}..{hi[0]:.0f} x {lo[1]:.0f}..{hi[1]:.0f})" if finite.any()
+           else "has no vertex that lands on the map")
+    hint = "check the lon/lat order (GeoJSON is lon, lat) and the CRS"
+    if mode == "include":
+        raise InputError(f"{label}: {why}: nothing could be tracked; {hint}")
+    import logging
+
+    logging.getLogger(__name__).warning("%s: %s: it ignores nothing; %s", label, why, hint)
 
 
 _CSV_KINDS = {("x", "y"): "frame", ("frame_x", "frame_y"): "frame",

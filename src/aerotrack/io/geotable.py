@@ -176,10 +176,9 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     if good.any():
         lonlat[good] = geomap.crs_to_lonlat(mapxy[good])
 
-    if out_crs is None:
-        if not good.any():
-            raise InputError("observation table: no row has a ground position; cannot choose a UTM zone")
-        med = np.median(lonlat[good], axis=0)
+    if out_crs is None:  # the UTM zone of the rows, or of the map's centre (no row: empty table)
+        med = (np.median(lonlat[good], axis=0) if good.any() else
+               geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0])
         out_crs = utm_crs_for(float(med[0]), float(med[1]))
     try:
         ocrs = CRS.from_user_input(out_crs)
