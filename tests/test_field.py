@@ -577,3 +577,40 @@ def test_observation_table_sizes_on_frames_without_a_homography(geomap, tmp_path
     assert [float(t["length_m"]) for t in table] == pytest.approx([4.6] * n, rel=0.02)
     headings = [t["heading_deg"] for t in table if t["heading_deg"]]
     assert headings and "360.00" not in headings and "0.00" in headings
+
+
+def test_telemetry_defaults_and_a_placement_the_map_never_confirms(geomap, tmp_path, capsys):
+    """A DJI .srt without gimbal yaw could not be used (the message named a --heading option
+    that does not exist); a heading in radians put every position ~60 m off with every frame
+    'ok' and no word. Now --telemetry-default gives a missing column, and a run none of whose
+    frames matched the map says so."""
+    from conftest import run_cli
+
+    map_img = geomap.read_image()
+    c = geomap.pixel_to_lonlat([[600, 700]])[0]
+    true = CameraPose(lon=c[0], lat=c[1], alt_m=90.0, heading_deg=250.0, hfov_deg=70.0)
+    size = (400, 240)
+    H_true = pose_homography(true, size, geomap)
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    img = cv2.warpPerspective(map_img, np.linalg.inv(T) @ np.linalg.inv(H_true) @ T, size)
+    for i in range(6):
+        cv2.imwrite(str(frames / f"{i + 1:04d}.png"), img)
+    no_heading = tmp_path / "noheading.csv"
+    no_heading.write_text(f"frame,lon,lat,alt_m,hfov_deg\n1,{c[0]:.8f},{c[1]:.8f},90,70\n")
+    args = ["track", frames, "--map", geomap.path, "--telemetry", no_heading]
+    code, _, err = run_cli(capsys, *args, "--out", tmp_path / "a")
+    assert code == 2 and "--telemetry-default heading_deg=VALUE" in err, err
+    code, _, err = run_cli(capsys, *args, "--telemetry-default", "heading=250", "--out",
+                           tmp_path / "b")
+    assert code == 0 and "no frame could be matched" not in err, err
+    radians = tmp_path / "radians.csv"
+    radians.write_text("frame,lon,lat,alt_m,heading_deg,hfov_deg\n"
+                       f"1,{c[0]:.8f},{c[1]:.8f},90,{math.radians(250):.4f},70\n")
+    code, _, err = run_cli(capsys, "track", frames, "--map", geomap.path, "--telemetry", radians,
+                           "--out", tmp_path / "c")
+    assert code == 0 and "no frame could be matched" in err and "degrees" in err, err
+    code, _, err = run_cli(capsys, *args, "--telemetry-default", "heading=east", "--out",
+                           tmp_path / "d")
+    assert code == 2 and "not a number" in err, err

@@ -40,6 +40,10 @@ gsd_option = click.option(
 telemetry_option = click.option(
     "--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
     help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
+telemetry_default_option = click.option(
+    "--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
+    help="A value for a column the --telemetry log lacks (repeatable): heading_deg=29 for a DJI "
+         ".srt without gimbal yaw; also alt_m, pitch_deg, roll_deg, hfov_deg, focal_35mm.")
 intrinsics_option = click.option(
     "--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
     help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are undistorted.")

@@ -24,6 +24,7 @@ from .common import (
     root_flags,
     set_option,
     stride_option,
+    telemetry_default_option,
     telemetry_option,
 )
 
@@ -39,6 +40,7 @@ log = logging.getLogger("aerotrack")
                    "`track`.")
 @map_init_option
 @telemetry_option
+@telemetry_default_option
 @gsd_option
 @fps_option
 @config_option
@@ -55,7 +57,8 @@ log = logging.getLogger("aerotrack")
               help="Also write debug.mp4: each frame with its boxes beside the residual image.")
 @click.option("--overwrite", is_flag=True, help="Replace results already in --out.")
 @click.pass_context
-def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_path, gsd, fps,
+def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_path,
+                   telemetry_defaults, gsd, fps,
                    config_path, overrides, intrinsics_path, roi_paths, ignore_paths, frame_range,
                    stride, stabilised, debug_video, overwrite):
     """Detect moving vehicles (Yu & Medioni section 3) and write DIR/detections.csv.
@@ -84,7 +87,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     start, stop = parse_frame_range(frame_range)
     source, _, geomap, H_init, undistort, _ = load_inputs(
         input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path,
-        start=start, config=config)
+        start=start, config=config, telemetry_defaults=telemetry_defaults)
     check_frame_range(frame_range, start, source.count, stop)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_config(config, fps)  # before --out is touched
@@ -95,11 +98,13 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
         _detect(ctx, source, out, config, geomap=geomap, H_init=H_init,
                 gsd=None if geomap else gsd, undistort=undistort, regions=regions,
                 start=start, stop=stop, stride=stride, stabilised=stabilised,
-                debug_video=debug_video)
+                debug_video=debug_video,
+                placed_by=(f"--telemetry {telemetry_path}" if telemetry_path is not None
+                           else f"--map-init {map_init_path}" if map_init_path else None))
 
 
 def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions, start, stop,
-            stride, stabilised: bool, debug_video: bool) -> None:
+            stride, stabilised: bool, debug_video: bool, placed_by: str | None = None) -> None:
     from ..config import dumps_config
     from ..io.mot import write_mot
     from ..outputs import detection_rows, registration_rows
@@ -142,6 +147,10 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
             raise InputError(no_frames_read(getattr(source, "path", "INPUT"),
                                             f"{start}:{stop}" if stop else None, source.count))
         stopper.writing(partial=interrupted is not None)
+        if interrupted is None:
+            from .track_cmd import warn_if_never_refined
+
+            warn_if_never_refined(result, geomap, config, placed_by)
         rows = detection_rows(result)
         write_mot(out.file("detections.csv"), rows)
         if not stabilised:

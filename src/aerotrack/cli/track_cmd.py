@@ -26,6 +26,7 @@ from .common import (
     seed_option,
     set_option,
     stride_option,
+    telemetry_default_option,
     telemetry_option,
     track_fps_option,
 )
@@ -108,7 +109,8 @@ class GracefulStop:
 
 
 def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
-                telemetry_path=None, intrinsics_path=None, start: int = 1, config=None):
+                telemetry_path=None, intrinsics_path=None, start: int = 1, config=None,
+                telemetry_defaults=()):
     """Open and validate every input before any work starts (so bad input fails fast).
 
     With ``start`` > 1 (``--frames A:B``) the map placement returned is frame A's: the
@@ -128,6 +130,8 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
         raise InputError("--map-init and --telemetry need --map")
     if map_init_path is not None and telemetry_path is not None:
         raise InputError("give either --map-init or --telemetry, not both")
+    if telemetry_defaults and telemetry_path is None:
+        raise InputError("--telemetry-default: only used with --telemetry")
     if telemetry_path is not None and input_path is None:
         raise InputError("--telemetry needs INPUT frames to lock on to the map")
     check_positive(gsd, "--gsd", "a positive number of metres per pixel")
@@ -148,19 +152,24 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     if map_path is not None:
         geomap = GeoMap(map_path)
         if telemetry_path is not None:
-            from ..geo.telemetry import read_telemetry, telemetry_map_init
+            from ..geo.telemetry import (
+                parse_telemetry_defaults,
+                read_telemetry,
+                telemetry_map_init,
+            )
 
-            tel = read_telemetry(telemetry_path, fps=source.fps)
+            tel = read_telemetry(telemetry_path, fps=source.fps,
+                                 defaults=parse_telemetry_defaults(telemetry_defaults))
             first = next(iter(source.frames(start=start, stop=start)), None)
             if first is None:
                 raise InputError(f"{input_path}: frame {start} cannot be read")
             if undistort is not None:
                 first = undistort(first)
             H_init, notes["telemetry"] = telemetry_map_init(tel, first, geomap, source.fps)
-            init_label = telemetry_path
+            init_label = f"--telemetry {telemetry_path}"
         else:
             H_init = read_map_init(map_init_path, geomap)
-            init_label = map_init_path
+            init_label = f"--map-init {map_init_path}"
         if source is not None:
             _check_overlap(source.size, H_init, geomap, init_label)
             if start > 1 and telemetry_path is None:
@@ -217,7 +226,7 @@ def check_detections(dets, path, source=None) -> None:
                         int(late.argmax()) + 1, int(dets[late.argmax(), 0]))
 
 
-def _check_overlap(size, H_init, geomap, map_init_path) -> None:
+def _check_overlap(size, H_init, geomap, init_label) -> None:
     import numpy as np
 
     from ..errors import GeoreferenceError
@@ -226,7 +235,7 @@ def _check_overlap(size, H_init, geomap, map_init_path) -> None:
     w, h = size
     corners = apply_homography(H_init, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
     centre = apply_homography(H_init, np.array([[w / 2, h / 2]], float))[0]
-    where = f"--map-init {map_init_path}: frame 1"
+    where = f"{init_label}: frame 1"
     if not (np.all(np.isfinite(corners)) and np.all(np.isfinite(centre))):
         raise GeoreferenceError(f"{where} maps to infinity (a degenerate homography)")
     if not (0 <= centre[0] <= geomap.width and 0 <= centre[1] <= geomap.height):
@@ -309,6 +318,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @config_option
 @set_option
 @telemetry_option
+@telemetry_default_option
 @intrinsics_option
 @roi_option
 @ignore_option
@@ -337,9 +347,9 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Run the segments on an existing Dask cluster (tcp://host:8786).")
 @click.pass_context
 def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_path, gsd, fps,
-                  seed, config_path, overrides, telemetry_path, intrinsics_path, roi_paths,
-                  ignore_paths, min_speed, out_crs, frame_range, stride, overwrite, resume,
-                  workers, scheduler, from_dir=None, roads_path=None):
+                  seed, config_path, overrides, telemetry_path, telemetry_defaults,
+                  intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
+                  overwrite, resume, workers, scheduler, from_dir=None, roads_path=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -375,7 +385,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         given = [name for name, value in (
             ("INPUT", input_path), ("--detections", detections_path), ("--frames", frame_range),
             ("--stride", stride != 1), ("--map-init", map_init_path),
-            ("--telemetry", telemetry_path), ("--intrinsics", intrinsics_path),
+            ("--telemetry", telemetry_path), ("--telemetry-default", telemetry_defaults),
+            ("--intrinsics", intrinsics_path),
             ("--roi", roi_paths), ("--ignore-region", ignore_paths), ("--resume", resume),
             ("--workers", workers), ("--scheduler", scheduler)) if value]
         if given:
@@ -389,7 +400,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
-        intrinsics_path, start=start, config=config)
+        intrinsics_path, start=start, config=config, telemetry_defaults=telemetry_defaults)
     roads = load_roads(roads_path, geomap, config)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_out_crs(out_crs, geomap)
@@ -409,6 +420,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     manifest = {
         "input": where(input_path), "detections": where(detections_path), "map": where(map_path),
         "map_init": where(map_init_path), "telemetry": where(telemetry_path),
+        "telemetry_defaults": sorted(telemetry_defaults),
         "intrinsics": where(intrinsics_path), "roi": [where(r) for r in roi_paths],
         "ignore_region": [where(r) for r in ignore_paths], "roads": where(roads_path),
         "fps": fps, "gsd": gsd, "seed": seed, "frames": [start, stop], "stride": stride,
@@ -451,6 +463,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         if source is not None and not result.frames:
             raise InputError(no_frames_read(input_path, frame_range, source.count))
         stopper.writing()
+        warn_if_never_refined(result, geomap, config,
+                              f"--telemetry {telemetry_path}" if telemetry_path is not None
+                              else f"--map-init {map_init_path}" if map_init_path else None)
         if dets is None and geomap is None and gsd is None:
             from ..detection.moving import small_vehicles_hint
 
@@ -571,6 +586,22 @@ def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
                                  "use --overwrite to start again")
             return
     atomic_write_text(path, json.dumps(manifest, indent=1) + "\n")
+
+
+def warn_if_never_refined(result, geomap, config, placed_by: str | None) -> None:
+    """With a map, a run none of whose frames was refined against it (mutual information never
+    found the map under the frame) keeps whatever placement ``--map-init`` or ``--telemetry``
+    gave: a heading in radians or an altitude in feet put every position tens to hundreds of
+    metres off with every frame ``ok``. Say so."""
+    if geomap is None or not result.registrations or not config.registration.refine_every_s > 0:
+        return
+    if any(r.status == "refined" for r in result.registrations.values()):
+        return
+    hint = (" (telemetry: heading in degrees clockwise from north, altitude in metres above "
+            "the ground, hfov in degrees)" if placed_by and placed_by.startswith("--telemetry")
+            else "")
+    log.warning("no frame could be matched to the map: positions rest on %s alone and may be "
+                "off by as much as it is%s", placed_by or "the initial placement", hint)
 
 
 def check_out_crs(out_crs: str | None, geomap=None) -> None:

@@ -359,8 +359,8 @@ def _build(rows: list[dict[str, float]], label: str, fps: float,
             v = r.get(k, dflt.get(k))
             if v is None:
                 raise FormatError(
-                    f"{label} line {line}: no {k} (give the column, or a default such as "
-                    f"--{k.replace('_deg', '').replace('_m', '')})")
+                    f"{label} line {line}: no {k} (add the column, or give "
+                    f"--telemetry-default {k}=VALUE)")
             cols[k].append(float(v))
         if not -180 <= cols["lon"][-1] <= 360 or not -90 <= cols["lat"][-1] <= 90:
             raise FormatError(f"{label} line {line}: lon/lat out of range "
@@ -502,6 +502,32 @@ def read_dji_srt(path: str | Path, *, defaults: dict[str, float] | None = None,
             if k not in r:
                 raise FormatError(f"{label} line {int(r['_line'])}: cue has no {k}")
     return _build(rows, label, 1.0, defaults)
+
+
+def parse_telemetry_defaults(items) -> dict[str, float]:
+    """``--telemetry-default NAME=VALUE`` items as ``{"heading_deg": 29.0}`` (column names and
+    their aliases, as in a log's header: ``heading``, ``yaw``, ``alt``, ``focal_35mm``, ...).
+
+    Raises
+    ------
+    InputError
+        An item without ``=``, an unknown name or a value that is not a finite number.
+    """
+    out: dict[str, float] = {}
+    for item in items or ():
+        name, sep, value = str(item).partition("=")
+        key = _ALIASES.get(name.strip().lower(), name.strip().lower())
+        if not sep or key not in (*_FIELDS, "focal_35mm"):
+            raise InputError(f"--telemetry-default {item}: expected NAME=VALUE with NAME one of "
+                             f"{', '.join((*_FIELDS, 'focal_35mm'))}")
+        try:
+            v = float(value)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise InputError(f"--telemetry-default {item}: {value!r} is not a number")
+        out[key] = v
+    return out
 
 
 def read_telemetry(path: str | Path, *, fps: float = 30.0,
