@@ -676,15 +676,15 @@ def test_batch_reports_each_unusable_video_once_and_fails(tmp_path, capsys):
     assert code == 2 and "Traceback" not in err and "WARNING" not in err, err
     lines = err.strip().splitlines()
     assert sum("empty.mp4: failed" in ln and "0 bytes" in ln for ln in lines) == 1, err
-    assert sum("junk: failed" in ln for ln in lines) == 1, err
-    assert err.count("junk.avi") == 1, err  # the path once, in its one line
+    assert sum("junk.avi: failed" in ln for ln in lines) == 1, err
+    assert sum("junk.avi" in ln for ln in lines[:-1]) == 1, err  # one line, then the summary
     assert "batch: 1 tracked, 0 skipped, 2 failed" in err
     assert lines[-1].startswith("aerotrack: error: batch: 2 of 3 inputs failed"), err
     assert "notes" not in err
     assert (tmp_path / "o" / "good" / "tracks.csv").is_file()
     # -q still shows the failures (errors), not the progress of the good one
-    code, _, err = run_cli(capsys, "-q", "batch", inputs, "--out", tmp_path / "o")
-    assert code == 2 and "empty.mp4: failed" in err and "junk: failed" in err
+    code, _, err = run_cli(capsys, "-q", "batch", inputs, "--out", tmp_path / "o", "--gsd", "0.3")
+    assert code == 2 and "empty.mp4: failed" in err and "junk.avi: failed" in err
     assert "good" not in err
 
 
@@ -943,3 +943,23 @@ def test_small_messages_found_by_a_probe(tmp_path, capsys):
     gt = tmp_path / "gt0.txt"
     gt.write_text("0,1,10,10,8,4,1\n")
     expect_error(capsys, ["line 1", "0-based"], "eval", "--gt", gt, "--pred", gt)
+
+
+def test_batch_names_inputs_finished_with_other_settings(tmp_path, capsys):
+    """A re-run with other settings skipped every finished input silently, keeping results made
+    with the old ones; now each is named (a warning, also with -q) and --overwrite tracks it
+    again."""
+    inputs = tmp_path / "in"
+    write_frames(inputs / "clip", [textured(shift=(0, i)) for i in range(4)])
+    out = tmp_path / "o"
+    assert run_cli(capsys, "batch", inputs, "--out", out, "--gsd", "0.3")[0] == 0
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--gsd", "0.3")
+    assert code == 0 and "clip: already finished, skipped" in err and "WARNING" not in err, err
+    code, _, err = run_cli(capsys, "-q", "batch", inputs, "--out", out, "--gsd", "0.5",
+                           "--set", "detection.threshold_sigma=6")
+    assert code == 0 and "finished with other --config/--set, --gsd" in err, err
+    before = json.loads((out / "clip" / "summary.json").read_text())
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--gsd", "0.5", "--overwrite")
+    assert code == 0 and "1 tracked, 0 skipped" in err, err
+    after = json.loads((out / "clip" / "summary.json").read_text())
+    assert before["gsd"] == 0.3 and after["gsd"] == 0.5

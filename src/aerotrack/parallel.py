@@ -1230,6 +1230,34 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     return items
 
 
+def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: int,
+                  metres_per_unit: float | None, stride: int) -> list[str]:
+    """What differs between the settings of this batch and those a finished item was tracked
+    with (its ``summary.json`` and ``config.toml``): names of options, empty when alike or
+    unknown (a folder from before these were recorded compares by its config alone)."""
+    import json
+
+    from .config import dumps_config
+
+    try:
+        summary = json.loads((item.out / "summary.json").read_text(encoding="utf-8"))
+        stored = (item.out / "config.toml").read_text(encoding="utf-8")
+    except (OSError, ValueError):
+        return []
+    changed = []
+    if stored != dumps_config(config):
+        changed.append("--config/--set")
+    if summary.get("seed", seed) != seed:
+        changed.append("--seed")
+    if summary.get("stride", stride) != stride:
+        changed.append("--stride")
+    if "gsd" in summary and summary["gsd"] != metres_per_unit:
+        changed.append("--gsd")
+    if "fps_given" in summary and summary["fps_given"] != fps:
+        changed.append("--fps")
+    return changed
+
+
 def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: float | None = None,
               seed: int = 0, metres_per_unit: float | None = None, stride: int = 1, client=None,
               parallel: ParallelConfig | None = None,
@@ -1303,7 +1331,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 result, _ = assemble(results, config=config, fps=src.fps,
                                      metres_per_unit=metres_per_unit, stride=stride,
                                      parallel=parallel)
-            info = {"input": str(Path(it.input).resolve()), "seed": seed,
+            info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
+                    "gsd": metres_per_unit, "fps_given": fps,
                     "wall_time_s": round(time.perf_counter() - t0, 3)}
             summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
             if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them

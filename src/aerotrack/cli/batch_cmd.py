@@ -40,13 +40,18 @@ log = logging.getLogger("aerotrack")
                    "inputs under the same paths.")
 @click.option("--segment-s", type=float, default=60.0, show_default=True,
               help="With --workers/--scheduler: seconds of video per segment.")
+@click.option("--overwrite", is_flag=True,
+              help="Track finished inputs again (by default they are skipped; one finished with "
+                   "other settings is named).")
 @click.pass_context
 def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, overrides, stride, workers,
-                  scheduler, segment_s):
+                  scheduler, segment_s, overwrite):
     """Track every video file and image-folder sub-folder of INPUT_DIR.
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
-    interrupted batch continues where it stopped when run again. An input that cannot be tracked
+    interrupted batch continues where it stopped when run again; one finished with other
+    settings (--config/--set, --seed, --stride, --gsd, --fps) is named in a warning and kept,
+    and --overwrite tracks every input again. An input that cannot be tracked
     (an empty or unreadable video file) is reported on one line and counted as failed: the batch
     goes on with the others and exits with code 2.
 
@@ -56,11 +61,19 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
       aerotrack batch flights/ --out runs/ --workers 2
     """
     import contextlib
+    from dataclasses import replace
 
     from ..config import load_config
     from ..errors import InputError
     from ..io.output import check_writable
-    from ..parallel import ParallelConfig, check_scheduler, dask_client, plan_batch, run_batch
+    from ..parallel import (
+        ParallelConfig,
+        batch_changes,
+        check_scheduler,
+        dask_client,
+        plan_batch,
+        run_batch,
+    )
     from ..pipeline import check_config
 
     check_positive(gsd, "--gsd", "a positive number of metres per pixel")
@@ -84,19 +97,29 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
 
     def report(item, summary, error):
         if error is not None:  # an error: shown even with -q
-            click.echo(f"aerotrack: {item.name}: failed: {error}", err=True)
+            click.echo(f"aerotrack: {Path(item.input).name}: failed: {error}", err=True)
         elif quiet:
             return
         else:
             c = summary["counts"]
-            click.echo(f"aerotrack: {item.name}: {summary['frames']} frames, {c['tracks']} tracks "
-                       f"-> {item.out}", err=True)
+            click.echo(f"aerotrack: {Path(item.input).name}: {summary['frames']} frames, "
+                       f"{c['tracks']} tracks -> {item.out}", err=True)
 
     for path, why in unusable:
         click.echo(f"aerotrack: {path.name}: failed: {path}: {why}", err=True)
+    if overwrite:
+        items = [replace(it, done=False) for it in items]
     for it in items:
-        if it.done and not quiet:
-            click.echo(f"aerotrack: {it.name}: already finished, skipped", err=True)
+        if not it.done:
+            continue
+        changed = batch_changes(it, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
+                                stride=stride)
+        if changed:  # a warning: shown even with -q
+            click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
+                       f"{', '.join(changed)}; kept as it is (--overwrite tracks it again)",
+                       err=True)
+        elif not quiet:
+            click.echo(f"aerotrack: {Path(it.input).name}: already finished, skipped", err=True)
     engine = (dask_client(workers=workers, scheduler=scheduler)
               if workers is not None or scheduler is not None else contextlib.nullcontext())
     with engine as client, _ReportedOnce():
@@ -104,7 +127,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
                             stride=stride, client=client,
                             parallel=ParallelConfig(segment_s=segment_s), on_done=report)
     failed = [path.name for path, _ in unusable]
-    failed += [name for name, r in results.items() if isinstance(r, BaseException)]
+    names = {it.name: Path(it.input).name for it in items}
+    failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]
     tracked = sum(1 for r in results.values() if not isinstance(r, BaseException))
     done = sum(1 for it in items if it.done)
     if not quiet:
