@@ -54,6 +54,9 @@ def configure_logging(verbose: int, quiet: bool) -> None:
     utils = getattr(getattr(cv2, "utils", None), "logging", None)
     if utils is not None and "OPENCV_LOG_LEVEL" not in os.environ.keys() - _set_by_us:
         utils.setLogLevel(utils.LOG_LEVEL_INFO if verbose >= 2 else utils.LOG_LEVEL_ERROR)
+    # Dask's client, closed under a pending gather by Ctrl-C, leaves a task whose AllExit asyncio
+    # reports as "Task exception was never retrieved" with a traceback: not ours to show
+    logging.getLogger("asyncio").setLevel(logging.CRITICAL if verbose < 2 else logging.NOTSET)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("aerotrack: %(levelname)s: %(message)s"))
     root = logging.getLogger("aerotrack")
