@@ -335,6 +335,16 @@ def test_bad_intrinsics(tmp_path):
     broken.write_text('{"width": 960,\n "height": }')
     with pytest.raises(FormatError, match=r"broken\.json line 2"):
         read_intrinsics(broken)
+    # found by a probe: an unknown key was ignored, normalised intrinsics taken as pixels
+    typo = tmp_path / "typo.toml"
+    typo.write_text(CAMERA_TOML + "focal = 3.0\n")
+    with pytest.raises(FormatError, match="unknown key 'focal'"):
+        read_intrinsics(typo)
+    unit = tmp_path / "unit.json"
+    unit.write_text(json.dumps({"width": 640, "height": 480, "fx": 0.78, "fy": 1.04, "cx": 0.5,
+                                "cy": 0.5, "dist": [0, 0, 0, 0]}))
+    with pytest.raises(FormatError, match="normalised intrinsics"):
+        read_intrinsics(unit)
 
 
 # -- scope: regions and the minimum-speed filter --------------------------------------------

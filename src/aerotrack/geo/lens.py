@@ -71,6 +71,11 @@ class CameraIntrinsics:
         return math.degrees(2.0 * math.atan(self.size[0] / (2.0 * float(self.K[0, 0]))))
 
 
+#: Keys an intrinsics file may hold.
+_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "camera_matrix", "dist", "dist_coeffs",
+         "distortion_coefficients"}
+
+
 def read_intrinsics(path: str | Path, *, option: str = "--intrinsics") -> CameraIntrinsics:
     """Read a TOML or JSON intrinsics file (see the module docstring).
 
@@ -109,7 +114,16 @@ def _number(data: dict, key: str, label: str) -> float:
 
 
 def intrinsics_from_dict(data: dict[str, Any], label: str = "intrinsics") -> CameraIntrinsics:
-    """Build :class:`CameraIntrinsics` from the keys of an intrinsics file."""
+    """Build :class:`CameraIntrinsics` from the keys of an intrinsics file.
+
+    Unknown keys are refused (a misspelt ``focal`` would otherwise be ignored, as a misspelt
+    ``--config`` key is not), and a principal point outside the frame or focal lengths below
+    a tenth of its width (normalised intrinsics, fx = 0.78, where pixels are expected) too.
+    """
+    unknown = sorted(set(data) - _KEYS)
+    if unknown:
+        raise FormatError(f"{label}: unknown key {unknown[0]!r} (valid: "
+                          f"{', '.join(sorted(_KEYS))})")
     w, h = _number(data, "width", label), _number(data, "height", label)
     if not (w >= 1 and h >= 1 and w.is_integer() and h.is_integer()):
         raise FormatError(f"{label}: width and height must be positive integers")
@@ -126,6 +140,11 @@ def intrinsics_from_dict(data: dict[str, Any], label: str = "intrinsics") -> Cam
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     if not (K[0, 0] > 0 and K[1, 1] > 0):
         raise FormatError(f"{label}: focal lengths fx, fy must be positive")
+    if min(K[0, 0], K[1, 1]) < 0.1 * w or not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
+        raise FormatError(f"{label}: fx, fy {K[0, 0]:g}, {K[1, 1]:g} and cx, cy {K[0, 2]:g}, "
+                          f"{K[1, 2]:g} are not in pixels of a {int(w)}x{int(h)} frame "
+                          "(normalised intrinsics? multiply fx, cx by the width and fy, cy by "
+                          "the height)")
     key = next((k for k in ("dist", "dist_coeffs", "distortion_coefficients") if k in data), None)
     if key is None:
         raise FormatError(f"{label}: missing key 'dist' (k1, k2, p1, p2[, k3 ...])")
