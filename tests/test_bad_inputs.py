@@ -963,3 +963,12 @@ def test_batch_names_inputs_finished_with_other_settings(tmp_path, capsys):
     assert code == 0 and "1 tracked, 0 skipped" in err, err
     after = json.loads((out / "clip" / "summary.json").read_text())
     assert before["gsd"] == 0.3 and after["gsd"] == 0.5
+
+
+def test_gsd_with_a_map_is_named_as_unused(tmp_path, capsys, dets):
+    gm = write_map(tmp_path / "m.tif")
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 10\n0 1 10\n0 0 1\n")
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--map", gm, "--map-init", h,
+                           "--gsd", "0.3", "--out", tmp_path / "o")
+    assert code == 0 and "--gsd 0.3: not used with --map" in err, err

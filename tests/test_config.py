@@ -32,3 +32,16 @@ def test_bad_toml_names_file(tmp_path):
     p.write_text("[detection\nwindow_s = 1")
     with pytest.raises(ConfigError, match="bad.toml"):
         load_config(p)
+
+
+def test_misplaced_and_misspelt_keys_are_named_helpfully(tmp_path):
+    """A key above every section was called an unknown section, and a misspelt key listed ~90
+    names without saying which one was meant."""
+    top = tmp_path / "top.toml"
+    top.write_text("threshold_sigma = 7.0\n")
+    with pytest.raises(ConfigError, match=r"outside any \[section\]; it belongs under \[detection\]"):
+        load_config(top)
+    with pytest.raises(ConfigError, match=r"did you mean detection\.threshold_sigma"):
+        load_config(None, ["detection.treshold_sigma=6"])
+    with pytest.raises(ConfigError, match=r"did you mean \[detection\]"):
+        load_config(None, ["detections.threshold_sigma=6"])

@@ -1802,11 +1802,19 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a :class:`Config` from nested tables, rejecting unknown sections and keys."""
     sections = _section_types()
     kwargs = {}
+    import difflib
+
     for name, table in data.items():
         if name not in sections:
+            if not isinstance(table, dict):  # `key = value` above every [section]
+                owners = [s for s, c in sections.items() if name in {f.name for f in fields(c)}]
+                where = f"; it belongs under [{owners[0]}]" if owners else ""
+                raise ConfigError(f"config: {name} = {table!r} is outside any [section]{where}")
+            close = difflib.get_close_matches(name, sections, n=1)
             raise ConfigError(
-                f"config: unknown section [{name}] (valid: {', '.join(sorted(sections))})"
-            )
+                f"config: unknown section [{name}]"
+                + (f"; did you mean [{close[0]}]?" if close else "")
+                + f" (valid: {', '.join(sorted(sections))})")
         if not isinstance(table, dict):
             raise ConfigError(f"config: [{name}] must be a table")
         cls = sections[name]
@@ -1815,9 +1823,11 @@ def config_from_dict(data: dict[str, Any]) -> Config:
         values = {}
         for key, value in table.items():
             if key not in valid:
+                close = difflib.get_close_matches(key, valid, n=3)
                 raise ConfigError(
-                    f"config: unknown parameter {name}.{key} (valid: {', '.join(sorted(valid))})"
-                )
+                    f"config: unknown parameter {name}.{key}"
+                    + (f"; did you mean {' or '.join(f'{name}.{c}' for c in close)}?" if close
+                       else f" (valid: {', '.join(sorted(valid))})"))
             values[key] = _coerce(name, key, value, hints[key])
         kwargs[name] = cls(**values)
     return Config(**kwargs)

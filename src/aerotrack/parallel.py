@@ -1065,7 +1065,7 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     timings["linking"] = t2 - t1
     segs = [r.segment for r in results]
     frames = sum((s.own_stop - s.own_start) // stride + 1 for s in segs)
-    log.info("joined %d segments: world rms %s, stitched %s, cut %s", len(segs),
+    log.debug("joined %d segments: world rms %s, stitched %s, cut %s", len(segs),
              [round(x, 3) for x in report.world_rms], report.stitched, report.cut)
     result = Result(tracks=tracks, registrations=regs, detections=dets, fps=fps,
                     frame_size=frame_size, metres_per_unit=mpu, timings=timings, frames=frames,

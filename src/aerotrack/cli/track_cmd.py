@@ -135,6 +135,8 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     if telemetry_path is not None and input_path is None:
         raise InputError("--telemetry needs INPUT frames to lock on to the map")
     check_positive(gsd, "--gsd", "a positive number of metres per pixel")
+    if gsd is not None and map_path is not None:
+        log.warning("--gsd %g: not used with --map (the map gives the scale)", gsd)
     if fps is not None and not (fps > 0 and fps < 1e4):
         raise InputError(f"--fps {fps}: must be a positive number")
     source = open_source(input_path, fps) if input_path is not None else None
@@ -670,6 +672,9 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
         raise InputError(f"--from {from_dir}: unreadable summary.json ({exc})") from None
     map_path = map_path or prev.get("map")
     geomap = GeoMap(map_path) if map_path else None
+    if gsd is not None and geomap is not None:
+        log.warning("--gsd %g: not used: the run of --from %s is on a map (the map gives the "
+                    "scale)", gsd, from_dir)
     fps = fps or prev.get("fps") or 30.0
     mpu = None if geomap else (gsd or prev.get("metres_per_unit"))
     if roads_path is None and prev.get("roads"):  # the earlier run's roads, as its other inputs
