@@ -972,3 +972,24 @@ def test_gsd_with_a_map_is_named_as_unused(tmp_path, capsys, dets):
     code, _, err = run_cli(capsys, "track", "--detections", dets, "--map", gm, "--map-init", h,
                            "--gsd", "0.3", "--out", tmp_path / "o")
     assert code == 0 and "--gsd 0.3: not used with --map" in err, err
+
+
+def test_a_text_file_is_not_tracked_as_a_video(tmp_path, capsys):
+    """FFmpeg draws a text file as frames of text: a detections file given as INPUT (a
+    forgotten --detections) was tracked, 927 frames and 75 tracks of glyphs."""
+    p = tmp_path / "dets.txt"
+    p.write_text("".join(f"{f},-1,10,10,8,4,0.9\n" for f in range(1, 200)))
+    expect_error(capsys, ["dets.txt", "text file", "--detections"], "track", p, "--out",
+                 tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_an_unreadable_image_mid_folder_is_skipped(tmp_path, capsys):
+    """One zero-byte image among 12 ended the run (exit 2) and deleted the work done so far,
+    after a warning that called it a truncated JPEG."""
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(12)])
+    (frames / "0006.png").write_bytes(b"")
+    code, _, err = run_cli(capsys, "track", frames, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert "0006.png: empty file (0 bytes); frame 6 skipped" in err
+    regs = (tmp_path / "o" / "registration.csv").read_text().splitlines()[1:]
+    assert [int(r.split(",")[0]) for r in regs] == [1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 12]

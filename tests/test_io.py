@@ -201,8 +201,35 @@ def test_image_folder_frames_open_only_the_range(tmp_path, monkeypatch):
     assert [int(f.image[0, 0, 0]) for f in frames] == [40, 60, 80]
     assert frames[0].time == pytest.approx(0.3)
     assert [f.index for f in src.frames(start=8, stop=20)] == [8, 9]
-    with pytest.raises(InputError, match="002.png"):
-        list(src.frames(start=1, stop=3))
+    # a broken file inside the range is skipped (a warning names it), not the end of the run
+    assert [f.index for f in src.frames(start=1, stop=3)] == [1, 3]
+
+
+def test_image_folder_order_hidden_files_duplicates_and_alpha(tmp_path):
+    """Found by a probe: img1..img100 were read img1, img10, img100, img11, ...; macOS's
+    ._DJI_0001.JPG made a folder unusable; 0001.jpg beside 0001.png read every frame twice;
+    transparent pixels of RGBA images were tracked as image."""
+    nat = tmp_path / "nat"
+    nat.mkdir()
+    for i in (1, 2, 10, 11, 100):
+        cv2.imwrite(str(nat / f"img{i}.png"), np.full((8, 10, 3), i, np.uint8))
+    (nat / "._img1.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    src = open_source(nat)
+    assert [int(f.image[0, 0, 0]) for f in src.frames()] == [1, 2, 10, 11, 100]
+    dup = tmp_path / "dup"
+    dup.mkdir()
+    for ext in ("jpg", "png"):
+        cv2.imwrite(str(dup / f"0001.{ext}"), np.zeros((8, 10, 3), np.uint8))
+    with pytest.raises(InputError, match="both 0001.jpg and 0001.png"):
+        open_source(dup)
+    rgba = tmp_path / "rgba"
+    rgba.mkdir()
+    img = np.full((8, 10, 4), 200, np.uint8)
+    img[:, :3, 3] = 0  # a transparent strip
+    cv2.imwrite(str(rgba / "0001.png"), img)
+    frame = next(iter(open_source(rgba).frames()))
+    assert frame.image.shape == (8, 10, 3)
+    assert frame.image[:, :3].max() == 0 and frame.image[:, 3:].min() == 200
 
 
 @pytest.mark.parametrize("content", [b"", b"this is not a video at all" * 10])

@@ -18,6 +18,7 @@ import logging
 import math
 import os
 import queue
+import re
 import sys
 import threading
 from collections.abc import Iterator
@@ -174,6 +175,7 @@ class VideoSource(FrameSource):
         an exact ``--resume`` finds that the frames it re-reads differ from the ones it saved
         and falls back to the checkpoints (:mod:`aerotrack.io.state`).
         """
+        log = logging.getLogger(__name__)
         cap = cv2.VideoCapture(str(self.path))
         try:
             index = self._seek(cap, start) if start > 1 else 0  # frames before the next read
@@ -181,15 +183,36 @@ class VideoSource(FrameSource):
                 cap.release()
                 cap = cv2.VideoCapture(str(self.path))
                 index = 0
+            sought, fails, t_last = index > 0, 0, None
             while True:
                 ok = cap.grab()
+                if not ok and sought:  # sought, then nothing decodes (an MPEG-TS): from frame 1
+                    log.info("%s: nothing decodes after seeking to frame %d; decoding from the "
+                             "first frame", self.path, start)
+                    cap.release()
+                    cap = cv2.VideoCapture(str(self.path))
+                    index, sought = 0, False
+                    continue
+                sought = False
                 if not ok:
+                    # a damaged stretch: FFmpeg's decoder fails on it, then goes on
+                    fails += 1
+                    if fails <= MAX_DECODE_RETRIES and (self.count is None or index < self.count):
+                        continue
                     expected = min(stop or self.count or 0, self.count or 0)
                     if index < expected - max(2, expected // 100):  # counts are estimates
-                        logging.getLogger(__name__).warning(
+                        log.warning(
                             "%s: decoding stopped after frame %d of the %d its header announces "
                             "(truncated or corrupt video?)", self.path, index, self.count)
                     return
+                t_now = cap.get(cv2.CAP_PROP_POS_MSEC)
+                if fails and t_last is not None:  # frames lost in the damage keep their numbers
+                    lost = int(round((t_now - t_last) * self.fps / 1000.0)) - 1
+                    if lost > 0:
+                        log.warning("%s: frames %d-%d could not be decoded (corrupt); skipped",
+                                    self.path, index + 1, index + lost)
+                        index += lost
+                fails, t_last = 0, t_now
                 index += 1
                 if stop is not None and index > stop:
                     return
@@ -215,6 +238,9 @@ class VideoSource(FrameSource):
         return -1
 
 
+#: Consecutive frames a video may fail to decode (a damaged stretch) before it is taken to end.
+MAX_DECODE_RETRIES = 25
+
 #: Images sampled across a folder of 16-bit or floating-point frames to fix their 8-bit mapping.
 DEPTH_SAMPLE_FILES = 9
 #: Percentiles of the sampled values mapped to 0 and 255.
@@ -222,9 +248,15 @@ DEPTH_PERCENTILES = (0.1, 99.9)
 
 
 class ImageFolderSource(FrameSource):
-    """A folder of images, frame n = n-th image file in lexicographic order of names.
+    """A folder of images, frame n = n-th image file in natural order of names (``img2`` before
+    ``img10``; zero-padded names sort as they read).
 
-    Files whose suffix is not an image type are ignored. All images must have the size of the
+    Files whose suffix is not an image type are ignored, and hidden files too (macOS leaves a
+    ``._DJI_0001.JPG`` beside each image it copies to a card). Two images of one name
+    (``0001.jpg`` and ``0001.png``) are refused: which is the frame? An image that cannot be
+    decoded after the first is skipped with a warning (the frames around it are tracked as
+    across a ``--stride`` gap), not the end of a long run. Transparent pixels of images with an
+    alpha channel are made black, as the fill of a stabilised video, which detection ignores. All images must have the size of the
     first one; a different size is an error naming the file. Grey and colour images of 8 bits
     are read as BGR. Frames of more bits (16-bit TIFF or PNG, as radiometric thermal cameras
     write them, often over a narrow band of a 14-bit range) or floating point are mapped to 8
@@ -239,15 +271,27 @@ class ImageFolderSource(FrameSource):
         self.path = Path(path)
         self.fps = _check_fps(fps, str(self.path)) or DEFAULT_FOLDER_FPS
         self.files = sorted(
-            (p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
-            key=lambda p: p.name,
+            (p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
+             and not p.name.startswith(".")),
+            key=natural_key,
         )
         if not self.files:
             raise InputError(f"{self.path}: folder holds no image files")
+        stems: dict[str, Path] = {}
+        for f in self.files:
+            if f.stem in stems:
+                raise InputError(f"{self.path}: both {stems[f.stem].name} and {f.name}: one "
+                                 "image per frame name expected (move one kind away)")
+            stems[f.stem] = f
         #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
         self.depth_range: tuple[float, float] | None = None
         self._warned: set[Path] = set()  # truncated JPEGs already reported
         raw = self._decode(self.files[0])
+        #: whether images carry an alpha channel (transparent pixels read black)
+        self.alpha = False
+        if self.files[0].suffix.lower() in (".png", ".tif", ".tiff", ".webp"):
+            full = cv2.imread(str(self.files[0]), cv2.IMREAD_UNCHANGED)
+            self.alpha = full is not None and full.ndim == 3 and full.shape[2] == 4
         if raw.dtype != np.uint8:
             self.depth_range = self._depth_range(raw)
             logging.getLogger(__name__).info(
@@ -257,11 +301,12 @@ class ImageFolderSource(FrameSource):
         self.size = (first.shape[1], first.shape[0])
         self.count = len(self.files)
 
-    @staticmethod
-    def _decode(p: Path) -> np.ndarray:
-        img = cv2.imread(str(p), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    def _decode(self, p: Path) -> np.ndarray:
+        flags = cv2.IMREAD_UNCHANGED if getattr(self, "alpha", False) else \
+            cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR
+        img = cv2.imread(str(p), flags)
         if img is None:
-            raise InputError(f"{p}: cannot decode image")
+            raise UnreadableImage(f"{p}: cannot decode image")
         return img
 
     def _depth_range(self, first: np.ndarray) -> tuple[float, float]:
@@ -281,6 +326,12 @@ class ImageFolderSource(FrameSource):
         return lo, (hi if hi > lo else lo + 1.0)
 
     def _read(self, p: Path) -> np.ndarray:
+        try:
+            empty = p.stat().st_size == 0
+        except OSError as exc:
+            raise UnreadableImage(f"{p}: cannot read ({exc.strerror or exc})") from None
+        if empty:
+            raise UnreadableImage(f"{p}: empty file (0 bytes)")
         truncated = p.suffix.lower() in (".jpg", ".jpeg") and not jpeg_complete(p)
         if truncated:
             if p not in self._warned:
@@ -293,11 +344,16 @@ class ImageFolderSource(FrameSource):
         return self._read_decoded(p)
 
     def _read_decoded(self, p: Path) -> np.ndarray:
-        if self.depth_range is None:
+        if self.depth_range is None and not self.alpha:
             img = cv2.imread(str(p), cv2.IMREAD_COLOR)
             if img is None:
-                raise InputError(f"{p}: cannot decode image")
+                raise UnreadableImage(f"{p}: cannot decode image")
             return img
+        if self.depth_range is None:  # 8 bits with alpha
+            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise UnreadableImage(f"{p}: cannot decode image")
+            return _opaque_bgr(img)
         img = self._decode(p)
         if img.dtype == np.uint8:  # an 8-bit file among deeper ones: as it is
             img8 = img
@@ -306,23 +362,44 @@ class ImageFolderSource(FrameSource):
             f = np.nan_to_num(np.asarray(img, np.float32), nan=lo, posinf=hi, neginf=lo)
             f = (f - np.float32(lo)) * np.float32(255.0 / (hi - lo)) + np.float32(0.5)
             img8 = np.clip(f, 0, 255).astype(np.uint8)
-        if img8.ndim == 2:
-            return cv2.cvtColor(img8, cv2.COLOR_GRAY2BGR)
-        if img8.shape[2] == 4:
-            return cv2.cvtColor(img8, cv2.COLOR_BGRA2BGR)
-        return np.ascontiguousarray(img8[:, :, :3])
+        return _opaque_bgr(img8)
 
     def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
         last = len(self.files) if stop is None else min(stop, len(self.files))
         for index in range(start, last + 1, stride):
             p = self.files[index - 1]
-            img = self._read(p)
+            try:
+                img = self._read(p)
+            except UnreadableImage as exc:  # one bad file must not end a long run
+                logging.getLogger(__name__).warning("%s; frame %d skipped", exc, index)
+                continue
             if (img.shape[1], img.shape[0]) != self.size:
                 raise InputError(
                     f"{p}: image is {img.shape[1]}x{img.shape[0]}, expected "
                     f"{self.size[0]}x{self.size[1]} like the first image"
                 )
             yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+
+
+class UnreadableImage(InputError):
+    """An image file of a folder that cannot be decoded (empty, corrupt)."""
+
+
+def natural_key(p: Path) -> tuple:
+    """Sort key reading digit runs as numbers: ``img2`` < ``img10`` (``0002`` < ``0010`` too)."""
+    parts = re.split(r"(\d+)", p.name.lower())
+    return tuple((0, int(t), t) if t.isdigit() else (1, 0, t) for t in parts)
+
+
+def _opaque_bgr(img: np.ndarray) -> np.ndarray:
+    """8-bit BGR from grey, BGR or BGRA; transparent pixels (alpha 0) black."""
+    if img.ndim == 2:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if img.shape[2] == 4:
+        bgr = np.ascontiguousarray(img[:, :, :3])
+        bgr[img[:, :, 3] == 0] = 0
+        return bgr
+    return np.ascontiguousarray(img[:, :, :3])
 
 
 _STDERR_LOCK = threading.Lock()
@@ -391,4 +468,25 @@ def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
         raise InputError(f"{p}: file is empty")
     if p.suffix.lower() in IMAGE_SUFFIXES:
         raise InputError(f"{p}: is a single image; give a video file or a folder of images")
+    if looks_like_text(p):  # FFmpeg would draw a text file as frames of text (its tty demuxer)
+        raise InputError(f"{p}: is a text file, not a video (detections go with --detections "
+                         "FILE)")
     return VideoSource(p, fps)
+
+
+def looks_like_text(path: Path, n: int = 4096) -> bool:
+    """Whether a file's first ``n`` bytes are text (UTF-8, no NUL byte): every video container
+    holds binary headers within its first bytes."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(n)
+    except OSError:
+        return False
+    if not head or b"\x00" in head:
+        return False
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if exc.start < len(head) - 4:  # not only a character cut at the end of the sample
+            return False
+    return True
