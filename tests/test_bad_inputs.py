@@ -993,3 +993,16 @@ def test_an_unreadable_image_mid_folder_is_skipped(tmp_path, capsys):
     assert "0006.png: empty file (0 bytes); frame 6 skipped" in err
     regs = (tmp_path / "o" / "registration.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in regs] == [1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 12]
+
+
+def test_frames_too_big_for_memory_are_named(tmp_path, capsys, monkeypatch):
+    """6000x4000 frames at 30 fps held 7.1 GB in the detector's window with no word; the run
+    now says what the window will hold against the machine's memory (here made 64 MB)."""
+    import os
+
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(3)])
+    real = os.sysconf
+    monkeypatch.setattr(os, "sysconf", lambda name: 16384 if name == "SC_PHYS_PAGES"
+                        else real(name))
+    code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "o", "--fps", "1000")
+    assert code == 0 and "window holds about" in err and "--stride 2" in err, err

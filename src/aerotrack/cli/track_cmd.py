@@ -182,7 +182,29 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
                          "1's placement) to frame %d", start, start - 1, start)
                 H_init = carry_placement(source, H_init, start, geomap, source.fps,
                                          (config or Config()).registration, undistort)
+    if source is not None and dets is None:
+        warn_memory(source, (config.detection.window_s if config is not None else 3.0))
     return source, dets, geomap, H_init, undistort, notes
+
+
+def warn_memory(source, window_s: float, share: float = 0.5) -> None:
+    """Warn when the detector's window of full-size frames (it holds about ``window_s`` seconds
+    of them: a frame is final half a window later, and boxes are refined on it at full size)
+    would take more than ``share`` of this machine's memory: 6000x4000 frames at 30 fps held
+    7.1 GB."""
+    import os
+
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return
+    w, h = source.size
+    need = 1.1 * w * h * 3 * source.fps * window_s
+    if need > share * total:
+        log.warning("%s: %dx%d frames at %g fps: the detector's %g s window holds about %.1f GB "
+                    "of frames, this machine has %.1f GB; --stride 2 halves it, "
+                    "--set detection.window_s=1.5 too (fewer background samples)", source.path,
+                    w, h, source.fps, window_s, need / 1e9, total / 1e9)
 
 
 #: Frame numbers and coordinates beyond these are not from a video: 10^7 frames is 46 hours at

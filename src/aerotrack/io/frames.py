@@ -159,6 +159,10 @@ class VideoSource(FrameSource):
         self.size = (img.shape[1], img.shape[0])
         self.fps = fps or (float(native) if native and math.isfinite(native) and native > 0
                            else DEFAULT_FOLDER_FPS)
+        if fps is None and self.path.suffix.lower() in RAW_STREAM_SUFFIXES:
+            logging.getLogger(__name__).warning(
+                "%s: a raw video stream holds no frame rate; FFmpeg assumes %g frames/s (give "
+                "--fps if it is another: speeds and times follow it)", self.path, self.fps)
         self.count = n if n > 0 else None
 
     def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
@@ -237,6 +241,9 @@ class VideoSource(FrameSource):
                                          "frame", self.path, start)
         return -1
 
+
+#: Elementary streams without a container: no frame rate is stored (FFmpeg says 25).
+RAW_STREAM_SUFFIXES = (".h264", ".264", ".h265", ".265", ".hevc", ".mjpeg", ".mjpg")
 
 #: Consecutive frames a video may fail to decode (a damaged stretch) before it is taken to end.
 MAX_DECODE_RETRIES = 25
