@@ -34,7 +34,9 @@ def parse_size(text: str) -> tuple[int, int]:
 @click.option("--fps", type=float, default=30.0, show_default=True, help="Frame rate.")
 @click.option("--gsd-scale", type=float, default=1.0, show_default=True,
               help="Fly the same path this many times higher (2: vehicles half as long in "
-                   "pixels; 0.5: twice as long). Between 0.125 and 8.")
+                   "pixels; 0.5: twice as long). Between 0.125 and 8; where the view is wider "
+                   "than the bundled tile (above about 2.5 at 640x480) the ground beyond it is "
+                   "the tile mirrored, without traffic.")
 @click.option("--overwrite", is_flag=True, help="Replace what is already in --out.")
 @click.pass_context
 def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, gsd_scale, overwrite):

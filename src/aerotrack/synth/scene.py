@@ -234,8 +234,8 @@ class Scenario:
             raise InputError(f"--frames {frames}: must be at least 1")
         if size[0] < 64 or size[1] < 48 or size[0] > 8192 or size[1] > 8192:
             raise InputError(f"--size {size[0]}x{size[1]}: must be between 64x48 and 8192x8192")
-        if not (fps > 0 and math.isfinite(fps)):
-            raise InputError(f"--fps {fps}: must be a positive number")
+        if not (0.5 <= fps <= 1000 and math.isfinite(fps)):
+            raise InputError(f"--fps {fps}: must be between 0.5 and 1000 frames/s")
 
     # -- vehicles ---------------------------------------------------------------------------------
     def _spawn(self, rng: np.random.Generator) -> list[Vehicle]:
