@@ -887,3 +887,14 @@ def test_a_wall_line_sharper_than_its_background_is_no_vehicle():
     assert not on_wall(r.boxes)
     for box in cars:
         assert any(iou(b, box) > 0.8 for b in r.boxes)
+
+
+def test_a_run_that_finds_almost_nothing_hints_at_the_scale():
+    """A 160x120 clip of 4 px cars tracked 1 vehicle with no word (too few tracks to measure
+    their size); now at most one track over 50 frames and more names the scale."""
+    from aerotrack.config import DetectionConfig
+    from aerotrack.detection.moving import small_vehicles_hint
+
+    hint = small_vehicles_hint([], (160, 120), DetectionConfig(), n_frames=100)
+    assert hint and "0 vehicles tracked in 100 frames" in hint and "--gsd" in hint
+    assert small_vehicles_hint([], (160, 120), DetectionConfig(), n_frames=20) is None

@@ -493,7 +493,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         if dets is None and geomap is None and gsd is None:
             from ..detection.moving import small_vehicles_hint
 
-            hint = small_vehicles_hint(result.tracks, result.frame_size, config.detection)
+            hint = small_vehicles_hint(result.tracks, result.frame_size, config.detection,
+                                       result.frames)
             if hint:
                 log.warning(hint)
                 notes = {**notes, "hints": [hint]}
