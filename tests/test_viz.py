@@ -382,3 +382,22 @@ def test_render_refuses_a_bad_map_before_rendering(tmp_path, capsys):
               str(tmp_path / "afile")])
     assert exc.value.code == 2 and "afile" in capsys.readouterr().err
     assert not (tmp_path / "x.mp4").exists()
+
+
+def test_report_takes_a_zero_based_ground_truth(tmp_path, capsys):
+    """Santiago's ground truth numbers frames from 0: report --gt refused it and had no option
+    for it (the message pointed at eval's)."""
+    from aerotrack.cli.main import main
+
+    run = make_run(tmp_path, n_frames=12)
+    rows = np.loadtxt(run / "tracks.csv", delimiter=",")
+    zero = rows.copy()
+    zero[:, 0] -= 1
+    (tmp_path / "gt0.txt").write_text("".join(",".join(f"{v:g}" for v in r) + "\n" for r in zero))
+    with pytest.raises(SystemExit) as exc:
+        main(["report", str(run), "--gt", str(tmp_path / "gt0.txt"), "--no-video"])
+    assert exc.value.code == 2 and "--gt-zero-based" in capsys.readouterr().err
+    main(["-q", "report", str(run), "--gt", str(tmp_path / "gt0.txt"), "--gt-zero-based",
+          "--fix-gt", "--no-video"])
+    text = (run / "report.html").read_text()
+    assert "(corrected)" in text and "1.000" in text

@@ -703,7 +703,7 @@ def _distributed():
     try:
         import distributed
     except ImportError:
-        raise InputError("--workers/--scheduler need Dask: pip install aerotrack[dask]") from None
+        raise InputError("--workers/--scheduler need Dask: pip install '.[dask]' in the aerotrack checkout") from None
     return distributed
 
 

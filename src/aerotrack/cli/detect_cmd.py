@@ -65,7 +65,8 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
 
     Frames are registered to each other (and to --map), a sliding-window background is built on
     the registered frames and moving blobs become boxes: the same stages, with the same options,
-    as in `aerotrack track`, whose detections.csv this equals. detections.csv has MOTChallenge
+    as in `aerotrack track`, whose detections.csv this equals (--stabilised and --debug-video
+    are detect's own). detections.csv has MOTChallenge
     rows ``frame,-1,x,y,w,h,conf,-1,-1,-1`` (1-based frames, frame pixels); registration.csv and
     config.toml go beside it.
 

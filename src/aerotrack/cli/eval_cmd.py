@@ -181,7 +181,7 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
       aerotrack eval --gt dfs_ground_truth.csv --pred yolo_bytetrack_detections_filtered.csv \\
           --zero-based --frames 2:98 --fix-gt                      # Santiago, corrected GT
       aerotrack eval --gt dfs_ground_truth.csv --pred run/tracks.csv --gt-zero-based \\
-          --frames 2:98                                            # Santiago, aerotrack's tracks
+          --frames 2:98 --fix-gt                                   # Santiago, aerotrack's tracks
     """
     window = _parse_frames(frames)
     seqs = {}
@@ -214,7 +214,7 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         off = 0
         parts_g, parts_p = [], []
         for name, (g, p, ign) in seqs.items():
-            g, p, _, _ = scored_rows(g, p, ignore=ign, frames=window, name=name)
+            g, p, _, _ = scored_rows(g, p, ignore=ign, frames=window, name=name, quiet=True)
             g, p = g.copy(), p.copy()
             g[:, 0] += off
             p[:, 0] += off

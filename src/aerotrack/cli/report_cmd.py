@@ -13,6 +13,10 @@ from .common import make_progress, root_flags
 @click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
 @click.option("--gt", "gt_path", type=click.Path(dir_okay=False), default=None,
               help="Ground truth (MOTChallenge, 1-based frames): adds the evaluation section.")
+@click.option("--gt-zero-based", is_flag=True,
+              help="The ground truth numbers frames from 0 (as Santiago's): add 1.")
+@click.option("--fix-gt", is_flag=True,
+              help="Correct the ground truth first (as `aerotrack eval --fix-gt`).")
 @click.option("--input", "input_path", type=click.Path(), default=None,
               help="The run's input video or image folder, for the overlay player "
                    "(default: the input named in DIR/summary.json, if it still exists).")
@@ -27,7 +31,7 @@ from .common import make_progress, root_flags
               help="Render DIR/overlay.webm from the input (when missing) and embed it.")
 @click.pass_context
 def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, out_path,
-                   video_width, video) -> None:
+                   video_width, video, gt_zero_based=False, fix_gt=False) -> None:
     """Write DIR/report.html: a single offline file (no network needed) with the run's numbers,
     timings, registration quality, map and space-time pictures, an overlay player, the track
     table and, with --gt, the evaluation.
@@ -47,7 +51,8 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     if gt_path is not None:
         from ..io.mot import read_mot
 
-        read_mot(gt_path, option="--gt", strict=False, allow_empty=False)  # before any work
+        read_mot(gt_path, option="--gt", strict=False, allow_empty=False,
+                 zero_based=gt_zero_based)  # before any work
     if input_path is not None and not Path(input_path).exists():
         raise InputError(f"--input {input_path}: no such file or folder")
     from ..io.output import check_writable
@@ -64,7 +69,8 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
                                     quiet, verbose)  # while the overlay video is rendered
     try:
         out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
-                           out_path=out_path, progress=progress,
+                           out_path=out_path, progress=progress, gt_zero_based=gt_zero_based,
+                           fix_gt=fix_gt,
                            options=ReportOptions(video_width=video_width, render_video=video,
                                                  max_video_mb=80.0 if video else 0.0))
     finally:

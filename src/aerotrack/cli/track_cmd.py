@@ -366,7 +366,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
                    "inputs and options).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Split the video into overlapping segments processed by N local worker "
-                   "processes (Dask; pip install aerotrack[dask]). Default: one process.")
+                   "processes (Dask; pip install '.[dask]' in the aerotrack checkout). Default: one process.")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run the segments on an existing Dask cluster (tcp://host:8786).")
 @click.pass_context

@@ -350,7 +350,7 @@ class SequenceScore:
 
 
 def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None = None,
-                frames: tuple[int, int] | None = None, name: str = ""
+                frames: tuple[int, int] | None = None, name: str = "", quiet: bool = False
                 ) -> tuple[np.ndarray, np.ndarray, int, tuple[int, int]]:
     """The rows a sequence is scored on: ``(gt, pred, predictions dropped in ignore regions,
     scoring window)``.
@@ -380,7 +380,7 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
     if first < 1 or last < first:
         raise InputError(f"scoring window {first}..{last}: expected 1 <= first <= last")
     in_pred = (pred[:, 0] >= first) & (pred[:, 0] <= last)
-    if (~in_pred).any():
+    if (~in_pred).any() and not quiet:
         log.info("dropped %d prediction rows outside the scoring frames %d..%d",
                  int((~in_pred).sum()), first, last)
     gt = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)]

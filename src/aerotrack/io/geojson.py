@@ -149,12 +149,12 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
     """Write a GeoPackage with layers ``tracks`` (LineString per track) and ``track_points``
     (Point per vertex: id, frame, time_s, observed, speed_mps), EPSG:4326.
 
-    Needs ``pyogrio`` (``pip install aerotrack[gis]``).
+    Needs ``pyogrio`` (``pip install ".[gis]"`` in the checkout).
     """
     try:
         import pyogrio.raw
     except ImportError:
-        raise InputError("GeoPackage output needs pyogrio: pip install 'aerotrack[gis]'") from None
+        raise InputError("GeoPackage output needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
     fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps)
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.partial{path.suffix}")

@@ -300,7 +300,7 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
     try:
         from pyogrio.raw import write
     except ImportError:
-        raise InputError("GeoPackage output needs pyogrio: pip install 'aerotrack[gis]'") from None
+        raise InputError("GeoPackage output needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
     geom = np.array([struct.pack("<BIdd", 1, 1, x, y) if np.isfinite(x) and np.isfinite(y)
                      else None for x, y in zip(cols["x"], cols["y"])], dtype=object)
     names = [c for c in COLUMNS if c != "crs"]

@@ -68,7 +68,8 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
         if vals[0] < lowest or not float(vals[0]).is_integer():
             kind = "a non-negative integer (0-based)" if zero_based else \
                 "a positive integer (1-based)"
-            hint = ("; a 0-based file? (eval takes --zero-based / --gt-zero-based)"
+            hint = ("; a 0-based file? (eval: --zero-based / --gt-zero-based; report: "
+                    "--gt-zero-based)"
                     if not zero_based and vals[0] == 0 else "")
             raise FormatError(f"{name} line {lineno}: frame must be {kind}, got {parts[0]}{hint}")
         if zero_based:

@@ -89,8 +89,11 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return html.escape(str(v))
 
 
-def _evaluation(results: RunResults, gt_path: str | Path | None) -> tuple[dict | None, str]:
-    """Metrics of ``tracks.csv`` against ``gt_path`` (or stored ones); (metrics, note)."""
+def _evaluation(results: RunResults, gt_path: str | Path | None, *, zero_based: bool = False,
+                fix_gt: bool = False) -> tuple[dict | None, str]:
+    """Metrics of ``tracks.csv`` against ``gt_path`` (or stored ones); (metrics, note).
+    ``zero_based``: the ground truth numbers frames from 0; ``fix_gt``: corrected first
+    (:func:`aerotrack.evaluation.fix_ground_truth`), as ``eval`` does."""
     if gt_path is None:
         ev = results.summary.get("eval")
         return (ev, "from summary.json") if isinstance(ev, dict) else (None, "")
@@ -100,10 +103,15 @@ def _evaluation(results: RunResults, gt_path: str | Path | None) -> tuple[dict |
         return None, f"evaluation unavailable ({exc})"
     from ..io.mot import read_mot
 
-    gt = read_mot(gt_path, option="--gt", strict=False, allow_empty=False)
+    gt = read_mot(gt_path, option="--gt", strict=False, allow_empty=False, zero_based=zero_based)
+    if fix_gt:
+        from ..evaluation import fix_ground_truth
+
+        gt, _ = fix_ground_truth(gt, f"--gt {gt_path}")
     window = (results.first_frame, results.last_frame or int(gt[:, 0].max()))
     return (evaluate(gt, results.tracks, frames=window),
-            f"tracks.csv against {Path(gt_path).name}, frames {window[0]}-{window[1]} (the run's)")
+            f"tracks.csv against {Path(gt_path).name}"
+            + (" (corrected)" if fix_gt else "") + f", frames {window[0]}-{window[1]} (the run's)")
 
 
 def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions) -> list[tuple[int, str]]:
@@ -137,7 +145,8 @@ def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions)
 
 def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                  gt_path: str | Path | None = None, geomap=None, out_path: str | Path | None = None,
-                 options: ReportOptions = ReportOptions(), progress=None) -> Path:
+                 options: ReportOptions = ReportOptions(), progress=None,
+                 gt_zero_based: bool = False, fix_gt: bool = False) -> Path:
     """Write ``DIR/report.html`` (or ``out_path``) for the run in ``run_dir``.
 
     Parameters
@@ -156,6 +165,8 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
     options : ReportOptions
     progress : callable, optional
         Called with the frames written while the overlay video is rendered.
+    gt_zero_based, fix_gt : bool
+        The ground truth numbers frames from 0 / is corrected first (as ``eval``'s options).
 
     Returns
     -------
@@ -217,7 +228,7 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                       f'src="{src}"></video>')
     scrub = _scrubber_frames(input_path, results, options) if input_path is not None else []
     stats = track_stats(results, geomap)
-    metrics, eval_note = _evaluation(results, gt_path)
+    metrics, eval_note = _evaluation(results, gt_path, zero_based=gt_zero_based, fix_gt=fix_gt)
     if video_path is not None and video_path.parent != run_dir:
         video_path.unlink(missing_ok=True)  # rendered for this report only
     page = _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path)
