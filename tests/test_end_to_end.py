@@ -134,3 +134,13 @@ def test_python_api_takes_paths_and_checks_its_arguments(scene, tmp_path):
                            ({"source": scene / "frames", "geomap": geomap}, "needs H_init")):
         with pytest.raises(InputError, match=needle):
             pipeline.run(**kwargs)
+
+
+def test_python_api_checks_the_frame_range(scene):
+    from aerotrack.errors import InputError
+
+    for kwargs, needle in (({"start": 15, "stop": 10}, "start <= stop"),
+                           ({"start": 1000}, "after the input's last frame"),
+                           ({"stride": 0}, "stride")):
+        with pytest.raises(InputError, match=needle):
+            pipeline.run(scene / "frames", **kwargs)

@@ -490,3 +490,33 @@ def test_cli_motchallenge_folder_layout(tmp_path, capsys):
                            str(tmp_path / "runs"), "--json"], capsys)
     assert code == 0, err
     assert json.loads(out)["MOTA"] == pytest.approx(1.0)
+
+
+def test_cli_regressions_found_by_a_second_probe(tmp_path, capsys):
+    """Hidden macOS files in a ground-truth folder, a MOTChallenge sequence folder given
+    itself, --frames with an open end, a hint when the predictions cover part of the ground
+    truth's frames, and lon/lat scored with a projected --geo-crs."""
+    (tmp_path / "mot" / "A" / "gt").mkdir(parents=True)
+    write_mot(tmp_path / "mot" / "A" / "gt" / "gt.txt", _two_targets(20))
+    (tmp_path / "mot" / "._A").write_bytes(b"\x00\x05\x16\x07")
+    (tmp_path / "runs").mkdir()
+    write_mot(tmp_path / "runs" / "A.txt", _two_targets(20))
+    for gt in (tmp_path / "mot", tmp_path / "mot" / "A"):
+        code, out, err = _run(["eval", "--gt", str(gt), "--pred", str(tmp_path / "runs"),
+                               "--json"], capsys)
+        assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
+    part = _two_targets(20)
+    write_mot(tmp_path / "part.txt", part[part[:, 0] >= 11])
+    gt_file = tmp_path / "mot" / "A" / "gt" / "gt.txt"
+    code, out, err = _run(["eval", "--gt", str(gt_file), "--pred", str(tmp_path / "part.txt"),
+                           "--json"], capsys)
+    assert code == 0 and "--frames 11:20 scores only those" in err, err
+    code, out, err = _run(["eval", "--gt", str(gt_file), "--pred", str(tmp_path / "part.txt"),
+                           "--frames", "11:", "--json"], capsys)
+    assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
+    ll = _two_targets(5)
+    ll[:, 7], ll[:, 8] = -115.2, 36.1
+    write_mot(tmp_path / "ll.txt", ll)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "ll.txt"), "--pred",
+                           str(tmp_path / "ll.txt"), "--geo-crs", "EPSG:32611"], capsys)
+    assert code == 0 and "lon/lat degrees?" in err, err

@@ -343,3 +343,10 @@ def test_read_ahead_raises_the_sources_error_in_place_and_stops_with_the_consume
         time.sleep(0.01)
     assert closed.is_set()  # the source was closed: a video's capture is released
     assert not any(t.name == "aerotrack-read-ahead" for t in threading.enumerate())
+
+
+def test_image_names_equal_as_numbers_are_refused(tmp_path):
+    for name in ("img3.png", "img03.png"):
+        cv2.imwrite(str(tmp_path / name), np.zeros((8, 10, 3), np.uint8))
+    with pytest.raises(InputError, match="both img03.png and img3.png|both img3.png and img03.png"):
+        open_source(tmp_path)

@@ -190,3 +190,17 @@ def test_detections_are_not_tracks(tmp_path, capsys):
         _run(["predict", str(tracks), "--queries", str(q), "--out", str(tmp_path / "o.csv")])
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "d.csv line 1" in err and "ids >= 0" in err, err
+
+
+def test_a_query_at_a_row_without_map_position_says_so(tmp_path, capsys):
+    rows = [f"{f},1,0,0,4,2,1,{500000 + f:.1f},{4000000 + f / 2:.1f},-1" for f in range(1, 10)]
+    rows += [f"{f},1,0,0,4,2,1,-1,-1,-1" for f in range(10, 15)]
+    tracks = tmp_path / "t.csv"
+    tracks.write_text("\n".join(rows) + "\n")
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n1,14,5\n")
+    with pytest.raises(SystemExit) as exc:
+        _run(["predict", str(tracks), "--queries", str(q), "--out", str(tmp_path / "o.csv"),
+              "--space", "map"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "no map position" in err and "frame 9" in err, err

@@ -332,6 +332,11 @@ def test_report_covers_the_frames_the_run_tracked(tmp_path, capsys):
     assert [f for f, _ in scrub] == [4, 5, 6, 7, 8, 9]
     assert _frames_count(run / "overlay.webm")[0] == 6
     assert "frames 4-9" in text  # the evaluation is over the run's frames: nothing missed
+    assert "frame 4's pixels" in text and "frame 1's" not in text  # the page names frame A too
+    with pytest.raises(SystemExit) as exc:  # --start past the run, no --stop: the run's frames
+        main(["render", str(frames), str(run), "--out", str(tmp_path / "r.mp4"), "--start", "11",
+              "--no-pictures"])
+    assert exc.value.code == 2 and "covers frames 4-9" in capsys.readouterr().err
     # the track map without a map is drawn over the run's first frame (grey 80), not frame 1
     from aerotrack.viz import RunResults
 

@@ -722,7 +722,7 @@ def _renumber(tracks: list[Track]) -> list[Track]:
 
 def run(source=None, *, config: Config | None = None, fps: float | None = None,
         geomap: GeoMap | None = None, H_init: np.ndarray | None = None, seed: int = 0,
-        detections: np.ndarray | None = None, metres_per_unit: float | None = None,
+        detections: np.ndarray | str | Path | None = None, metres_per_unit: float | None = None,
         progress: Callable[[int], None] | None = None, start: int = 1, stop: int | None = None,
         stride: int = 1, checkpoint_dir: Path | None = None, resume: bool = False,
         checkpoint_every: int = 300, undistort: Callable[[Frame], Frame] | None = None,
@@ -767,6 +767,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     if source is None and detections is None:
         raise InputError("give an INPUT video/folder or --detections")
     source, detections, H_init = _api_inputs(source, detections, H_init, geomap, fps)
+    _check_range(source, start, stop, stride)
     if fps is None:
         fps = source.fps if source is not None else 30.0
     per_frame = _group_rows(detections) if detections is not None else None
@@ -849,6 +850,7 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
     if source is None:
         raise InputError("detect needs a source (a video, an image folder, or a FrameSource)")
     source, _, H_init = _api_inputs(source, None, H_init, geomap, None)
+    _check_range(source, start, stop, stride)
     pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init,
                     metres_per_unit=metres_per_unit, undistort=undistort, regions=regions,
                     spill=False, associate=False, debug=debug is not None, stabilised=stabilised)
@@ -910,6 +912,20 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
     return pipe.finish()
 
 
+def _check_range(source, start: int, stop: int | None, stride: int) -> None:
+    """The frame range of the Python API checked as ``--frames`` is: an empty range, or one
+    starting after the input's last frame, ran silently to an empty result."""
+    if not (isinstance(start, (int, np.integer)) and start >= 1):
+        raise InputError(f"start {start}: frames are numbered from 1")
+    if stop is not None and stop < start:
+        raise InputError(f"start {start}, stop {stop}: need start <= stop")
+    if not (isinstance(stride, (int, np.integer)) and stride >= 1):
+        raise InputError(f"stride {stride}: must be a positive integer")
+    count = getattr(source, "count", None) if source is not None else None
+    if count and start > count:
+        raise InputError(f"start {start}: after the input's last frame ({count})")
+
+
 def _api_inputs(source, detections, H_init, geomap, fps):
     """The Python API's inputs checked as the command line checks them: paths opened or read,
     arrays of the right shape (one-line :class:`InputError` instead of an error frames deep)."""
@@ -947,8 +963,10 @@ def _api_inputs(source, detections, H_init, geomap, fps):
         except (TypeError, ValueError):
             H = np.zeros(0)
         if H.shape != (3, 3) or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-12:
+            what = (f"shape {H.shape}" if H.shape != (3, 3) else
+                    "non-finite values" if not np.isfinite(H).all() else "a singular matrix")
             raise InputError(f"H_init: expected an invertible 3x3 homography (frame 1 -> map "
-                             f"pixels), got shape {H.shape}")
+                             f"pixels), got {what}")
         H_init = H
     if geomap is not None and H_init is None:
         raise InputError("geomap needs H_init (frame 1 -> map pixels; geo.read_map_init reads "

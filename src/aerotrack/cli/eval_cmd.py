@@ -35,10 +35,13 @@ def _seq_name(path: Path) -> str:
 def _gt_files(folder: Path) -> list[Path]:
     """The ground-truth files of a folder: MOTChallenge's SEQ/gt/gt.txt, else UAVDT's *_gt.txt
     (a README.txt beside them is not a sequence), else every .txt and .csv file."""
-    mot = sorted(d / "gt" / "gt.txt" for d in folder.iterdir() if (d / "gt" / "gt.txt").is_file())
+    if (folder / "gt" / "gt.txt").is_file():  # one MOTChallenge sequence folder itself
+        return [folder / "gt" / "gt.txt"]
+    entries = [d for d in folder.iterdir() if not d.name.startswith(".")]  # macOS ._ files
+    mot = sorted(d / "gt" / "gt.txt" for d in entries if (d / "gt" / "gt.txt").is_file())
     if mot:
         return mot
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix in _MOT_EXTS
+    files = sorted(p for p in entries if p.is_file() and p.suffix in _MOT_EXTS
                    and not p.stem.endswith(_GT_SKIP_SUFFIXES))
     named = [p for p in files if p.stem.endswith("_gt")]
     if named:
@@ -104,11 +107,14 @@ def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
     return [(n, g, p, Path(i)) for (n, g, p), i in zip(pairs, ignores)]
 
 
-def _parse_frames(text: str | None) -> tuple[int, int] | None:
+def _parse_frames(text: str | None, last_gt: int | None = None) -> tuple[int, int] | None:
+    """``FIRST:LAST`` (either end may be empty: 1, the ground truth's last frame)."""
     if text is None:
         return None
     try:
-        a, b = (int(v) for v in text.split(":"))
+        a_text, b_text = text.split(":")
+        a = int(a_text) if a_text.strip() else 1
+        b = int(b_text) if b_text.strip() else int(last_gt or 10**9)
     except ValueError:
         raise InputError(
             f"--frames: expected FIRST:LAST (1-based, inclusive), got {text!r}") from None
@@ -131,6 +137,20 @@ def _table(rows: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
+def _coverage_hint(seqs: dict) -> None:
+    """Say when the predictions cover only a part of the ground truth's frames (a --frames A:B
+    run scored against a whole clip's ground truth counts every other frame as misses)."""
+    for name, (gt, pred, _) in seqs.items():
+        if not len(pred) or not len(gt):
+            continue
+        p0, p1 = int(pred[:, 0].min()), int(pred[:, 0].max())
+        g0, g1 = int(gt[:, 0].min()), int(gt[:, 0].max())
+        if (p1 - p0 + 1) < 0.8 * (g1 - g0 + 1):
+            log.warning("%s: the predictions cover frames %d-%d of the ground truth's %d-%d; "
+                        "the other frames count as misses (--frames %d:%d scores only those)",
+                        name, p0, p1, g0, g1, p0, p1)
+
+
 @click.command("eval")
 @click.option("--gt", "gts", multiple=True, required=True, metavar="FILE|DIR",
               help="Ground truth (MOTChallenge rows, 1-based frames). Repeat for several "
@@ -147,8 +167,8 @@ def _table(rows: list[tuple[str, dict]]) -> str:
               help="IoU a match needs for MOTA/IDSW/Frag and IDF1 (HOTA integrates over "
                    "0.05..0.95).")
 @click.option("--frames", "frames", default=None, metavar="FIRST:LAST",
-              help="Score only these 1-based frames; predictions outside them are dropped "
-                   "(default: 1 to the ground truth's last frame).")
+              help="Score only these 1-based frames (either end may be empty); predictions "
+                   "outside them are dropped (default: 1 to the ground truth's last frame).")
 @click.option("--zero-based", is_flag=True,
               help="Both files number frames from 0 (as Santiago's published files do): add 1.")
 @click.option("--gt-zero-based", is_flag=True,
@@ -183,7 +203,7 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
       aerotrack eval --gt dfs_ground_truth.csv --pred run/tracks.csv --gt-zero-based \\
           --frames 2:98 --fix-gt                                   # Santiago, aerotrack's tracks
     """
-    window = _parse_frames(frames)
+    _parse_frames(frames)  # a malformed range: refused before any file is read
     seqs = {}
     gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
     for name, g, p, ign in _pair(gts, preds, ignores):
@@ -197,6 +217,9 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
                   if ign is not None else None)
         seqs[name] = (gt, pred, ignore)
+    window = _parse_frames(frames, max(int(g[:, 0].max()) for g, _, _ in seqs.values()))
+    if window is None:
+        _coverage_hint(seqs)
     if window is not None and not any(((g[:, 0] >= window[0]) & (g[:, 0] <= window[1])).any()
                                       for g, _, _ in seqs.values()):
         last = max(int(g[:, 0].max()) for g, _, _ in seqs.values())
@@ -222,6 +245,18 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
             parts_g.append(g)
             parts_p.append(p)
         gt_all, pred_all = np.vstack(parts_g), np.vstack(parts_p)
+        from pyproj import CRS
+
+        try:
+            projected = CRS.from_user_input(geo_crs).is_projected
+        except Exception:  # noqa: BLE001 - geo_errors names a bad CRS itself
+            projected = False
+        xy = np.vstack([gt_all[:, 7:9], pred_all[:, 7:9]])
+        xy = xy[~np.all(xy == -1, axis=1)]
+        if projected and len(xy) and np.all(np.abs(xy[:, 0]) <= 180) \
+                and np.all(np.abs(xy[:, 1]) <= 90):
+            log.warning("--geo-crs %s is a projected CRS (metres), but every x, y is within "
+                        "+-180, +-90: lon/lat degrees? (EPSG:4326)", geo_crs)
         geo = geo_errors(gt_all, pred_all, geo_crs, iou_threshold=iou_threshold)
     if as_json:
         out = {k: res["combined"][k] for k in METRIC_KEYS}

@@ -75,6 +75,14 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
         stop = int(results.summary["last_frame"])
     if start < 1:
         raise InputError(f"--start {start}: frames are numbered from 1")
+    run_first, run_last = results.first_frame, results.last_frame
+    if not given_stop and run_last and start > run_last:
+        raise InputError(f"--start {start}: after the run's last frame ({run_last}); the run "
+                         f"covers frames {run_first}-{run_last} (give --stop to draw others)")
+    if run_last and (start > run_last or (stop is not None and stop < run_first)):
+        log.warning("frames %d-%s hold none of the frames the run tracked (%d-%d): the video "
+                    "shows no tracks", start, stop if stop is not None else "end", run_first,
+                    run_last)
     if stop is not None and stop < start:
         raise InputError(f"--start {start} --stop {stop}: need --start <= --stop"
                          + ("" if given_stop else " (--stop defaults to the run's last frame)"))

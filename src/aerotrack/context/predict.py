@@ -128,7 +128,8 @@ def scale_of(rows: np.ndarray, space: str, config: ContextConfig) -> float:
 
 def predict_queries(table: TrackTable, queries: list[Query], method: str, config: ContextConfig,
                     fps: float, metres_per_unit: float | None, roads=None,
-                    label: str = "--queries") -> list[np.ndarray]:
+                    label: str = "--queries", unplaced: np.ndarray | None = None
+                    ) -> list[np.ndarray]:
     """One (horizon, 2) array of predicted positions per query, in the table's units (``roads``:
     a :class:`~aerotrack.context.roads.RoadNetwork` in the same units, used by ``context``).
     ``label`` starts error messages (``--queries FILE``).
@@ -140,9 +141,17 @@ def predict_queries(table: TrackTable, queries: list[Query], method: str, config
     """
     pred = get_predictor(method, config, fps, metres_per_unit, roads=roads)
     known = set(table.track_ids().tolist())
+    # (id, frame) of rows left out for having no map position (x, y = -1; --space map)
+    blank = set() if unplaced is None else {(int(i), int(f)) for f, i in unplaced[:, :2]}
     out = []
     for n, q in enumerate(queries):
         where = f"{label} line {q.line or n + 2} (query {n})"
+        if (q.id, q.last_seen) in blank:
+            fr = table.track(q.id)[0] if q.id in known else np.zeros(0)
+            before = fr[fr < q.last_seen]
+            last = f" (its last one before is at frame {int(before.max())})" if len(before) else ""
+            raise InputError(f"{where}: track {q.id} has no map position (x, y = -1) at "
+                             f"last_seen {q.last_seen}{last}")
         if q.id not in known:
             raise InputError(f"{where}: unknown id {q.id}")
         fr, _ = table.track(q.id)
@@ -199,8 +208,9 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
         if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
             network = RoadNetwork(network.lines, mpu, config.roads_snap_m, y_down=network.y_down)
         _check_roads_near(network, table, roads, crs, mpu)
+    unplaced = rows[np.all(rows[:, 7:9] == -1, axis=1)] if space == "map" else None
     preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,
-                            label=f"--queries {queries}")
+                            label=f"--queries {queries}", unplaced=unplaced)
     atomic_write_text(out, format_predictions(qs, preds, 7 if space == "map" else 6))
     return sum(q.horizon for q in qs)
 

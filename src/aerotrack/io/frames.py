@@ -284,12 +284,13 @@ class ImageFolderSource(FrameSource):
         )
         if not self.files:
             raise InputError(f"{self.path}: folder holds no image files")
-        stems: dict[str, Path] = {}
-        for f in self.files:
-            if f.stem in stems:
-                raise InputError(f"{self.path}: both {stems[f.stem].name} and {f.name}: one "
-                                 "image per frame name expected (move one kind away)")
-            stems[f.stem] = f
+        stems: dict[tuple, Path] = {}
+        for f in self.files:  # one name, two kinds (0001.jpg, 0001.png), or img3 beside img03
+            key = tuple(t[:2] for t in natural_key(f.with_suffix("")))
+            if key in stems:
+                raise InputError(f"{self.path}: both {stems[key].name} and {f.name}: one "
+                                 "image per frame expected (which comes first?)")
+            stems[key] = f
         #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
         self.depth_range: tuple[float, float] | None = None
         self._warned: set[Path] = set()  # truncated JPEGs already reported

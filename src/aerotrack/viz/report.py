@@ -437,7 +437,7 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
         what.append(f"map {html.escape(str(geomap.path))} ({html.escape(str(geomap.crs))}, "
                     f"{geomap.metres_per_pixel:.2f} m/px)")
     else:
-        what.append("no map: positions in frame 1's pixels")
+        what.append(f"no map: positions in frame {results.first_frame}'s pixels")
     parts = [f'<section><h2>Summary</h2><div class="cards">{_cards(results, stats)}</div></section>']
     hints = results.summary.get("hints")
     if isinstance(hints, list) and hints:
@@ -459,7 +459,7 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
                      'and circles: predicted positions of targets out of view, with their uncertainty '
                      '(label: seconds since last seen); arrows point to predicted targets outside the '
                      f'image. Lines: the last seconds of each track.</p>{player}</section>')
-    where = "the map" if geomap is not None else "frame 1"
+    where = "the map" if geomap is not None else f"frame {results.first_frame}"
     parts.append(f'<section><h2>Tracks on {where}</h2><img class="fig" alt="tracks on {where}" '
                  f'src="{pictures["map"]}"></section>')
     parts.append('<section><h2>Space-time view</h2><p class="note">Each track in (x, y, time), coloured by ID '
