@@ -624,3 +624,15 @@ def test_telemetry_defaults_and_a_placement_the_map_never_confirms(geomap, tmp_p
     code, _, err = run_cli(capsys, *args, "--telemetry-default", "heading=east", "--out",
                            tmp_path / "d")
     assert code == 2 and "not a number" in err, err
+
+
+def test_telemetry_defaults_fill_empty_cells_and_are_checked(tmp_path):
+    from aerotrack.geo.telemetry import parse_telemetry_defaults
+
+    log = tmp_path / "log.csv"
+    log.write_text(f"frame,lon,lat,alt_m,heading_deg\n1,{LON0},{LAT0},90,\n2,{LON0},{LAT0},90,12\n")
+    tel = read_telemetry(log, defaults=parse_telemetry_defaults(["heading_deg=30", "hfov=70"]))
+    assert list(tel.heading_deg) == [30.0, 12.0]
+    for bad, needle in ((["alt_m=-5"], "alt_m must be"), (["heading=1", "yaw=2"], "twice")):
+        with pytest.raises(InputError, match=needle):
+            parse_telemetry_defaults(bad)

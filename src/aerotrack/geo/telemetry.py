@@ -43,6 +43,7 @@ from __future__ import annotations
 import csv
 import functools
 import io
+import logging
 import math
 import re
 from dataclasses import dataclass
@@ -429,6 +430,8 @@ def read_telemetry_csv(path: str | Path, *, fps: float = 30.0,
         for name, cell in zip(header, cells):
             if name not in wanted:
                 continue
+            if not cell.strip() and defaults and name in defaults:
+                continue  # an empty cell: the default fills it
             try:
                 val = float(cell)
             except ValueError:
@@ -438,6 +441,11 @@ def read_telemetry_csv(path: str | Path, *, fps: float = 30.0,
                 raise FormatError(f"{label} line {lineno}: {name} is NaN or infinite")
             r[name] = val + (1 - frame_base if name == "frame" else 0)
         rows.append(r)
+    if defaults:
+        for name in sorted(set(defaults) & set(header)):
+            logging.getLogger(__name__).warning(
+                "%s has a %s column: --telemetry-default %s fills only its empty cells", label,
+                name, name)
     return _build(rows, label, fps, defaults)
 
 
@@ -526,6 +534,13 @@ def parse_telemetry_defaults(items) -> dict[str, float]:
             v = math.nan
         if not math.isfinite(v):
             raise InputError(f"--telemetry-default {item}: {value!r} is not a number")
+        if key in out:
+            raise InputError(f"--telemetry-default {item}: {key} given twice")
+        bounds = {"alt_m": (0.0, math.inf), "hfov_deg": (0.0, 180.0), "lat": (-90.0, 90.0),
+                  "lon": (-180.0, 360.0), "focal_35mm": (0.0, math.inf)}
+        lo, hi = bounds.get(key, (-math.inf, math.inf))
+        if not lo < v < hi and not (key in ("lat", "lon") and lo <= v <= hi):
+            raise InputError(f"--telemetry-default {item}: {key} must be in ({lo:g}, {hi:g})")
         out[key] = v
     return out
 
