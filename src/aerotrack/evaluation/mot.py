@@ -365,14 +365,6 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
     gt = _prepare_gt(gt, "ground truth" + suffix)
     pred = _as_rows(pred, "prediction" + suffix)
     _check_tracks(pred, "prediction" + suffix)
-    n_ignored = 0
-    if ignore is not None:
-        ignore = _as_rows(ignore, "ignore regions" + suffix)
-        pred, n_ignored = drop_ignored(pred, ignore)
-        gt, n_gt = drop_ignored(gt, ignore)
-        if n_gt:
-            log.info("%s: %d ground-truth boxes in ignore regions dropped", name or "ground truth",
-                     n_gt)
     if frames is None:
         frames = (1, int(gt[:, 0].max()) if len(gt) else
                   (int(pred[:, 0].max()) if len(pred) else 1))
@@ -381,10 +373,18 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
         raise InputError(f"scoring window {first}..{last}: expected 1 <= first <= last")
     in_pred = (pred[:, 0] >= first) & (pred[:, 0] <= last)
     if (~in_pred).any() and not quiet:
-        log.info("dropped %d prediction rows outside the scoring frames %d..%d",
-                 int((~in_pred).sum()), first, last)
-    gt = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)]
-    return gt, pred[in_pred], n_ignored, (first, last)
+        log.info("%sdropped %d prediction rows outside the scoring frames %d..%d",
+                 f"{name}: " if name else "", int((~in_pred).sum()), first, last)
+    gt, pred = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)], pred[in_pred]
+    n_ignored = 0
+    if ignore is not None:  # after the window: the counts are of the scored frames
+        ignore = _as_rows(ignore, "ignore regions" + suffix)
+        pred, n_ignored = drop_ignored(pred, ignore)
+        gt, n_gt = drop_ignored(gt, ignore)
+        if n_gt and not quiet:
+            log.info("%s: %d ground-truth boxes in ignore regions dropped", name or "ground truth",
+                     n_gt)
+    return gt, pred, n_ignored, (first, last)
 
 
 def _score_sequence(name: str, gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float,
