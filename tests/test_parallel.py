@@ -539,6 +539,8 @@ def test_a_bad_scheduler_address_is_refused_within_seconds(tmp_path, client):
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
         for address, needle in (("notanaddress", "not a scheduler address"),
+                                ("tcp://127.0.0.1:99999", "not a TCP port"),
+                                ("http://127.0.0.1:8787", "not http://"),
                                 ("tcp://127.0.0.1:1", "cannot connect"),
                                 (f"tcp://127.0.0.1:{server.server_port}", "no Dask scheduler")):
             t0 = time.perf_counter()

@@ -734,6 +734,11 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
         host, port = parse_host_port(loc) if scheme in ("tcp", "tls") else (None, None)
     except (ValueError, TypeError) as exc:
         raise InputError(f"{label}: not a scheduler address like tcp://host:8786 ({exc})") from None
+    if scheme not in ("tcp", "tls", "ucx"):
+        raise InputError(f"{label}: a Dask scheduler is reached by tcp://host:port (or tls://, "
+                         f"ucx://), not {scheme}://")
+    if port is not None and not 0 < int(port) < 65536:
+        raise InputError(f"{label}: port {port} is not a TCP port (1-65535)")
     if host is not None:
         try:
             socket.create_connection((host, port), timeout=timeout).close()
