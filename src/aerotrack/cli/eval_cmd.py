@@ -211,7 +211,7 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
         if fix_gt:
             gt, fix = fix_ground_truth(gt, f"--gt {g}")
-            log.info("--fix-gt %s: %s", g, fix.describe())
+            log.info("--fix-gt %s: %s", g, fix.describe(-1 if gt_zero else 0))
         else:
             drop_exact_duplicates(gt, f"--gt {g}")  # refuses a (frame, id) with two boxes
         ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)

@@ -68,15 +68,16 @@ class GroundTruthFix:
     def __bool__(self) -> bool:
         return bool(self.reflected_rows or self.duplicates)
 
-    def describe(self) -> str:
-        """One line saying what changed, e.g. for the CLI."""
+    def describe(self, frame_offset: int = 0) -> str:
+        """One line saying what changed, e.g. for the CLI; ``frame_offset`` -1 names frames as a
+        0-based file numbers them."""
         parts = []
         if self.reflected_rows:
             parts.append(f"reflected {self.reflected_rows} boxes with a negative width or height "
                          f"(x += w, w = -w; likewise y, h) of ids "
                          f"{', '.join(map(str, self.reflected_ids))}")
         if self.duplicates:
-            keys = ", ".join(f"frame {f} id {i}" for f, i in self.duplicates[:5])
+            keys = ", ".join(f"frame {f + frame_offset} id {i}" for f, i in self.duplicates[:5])
             more = f" and {len(self.duplicates) - 5} more" if len(self.duplicates) > 5 else ""
             n = len(self.duplicates)
             parts.append(f"dropped {n} exact duplicate row{'s' if n > 1 else ''} ({keys}{more})")
@@ -329,8 +330,8 @@ def _check_iou(iou_threshold: float) -> None:
 def _prepare_gt(gt: np.ndarray, label: str) -> np.ndarray:
     gt, dups = drop_exact_duplicates(_as_rows(gt, label), label)
     if dups:
-        log.warning("%s: dropped %s", label, GroundTruthFix(duplicates=dups).describe()
-                    .removeprefix("dropped "))
+        log.warning("%s: dropped %s (frames counted from 1)", label,
+                    GroundTruthFix(duplicates=dups).describe().removeprefix("dropped "))
     neg = (gt[:, 4] < 0) | (gt[:, 5] < 0) if len(gt) else np.zeros(0, bool)
     if neg.any():
         ids = ", ".join(str(int(i)) for i in np.unique(gt[neg, 1]))
