@@ -379,7 +379,9 @@ class ImageFolderSource(FrameSource):
             try:
                 img = self._read(p)
             except UnreadableImage as exc:  # one bad file must not end a long run
-                logging.getLogger(__name__).warning("%s; frame %d skipped", exc, index)
+                if p not in _SKIPPED:  # once per file, however often the folder is read
+                    _SKIPPED.add(p)
+                    logging.getLogger(__name__).warning("%s; frame %d skipped", exc, index)
                 continue
             if (img.shape[1], img.shape[0]) != self.size:
                 raise InputError(
@@ -387,6 +389,10 @@ class ImageFolderSource(FrameSource):
                     f"{self.size[0]}x{self.size[1]} like the first image"
                 )
             yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+
+
+#: Unreadable image files already reported (``render`` and ``report`` read a folder twice).
+_SKIPPED: set[Path] = set()
 
 
 class UnreadableImage(InputError):
