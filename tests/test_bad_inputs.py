@@ -1006,3 +1006,20 @@ def test_frames_too_big_for_memory_are_named(tmp_path, capsys, monkeypatch):
                         else real(name))
     code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "o", "--fps", "1000")
     assert code == 0 and "window holds about" in err and "--stride 2" in err, err
+
+
+def test_batch_messages_name_their_input(tmp_path, capsys):
+    """A batch's stage messages (linking's scale note, warnings) did not say which input they
+    were about; during an input's run every message starts with its name."""
+    import logging
+
+    from aerotrack.cli.main import configure_logging
+    from aerotrack.parallel import _messages_named
+
+    configure_logging(0, False)
+    with _messages_named("clip.mp4"):
+        logging.getLogger("aerotrack.pipeline").warning("something about a frame")
+    logging.getLogger("aerotrack.pipeline").warning("after")
+    err = capsys.readouterr().err
+    assert "WARNING: clip.mp4: something about a frame" in err
+    assert "WARNING: after" in err

@@ -1235,6 +1235,26 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     return items
 
 
+@contextlib.contextmanager
+def _messages_named(name: str) -> Iterator[None]:
+    """Messages logged meanwhile (any stage's) start with ``name``: a batch's lines say which
+    input they are about."""
+    class Prefix(logging.Filter):
+        def filter(self, record: logging.LogRecord) -> bool:
+            record.msg = f"{name}: {record.msg}"
+            return True
+
+    handlers = logging.getLogger("aerotrack").handlers
+    f = Prefix()
+    for h in handlers:
+        h.addFilter(f)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(f)
+
+
 def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: int,
                   metres_per_unit: float | None, stride: int) -> list[str]:
     """What differs between the settings of this batch and those a finished item was tracked
@@ -1324,31 +1344,35 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         src = sources.get(it.name)
         if src is None or it.name in out:
             continue
-        t0 = time.perf_counter()
-        try:
-            folder = OutputDir(it.out, overwrite=True)
-            if client is None:
-                result = run(src, config=config, fps=src.fps, seed=seed,
-                             metres_per_unit=metres_per_unit, stride=stride,
-                             checkpoint_dir=folder.partial)
-            else:
-                results = client.gather(futures[it.name][1])
-                result, _ = assemble(results, config=config, fps=src.fps,
-                                     metres_per_unit=metres_per_unit, stride=stride,
-                                     parallel=parallel)
-            info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
-                    "gsd": metres_per_unit, "fps_given": fps,
-                    "wall_time_s": round(time.perf_counter() - t0, 3)}
-            summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
-            if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them
-                from .io.checkpoint import save_chunk
+        summary = error = None
+        with _messages_named(Path(it.input).name):  # whose run a message is about
+            t0 = time.perf_counter()
+            try:
+                folder = OutputDir(it.out, overwrite=True)
+                if client is None:
+                    result = run(src, config=config, fps=src.fps, seed=seed,
+                                 metres_per_unit=metres_per_unit, stride=stride,
+                                 checkpoint_dir=folder.partial)
+                else:
+                    results = client.gather(futures[it.name][1])
+                    result, _ = assemble(results, config=config, fps=src.fps,
+                                         metres_per_unit=metres_per_unit, stride=stride,
+                                         parallel=parallel)
+                info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
+                        "gsd": metres_per_unit, "fps_given": fps,
+                        "wall_time_s": round(time.perf_counter() - t0, 3)}
+                summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
+                if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them
+                    from .io.checkpoint import save_chunk
 
-                save_chunk(folder.partial, 0, [result.registrations[k]
-                                               for k in sorted(result.registrations)],
-                           list(result.detections))
-            folder.finish(keep_as="stages")  # like `aerotrack track`: `track --from` reuses them
-        except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
-            fail(it, exc)
+                    save_chunk(folder.partial, 0, [result.registrations[k]
+                                                   for k in sorted(result.registrations)],
+                               list(result.detections))
+                folder.finish(keep_as="stages")  # like `aerotrack track`: `track --from` reuses them
+            except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
+                error = exc
+        if error is not None:
+            fail(it, error)
             continue
         out[it.name] = summary
         if on_done:
