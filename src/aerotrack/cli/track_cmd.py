@@ -184,6 +184,14 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
                                          (config or Config()).registration, undistort)
     if source is not None and dets is None:
         warn_memory(source, (config.detection.window_s if config is not None else 3.0))
+    irregular = getattr(source, "timing_irregularity", None)
+    spread = irregular() if irregular is not None else None
+    if spread is not None:
+        log.warning("%s: variable frame rate (frames %.0f-%.0f ms apart): frames are numbered in "
+                    "decoding order and timed at %g frames/s, so speeds and times are off where "
+                    "the rate differs; re-encode at a constant rate for exact ones (ffmpeg -i IN "
+                    "-fps_mode cfr -r %g OUT)", source.path, spread[0], spread[1], source.fps,
+                    round(source.fps))
     return source, dets, geomap, H_init, undistort, notes
 
 

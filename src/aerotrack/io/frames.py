@@ -165,6 +165,25 @@ class VideoSource(FrameSource):
                 "--fps if it is another: speeds and times follow it)", self.path, self.fps)
         self.count = n if n > 0 else None
 
+    def timing_irregularity(self, n: int = 90) -> tuple[float, float] | None:
+        """(shortest, longest) interval in ms between the first ``n`` frames' timestamps when they
+        differ by more than a third (a variable-frame-rate video, as phones and some drones
+        write), else None. Frames are numbered in decoding order and timed at ``fps``: speeds
+        then run fast or slow where the rate differs from the mean."""
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            stamps = []
+            while len(stamps) < n and cap.grab():
+                stamps.append(cap.get(cv2.CAP_PROP_POS_MSEC))
+        finally:
+            cap.release()
+        d = np.diff(np.asarray(stamps, float))
+        d = d[d > 0]
+        if len(d) < 10:
+            return None
+        lo, hi = float(np.percentile(d, 5)), float(np.percentile(d, 95))
+        return (lo, hi) if hi > 1.34 * lo else None
+
     def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
         """Frames ``start, start+stride, ...`` up to and including ``stop`` (1-based), the video
         sought to ``start``.
