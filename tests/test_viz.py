@@ -36,6 +36,14 @@ def _H(frame: int) -> np.ndarray:
     return np.array([[1.0, 0, 300.0 + 2.0 * frame], [0, 1.0, 500.0], [0, 0, 1]])
 
 
+def grey_frames(folder: Path, n: int = 12, level=lambda f: 100, size=(W, H)) -> Path:
+    """``n`` flat PNG frames ``000001.png``... of grey ``level(frame)``, ``size`` (w, h)."""
+    folder.mkdir()
+    for f in range(1, n + 1):
+        cv2.imwrite(str(folder / f"{f:06d}.png"), np.full((size[1], size[0], 3), level(f), np.uint8))
+    return folder
+
+
 def make_run(tmp: Path, with_map: bool = True, n_frames: int = 60) -> Path:
     """An output folder: 3 targets driving east at 37 map px/s (10 m/s on 0.27 m pixels); target 2
     is out of view (predicted) in frames 20..34 and re-acquired at 35."""
@@ -209,10 +217,7 @@ def test_render_and_report_commands(tmp_path, capsys):
     from aerotrack.cli.main import main
 
     run = make_run(tmp_path, n_frames=12)
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for f in range(1, 13):
-        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    frames = grey_frames(tmp_path / "frames")
     main(["-q", "render", str(frames), str(run), "--out", str(tmp_path / "o.mp4"), "--trail-s", "0.5"])
     assert (tmp_path / "o.mp4").stat().st_size > 0
     for name in ("map.png", "spacetime.png", "registration.png"):
@@ -278,10 +283,7 @@ def test_render_draws_the_frames_the_run_tracked(tmp_path):
     summary = json.loads((run / "summary.json").read_text())
     summary.update(first_frame=4, last_frame=9)
     (run / "summary.json").write_text(json.dumps(summary))
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for f in range(1, 13):
-        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    frames = grey_frames(tmp_path / "frames")
     main(["-q", "render", str(frames), str(run), "--out", str(tmp_path / "o.mp4"), "--no-pictures"])
     cap = cv2.VideoCapture(str(tmp_path / "o.mp4"))
     n = 0
@@ -319,10 +321,7 @@ def test_report_covers_the_frames_the_run_tracked(tmp_path, capsys):
     rows = np.loadtxt(run / "tracks.csv", delimiter=",")
     write_mot(run / "tracks.csv", rows[(rows[:, 0] >= 4) & (rows[:, 0] <= 9)])
     write_mot(tmp_path / "gt.txt", rows)  # ground truth of all 12 frames
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for f in range(1, 13):
-        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 20 * f, np.uint8))
+    frames = grey_frames(tmp_path / "frames", level=lambda f: 20 * f)
     main(["-q", "report", str(run), "--input", str(frames), "--gt", str(tmp_path / "gt.txt")])
     text = (run / "report.html").read_text()
     cards = {k: v for v, k in re.findall(r'<div class="card"><b>([^<]*)</b><span>([^<]*)<',
@@ -347,14 +346,8 @@ def test_report_refuses_another_input_and_respects_video_width(tmp_path, capsys)
     from aerotrack.cli.main import main
 
     run = make_run(tmp_path, n_frames=12)
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for f in range(1, 13):
-        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
-    other = tmp_path / "other"
-    other.mkdir()
-    for f in range(1, 13):
-        cv2.imwrite(str(other / f"{f:06d}.png"), np.full((H // 2, W // 2, 3), 100, np.uint8))
+    frames = grey_frames(tmp_path / "frames")
+    other = grey_frames(tmp_path / "other", size=(W // 2, H // 2))
     with pytest.raises(SystemExit) as exc:
         main(["report", str(run), "--input", str(other)])
     err = capsys.readouterr().err
@@ -377,10 +370,7 @@ def test_render_refuses_a_bad_map_before_rendering(tmp_path, capsys):
     from aerotrack.cli.main import main
 
     run = make_run(tmp_path, n_frames=12)
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for f in range(1, 13):
-        cv2.imwrite(str(frames / f"{f:06d}.png"), np.full((H, W, 3), 100, np.uint8))
+    frames = grey_frames(tmp_path / "frames")
     (tmp_path / "afile").write_text("not a raster")
     with pytest.raises(SystemExit) as exc:
         main(["render", str(frames), str(run), "--out", str(tmp_path / "x.mp4"), "--map",
