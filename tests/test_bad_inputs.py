@@ -802,13 +802,18 @@ def test_frames_beyond_what_a_truncated_video_holds(tmp_path, capsys):
                      "--out", tmp_path / cmd, out_dir=tmp_path / cmd)
 
 
-def test_truncated_jpeg_is_named(tmp_path, capsys):
-    d = tmp_path / "f"
-    d.mkdir()
-    for i in range(6):
-        cv2.imwrite(str(d / f"{i + 1:04d}.jpg"), textured(shift=(0, i)))
-    p = d / "0004.jpg"
+def jpeg_folder_with_a_truncated_file(folder: Path, n: int, cut: int) -> Path:
+    """``n`` JPEG frames, frame ``cut`` cut to a third of its bytes (no end-of-image marker)."""
+    folder.mkdir()
+    for i in range(n):
+        cv2.imwrite(str(folder / f"{i + 1:04d}.jpg"), textured(shift=(0, i)))
+    p = folder / f"{cut:04d}.jpg"
     p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
+    return folder
+
+
+def test_truncated_jpeg_is_named(tmp_path, capsys):
+    d = jpeg_folder_with_a_truncated_file(tmp_path / "f", 6, 4)
     code, _, err = run_cli(capsys, "track", d, "--out", tmp_path / "o")
     assert code == 0, err
     warned = [ln for ln in err.splitlines() if "truncated JPEG" in ln]
@@ -820,12 +825,7 @@ def test_truncated_jpeg_leaves_no_nameless_decoder_message(tmp_path, capfd, capl
     file in its own warning, so the decoder's line must not reach the terminal (nor with -q)."""
     from aerotrack.io.frames import ImageFolderSource
 
-    d = tmp_path / "f"
-    d.mkdir()
-    for i in range(3):
-        cv2.imwrite(str(d / f"{i + 1:04d}.jpg"), textured(shift=(0, i)))
-    p = d / "0002.jpg"
-    p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
+    d = jpeg_folder_with_a_truncated_file(tmp_path / "f", 3, 2)
     frames = list(ImageFolderSource(d).frames())
     err = capfd.readouterr().err
     assert len(frames) == 3 and frames[1].image.shape == (120, 160, 3)
