@@ -321,6 +321,22 @@ def test_detect_bad_options(tmp_path, capsys, video, extra, needle):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("extra,needle", [
+    (["--map", "MAP", "--map-init", "INIT", "--stabilised"], "--stabilised"),
+    (["--stabilised", "--detections", "DETS", "--no-input"], "--stabilised"),
+])
+def test_track_stabilised_refusals(tmp_path, capsys, video, dets, extra, needle):
+    m = tmp_path / "m.tif"
+    m.write_bytes(b"not a tiff")
+    init = tmp_path / "init.txt"
+    init.write_text("1 0 0\n0 1 0\n0 0 1\n")
+    args = [] if "--no-input" in extra else [video]
+    extra = [str(m) if e == "MAP" else str(init) if e == "INIT" else str(dets) if e == "DETS"
+             else e for e in extra if e != "--no-input"]
+    expect_error(capsys, [needle], "track", *args, "--out", tmp_path / "o", *extra)
+    assert not (tmp_path / "o").exists()
+
+
 # -- eval -----------------------------------------------------------------------------------------
 def test_eval_missing_gt(tmp_path, capsys, dets):
     expect_error(capsys, ["nope.txt"], "eval", "--gt", tmp_path / "nope.txt", "--pred", dets)

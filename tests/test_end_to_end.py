@@ -144,3 +144,22 @@ def test_python_api_checks_the_frame_range(scene):
                            ({"stride": 0}, "stride")):
         with pytest.raises(InputError, match=needle):
             pipeline.run(scene / "frames", **kwargs)
+
+
+def test_cli_track_stabilised_skips_registration(scene, tmp_path, capsys):
+    """A fixed camera (``--stabilised``): identity homographies, the vehicles still tracked, and
+    the option recorded, so that ``--resume`` without it is refused rather than mixed."""
+    out = tmp_path / "run"
+    main(["-q", "track", str(scene / "frames"), "--out", str(out), "--gsd", "0.3",
+          "--stabilised"])
+    reg = np.loadtxt(out / "registration.csv", delimiter=",", skiprows=1, usecols=range(10))
+    assert len(reg) == 150 and np.array_equal(reg[:, 1:], np.tile(np.eye(3).ravel(), (150, 1)))
+    tracks = io.read_mot(out / "tracks.csv")
+    gt = io.read_mot(scene / "gt.txt", strict=False)
+    loose = evaluate(gt, tracks, iou_threshold=0.3)
+    assert loose["IDF1"] >= 0.8 and loose["IDSW"] <= 3, loose  # measured 0.939, 0
+    assert json.loads((out / "summary.json").read_text())["stabilised"] is True
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main(["-q", "track", str(scene / "frames"), "--out", str(out), "--gsd", "0.3", "--resume"])
+    assert exc.value.code == 2 and "--stabilised" in capsys.readouterr().err

@@ -559,3 +559,18 @@ def test_a_bad_scheduler_address_is_refused_within_seconds(tmp_path, client):
                                  "notanaddress"])
     assert isinstance(r.exception, InputError) and "not a scheduler address" in str(r.exception)
     assert not out.exists()
+
+
+def test_a_stabilised_segment_is_not_registered(scene):
+    """``track --workers N --stabilised``: every segment takes identity homographies."""
+    folder, _ = scene
+    segs = plan_segments(1, 120, fps=FPS, segment_s=6.0, overlap_s=4.5)
+    task = make_tasks(folder, config=Config(), fps=FPS, segments=segs[1:2], metres_per_unit=0.3,
+                      stabilised=True)[0]
+    res = run_segment(task)
+    assert res.registrations and all(np.array_equal(r.H, np.eye(3))
+                                     for r in res.registrations.values())
+    plain = make_tasks(folder, config=Config(), fps=FPS, segments=segs[1:2], metres_per_unit=0.3)[0]
+    from aerotrack.parallel import _segment_file
+
+    assert _segment_file(Path("x"), task) != _segment_file(Path("x"), plain)  # not resumed as one

@@ -347,6 +347,7 @@ class SegmentTask:
     hold_from: int | None = None  # first frame fed with detection.hold_stopped (None: all)
     undistort: Callable | None = None
     regions: list | None = None
+    stabilised: bool = False  # frames already registered to each other: identity homographies
 
 
 @dataclass
@@ -428,7 +429,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
                     H_init=task.H_init if geomap is not None else None, seed=task.seed,
                     detections=per_frame,
                     metres_per_unit=None if geomap is not None else task.metres_per_unit,
-                    undistort=task.undistort, regions=task.regions)
+                    undistort=task.undistort, regions=task.regions, stabilised=task.stabilised)
     if pipe.follower is not None:
         pipe.follower.count_frames = (seg.own_start, seg.own_stop)
     if task.input_path is None:
@@ -857,7 +858,8 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
                detections: np.ndarray | None = None, undistort: Callable | None = None,
                regions: Sequence | None = None,
                hold_after_s: float | None = None,
-               frame_size: tuple[int, int] | None = None) -> list[SegmentTask]:
+               frame_size: tuple[int, int] | None = None,
+               stabilised: bool = False) -> list[SegmentTask]:
     """One :class:`SegmentTask` per segment (external detections cut to each segment's frames).
 
     With a map, later segments get frame 1's metres per pixel at its centre (``frame_size``, as
@@ -899,7 +901,8 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
             config=config, stride=stride, seed=seed, metres_per_unit=mpu,
             map_path=str(map_path) if with_map else None, H_init=H_init if with_map else None,
             detections=rows, undistort=undistort, hold_from=hold_from,
-            regions=[g for g in regions if seg.index == 0 or g.space == "frame"]))
+            regions=[g for g in regions if seg.index == 0 or g.space == "frame"],
+            stabilised=stabilised))
     return tasks
 
 
@@ -925,6 +928,8 @@ def _segment_file(folder: Path, task: SegmentTask) -> Path:
     for part in (dumps_config(task.config), task.input_path, task.fps, task.stride, task.seed,
                  task.metres_per_unit, task.map_path, task.hold_from):
         h.update(repr(part).encode())
+    if task.stabilised:  # only then: digests of earlier runs stay valid
+        h.update(b"stabilised")
     for arr in (task.H_init, task.detections):
         h.update(b"-" if arr is None else np.ascontiguousarray(arr, dtype=np.float64).tobytes())
     seg = task.segment
@@ -1133,7 +1138,7 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                  retries: int = 2, with_report: bool = False,
                  undistort: Callable | None = None, regions: list | None = None,
                  min_speed_mps: float | None = None, checkpoint_every: int | None = None,
-                 roads=None):
+                 roads=None, stabilised: bool = False):
     """:func:`aerotrack.pipeline.run` with segments on a Dask cluster.
 
     Same parameters and result as :func:`~aerotrack.pipeline.run`, plus ``client`` (a
@@ -1162,7 +1167,7 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                        map_path=geomap.path if geomap is not None else None, H_init=H_init,
                        detections=detections, undistort=undistort, regions=regions,
                        hold_after_s=parallel.hold_after_s,
-                       frame_size=getattr(source, "size", None))
+                       frame_size=getattr(source, "size", None), stabilised=stabilised)
     submitted, cpu0, received = time.time(), time.process_time(), {}
     results = gather_segments(client, tasks, retries=retries, checkpoint_dir=checkpoint_dir,
                               resume=resume, progress=progress, while_waiting=warm_up_linking,
@@ -1256,7 +1261,8 @@ def _messages_named(name: str) -> Iterator[None]:
 
 
 def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: int,
-                  metres_per_unit: float | None, stride: int) -> list[str]:
+                  metres_per_unit: float | None, stride: int,
+                  stabilised: bool = False) -> list[str]:
     """What differs between the settings of this batch and those a finished item was tracked
     with (its ``summary.json`` and ``config.toml``): names of options, empty when alike or
     unknown (a folder from before these were recorded compares by its config alone)."""
@@ -1280,12 +1286,14 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
         changed.append("--gsd")
     if "fps_given" in summary and summary["fps_given"] != fps:
         changed.append("--fps")
+    if bool(summary.get("stabilised", False)) != stabilised:
+        changed.append("--stabilised")
     return changed
 
 
 def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: float | None = None,
               seed: int = 0, metres_per_unit: float | None = None, stride: int = 1, client=None,
-              parallel: ParallelConfig | None = None,
+              parallel: ParallelConfig | None = None, stabilised: bool = False,
               on_done: Callable[[BatchItem, dict | None, BaseException | None], None] | None = None
               ) -> dict[str, dict | BaseException]:
     """Track every unfinished item into its output folder.
@@ -1336,7 +1344,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 segs = per.plan(first, last, config, src.fps, stride)
                 tasks = make_tasks(src.path, config=config, fps=src.fps, segments=segs,
                                    stride=stride, seed=seed, metres_per_unit=metres_per_unit,
-                                   hold_after_s=per.hold_after_s)
+                                   hold_after_s=per.hold_after_s, stabilised=stabilised)
                 futures[it.name] = (segs, submit_tasks(client, tasks, name=it.name))
             except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
                 fail(it, exc)
@@ -1352,7 +1360,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 if client is None:
                     result = run(src, config=config, fps=src.fps, seed=seed,
                                  metres_per_unit=metres_per_unit, stride=stride,
-                                 checkpoint_dir=folder.partial)
+                                 checkpoint_dir=folder.partial, stabilised=stabilised)
                 else:
                     results = client.gather(futures[it.name][1])
                     result, _ = assemble(results, config=config, fps=src.fps,
@@ -1360,6 +1368,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                          parallel=parallel)
                 info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
                         "gsd": metres_per_unit, "fps_given": fps,
+                        **({"stabilised": True} if stabilised else {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3)}
                 summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
                 if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them

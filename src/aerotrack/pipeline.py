@@ -105,7 +105,7 @@ class Pipeline:
     debug : bool
         The detector keeps ``debug_frames`` (``aerotrack detect --debug-video``).
     stabilised : bool
-        The frames are already registered to each other (``aerotrack detect --stabilised``):
+        The frames are already registered to each other (``aerotrack track --stabilised``):
         identity homographies instead of the registrar (not with a map).
     opencv_threads : int or None
         OpenCV worker threads while the pipeline works on a frame (set for each step and restored
@@ -726,7 +726,8 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         progress: Callable[[int], None] | None = None, start: int = 1, stop: int | None = None,
         stride: int = 1, checkpoint_dir: Path | None = None, resume: bool = False,
         checkpoint_every: int = 300, undistort: Callable[[Frame], Frame] | None = None,
-        regions: list | None = None, min_speed_mps: float | None = None, roads=None) -> Result:
+        regions: list | None = None, min_speed_mps: float | None = None, roads=None,
+        stabilised: bool = False) -> Result:
     """Track a whole video (pull API).
 
     Parameters
@@ -755,6 +756,9 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     roads : aerotrack.context.roads.RoadNetwork, optional
         Road centre-lines in map pixels (``read_roads(path, geomap=geomap)``): the motion
         context predicts unobserved vehicles along them.
+    stabilised : bool
+        The frames are already registered to each other (a stabilised video, a fixed camera):
+        identity homographies instead of the registrar; not with a map.
 
     Examples
     --------
@@ -774,7 +778,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     pipe = Pipeline(config, fps, geomap=geomap, H_init=H_init, seed=seed, detections=per_frame,
                     metres_per_unit=metres_per_unit, checkpoint_dir=checkpoint_dir,
                     checkpoint_every=checkpoint_every, undistort=undistort, regions=regions,
-                    min_speed_mps=min_speed_mps, roads=roads)
+                    min_speed_mps=min_speed_mps, roads=roads, stabilised=stabilised)
     if resume and checkpoint_dir is not None:
         restart = pipe.restore(source)
         if restart > start:

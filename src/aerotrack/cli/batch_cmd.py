@@ -38,6 +38,9 @@ log = logging.getLogger("aerotrack")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run on an existing Dask cluster (tcp://host:8786); its workers must see the "
                    "inputs under the same paths.")
+@click.option("--stabilised", is_flag=True,
+              help="The videos are already stabilised (frames registered to each other): skip "
+                   "registration and use identity homographies.")
 @click.option("--segment-s", type=float, default=60.0, show_default=True,
               help="With --workers/--scheduler: seconds of video per segment.")
 @click.option("--overwrite", is_flag=True,
@@ -45,12 +48,12 @@ log = logging.getLogger("aerotrack")
                    "other settings is named).")
 @click.pass_context
 def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, overrides, stride, workers,
-                  scheduler, segment_s, overwrite):
+                  scheduler, segment_s, overwrite, stabilised=False):
     """Track every video file and image-folder sub-folder of INPUT_DIR.
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
     interrupted batch continues where it stopped when run again; one finished with other
-    settings (--config/--set, --seed, --stride, --gsd, --fps) is named in a warning and kept,
+    settings (--config/--set, --seed, --stride, --gsd, --fps, --stabilised) is named in a warning and kept,
     and --overwrite tracks every input again. An input that cannot be tracked
     (an empty or unreadable video file) is reported on one line and counted as failed: the batch
     goes on with the others and exits with code 2.
@@ -113,7 +116,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         if not it.done:
             continue
         changed = batch_changes(it, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
-                                stride=stride)
+                                stride=stride, stabilised=stabilised)
         if changed:  # a warning: shown even with -q
             click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
                        f"{', '.join(changed)}; kept as it is (--overwrite tracks it again)",
@@ -125,7 +128,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     with engine as client, _ReportedOnce():
         results = run_batch(items, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
                             stride=stride, client=client,
-                            parallel=ParallelConfig(segment_s=segment_s), on_done=report)
+                            parallel=ParallelConfig(segment_s=segment_s), on_done=report,
+                            stabilised=stabilised)
     failed = [path.name for path, _ in unusable]
     names = {it.name: Path(it.input).name for it in items}
     failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]

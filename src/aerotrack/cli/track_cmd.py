@@ -363,6 +363,9 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
 @frames_option
 @stride_option
+@click.option("--stabilised", is_flag=True,
+              help="Frames are already registered to each other (a stabilised video, a fixed "
+                   "camera): skip registration and use identity homographies (not with --map).")
 @click.option("--from", "from_dir", type=click.Path(path_type=Path), default=None,
               help="Reuse the registrations and detections cached by an earlier run in this folder "
                    "(its stages/): only association and linking run again.")
@@ -381,7 +384,8 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_path, gsd, fps,
                   seed, config_path, overrides, telemetry_path, telemetry_defaults,
                   intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
-                  overwrite, resume, workers, scheduler, from_dir=None, roads_path=None):
+                  overwrite, resume, workers, scheduler, from_dir=None, roads_path=None,
+                  stabilised=False):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -420,13 +424,19 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             ("--telemetry", telemetry_path), ("--telemetry-default", telemetry_defaults),
             ("--intrinsics", intrinsics_path),
             ("--roi", roi_paths), ("--ignore-region", ignore_paths), ("--resume", resume),
-            ("--workers", workers), ("--scheduler", scheduler)) if value]
+            ("--workers", workers), ("--scheduler", scheduler), ("--stabilised", stabilised))
+            if value]
         if given:
             raise InputError(f"--from {from_dir}: re-runs association on that run's cached "
                              f"registrations and detections, so {', '.join(given)} cannot be "
                              "given with it (they were the earlier run's)")
         return _track_from_cache(ctx, from_dir, out_dir, config, map_path, seed, gsd, fps,
                                  min_speed, out_crs, overwrite, roads_path=roads_path)
+    if stabilised and map_path is not None:
+        raise InputError("--stabilised: not with --map (frames are registered to the map)")
+    if stabilised and input_path is None:
+        raise InputError("--stabilised: needs an INPUT video or folder (without one, --detections "
+                         "are associated in image coordinates already)")
     start, stop = parse_frame_range(frame_range)
     if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
@@ -457,6 +467,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "ignore_region": [where(r) for r in ignore_paths], "roads": where(roads_path),
         "fps": fps, "gsd": gsd, "seed": seed, "frames": [start, stop], "stride": stride,
         "min_speed": min_speed, "config": dumps_config(config),
+        **({"stabilised": True} if stabilised else {}),  # absent: run.json of earlier runs match
     }
     check_overwrite(out_dir, overwrite)
     if resume and finished_run(out_dir, input_path, detections_path, seed, manifest):
@@ -489,6 +500,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                          progress=stopper.wrap(progress), checkpoint_dir=out.partial,
                          resume=resume, start=start, stop=stop, stride=stride,
                          undistort=undistort, regions=regions, min_speed_mps=min_speed,
+                         stabilised=stabilised,
                          **({"roads": roads} if roads is not None else {}))
         finally:
             close()
@@ -514,6 +526,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             "roads": where(roads_path),
             "min_speed": min_speed,
             "seed": seed,
+            **({"stabilised": True} if stabilised else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3),
             **notes,
         }
@@ -535,6 +548,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
 
 
 MANIFEST = "run.json"
+#: Manifest entries written only when they differ from these values (so that the run.json of
+#: runs made before the option existed still match).
+_MANIFEST_DEFAULTS = {"stabilised": False}
 
 
 def finished_run(out_dir, input_path, detections_path, seed, manifest: dict | None = None
@@ -592,6 +608,8 @@ def _changed_options(before: dict, manifest: dict) -> str:
     import json
 
     now = json.loads(json.dumps(manifest))  # tuples -> lists, as read back
+    for key, default in _MANIFEST_DEFAULTS.items():  # written only when not the default
+        before, now = {key: default, **before}, {key: default, **now}
     changed = [k for k in now if k in before and before[k] != now[k]]
     label = {"input": "INPUT", "config": "config (--config, --set or defaults)"}
     return ", ".join(label.get(k, "--" + k.replace("_", "-")) for k in changed)
