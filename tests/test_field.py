@@ -497,6 +497,18 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path):
         assert next(csv.DictReader(fh))["crs"] == "EPSG:3857"
     with pytest.raises(InputError, match="--out-crs.*projected"):
         write_observation_table(tmp_path / "o3.csv", obs, geomap, fps, "EPSG:4326")
+    for bad in ("EPSG:4978", "EPSG:5773"):  # geocentric, vertical: no map x, y either
+        with pytest.raises(InputError, match="--out-crs.*projected"):
+            write_observation_table(tmp_path / "o3.csv", obs, geomap, fps, bad)
+    # A CRS without a code was written as its WKT, unquoted: 108 fields a row for 13 columns
+    local = ("+proj=tmerc +lat_0=36.14 +lon_0=-115.232 +k=1 +x_0=0 +y_0=0 +datum=WGS84 "
+             "+units=m")
+    for crs, label in ((local, local), ("EPSG:32611+5773", "EPSG:32611+5773")):
+        o = write_observation_table(tmp_path / "o4.csv", obs, geomap, fps, crs, formats=("csv",))
+        with open(o["csv"], newline="") as fh:
+            rows = list(csv.reader(fh))
+        assert {len(r) for r in rows} == {len(rows[0])}
+        assert rows[1][rows[0].index("crs")].startswith(label), rows[1]
 
 
 def test_read_registration_csv(tmp_path):

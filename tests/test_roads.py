@@ -483,8 +483,10 @@ def test_track_from_keeps_the_runs_roads_and_its_own_folder(scene, tmp_path, cap
     code, _, err = run_cli(capsys, "track", "--from", out, "--out", out, "--overwrite")
     assert code == 0 and (out / "stages").is_dir(), err
     bad = tmp_path / "bad"
-    code, _, err = run_cli(capsys, "track", "--from", out, "--out", bad, "--out-crs", "EPSG:4326")
-    assert code == 2 and "--out-crs" in err and not bad.exists(), err
+    for crs in ("EPSG:4326", "EPSG:4978"):  # geographic; geocentric (refused at write time,
+        # after the work, leaving .partial/ behind)
+        code, _, err = run_cli(capsys, "track", "--from", out, "--out", bad, "--out-crs", crs)
+        assert code == 2 and "--out-crs" in err and not bad.exists(), err
     code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "far", "--out-crs",
                            "EPSG:32633")
     assert code == 0 and "distorted" in err, err

@@ -660,17 +660,9 @@ def check_out_crs(out_crs: str | None, geomap=None) -> None:
     the CRS is defined for (UTM 33N for Las Vegas: x of -4 000 km, distances distorted)."""
     if out_crs is None:
         return
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
+    from ..io.geotable import projected_crs
 
-    from ..errors import InputError
-
-    try:
-        crs = CRS.from_user_input(out_crs)
-    except CRSError:
-        raise InputError(f"--out-crs {out_crs}: unknown CRS") from None
-    if crs.is_geographic:
-        raise InputError(f"--out-crs {out_crs}: must be a projected CRS (metres)")
+    crs = projected_crs(out_crs)
     area = crs.area_of_use
     if geomap is None or area is None:
         return

@@ -145,10 +145,10 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     columns : dict of str -> ndarray
         One array per column in :data:`COLUMNS`, rows sorted by (id, frame, kind).
     crs : str
-        The output CRS as ``AUTH:CODE`` (or WKT if it has no code).
+        The output CRS as ``AUTH:CODE`` (``EPSG:32611+5773`` for a compound one), or as a PROJ
+        string if it has no code (:func:`crs_label`).
     """
     from pyproj import CRS, Geod, Transformer
-    from pyproj.exceptions import CRSError
 
     if geomap is None:
         raise InputError("observation table: needs a map (--map) for lon/lat and the output CRS")
@@ -180,14 +180,8 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         med = (np.median(lonlat[good], axis=0) if good.any() else
                geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0])
         out_crs = utm_crs_for(float(med[0]), float(med[1]))
-    try:
-        ocrs = CRS.from_user_input(out_crs)
-    except CRSError as exc:
-        raise InputError(f"--out-crs {out_crs!r}: not understood ({exc})") from None
-    if not ocrs.is_projected:
-        raise InputError(f"--out-crs {out_crs!r}: must be a projected CRS (metres), not geographic")
-    auth = ocrs.to_authority()
-    crs_name = f"{auth[0]}:{auth[1]}" if auth else ocrs.to_wkt()
+    ocrs = projected_crs(out_crs)
+    crs_name = crs_label(ocrs)
     to_out = Transformer.from_crs(CRS.from_epsg(4326), ocrs, always_xy=True)
     xy = np.full((n, 2), np.nan)
     if good.any():
@@ -268,11 +262,52 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     return cols, crs_name
 
 
+def projected_crs(out_crs, option: str = "--out-crs"):
+    """``out_crs`` as a pyproj CRS with projected coordinates (a projected CRS, or a compound one
+    whose horizontal part is projected), else a one-line :class:`InputError`: geographic (degrees),
+    geocentric (x, y, z from the Earth's centre) and vertical CRSs give no map x, y."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        crs = CRS.from_user_input(out_crs)
+    except CRSError:
+        raise InputError(f"{option} {out_crs}: unknown CRS") from None
+    if not crs.is_projected:
+        kind = ("geographic (degrees)" if crs.is_geographic else
+                "geocentric" if crs.is_geocentric else
+                "vertical" if crs.is_vertical else crs.type_name)
+        raise InputError(f"{option} {out_crs}: must be a projected CRS (x, y in metres or feet), "
+                         f"not {kind}")
+    return crs
+
+
+def crs_label(crs) -> str:
+    """A short, comma-free name of a CRS for a table column: ``AUTH:CODE``, ``EPSG:32611+5773``
+    for a compound CRS of two codes, else its PROJ string (a custom CRS's WKT is long and full of
+    commas, which broke the CSV's columns)."""
+    import warnings
+
+    auth = crs.to_authority()
+    if auth:
+        return f"{auth[0]}:{auth[1]}"
+    parts = [c.to_authority() for c in crs.sub_crs_list]
+    if parts and all(parts) and len({a for a, _ in parts}) == 1:
+        return f"{parts[0][0]}:" + "+".join(code for _, code in parts)
+    with warnings.catch_warnings():  # "may lose important projection information"
+        warnings.simplefilter("ignore")
+        text = crs.to_proj4()
+    return text.replace(" +type=crs", "").strip() if text else crs.to_wkt()
+
+
 def _fmt(v: Any, digits: int, turn: bool = False) -> str:
     """``v`` as text with ``digits`` decimals; ``turn``: an angle in [0, 360), so a value that
     rounds to 360 is written as 0."""
     if isinstance(v, (str, np.str_)):
-        return str(v)
+        text = str(v)
+        if any(c in text for c in ',"\n\r'):  # CSV quoting (RFC 4180)
+            text = '"' + text.replace('"', '""') + '"'
+        return text
     if isinstance(v, (int, np.integer)):
         return str(int(v))
     if not np.isfinite(v):
