@@ -96,3 +96,26 @@ def test_bad_map_init(tmp_path, text, msg):
     p.write_text(text)
     with pytest.raises(FormatError, match=msg):
         read_map_init(p)
+
+
+def test_outputs_across_the_antimeridian(tmp_path):
+    """A map whose geotransform runs past lon 180: GeoJSON and observations keep lon in
+    [-180, 180) (they read 180.00002..180.0014) and a track crossing it is cut there."""
+    from aerotrack.io.geojson import tracks_feature_collection
+    from aerotrack.io.geotable import observation_table
+
+    p = tmp_path / "antimeridian.tif"
+    with rasterio.open(p, "w", driver="GTiff", width=200, height=100, count=3, dtype="uint8",
+                       crs="EPSG:4326", transform=from_origin(179.999, -16.0, 1e-5, 1e-5)) as ds:
+        ds.write(np.random.default_rng(0).integers(0, 255, (3, 100, 200), dtype=np.uint8))
+    m = GeoMap(p)
+    lon = 179.9999 + np.arange(20) * 1e-5 + 5e-7  # crosses 180 after the 10th row
+    rows = np.array([[f + 1, 7, 10, 10, 8, 4, 1, lon[f], -16.0005, -1] for f in range(20)])
+    fc = tracks_feature_collection(rows, None, m, 10.0)
+    geom = fc["features"][0]["geometry"]
+    assert geom["type"] == "MultiLineString" and [len(g) for g in geom["coordinates"]] == [10, 10]
+    flat = np.array([c for part in geom["coordinates"] for c in part])
+    assert np.all((flat[:, 0] >= -180) & (flat[:, 0] < 180))
+    cols, crs = observation_table(rows, m, 10.0)
+    assert np.all((cols["lon"] >= -180) & (cols["lon"] < 180)) and crs in ("EPSG:32760", "EPSG:32701")
+    assert np.all(np.abs(cols["speed_mps"] - 10.7) < 0.2)  # no jump at the antimeridian

@@ -5,10 +5,15 @@ lon/lat (RFC 7946 has no other CRS). The properties carry, per vertex, the frame
 seconds since frame 1, whether the target was in view (``tracks.csv``) or predicted out of view
 (``predicted.csv``), and the speed; and per track, its extent in frames and time, its counts and
 length. A track seen in a single frame becomes a two-vertex LineString with both vertices equal
-(a valid geometry GIS tools open, unlike a one-vertex LineString).
+(a valid geometry GIS tools open, unlike a one-vertex LineString). Longitudes are given in
+[-180, 180) whatever the map's own coordinates say (a map across the antimeridian may run past
+180), and a track that crosses the antimeridian is cut there into a MultiLineString (RFC 7946
+3.1.9); the per-vertex lists then follow the parts' vertices in order.
 
-The GeoPackage holds the same lines (per-vertex lists as JSON text, as GeoPackage fields are
-scalar) in layer ``tracks``, and one Point per vertex in layer ``track_points``.
+:func:`write_tracks_gpkg` (Python API) writes the same lines (per-vertex lists as JSON text, as
+GeoPackage fields are scalar) in layer ``tracks``, and one Point per vertex in layer
+``track_points``; ``aerotrack track`` writes ``observations.gpkg`` instead
+(:mod:`aerotrack.io.geotable`: one Point per row, in a projected CRS).
 """
 
 from __future__ import annotations
@@ -65,6 +70,28 @@ def vertex_speeds(lonlat: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(out), out, 0.0)
 
 
+def wrap_lon(lonlat: np.ndarray) -> np.ndarray:
+    """(N, 2) lon/lat with longitudes brought into [-180, 180)."""
+    out = np.array(lonlat, dtype=np.float64, copy=True)
+    out[:, 0] = (out[:, 0] + 180.0) % 360.0 - 180.0
+    return out
+
+
+def line_geometry(coords: list[list[float]]) -> dict[str, Any]:
+    """A GeoJSON LineString through ``coords`` (lon in [-180, 180)), or a MultiLineString cut
+    where consecutive vertices are more than 180 degrees of longitude apart (the antimeridian)."""
+    parts, start = [], 0
+    for i in range(1, len(coords)):
+        if abs(coords[i][0] - coords[i - 1][0]) > 180.0:
+            parts.append(coords[start:i])
+            start = i
+    parts.append(coords[start:])
+    if len(parts) == 1:
+        return {"type": "LineString", "coordinates": coords}
+    parts = [p * 2 if len(p) == 1 else p for p in parts]
+    return {"type": "MultiLineString", "coordinates": parts}
+
+
 def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None, geomap,
                               fps: float) -> dict[str, Any]:
     """Build the GeoJSON FeatureCollection (a dict) of a run's tracks.
@@ -97,7 +124,7 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
             times = (frames - 1) / float(fps)
             observed = r[:, 10] > 0
             speeds = vertex_speeds(ll, times)
-            coords = np.round(ll, DECIMALS).tolist()
+            coords = np.round(wrap_lon(ll), DECIMALS).tolist()
             if len(coords) == 1:
                 coords = coords * 2
             from pyproj import Geod
@@ -106,7 +133,7 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
             features.append({
                 "type": "Feature",
                 "id": int(tid),
-                "geometry": {"type": "LineString", "coordinates": coords},
+                "geometry": line_geometry(coords),
                 "properties": {
                     "id": int(tid),
                     "first_frame": int(frames[0]),

@@ -174,11 +174,18 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     lonlat = np.full((n, 2), np.nan)
     good = np.isfinite(mapxy).all(axis=1)
     if good.any():
-        lonlat[good] = geomap.crs_to_lonlat(mapxy[good])
+        from .geojson import wrap_lon
+
+        lonlat[good] = wrap_lon(geomap.crs_to_lonlat(mapxy[good]))  # a map may run past 180
 
     if out_crs is None:  # the UTM zone of the rows, or of the map's centre (no row: empty table)
-        med = (np.median(lonlat[good], axis=0) if good.any() else
-               geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0])
+        if good.any():  # median longitude taken about the first (rows across the antimeridian)
+            lon0 = lonlat[good][0, 0]
+            med = np.median(lonlat[good], axis=0)
+            med[0] = np.median((lonlat[good, 0] - lon0 + 180.0) % 360.0 - 180.0) + lon0
+            med[0] = (med[0] + 180.0) % 360.0 - 180.0
+        else:
+            med = geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0]
         out_crs = utm_crs_for(float(med[0]), float(med[1]))
     ocrs = projected_crs(out_crs)
     crs_name = crs_label(ocrs)
