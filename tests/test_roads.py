@@ -461,6 +461,11 @@ def test_predict_names_a_bad_crs_and_warns_when_roads_are_elsewhere(tmp_path, ca
     code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out,
                            "--space", "map", "--roads", roads, "--crs", "EPSG:32611")
     assert code == 0 and "no road within" not in err, err
+    # UTM tracks with --crs EPSG:4326: the roads read in degrees, rebuilt at the tracks' metres,
+    # had no segment left and raised a ValueError traceback
+    code, _, err = run_cli(capsys, "predict", tracks, "--queries", queries, "--out", out,
+                           "--space", "map", "--roads", roads, "--crs", "EPSG:4326")
+    assert code == 2 and "--roads" in err and "same CRS" in err and "Traceback" not in err, err
 
 
 def test_track_from_keeps_the_runs_roads_and_its_own_folder(scene, tmp_path, capsys):

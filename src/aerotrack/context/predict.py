@@ -206,7 +206,12 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
                 raise InputError(f"--crs {crs}: not a CRS pyproj knows (e.g. EPSG:32611)") from None
         network = read_roads(roads, crs=crs, snap_m=config.roads_snap_m)
         if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
-            network = RoadNetwork(network.lines, mpu, config.roads_snap_m, y_down=network.y_down)
+            try:
+                network = RoadNetwork(network.lines, mpu, config.roads_snap_m,
+                                      y_down=network.y_down)
+            except InputError as exc:
+                raise InputError(f"--roads {roads}: {exc} (--crs {crs} is taken as the tracks' "
+                                 "CRS)") from None
         _check_roads_near(network, table, roads, crs, mpu)
     unplaced = rows[np.all(rows[:, 7:9] == -1, axis=1)] if space == "map" else None
     preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,

@@ -376,6 +376,10 @@ class RoadNetwork:
         x0, y0, x1, y1 = self.bounds
         self.open_ends = {n for n in range(len(nodes)) if len(self.adjacency[n]) == 1 and min(
             nodes[n, 0] - x0, x1 - nodes[n, 0], nodes[n, 1] - y0, y1 - nodes[n, 1]) <= snap}
+        if not edges:  # every line shorter than the snap distance: units not the network's
+            raise InputError(f"road network: every centre-line is shorter than the snap distance "
+                             f"({self.snap:.3g} units at {self.mpu:.3g} m a unit): are the roads "
+                             "and the tracks in the same CRS?")
         # every segment, for snapping
         seg_a, seg_b, seg_e, seg_s = [], [], [], []
         for e, ed in enumerate(edges):
