@@ -338,6 +338,33 @@ def test_mosaic_command_without_and_with_map(tmp_path, map_img):
     assert res.exit_code == 0, res.output
     regs = read_registration_csv(tmp_path / "reg2.csv")
     assert all(corner_error(r.H, Hm, W, H) < 1.0 for r, Hm in zip(regs, truth))
+    # georeferenced: a world file and the CRS beside the .png (it had neither: identity in GIS),
+    # a GeoTIFF for .tif; both put the map's own pixels where the map does
+    import rasterio
+
+    from aerotrack.geo import GeoMap
+
+    geomap = GeoMap(TILE)
+    assert out2.with_suffix(".pgw").is_file() and Path(str(out2) + ".aux.xml").is_file()
+    out3 = tmp_path / "mosaic_map.tif"
+    res = runner.invoke(cli, ["-q", "mosaic", str(frames), "--out", str(out3), "--map", str(TILE),
+                              "--map-init", str(init)])
+    assert res.exit_code == 0, res.output
+    png = cv2.imread(str(out2))
+    for path in (out2, out3):
+        with rasterio.open(path) as ds:
+            assert ds.crs == geomap.crs and not ds.transform.is_identity
+            assert ds.read().transpose(1, 2, 0)[:, :, ::-1].shape == png.shape
+            # away from the painted frames the picture shows the map where it says it does
+            tile = geomap.read_image()
+            cr = np.array([(c, r) for r in range(2, 12) for c in range(2, 12)], float)
+            xy = np.array([ds.transform * (c + 0.5, r + 0.5) for c, r in cr])  # pixel centres
+            m = geomap.crs_to_pixel(xy).astype(np.float32)
+            want = cv2.remap(tile, m[:, 0].reshape(10, 10), m[:, 1].reshape(10, 10),
+                             cv2.INTER_LINEAR)
+            assert np.abs(png[2:12, 2:12].astype(int) - want.astype(int)).max() <= 2
+            if path == out3:
+                assert np.array_equal(ds.read().transpose(1, 2, 0)[:, :, ::-1], png)
     res = runner.invoke(cli, ["mosaic", str(frames), "--out", str(tmp_path / "m.gif")])
     assert res.exit_code != 0
 

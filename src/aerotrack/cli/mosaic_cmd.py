@@ -15,7 +15,8 @@ log = logging.getLogger("aerotrack")
 @click.command("mosaic")
 @click.argument("input_path", metavar="INPUT", type=click.Path())
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
-              help="Output picture (.png or .jpg).")
+              help="Output picture (.png, .jpg, or .tif: a GeoTIFF with --map; a .png or .jpg "
+                   "gets a world file and a .aux.xml with the CRS beside it).")
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
               help="Georeferenced map raster; the frames are painted onto it.")
 @click.option("--map-init", "map_init_path", type=click.Path(dir_okay=False), default=None,
@@ -36,12 +37,14 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
 
     With --map and --map-init the frames are painted onto the map in map pixels (registration
     refined against the map); without a map, onto frame 1's plane. Outlines: first frame green,
-    last red.
+    last red. With a map the picture is georeferenced: a .tif is a GeoTIFF in the map's CRS, a
+    .png or .jpg gets a world file (.pgw, .jgw) and a .aux.xml naming the CRS, which QGIS and
+    GDAL read.
 
     \b
     Examples:
       aerotrack mosaic flight.mp4 --out mosaic.jpg
-      aerotrack mosaic frames/ --out geo.png --map ortho.tif --map-init h.txt --stride 5
+      aerotrack mosaic frames/ --out geo.tif --map ortho.tif --map-init h.txt --stride 5
     """
     import cv2
 
@@ -51,11 +54,11 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     from ..io import open_source
     from ..io.output import atomic_write_bytes, check_writable
     from ..registration import FrameRegistrar, write_registration_csv
-    from ..registration.mosaic import paint_mosaic
+    from ..registration.mosaic import paint_mosaic, picture_geotransform, world_file_text
 
     out = Path(out_path)
-    if out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
-        raise InputError(f"--out {out}: must end in .png or .jpg")
+    if out.suffix.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff"):
+        raise InputError(f"--out {out}: must end in .png, .jpg or .tif")
     if stride < 1:
         raise InputError(f"--stride {stride}: must be at least 1")
     if max_side < 64:
@@ -86,12 +89,25 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     Hs = {r.index: r.H for r in regs}
     base = geomap.read_image() if geomap is not None else None
     n_painted = (len(regs) + stride - 1) // stride
-    img = paint_mosaic(source.frames(stride=stride), Hs, source.size, base=base, max_side=max_side,
-                       outline_every=max(1, n_painted // 12))
-    ok, buf = cv2.imencode(out.suffix.lower(), img)
-    if not ok:
-        raise OutputError(f"--out {out}: cannot encode the picture")
-    for option, path, write in (("--out", out, lambda: atomic_write_bytes(out, buf.tobytes())),
+    img, S = paint_mosaic(source.frames(stride=stride), Hs, source.size, base=base,
+                          max_side=max_side, outline_every=max(1, n_painted // 12),
+                          with_transform=True)
+    beside: list[tuple[Path, bytes]] = []  # world file and CRS of a georeferenced .png/.jpg
+    if geomap is not None and out.suffix.lower() in (".tif", ".tiff"):
+        data = _geotiff_bytes(img, picture_geotransform(geomap, S), geomap.crs)
+    else:
+        ok, buf = cv2.imencode(out.suffix.lower(), img)
+        if not ok:
+            raise OutputError(f"--out {out}: cannot encode the picture")
+        data = buf.tobytes()
+        if geomap is not None:
+            gt = picture_geotransform(geomap, S)
+            world = out.with_suffix(".pgw" if out.suffix.lower() == ".png" else ".jgw")
+            beside = [(world, world_file_text(gt).encode()),
+                      (Path(str(out) + ".aux.xml"), _aux_xml(geomap.crs).encode())]
+    for option, path, write in (("--out", out, lambda: atomic_write_bytes(out, data)),
+                                *(("--out", p, (lambda p=p, b=b: atomic_write_bytes(p, b)))
+                                  for p, b in beside),
                                 ("--registration", reg_csv,
                                  lambda: write_registration_csv(reg_csv, regs))):
         if path is not None:
@@ -103,6 +119,26 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
         every = "every frame" if stride == 1 else f"every {_ordinal(stride)} frame"
         click.echo(f"{out}: {len(regs)} frame{'s' * (len(regs) != 1)} registered, {every} "
                    f"painted ({img.shape[1]}x{img.shape[0]} px)")
+
+
+def _geotiff_bytes(img, transform, crs) -> bytes:
+    """A BGR picture as GeoTIFF bytes (RGB bands, deflate) in ``crs`` with ``transform``."""
+    import numpy as np
+    from rasterio.io import MemoryFile
+
+    h, w = img.shape[:2]
+    with MemoryFile() as mem:
+        with mem.open(driver="GTiff", width=w, height=h, count=3, dtype="uint8", crs=crs,
+                      transform=transform, compress="deflate", photometric="RGB") as ds:
+            ds.write(np.ascontiguousarray(img[:, :, ::-1].transpose(2, 0, 1)))
+        return mem.read()
+
+
+def _aux_xml(crs) -> str:
+    """GDAL's side-car ``.aux.xml`` naming the picture's CRS (a world file holds no CRS)."""
+    from xml.sax.saxutils import escape
+
+    return f"<PAMDataset>\n  <SRS>{escape(crs.to_wkt())}</SRS>\n</PAMDataset>\n"
 
 
 def _ordinal(n: int) -> str:

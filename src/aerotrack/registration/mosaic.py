@@ -47,7 +47,7 @@ def mosaic_bounds(Hs: Iterable[np.ndarray], width: int, height: int,
 def paint_mosaic(frames: Iterable[Frame], Hs: Mapping[int, np.ndarray], frame_size: tuple[int, int], *,
                  base: np.ndarray | None = None, max_side: int = 4000, margin: float = 50.0,
                  alpha: float = 0.75, outline_every: int = 1,
-                 max_extent: float | None = None) -> np.ndarray:
+                 max_extent: float | None = None, with_transform: bool = False):
     """Paint frames into world coordinates.
 
     Parameters
@@ -73,9 +73,13 @@ def paint_mosaic(frames: Iterable[Frame], Hs: Mapping[int, np.ndarray], frame_si
         Clip the picture to this distance (world units) around frame 1's footprint; default twice
         the frame diagonal without a map (oblique views reach the horizon), unlimited with one.
 
+    with_transform : bool
+        Also return the (3, 3) world -> picture pixels transform (a scale and a shift), which
+        georeferences the picture when the world is the map's pixels.
+
     Returns
     -------
-    (h, w, 3) uint8 BGR image.
+    (h, w, 3) uint8 BGR image, or (image, transform) with ``with_transform``.
     """
     w, h = frame_size
     if max_extent is None and base is None:
@@ -137,5 +141,29 @@ def paint_mosaic(frames: Iterable[Frame], Hs: Mapping[int, np.ndarray], frame_si
     if base is None and painted.any():  # crop the empty canvas around what was painted
         rows, cols = np.flatnonzero(painted.any(axis=1)), np.flatnonzero(painted.any(axis=0))
         pad = int(margin * s)
-        out = out[max(rows[0] - pad, 0):rows[-1] + pad + 1, max(cols[0] - pad, 0):cols[-1] + pad + 1]
-    return out
+        r0, c0 = max(rows[0] - pad, 0), max(cols[0] - pad, 0)
+        out = out[r0:rows[-1] + pad + 1, c0:cols[-1] + pad + 1]
+        S = np.array([[1, 0, -c0], [0, 1, -r0], [0, 0, 1]], dtype=np.float64) @ S
+    return (out, S) if with_transform else out
+
+
+def picture_geotransform(geomap, S: np.ndarray):
+    """The rasterio ``Affine`` of a picture painted in map pixels through ``S`` (map pixels ->
+    picture pixels, :func:`paint_mosaic`): the picture pixel whose centre is at index ``(c, r)``
+    (OpenCV's convention, in which the frames were warped) shows map pixel ``S^-1 (c, r)``,
+    whose map CRS coordinates are ``geomap.transform`` of it, as everywhere in aerotrack (so
+    tracks.csv's positions land on the vehicles painted in the picture)."""
+    from rasterio.transform import Affine
+
+    inv = np.linalg.inv(S)
+    return (geomap.transform
+            * Affine(inv[0, 0], inv[0, 1], inv[0, 2], inv[1, 0], inv[1, 1], inv[1, 2])
+            * Affine.translation(-0.5, -0.5))  # rasterio: pixel centres at index + 0.5
+
+
+def world_file_text(transform) -> str:
+    """An ESRI world file (``.pgw``/``.jgw``) for ``transform``: the pixel sizes and rotations,
+    then the map coordinates of the centre of the top-left pixel."""
+    t = transform
+    cx, cy = t * (0.5, 0.5)
+    return "\n".join(f"{v:.12g}" for v in (t.a, t.d, t.b, t.e, cx, cy)) + "\n"
