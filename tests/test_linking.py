@@ -844,3 +844,28 @@ def test_registered_frames_without_a_scale_allow_manoeuvres_over_long_gaps():
     image = GlobalLinker(LinkingConfig(), ContextConfig(), FPS).link(tl)
     assert len(registered) == 1
     assert len(image) == 2
+
+
+def test_same_frame_overlaps_equal_every_pair_of_a_frame():
+    """The passes stop once boxes sorted by left edge are too far apart to touch (they ran up to
+    the busiest frame's count: quadratic with 1000 vehicles a frame); the pairs are still every
+    touching pair of a frame, checked against all pairs."""
+    import itertools
+
+    from aerotrack.association.linking import _box_overlap, same_frame_overlaps
+
+    rng = np.random.default_rng(0)
+    for trial in range(20):
+        n = int(rng.integers(1, 300))
+        fr = rng.integers(1, 6, n)
+        B = np.column_stack([rng.uniform(0, 300, n), rng.uniform(0, 300, n),
+                             rng.uniform(0, 60, n), rng.uniform(0, 40, n)])
+        if trial % 4 == 0:
+            B[rng.integers(0, n), 0] = np.nan
+        i, j, o = same_frame_overlaps(fr, B)
+        got = {(min(a, b), max(a, b)): v for a, b, v in zip(i.tolist(), j.tolist(), o.tolist())}
+        want = {(a, b): _box_overlap(B[[a]], B[[b]])[0] for a, b in itertools.combinations(range(n), 2)
+                if fr[a] == fr[b]}
+        want = {k: v for k, v in want.items() if v > 0}
+        assert got.keys() == want.keys()
+        assert all(abs(got[k] - want[k]) < 1e-12 for k in got)

@@ -659,6 +659,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     except ImportError:  # linking not available: tracklets are the tracks
         log.warning("global linking unavailable; tracklets are reported as tracks")
         return _renumber(tracklets)
+    if len(tracklets) >= 500:  # minutes of work after the progress bar reached its end
+        log.info("global linking of %d tracklets", len(tracklets))
     linker = GlobalLinker(config.linking, config.context, fps, metres_per_unit=metres_per_unit)
     if roads is not None:
         linker.predictor.roads = roads

@@ -63,15 +63,15 @@ PARTIAL_MODELS = ("trim", "edge")
 def _positions(t: Track) -> tuple[np.ndarray, np.ndarray]:
     """(frames (n,), world xy (n, 2)) of a tracklet's in-view points with a finite position, one
     per frame (the first), sorted by frame."""
-    seen, fr, xy = set(), [], []
-    for p in sorted((p for p in t.points if p.kind in _IN_VIEW), key=lambda p: p.frame):
-        w = np.asarray(p.world, dtype=np.float64).reshape(2)
-        if p.frame in seen or not np.all(np.isfinite(w)):
-            continue
-        seen.add(p.frame)
-        fr.append(p.frame)
-        xy.append(w)
-    return np.array(fr, dtype=np.int64), np.array(xy, dtype=np.float64).reshape(-1, 2)
+    pts = sorted((p for p in t.points if p.kind in _IN_VIEW), key=lambda p: p.frame)
+    if not pts:
+        return np.zeros(0, np.int64), np.zeros((0, 2))
+    fr = np.fromiter((p.frame for p in pts), np.int64, len(pts))
+    xy = np.array([p.world for p in pts], dtype=np.float64).reshape(-1, 2)
+    ok = np.isfinite(xy).all(axis=1)
+    fr, xy = fr[ok], xy[ok]
+    first = np.r_[True, fr[1:] != fr[:-1]] if len(fr) else np.zeros(0, bool)
+    return fr[first], xy[first]
 
 
 @dataclasses.dataclass
@@ -691,10 +691,13 @@ class GlobalLinker:
         n = len(fr)
         if c.partial_size_ratio <= 0 or n < 4:
             return fr, xy
-        size = {p.frame: max(p.size_world) for p in t.points
-                if p.kind == "observed" and p.size_world is not None
-                and np.all(np.isfinite(p.size_world))}
-        sz = np.array([size.get(int(f), np.nan) for f in fr])
+        obs = [p for p in t.points if p.kind == "observed" and p.size_world is not None]
+        S = np.array([p.size_world for p in obs], dtype=np.float64).reshape(len(obs), -1) \
+            if obs else np.zeros((0, 2))
+        ok = np.isfinite(S).all(axis=1) if S.size else np.zeros(len(obs), bool)
+        size = dict(zip([p.frame for p, good in zip(obs, ok) if good],
+                        S[ok].max(axis=1).tolist() if ok.any() else []))  # the last per frame
+        sz = np.array([size.get(int(f), np.nan) for f in fr.tolist()])
         if np.isfinite(sz).sum() < 4:
             return fr, xy
         small = sz < c.partial_size_ratio * np.nanpercentile(sz, 90)  # NaN: not small
@@ -786,15 +789,21 @@ def same_frame_overlaps(frames: np.ndarray, boxes: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every pair of rows of one frame whose boxes touch: (row i, row j, overlap of the smaller
     box, :func:`_box_overlap`), rows indexing ``frames`` (n,) and ``boxes`` (n, 4) as given."""
-    order = np.argsort(np.asarray(frames), kind="stable")
+    B = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    # rows sorted by frame, then by left edge: rows r and r + d of one frame can only touch while
+    # r + d's left edge is within the widest box of r's, so the passes stop after the most boxes
+    # one box's width holds, not after the busiest frame's count (1000 vehicles a frame had made
+    # this quadratic: minutes)
+    order = np.lexsort((B[:, 0], np.asarray(frames)))
     fr = np.asarray(frames)[order]
-    B = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)[order]
+    B = B[order]
+    x0 = B[:, 0]
+    finite = np.isfinite(B[:, 2])
+    wmax = float(B[finite, 2].max()) if finite.any() else 0.0
     out_i, out_j, out_o = [], [], []
-    # rows r and r + d share a frame for every d up to the busiest frame's count: one vectorised
-    # pass per d instead of a loop over frames
     d = 1
     while d < len(fr):
-        r = np.flatnonzero(fr[:-d] == fr[d:])
+        r = np.flatnonzero((fr[:-d] == fr[d:]) & (x0[d:] <= x0[:-d] + wmax))
         if not len(r):
             break
         ov = _box_overlap(B[r], B[r + d])
