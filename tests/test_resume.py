@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import signal
 import subprocess
 import sys
@@ -89,6 +91,15 @@ def test_cli_ctrl_c_keeps_partial_and_resume_finishes(tmp_path):
     with pytest.raises(SystemExit) as exc:
         main(["track", "--detections", str(d), "--out", str(out)])
     assert exc.value.code == 2  # refused without --resume
+    # what the run was started with is unreadable: its checkpoints cannot be checked (they were
+    # continued with whatever was given, another --seed included)
+    manifest = out / ".partial" / "run.json"
+    kept = manifest.read_bytes()
+    manifest.write_text("{garbage")
+    with pytest.raises(SystemExit) as exc:
+        main(["-q", "track", "--detections", str(d), "--out", str(out), "--resume", "--seed", "7"])
+    assert exc.value.code == 2
+    manifest.write_bytes(kept)
     main(["-q", "track", "--detections", str(d), "--out", str(out), "--resume"])
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 1500
@@ -254,13 +265,59 @@ def test_video_resume_without_stage_state_restarts_before_the_stop(tmp_path, vid
         _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
                    progress=interrupt_at(83))
     (out.partial / "state.npz").unlink()
-    resumed = _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
-                         resume=True)
+    with _aerotrack_warnings() as said:  # it was silent (INFO "resuming from frame 60" only)
+        resumed = _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
+                             resume=True)
+    assert any("no working state was saved" in m for m in said), said
     assert resumed.frames == 120 and sorted(resumed.registrations) == list(range(1, 121))
     a, b = _everything(full), _everything(resumed)
     assert [r for i, r in sorted(a[1].items()) if i <= 60] == \
         [r for i, r in sorted(b[1].items()) if i <= 60]  # checkpointed before the stop: kept
     assert len(resumed.tracks) >= 3
+
+
+@contextlib.contextmanager
+def _aerotrack_warnings():
+    """The warnings the ``aerotrack`` logger emits meanwhile (it does not propagate once the
+    command line has configured it)."""
+    said: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            if record.levelno >= logging.WARNING:
+                said.append(record.getMessage())
+
+    logger = logging.getLogger("aerotrack")
+    handler = Keep()
+    logger.addHandler(handler)
+    try:
+        yield said
+    finally:
+        logger.removeHandler(handler)
+
+
+def test_a_second_interrupt_inside_a_frame_says_the_state_was_not_saved(
+        tmp_path, video_frames, monkeypatch):
+    """A second Ctrl-C lands inside a frame: only the checkpoints are kept, and the message said
+    nothing about it (the resumed run then differed silently)."""
+    from aerotrack.pipeline import Pipeline
+
+    class Stop(KeyboardInterrupt):
+        note = "; finished work is kept"
+
+    step = Pipeline._step
+
+    def interrupted(self, frame):
+        if frame.index == 50:
+            raise Stop()
+        return step(self, frame)
+
+    monkeypatch.setattr(Pipeline, "_step", interrupted)
+    out = OutputDir(tmp_path / "o")
+    with pytest.raises(Stop) as exc:
+        _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30)
+    assert "working state was not saved" in exc.value.note
+    assert not (out.partial / "state.npz").exists()
 
 
 def test_stale_stage_state_is_not_used(tmp_path, video_frames):
@@ -531,8 +588,9 @@ def test_a_damaged_checkpoint_is_a_one_line_error(tmp_path, video_frames, capsys
     code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "o", "--fps", "10",
                            "--gsd", "0.3", "--seed", "3", "--resume")
     assert code == 2, err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    lines = [ln for ln in err.splitlines() if ln.strip() and "WARNING" not in ln]
     assert len(lines) == 1 and damaged in lines[0] and "unreadable" in lines[0], err
+    assert "no run.json" in err  # the API wrote these checkpoints: the CLI cannot check them
 
 
 def test_loaded_checkpoints_hold_each_detection_once(tmp_path):

@@ -550,6 +550,11 @@ class Pipeline:
         if restart in regs:
             self._H_init = regs[restart].H
         self._restart = restart
+        if head is None or not regs or head[0] != max(regs):
+            log.warning("--resume: no working state was saved at frame %d (a second Ctrl-C, a "
+                        "kill or a crash): registration and detection restart from frame %d, so "
+                        "a few frames may be decided differently than in an uninterrupted run",
+                        self.last_frame, restart)
         return restart
 
     def finish_local(self) -> list[Track]:
@@ -809,10 +814,13 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                 done += 1
                 if progress:
                     progress(done)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         pipe.checkpoint()
-        if not stepping:
-            pipe.save_state()
+        exact = not stepping and pipe.save_state()
+        if not exact and isinstance(getattr(exc, "note", None), str) and exc.note:
+            # a second Ctrl-C inside a frame: only the checkpoints are kept
+            exc.note += ("; the working state was not saved (stopped inside a frame), so --resume "
+                         "restarts a little earlier and may decide a few frames differently")
         raise
     return pipe.finish()
 

@@ -636,6 +636,16 @@ def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:
                                  f"with another {names}; give the same inputs and options, or "
                                  "use --overwrite to start again")
             return
+    if resume and any(p.name != MANIFEST for p in Path(partial).glob("*")):
+        # checkpoints whose inputs cannot be checked would be mixed with these silently (a
+        # seed-0 state continued with --seed 7 wrote tracks matching neither run)
+        if path.is_file():
+            raise InputError(f"--resume {path.parent.parent}: {path} (what the interrupted run "
+                             "was started with) is unreadable, so its checkpoints cannot be "
+                             "checked against these inputs; use --overwrite to start again")
+        log.warning("--resume %s: no %s (checkpoints written through the Python API, or it was "
+                    "deleted): the inputs and options cannot be checked against the interrupted "
+                    "run's; give the same ones", path.parent.parent, MANIFEST)
     atomic_write_text(path, json.dumps(manifest, indent=1) + "\n")
 
 
