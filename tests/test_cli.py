@@ -265,3 +265,34 @@ def test_opencv_warnings_silenced_unless_vv(tmp_path):
     assert res.returncode == 0 and "WARN" not in res.stderr, res.stderr
     res = detect(tmp_path / "b", "-vv")
     assert res.returncode == 0 and "TIFF" in res.stderr, res.stderr  # -vv shows them
+
+
+def test_verbose_progress_lines_say_the_time_left_and_come_at_least_every_30_s(monkeypatch):
+    """``-v`` away from a terminal logged a line every tenth of the run only (one a minute on a
+    long one, the first after 75 s) and no time left."""
+    import logging
+
+    from aerotrack.cli import common
+
+    clock = [0.0]
+    monkeypatch.setattr(common.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(common.sys.stderr, "isatty", lambda: False, raising=False)
+    lines = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            lines.append(record.getMessage())
+
+    handler = Keep()
+    logger = logging.getLogger("aerotrack")
+    monkeypatch.setattr(logger, "level", logging.INFO)
+    logger.addHandler(handler)
+    try:
+        update, close = common.make_progress(1000, "track", quiet=False, verbose=1)
+        for n in range(1, 51):  # 50 frames, 1 s each
+            clock[0] = float(n)
+            update(n)
+        close()
+    finally:
+        logging.getLogger("aerotrack").removeHandler(handler)
+    assert lines == ["track: 30/1000 frames (1.0 frames/s, about 16 min left)"]

@@ -86,7 +86,8 @@ def make_progress(total: int | None, label: str, quiet: bool, verbose: int = 0):
     """A progress callback ``update(n_done)`` and a ``close()``.
 
     On a terminal: a tqdm bar on stderr (gone when done). Not on a terminal (a pipe, a log file):
-    nothing, unless ``-v`` asks for a log line every tenth of the run. ``-q``: nothing at all.
+    nothing, unless ``-v`` asks for a log line every tenth of the run and at least every
+    ``LOG_EVERY_S`` seconds, with the time left. ``-q``: nothing at all.
     """
     if quiet:
         return (lambda n: None), (lambda: None)
@@ -105,14 +106,34 @@ def make_progress(total: int | None, label: str, quiet: bool, verbose: int = 0):
         return (lambda n: None), (lambda: None)
     step = max(1, (total or 1000) // 10)
     t0 = time.perf_counter()
+    state = {"logged": t0}
 
     def log_line(n: int) -> None:
-        if n % step == 0:
-            rate = n / max(time.perf_counter() - t0, 1e-9)
-            of = f"/{total}" if total else ""
-            log.info("%s: %d%s frames (%.1f frames/s)", label, n, of, rate)
+        now = time.perf_counter()
+        if n % step and now - state["logged"] < LOG_EVERY_S:
+            return
+        state["logged"] = now
+        rate = n / max(now - t0, 1e-9)
+        of = f"/{total}" if total else ""
+        left = ""
+        if total and rate > 0 and n < total:
+            left = f", about {_duration((total - n) / rate)} left"
+        log.info("%s: %d%s frames (%.1f frames/s%s)", label, n, of, rate, left)
 
     return log_line, (lambda: None)
+
+
+#: Seconds between two ``-v`` progress lines at most (a tenth of a long run is many minutes).
+LOG_EVERY_S = 30.0
+
+
+def _duration(seconds: float) -> str:
+    """'45 s', '12 min', '3.5 h'."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 def check_positive(value: float | None, option: str, what: str = "a positive number") -> None:
