@@ -74,6 +74,7 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     assert gj["type"] == "FeatureCollection" and gj["features"]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 150 and summary["counts"]["tracks"] >= 1
+    assert summary["map_crs"] == "EPSG:4326"  # what tracks.csv's x, y are in
     # same input, config and seed: the same tracks
     again = tmp_path / "again"
     main(["-q", "track", str(scene / "frames"), "--out", str(again), "--map",

@@ -143,6 +143,9 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         "last_frame": result.last_frame,
         "frame_size": list(result.frame_size) if result.frame_size else None,
         "metres_per_unit": result.metres_per_unit,
+        # the CRS of tracks.csv's and predicted.csv's x, y (with a map): they were not named
+        # anywhere but in the map file itself
+        **({"map_crs": _crs_name(geomap)} if geomap is not None else {}),
         "registration_mode": (IDENTITY if not result.registrations and result.frame_size is None
                               else "map" if geomap is not None else "frame1"),
         "counts": {
@@ -161,3 +164,15 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
     }
     out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def _crs_name(geomap) -> str | None:
+    """The map's CRS as ``AUTH:CODE`` (or a PROJ string), for summary.json."""
+    from pyproj import CRS
+
+    from .io.geotable import crs_label
+
+    try:
+        return crs_label(CRS.from_user_input(geomap.crs.to_wkt()))
+    except Exception:  # noqa: BLE001  a name for people: never fail the outputs over it
+        return None
