@@ -422,6 +422,14 @@ def test_cli_geo_error_uses_the_scoring_window(tmp_path, capsys):
     assert code == 0, err
     geo = json.loads(out)["geo_error"]
     assert geo["matches"] == 6 and geo["mean_m"] == pytest.approx(0.0, abs=1e-6)
+    assert "same CRS" not in err
+    # the prediction in UTM, the ground truth in lon/lat: kilometres apart, said so
+    ll = gt.copy()
+    ll[:, 7], ll[:, 8] = -115.2, 36.1
+    write_mot(tmp_path / "ll.txt", ll)
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "ll.txt"), "--pred",
+                           str(tmp_path / "pred.txt"), "--geo-crs", "EPSG:32633"], capsys)
+    assert code == 0 and "same CRS" in err, err
 
 
 def test_stray_huge_frame_number_is_scored_quickly(tmp_path, capsys):

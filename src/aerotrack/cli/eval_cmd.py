@@ -258,6 +258,13 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
             log.warning("--geo-crs %s is a projected CRS (metres), but every x, y is within "
                         "+-180, +-90: lon/lat degrees? (EPSG:4326)", geo_crs)
         geo = geo_errors(gt_all, pred_all, geo_crs, iou_threshold=iou_threshold)
+        if geo.get("matches") and geo.get("median_m", 0) > 10_000:
+            # boxes that match in the frame but lie kilometres apart on the ground: the two files'
+            # x, y are in different CRSs (a prediction on a UTM map against lon/lat ground truth
+            # gave a median of 4 055 070 m, silently)
+            log.warning("--geo-crs %s: matched boxes lie a median %.0f km apart: are --gt's and "
+                        "--pred's x, y in the same CRS? (the ground truth's must be in %s too)",
+                        geo_crs, geo["median_m"] / 1000, geo_crs)
     if as_json:
         out = {k: res["combined"][k] for k in METRIC_KEYS}
         if geo is not None:
