@@ -30,7 +30,9 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     Writes ``frames/000001.jpg...``, ``gt.txt`` (MOTChallenge, visible targets only; x, y = the
     ground point in the map CRS, lon/lat, so `aerotrack eval --geo-crs EPSG:4326` scores positions),
     ``states.csv`` (every target every frame: state visible/occluded/outside, map pixel and lon/lat
-    position, box, heading, speed), ``homographies.csv`` (true frame -> map pixels), ``map.tif``,
+    position, box, heading, speed; ``heading_deg`` is the direction of travel on the map image,
+    from its +x axis (east) towards +y (down, south), so 90 is south and 270 north: not the
+    compass bearing of ``observations.csv``), ``homographies.csv`` (true frame -> map pixels), ``map.tif``,
     ``map_init.txt`` (frame-1 homography), ``map_init_gcps.csv`` and ``map_init_lonlat.csv``
     (control points), ``occluders.csv`` (bounding boxes), ``occluders.geojson`` (outlines in map
     pixels), ``roads.geojson`` (the road centre-lines, lon/lat) and ``scenario.json``.
