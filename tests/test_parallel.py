@@ -286,7 +286,7 @@ def test_segments_on_a_cluster_match_the_single_process(scene, client, tmp_path)
     assert agree["HOTA"] > 0.7 and agree["IDF1"] > 0.7  # (MCMC seed changes alone: ~0.9)
 
 
-def test_segments_with_a_map_chain_into_map_pixels(scene, client):
+def test_segments_with_a_map_are_registered_against_it(scene, client):
     from aerotrack.geo import GeoMap
     from aerotrack.io import open_source
     from aerotrack.parallel import run_parallel
@@ -307,6 +307,8 @@ def test_segments_with_a_map_chain_into_map_pixels(scene, client):
     err = [np.abs(apply_homography(par.registrations[f].H, corners)
                   - apply_homography(truth(f), corners)).max() for f in sorted(par.registrations)]
     assert max(err) < 3.0  # map pixels, both segments
+    cut = report.segments[0].own_stop  # the later segment is refined against the map too
+    assert any(r.status == "refined" for f, r in par.registrations.items() if f > cut)
     d = next(d for d in par.detections if d.frame > 100 and len(d))
     assert d.lonlat is not None and np.all(np.isfinite(d.lonlat))  # segment 1 gets map outputs
     tl = report.timeline  # where the wall time went: tasks, their results, join, linking
@@ -574,3 +576,45 @@ def test_a_stabilised_segment_is_not_registered(scene):
     from aerotrack.parallel import _segment_file
 
     assert _segment_file(Path("x"), task) != _segment_file(Path("x"), plain)  # not resumed as one
+
+
+def test_a_later_segment_carries_the_placement_onto_the_map(scene):
+    """With a map, a segment after the first carries frame 1's placement to its first frame and
+    runs on the map (``map_every_segment``); without, it runs in its first frame's pixels."""
+    folder, _ = scene
+    H1 = np.array([[1, 0, 400.0], [0, 1, 420.0], [0, 0, 1]])  # render_scene's camera at frame 1
+    segs = plan_segments(1, 120, fps=FPS, segment_s=6.0, overlap_s=4.5)
+    kw = dict(config=Config(), fps=FPS, segments=segs, map_path=TILE, H_init=H1)
+    task = make_tasks(folder, **kw)[1]
+    assert task.map_path is not None and task.carry_from == 1
+    res = run_segment(task)
+    assert res.on_map and res.timings["carry"] > 0
+    f = res.segment.own_start
+    t = (f - 1) / FPS
+    truth = np.array([[1, 0, 400 + 4 * t], [0, 1, 420 + 3 * t], [0, 0, 1.0]])
+    corners = np.array([[0, 0], [240, 0], [240, 180], [0, 180.0]])
+    err = np.abs(apply_homography(res.registrations[f].H, corners)
+                 - apply_homography(truth, corners)).max()
+    assert err < 1.5, err  # map pixels
+    assert any(r.status == "refined" for r in res.registrations.values())
+    chained = make_tasks(folder, **kw, map_every_segment=False)[1]
+    assert chained.map_path is None and chained.carry_from is None
+    assert not run_segment(chained).on_map
+
+
+def test_a_first_interrupt_keeps_the_segments_still_running(scene, client, tmp_path):
+    """Ctrl-C while two segments run: both are finished and saved before the interrupt goes on
+    (the first result's progress call raised it and the other segment's work was dropped)."""
+    from aerotrack.parallel import gather_segments
+
+    folder, _ = scene
+    segs = plan_segments(1, 120, fps=FPS, segment_s=6.0, overlap_s=4.5)[:2]
+    assert len(segs) == 2
+    tasks = make_tasks(folder, config=Config(), fps=FPS, segments=segs, metres_per_unit=0.3)
+
+    def progress(n):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        gather_segments(client, tasks, checkpoint_dir=tmp_path, progress=progress)
+    assert len(list((tmp_path / "segments").glob("segment-*.pkl"))) == 2

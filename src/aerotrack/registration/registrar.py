@@ -387,17 +387,30 @@ def _num(text: str) -> float:
 
 
 def carry_placement(source, H_first: np.ndarray, start: int, geomap, fps: float,
-                    config: RegistrationConfig, undistort=None) -> np.ndarray:
-    """Frame ``start``'s pixels -> map pixels, from ``H_first`` (frame 1's, as ``--map-init``
-    gives it): frames 1 to ``start`` registered in order, refined against the map as in a run.
+                    config: RegistrationConfig, undistort=None, *, first: int = 1,
+                    stride: int = 1) -> np.ndarray:
+    """Frame ``start``'s pixels -> map pixels, from ``H_first`` (frame ``first``'s, as
+    ``--map-init`` gives it for frame 1): frames ``first`` to ``start`` registered in order,
+    refined against the map as in a run.
 
     A run of ``--frames A:B`` used to take frame 1's placement for frame A: on a generated scene
     whose camera moved 50 map pixels by frame 100, every map position of the run was 8 m off
-    (and map refinement, which searches a few pixels, never caught it)."""
+    (and map refinement, which searches a few pixels, never caught it).
+
+    ``stride``: register every ``stride``-th frame only (and ``start``), for a placement wanted
+    quickly (the later segments of a ``--workers`` run): the registrar matches each frame against
+    a keyframe up to ``keyframe_s`` old anyway, so frames a fraction of that apart chain as well."""
     registrar = FrameRegistrar(config, fps, geomap=geomap, H_init=H_first)
     H = np.asarray(H_first, np.float64)
-    for frame in source.frames(1, start):
+    last = None
+    for frame in source.frames(first, start, max(1, int(stride))):
         if undistort is not None:
             frame = undistort(frame)
         H = registrar.step(frame).H
+        last = frame.index
+    if last is not None and last != start:
+        for frame in source.frames(start, start):
+            if undistort is not None:
+                frame = undistort(frame)
+            H = registrar.step(frame).H
     return H
