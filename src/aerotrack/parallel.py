@@ -1214,7 +1214,7 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                  retries: int = 2, with_report: bool = False,
                  undistort: Callable | None = None, regions: list | None = None,
                  min_speed_mps: float | None = None, checkpoint_every: int | None = None,
-                 roads=None, stabilised: bool = False):
+                 roads=None, stabilised: bool = False, H_init_frame: int = 1):
     """:func:`aerotrack.pipeline.run` with segments on a Dask cluster.
 
     Same parameters and result as :func:`~aerotrack.pipeline.run`, plus ``client`` (a
@@ -1232,6 +1232,9 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
     import time
 
     first, last = frame_range(source, detections, start, stop, stride)
+    from .pipeline import carried_placement
+
+    H_init = carried_placement(source, H_init, H_init_frame, first, geomap, fps, config, undistort)
     segments = parallel.plan(first, last, config, fps, stride)
     if not segments:
         raise InputError(f"no frames between {start} and {stop}")

@@ -734,7 +734,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         stride: int = 1, checkpoint_dir: Path | None = None, resume: bool = False,
         checkpoint_every: int = 300, undistort: Callable[[Frame], Frame] | None = None,
         regions: list | None = None, min_speed_mps: float | None = None, roads=None,
-        stabilised: bool = False) -> Result:
+        stabilised: bool = False, H_init_frame: int = 1) -> Result:
     """Track a whole video (pull API).
 
     Parameters
@@ -746,7 +746,12 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         External MOT detection rows (1-based frames), or a MOTChallenge file of them; they
         replace the built-in detector.
     H_init : ndarray (3, 3), optional
-        Frame 1 (of the video, whatever ``start`` is) -> ``geomap`` pixels; needed with a map.
+        Frame ``H_init_frame`` (1: the video's first, whatever ``start`` is) -> ``geomap`` pixels;
+        needed with a map. When ``start`` is later, the frames between are registered first to
+        carry the placement to frame ``start`` (it was taken as frame ``start``'s: 155 map pixels
+        off at frame 300 of a generated scene).
+    H_init_frame : int
+        The frame ``H_init`` places (the command line passes ``start``: it has carried it).
     progress : callable, optional
         Called with the number of frames done after each frame.
     checkpoint_dir : path, optional
@@ -794,6 +799,9 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
             steps = -(-steps // stride) if pipe.exact_resume else steps // stride
             start = start + steps * stride
             log.info("resuming from frame %d", start)
+    if not pipe.registrations:  # nothing restored: H_init places the first frame read
+        pipe._H_init = carried_placement(source, H_init, H_init_frame, start, geomap, fps,
+                                         config, undistort)
     done = 0
     stepping = False  # inside Pipeline.step: its stages' state is not between two frames
     try:
@@ -825,18 +833,35 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     return pipe.finish()
 
 
+def carried_placement(source, H_init, H_init_frame: int, start: int, geomap, fps: float,
+                      config: Config, undistort=None):
+    """``H_init`` (frame ``H_init_frame`` -> map pixels) carried to frame ``start`` when that is
+    later and there are a map and frames (:func:`~aerotrack.registration.registrar.carry_placement`);
+    else ``H_init`` as it is."""
+    if geomap is None or H_init is None or source is None or start <= H_init_frame:
+        return H_init
+    from .registration.registrar import carry_placement
+
+    log.info("registering frames %d-%d to carry the map placement of frame %d to frame %d",
+             H_init_frame, start - 1, H_init_frame, start)
+    return carry_placement(source, H_init, start, geomap, fps, config.registration, undistort,
+                           first=H_init_frame)
+
+
 def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None,
            H_init: np.ndarray | None = None, metres_per_unit: float | None = None,
            start: int = 1, stop: int | None = None, stride: int = 1,
            undistort: Callable[[Frame], Frame] | None = None, regions: list | None = None,
            stabilised: bool = False, progress: Callable[[int], None] | None = None,
-           debug: Callable[[tuple], None] | None = None) -> Result:
+           debug: Callable[[tuple], None] | None = None, H_init_frame: int = 1) -> Result:
     """Registration and detection alone (``aerotrack detect``): the stages of :func:`run`, with the
     same options, so the detections equal those of a full run; no tracklet is made.
 
     Parameters
     ----------
     source : FrameSource
+    H_init, H_init_frame : as in :func:`run` (frame ``H_init_frame``'s placement on the map,
+        carried to ``start``).
     stabilised : bool
         The frames are registered to each other already: identity homographies (no map).
     progress : callable, optional
@@ -865,6 +890,8 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
         raise InputError("detect needs a source (a video, an image folder, or a FrameSource)")
     source, _, H_init = _api_inputs(source, None, H_init, geomap, None)
     _check_range(source, start, stop, stride)
+    H_init = carried_placement(source, H_init, H_init_frame, start, geomap, source.fps, config,
+                               undistort)
     pipe = Pipeline(config, source.fps, geomap=geomap, H_init=H_init,
                     metres_per_unit=metres_per_unit, undistort=undistort, regions=regions,
                     spill=False, associate=False, debug=debug is not None, stabilised=stabilised)

@@ -133,6 +133,7 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
             result = detect(source, config=config, geomap=geomap, H_init=H_init,
                             metres_per_unit=gsd, start=start, stop=stop, stride=stride,
                             undistort=undistort, regions=regions, stabilised=stabilised,
+                            H_init_frame=start,  # carried to frame start (load_inputs)
                             progress=stopper.wrap(progress),
                             debug=debug if debug_video else None)
         except Interrupted as exc:  # keep what is final: the frames the detector finished

@@ -500,7 +500,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                          progress=stopper.wrap(progress), checkpoint_dir=out.partial,
                          resume=resume, start=start, stop=stop, stride=stride,
                          undistort=undistort, regions=regions, min_speed_mps=min_speed,
-                         stabilised=stabilised,
+                         stabilised=stabilised, H_init_frame=start,  # carried (load_inputs)
                          **({"roads": roads} if roads is not None else {}))
         finally:
             close()
