@@ -645,3 +645,39 @@ def test_the_python_api_carries_frame_1s_placement_to_start(scene):
               start=60, stop=66)
     assert np.abs(apply_homography(res.registrations[60].H, corners)
                   - apply_homography(truth(60), corners)).max() < 1.5
+
+
+def test_an_interrupted_batch_continues_the_input_it_was_tracking(tmp_path, scene):
+    """Ctrl-C in a batch kept nothing of the input being tracked (no run.json, no state) and the
+    next batch tracked it again from frame 1; now it resumes it, with the same tracks."""
+    from aerotrack.io.mot import read_mot
+    from aerotrack.parallel import run_batch
+
+    inp = tmp_path / "in"
+    (inp / "a").mkdir(parents=True)
+    for p in sorted(scene[0].iterdir())[:120]:
+        (inp / "a" / p.name).write_bytes(p.read_bytes())
+    whole = run_batch(plan_batch(inp, tmp_path / "whole"), fps=FPS, metres_per_unit=0.3)
+    assert not isinstance(whole["a"], BaseException)
+
+    def stop_at_70(n):
+        if n == 70:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(plan_batch(inp, out), fps=FPS, metres_per_unit=0.3, progress=stop_at_70)
+    partial = out / "a" / ".partial"
+    assert (partial / "state.npz").is_file() and (partial / "batch.json").is_file()
+    seen = []
+    run_batch(plan_batch(inp, out), fps=FPS, metres_per_unit=0.3, progress=seen.append)
+    assert len(seen) == 50  # frames 71-120, not 1-120
+    assert (read_mot(out / "a" / "tracks.csv") == read_mot(tmp_path / "whole" / "a" / "tracks.csv")).all()
+    # other settings: tracked again from frame 1
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(plan_batch(inp, tmp_path / "o2"), fps=FPS, metres_per_unit=0.3,
+                  progress=stop_at_70)
+    seen.clear()
+    run_batch(plan_batch(inp, tmp_path / "o2"), fps=FPS, metres_per_unit=0.3, seed=4,
+              progress=seen.append)
+    assert len(seen) == 120

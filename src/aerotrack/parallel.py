@@ -1371,9 +1371,38 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
     return changed
 
 
+#: In an interrupted batch item's ``.partial/``: the settings it was tracked with (JSON text).
+BATCH_SETTINGS = "batch.json"
+
+
+def _batch_settings(item: BatchItem, config: Config, fps, seed, metres_per_unit, stride,
+                    stabilised) -> str:
+    import json
+
+    from .config import dumps_config
+
+    return json.dumps({"input": str(Path(item.input).resolve()), "fps": fps, "seed": seed,
+                       "gsd": metres_per_unit, "stride": stride, "stabilised": stabilised,
+                       "config": dumps_config(config)}, indent=1) + "\n"
+
+
+def _interrupted_with(item: BatchItem, settings: str) -> bool:
+    """True when ``item``'s output folder holds the checkpoints of a run interrupted with these
+    settings (resume it); False for none, or other settings (tracked again)."""
+    from .io.output import PARTIAL
+
+    partial = Path(item.out) / PARTIAL
+    try:
+        same = (partial / BATCH_SETTINGS).read_text(encoding="utf-8") == settings
+    except (OSError, ValueError):
+        return False
+    return same and any(partial.glob("chunk_*.npz"))
+
+
 def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: float | None = None,
               seed: int = 0, metres_per_unit: float | None = None, stride: int = 1, client=None,
               parallel: ParallelConfig | None = None, stabilised: bool = False,
+              progress: Callable[[int], None] | None = None, resume: bool = True,
               on_done: Callable[[BatchItem, dict | None, BaseException | None], None] | None = None
               ) -> dict[str, dict | BaseException]:
     """Track every unfinished item into its output folder.
@@ -1388,6 +1417,12 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         Name -> the run's summary (as written to ``summary.json``), or the exception that stopped
         that item; finished items are not run. ``on_done(item, summary, error)`` is called after
         each item.
+
+    In this process, ``progress`` is called after each frame of the item being tracked; an
+    interruption it raises (``KeyboardInterrupt``) stops the batch with that item's checkpoints
+    kept, and the next batch over the same inputs and settings resumes the item from them
+    (``.partial/batch.json`` records the settings; it was tracked again from frame 1); ``resume``
+    False tracks it again (``batch --overwrite``).
     """
     import time
 
@@ -1436,12 +1471,23 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         with _messages_named(Path(it.input).name):  # whose run a message is about
             t0 = time.perf_counter()
             try:
-                folder = OutputDir(it.out, overwrite=True)
                 if client is None:
+                    settings = _batch_settings(it, config, fps, seed, metres_per_unit, stride,
+                                               stabilised)
+                    again = resume and _interrupted_with(it, settings)
+                    folder = OutputDir(it.out, resume=True) if again else \
+                        OutputDir(it.out, overwrite=True)
+                    from .io.output import atomic_write_text
+
+                    atomic_write_text(folder.partial / BATCH_SETTINGS, settings)
+                    if again:
+                        log.info("%s: continuing the interrupted run in %s", it.input, it.out)
                     result = run(src, config=config, fps=src.fps, seed=seed,
                                  metres_per_unit=metres_per_unit, stride=stride,
-                                 checkpoint_dir=folder.partial, stabilised=stabilised)
+                                 checkpoint_dir=folder.partial, stabilised=stabilised,
+                                 resume=again, progress=progress)
                 else:
+                    folder = OutputDir(it.out, overwrite=True)
                     results = client.gather(futures[it.name][1])
                     result, _ = assemble(results, config=config, fps=src.fps,
                                          metres_per_unit=metres_per_unit, stride=stride,

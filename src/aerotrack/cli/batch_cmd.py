@@ -78,6 +78,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         run_batch,
     )
     from ..pipeline import check_config
+    from .track_cmd import GracefulStop
 
     check_positive(gsd, "--gsd", "a positive number of metres per pixel")
     check_positive(fps, "--fps")
@@ -123,13 +124,20 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
                        err=True)
         elif not quiet:
             click.echo(f"aerotrack: {Path(it.input).name}: already finished, skipped", err=True)
-    engine = (dask_client(workers=workers, scheduler=scheduler)
-              if workers is not None or scheduler is not None else contextlib.nullcontext())
-    with engine as client, _ReportedOnce():
+    local = workers is None and scheduler is None
+    engine = contextlib.nullcontext() if local else dask_client(workers=workers,
+                                                                scheduler=scheduler)
+    # in this process a first Ctrl-C stops after the frame being tracked, keeping that input's
+    # checkpoints; running the batch again continues it (it stopped at once and began it anew)
+    stopper = GracefulStop(note="; finished inputs are kept, and the one being tracked is "
+                                "continued when the batch is run again") if local \
+        else contextlib.nullcontext()
+    with engine as client, _ReportedOnce(), stopper:
         results = run_batch(items, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
                             stride=stride, client=client,
                             parallel=ParallelConfig(segment_s=segment_s), on_done=report,
-                            stabilised=stabilised)
+                            stabilised=stabilised, resume=not overwrite,
+                            progress=stopper.wrap(lambda n: None) if local else None)
     failed = [path.name for path, _ in unusable]
     names = {it.name: Path(it.input).name for it in items}
     failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]
