@@ -249,6 +249,8 @@ def test_interrupted_video_run_resumes_exactly(tmp_path, video_frames, stop_at):
     resumed = _video_run(video_frames, checkpoint_dir=out.partial, checkpoint_every=30,
                          resume=True)
     assert resumed.frames == full.frames == 120
+    # the timings cover the frames after the restart (summary.json's rate divided all of them)
+    assert full.frames_timed == 120 and resumed.frames_timed == 120 - stop_at
     assert len(full.tracks) >= 3
     a, b = _everything(full), _everything(resumed)
     assert a[1] == b[1]  # registrations

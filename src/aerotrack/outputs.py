@@ -159,7 +159,9 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
             **({} if result.followed is None else {"followed_detections": result.followed}),
         },
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
-        "frames_per_second": round(result.frames / total, 2) if total > 0 else None,
+        # of the frames this run's timings cover (a resumed run's said 17-22 for 6-10)
+        "frames_per_second": (round((result.frames_timed or result.frames) / total, 2)
+                              if total > 0 else None),
         "registration_failures": failures,
     }
     out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")

@@ -57,6 +57,9 @@ class Result:
         work shares the machine, where wall seconds say more about the load than the stage.
     frames : int
         Number of frames processed.
+    frames_timed : int or None
+        Frames processed in this process, which ``timings`` cover (a resumed run's frames
+        before the interruption are in ``frames``, not in ``timings``); None: ``frames``.
     followed : int or None
         Detections the stop follower added (``association.follow_stopped``; None when it is
         off; a segment-parallel run counts each segment's own frames): associated like the
@@ -75,6 +78,7 @@ class Result:
     first_frame: int = 1
     last_frame: int = 0
     followed: int | None = None
+    frames_timed: int | None = None
 
 
 class Pipeline:
@@ -170,6 +174,7 @@ class Pipeline:
         self.cpu_timings = dict(self.timings)
         self.frame_size: tuple[int, int] | None = None
         self.n_frames = 0
+        self.n_timed = 0  # frames stepped in this process (a resumed run's: after the restart)
         self.first_frame: int | None = None
         self.last_frame = 0
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
@@ -289,6 +294,7 @@ class Pipeline:
                 final = self.detector.step(frame, reg)
         if frame.index > self.last_frame:
             self.n_frames += 1
+            self.n_timed += 1
             self.last_frame = frame.index
         self._associate(final)
         self._since_checkpoint += 1
@@ -379,6 +385,7 @@ class Pipeline:
         if self.first_frame is None:
             self.first_frame = index
         self.n_frames += 1
+        self.n_timed += 1
         self.last_frame = index
         self._associate([self._external_detections(Frame(index, None, (index - 1) / self.fps), None)])
         self._since_checkpoint += 1
@@ -611,7 +618,8 @@ class Pipeline:
                       cpu_timings=dict(self.cpu_timings),
                       frames=self.n_frames, first_frame=self.first_frame or 1,
                       last_frame=self.last_frame,
-                      followed=None if self.follower is None else self.follower.n_followed)
+                      followed=None if self.follower is None else self.follower.n_followed,
+                      frames_timed=self.n_timed)
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
