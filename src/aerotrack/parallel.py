@@ -876,10 +876,14 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     import dask
 
     # read by the scheduler, each worker's nanny and the client when they are created
+    # Dask's own errors are shown with -vv only: a task's failure reaches the client as its
+    # exception anyway, and on Ctrl-C the workers logged heartbeat tracebacks (CommClosedError)
+    debug = logging.getLogger("aerotrack").getEffectiveLevel() <= logging.DEBUG
     with dask.config.set(WORKER_CONFIG), _children_ignore_sigint():
         cluster = distributed.LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-            dashboard_address=None, env=dict(THREAD_ENV), silence_logs=logging.ERROR,
+            dashboard_address=None, env=dict(THREAD_ENV),
+            silence_logs=logging.ERROR if debug else logging.CRITICAL,
             # no dashboard; the scheduler's HTTP endpoints on a free loopback port, not 8787
             scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     try:
