@@ -148,17 +148,18 @@ def paint_mosaic(frames: Iterable[Frame], Hs: Mapping[int, np.ndarray], frame_si
 
 
 def picture_geotransform(geomap, S: np.ndarray):
-    """The rasterio ``Affine`` of a picture painted in map pixels through ``S`` (map pixels ->
-    picture pixels, :func:`paint_mosaic`): the picture pixel whose centre is at index ``(c, r)``
-    (OpenCV's convention, in which the frames were warped) shows map pixel ``S^-1 (c, r)``,
-    whose map CRS coordinates are ``geomap.transform`` of it, as everywhere in aerotrack (so
-    tracks.csv's positions land on the vehicles painted in the picture)."""
+    """The rasterio ``Affine`` of a picture painted in map pixels through ``S`` (map image
+    indices -> picture indices, OpenCV's convention with pixel centres at integers, in which
+    :func:`paint_mosaic` warped the map): picture pixel ``(c, r)`` shows the map at image index
+    ``S^-1 (c, r)``, i.e. at continuous map pixel ``S^-1 (c, r) + 0.5`` (the raster's corner
+    convention, :mod:`aerotrack.geo.maprast`), so the picture's map lies on the map file's in a
+    GIS."""
     from rasterio.transform import Affine
 
     inv = np.linalg.inv(S)
-    return (geomap.transform
+    return (geomap.transform * Affine.translation(0.5, 0.5)
             * Affine(inv[0, 0], inv[0, 1], inv[0, 2], inv[1, 0], inv[1, 1], inv[1, 2])
-            * Affine.translation(-0.5, -0.5))  # rasterio: pixel centres at index + 0.5
+            * Affine.translation(-0.5, -0.5))
 
 
 def world_file_text(transform) -> str:
