@@ -354,8 +354,13 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
     with contextlib.suppress(FileNotFoundError):
         tmp.unlink()
     try:
+        crs = crs_name
+        if crs_name.startswith("+"):  # a PROJ string (no code): the GeoPackage gets the full WKT
+            from pyproj import CRS
+
+            crs = CRS.from_user_input(crs_name).to_wkt()
         write(str(tmp), geom, data, names, layer="observations", driver="GPKG",
-              geometry_type="Point", crs=crs_name)
+              geometry_type="Point", crs=crs)
         os.replace(tmp, path)
     except (OSError, RuntimeError, ValueError) as exc:  # pyogrio's errors are RuntimeErrors
         with contextlib.suppress(OSError):
