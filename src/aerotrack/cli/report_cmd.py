@@ -72,7 +72,7 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
                            out_path=out_path, progress=progress, gt_zero_based=gt_zero_based,
                            fix_gt=fix_gt,
                            options=ReportOptions(video_width=video_width, render_video=video,
-                                                 max_video_mb=80.0 if video else 0.0))
+                                                 max_video_mb=ReportOptions.max_video_mb if video else 0.0))
     finally:
         close()
     if not quiet:
