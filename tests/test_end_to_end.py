@@ -164,3 +164,12 @@ def test_cli_track_stabilised_skips_registration(scene, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["-q", "track", str(scene / "frames"), "--out", str(out), "--gsd", "0.3", "--resume"])
     assert exc.value.code == 2 and "--stabilised" in capsys.readouterr().err
+    # detect --stabilised wrote no registration.csv; --out-crs without a map was ignored silently
+    det = tmp_path / "det"
+    main(["-q", "detect", str(scene / "frames"), "--out", str(det), "--stabilised", "--frames",
+          "1:40"])
+    reg = np.loadtxt(det / "registration.csv", delimiter=",", skiprows=1, usecols=range(10))
+    assert len(reg) == 40 and np.array_equal(reg[:, 1:], np.tile(np.eye(3).ravel(), (40, 1)))
+    main(["-q", "track", str(scene / "frames"), "--out", str(tmp_path / "o2"), "--stabilised",
+          "--frames", "1:20", "--out-crs", "EPSG:32611"])
+    assert "without --map there is no observations.csv" in capsys.readouterr().err

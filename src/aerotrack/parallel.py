@@ -1242,7 +1242,8 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
     segments = parallel.plan(first, last, config, fps, stride)
     if not segments:
         raise InputError(f"no frames between {start} and {stop}")
-    log.info("%d segments of about %d frames on %d workers", len(segments),
+    log.info("%d segment%s of about %d frames on %d workers", len(segments),
+             "s" * (len(segments) != 1),
              (segments[0].own_stop - segments[0].own_start) // stride + 1, n_workers(client))
     tasks = make_tasks(source.path if source is not None else None, config=config, fps=fps,
                        segments=segments, stride=stride, seed=seed,

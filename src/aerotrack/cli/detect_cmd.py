@@ -65,8 +65,8 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
 
     Frames are registered to each other (and to --map), a sliding-window background is built on
     the registered frames and moving blobs become boxes: the same stages, with the same options,
-    as in `aerotrack track`, whose detections.csv this equals (--stabilised and --debug-video
-    are detect's own). detections.csv has MOTChallenge
+    as in `aerotrack track`, whose detections.csv this equals (--debug-video is detect's own).
+    detections.csv has MOTChallenge
     rows ``frame,-1,x,y,w,h,conf,-1,-1,-1`` (1-based frames, frame pixels); registration.csv and
     config.toml go beside it.
 
@@ -155,8 +155,8 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
             warn_if_never_refined(result, geomap, config, placed_by)
         rows = detection_rows(result)
         write_mot(out.file("detections.csv"), rows)
-        if not stabilised:
-            write_registration_csv(out.file("registration.csv"), registration_rows(result))
+        # identity rows with --stabilised, as `track --stabilised` writes them
+        write_registration_csv(out.file("registration.csv"), registration_rows(result))
         out.write_text("config.toml", dumps_config(config))
         if writer is not None:
             writer.release()

@@ -672,6 +672,9 @@ def check_out_crs(out_crs: str | None, geomap=None) -> None:
         return
     from ..io.geotable import projected_crs
 
+    if geomap is None:  # checked all the same, but said: it was ignored silently
+        log.warning("--out-crs %s: without --map there is no observations.csv; ignored", out_crs)
+
     crs = projected_crs(out_crs)
     area = crs.area_of_use
     if geomap is None or area is None:
