@@ -160,6 +160,8 @@ def test_cli_track_stabilised_skips_registration(scene, tmp_path, capsys):
     loose = evaluate(gt, tracks, iou_threshold=0.3)
     assert loose["IDF1"] >= 0.8 and loose["IDSW"] <= 3, loose  # measured 0.939, 0
     assert json.loads((out / "summary.json").read_text())["stabilised"] is True
+    main(["-q", "track", "--from", str(out), "--out", str(tmp_path / "again")])  # kept by --from
+    assert json.loads((tmp_path / "again" / "summary.json").read_text())["stabilised"] is True
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:
         main(["-q", "track", str(scene / "frames"), "--out", str(out), "--gsd", "0.3", "--resume"])

@@ -756,6 +756,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
             "map": str(Path(map_path).resolve()) if map_path else None, "seed": seed,
             "from": str(from_dir), "min_speed": min_speed,
             "roads": str(Path(roads_path).resolve()) if roads_path else None,
+            **({"stabilised": True} if prev.get("stabilised") else {}),  # the cached stages'
             "wall_time_s": round(time.perf_counter() - t0, 3)}
     summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                             out_crs=out_crs)
