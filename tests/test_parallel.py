@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import math
 import os
 import signal
@@ -492,11 +493,14 @@ def test_client_warm_up_runs_linking_for_real():
     assert parallel.warm_up_linking() == 0.0
 
 
-def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path):
+@pytest.mark.parametrize("twice", [False, True])
+def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path, twice):
     """A terminal's Ctrl-C reaches every process of the foreground group. The local cluster's
     workers used to die of it mid-segment while the main process waited for their results
     forever (a second Ctrl-C then left no finished segment). Now the workers ignore it: the run
-    stops with exit code 130 and keeps the finished work for --resume."""
+    stops with exit code 130 and keeps the finished work for --resume. A second Ctrl-C stops at
+    once, and says that only the segments finished before it are kept (it said "finished work is
+    kept", while the running segments were lost)."""
     import subprocess
 
     frames = tmp_path / "frames"
@@ -516,6 +520,9 @@ def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path):
             err += line
         time.sleep(3)
         os.killpg(p.pid, signal.SIGINT)
+        if twice:
+            time.sleep(1)
+            os.kill(p.pid, signal.SIGINT)
         rest = p.communicate(timeout=150)[1]
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGKILL)
@@ -525,6 +532,48 @@ def test_ctrl_c_to_the_whole_process_group_stops_a_workers_run(tmp_path):
     assert (out / ".partial").is_dir()
     # it says what it waits for: the running segments, not "this frame"
     assert "when the running segments are finished" in rest, rest
+    if twice:
+        assert "segments finished before it are kept" in rest, rest
+        assert "finished work is kept" not in rest and "Traceback" not in rest, rest
+
+
+def test_ctrl_c_stops_a_workers_batch_between_inputs(tmp_path):
+    """``batch --workers`` stopped at once on Ctrl-C, losing the input being joined; now it stops
+    once that input is written (exit 130) and says what is kept, and the next batch skips it."""
+    import subprocess
+
+    inp = tmp_path / "in"
+    for i in range(5):
+        render_scene(inp / f"v{i}", n=300, seed=i)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "aerotrack", "-v", "batch", str(inp), "--out", str(out),
+           "--fps", str(FPS), "--workers", "2"]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    err = ""
+    try:
+        t0 = time.time()
+        while " frames, " not in err and time.time() - t0 < 300:  # the first input is written
+            line = p.stderr.readline()
+            if not line:
+                break
+            err += line
+        os.killpg(p.pid, signal.SIGINT)
+        rest = p.communicate(timeout=300)[1]
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.communicate()
+        pytest.fail(f"no exit within 300 s of Ctrl-C: {err[-500:]}")
+    if p.returncode == 0:
+        pytest.skip("the batch finished before it could be interrupted")
+    assert p.returncode == 130, err + rest
+    assert "once the input being joined is written" in rest and "Traceback" not in rest, rest
+    assert "finished inputs are kept" in rest, rest
+    finished = [d.name for d in sorted(out.iterdir()) if (d / "summary.json").is_file()]
+    assert 2 <= len(finished) < 5, (finished, err + rest)  # and the one being joined then
+    again = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert again.stderr.count("already finished, skipped") == len(finished), again.stderr
 
 
 def test_a_bad_scheduler_address_is_refused_within_seconds(tmp_path, client):
@@ -678,6 +727,24 @@ def test_an_interrupted_batch_continues_the_input_it_was_tracking(tmp_path, scen
         run_batch(plan_batch(inp, tmp_path / "o2"), fps=FPS, metres_per_unit=0.3,
                   progress=stop_at_70)
     seen.clear()
-    run_batch(plan_batch(inp, tmp_path / "o2"), fps=FPS, metres_per_unit=0.3, seed=4,
-              progress=seen.append)
+    said = _Said()
+    logging.getLogger("aerotrack").addHandler(said)
+    try:
+        run_batch(plan_batch(inp, tmp_path / "o2"), fps=FPS, metres_per_unit=0.3, seed=4,
+                  progress=seen.append)
+    finally:
+        logging.getLogger("aerotrack").removeHandler(said)
     assert len(seen) == 120
+    # ... and said so (it started again silently)
+    assert any("not continued" in m and "settings differ" in m for m in said.lines), said.lines
+
+
+class _Said(logging.Handler):
+    """The messages of the ``aerotrack`` logger, whatever its propagation."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())

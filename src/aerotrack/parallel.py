@@ -1391,17 +1391,28 @@ def _batch_settings(item: BatchItem, config: Config, fps, seed, metres_per_unit,
                        "config": dumps_config(config)}, indent=1) + "\n"
 
 
-def _interrupted_with(item: BatchItem, settings: str) -> bool:
+def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bool:
     """True when ``item``'s output folder holds the checkpoints of a run interrupted with these
-    settings (resume it); False for none, or other settings (tracked again)."""
+    settings and ``resume`` allows it (resume it); False for none, or other settings, or
+    ``resume`` False (tracked again: then a warning says the interrupted run's frames are
+    dropped, which the user might not expect)."""
     from .io.output import PARTIAL
 
     partial = Path(item.out) / PARTIAL
+    if not any(partial.glob("chunk_*.npz")):
+        return False
     try:
         same = (partial / BATCH_SETTINGS).read_text(encoding="utf-8") == settings
     except (OSError, ValueError):
-        return False
-    return same and any(partial.glob("chunk_*.npz"))
+        same = False
+    if same and resume:
+        return True
+    why = ("--overwrite" if not resume else
+           "its settings differ from this batch's (config, --fps, --seed, --gsd, --stride or "
+           "--stabilised)")
+    log.warning("%s: an interrupted run in %s is not continued (%s): tracking it again from the "
+                "first frame", item.input, item.out, why)
+    return False
 
 
 def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: float | None = None,
@@ -1427,7 +1438,9 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     interruption it raises (``KeyboardInterrupt``) stops the batch with that item's checkpoints
     kept, and the next batch over the same inputs and settings resumes the item from them
     (``.partial/batch.json`` records the settings; it was tracked again from frame 1); ``resume``
-    False tracks it again (``batch --overwrite``).
+    False tracks it again (``batch --overwrite``). With a client, ``progress(0)`` is called after
+    each input is written (or has failed): an interruption it raises stops the batch between two
+    inputs, and the segments of the inputs not yet joined are dropped with the client.
     """
     import time
 
@@ -1479,7 +1492,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 if client is None:
                     settings = _batch_settings(it, config, fps, seed, metres_per_unit, stride,
                                                stabilised)
-                    again = resume and _interrupted_with(it, settings)
+                    again = _interrupted_with(it, settings, resume)
                     folder = OutputDir(it.out, resume=True) if again else \
                         OutputDir(it.out, overwrite=True)
                     from .io.output import atomic_write_text
@@ -1513,8 +1526,10 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 error = exc
         if error is not None:
             fail(it, error)
-            continue
-        out[it.name] = summary
-        if on_done:
-            on_done(it, summary, None)
+        else:
+            out[it.name] = summary
+            if on_done:
+                on_done(it, summary, None)
+        if client is not None and progress is not None:
+            progress(0)  # between two inputs: where a --workers batch stops on Ctrl-C
     return out

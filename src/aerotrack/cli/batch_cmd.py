@@ -128,16 +128,22 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     engine = contextlib.nullcontext() if local else dask_client(workers=workers,
                                                                 scheduler=scheduler)
     # in this process a first Ctrl-C stops after the frame being tracked, keeping that input's
-    # checkpoints; running the batch again continues it (it stopped at once and began it anew)
-    stopper = GracefulStop(note="; finished inputs are kept, and the one being tracked is "
-                                "continued when the batch is run again") if local \
-        else contextlib.nullcontext()
+    # checkpoints; running the batch again continues it (it stopped at once and began it anew).
+    # On Dask it stops once the input being joined is written (it stopped at once, losing it);
+    # the segments of the others are dropped (a batch keeps no segment results)
+    if local:
+        stopper = GracefulStop(note="; finished inputs are kept, and the one being tracked is "
+                                    "continued when the batch is run again")
+    else:
+        stopper = GracefulStop(note="; finished inputs are kept, the others are tracked when the "
+                                    "batch is run again",
+                               until="once the input being joined is written")
     with engine as client, _ReportedOnce(), stopper:
         results = run_batch(items, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
                             stride=stride, client=client,
                             parallel=ParallelConfig(segment_s=segment_s), on_done=report,
                             stabilised=stabilised, resume=not overwrite,
-                            progress=stopper.wrap(lambda n: None) if local else None)
+                            progress=stopper.wrap(lambda n: None))
     failed = [path.name for path, _ in unusable]
     names = {it.name: Path(it.input).name for it in items}
     failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]

@@ -491,9 +491,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         from ..parallel import run_on_dask
 
         run = partial(run_on_dask, workers=workers, scheduler=scheduler)
-    until = ("when the running segments are finished (they are kept)"
-             if workers is not None or scheduler is not None else "after this frame")
-    with cleanup, GracefulStop(until=until) as stopper:
+    on_dask = workers is not None or scheduler is not None
+    until = "when the running segments are finished (they are kept)" if on_dask \
+        else "after this frame"
+    # a second signal drops the running segments: only those finished before it are kept
+    note = ("; the segments finished before it are kept in the output folder's .partial/ "
+            "(continue with --resume: the others are tracked again)") if on_dask else None
+    with cleanup, GracefulStop(until=until, note=note) as stopper:
         try:
             result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
                          detections=dets, metres_per_unit=None if geomap else gsd,
