@@ -528,3 +528,8 @@ def test_cli_regressions_found_by_a_second_probe(tmp_path, capsys):
     code, out, err = _run(["eval", "--gt", str(tmp_path / "ll.txt"), "--pred",
                            str(tmp_path / "ll.txt"), "--geo-crs", "EPSG:32611"], capsys)
     assert code == 0 and "lon/lat degrees?" in err, err
+    # the error line after the warning says what its metres are (it printed "median 0.00 m")
+    assert "median 0.00 m" in out and "look like lon/lat degrees" in out, out
+    code, out, err = _run(["eval", "--gt", str(tmp_path / "ll.txt"), "--pred",
+                           str(tmp_path / "ll.txt"), "--geo-crs", "EPSG:32611", "--json"], capsys)
+    assert "lon/lat" in json.loads(out)["geo_error"]["suspect"], out

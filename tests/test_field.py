@@ -6,6 +6,7 @@ import csv
 import importlib.util
 import json
 import math
+import time
 from pathlib import Path
 
 import cv2
@@ -423,7 +424,7 @@ def test_min_speed_filter():
 
 
 # -- per-observation geo table --------------------------------------------------------------
-def test_observation_table_gpkg_and_csv(geomap, tmp_path):
+def test_observation_table_gpkg_and_csv(geomap, tmp_path, monkeypatch):
     pyogrio = pytest.importorskip("pyogrio")
     fps, v = 10.0, 10.0  # a car driving east at 10 m/s
     geod = Geod(ellps="WGS84")
@@ -472,6 +473,23 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path):
     assert "speed_mps" in names and "kind" in names
     x0, y0 = np.frombuffer(geom[0][-16:], "<f8")
     assert (x0, y0) == pytest.approx(tuple(_utm(lon[0], lat[0])[0]), abs=0.01)
+    # GDAL stamps gpkg_contents.last_change with the time of writing; SOURCE_DATE_EPOCH pins it,
+    # and two writes are then the same file
+    import sqlite3
+
+    def written(name):
+        out = write_observation_table(tmp_path / name / "observations.csv", obs, geomap, fps,
+                                      predicted=pred, homographies=homs, formats=("gpkg",))
+        with sqlite3.connect(out["gpkg"]) as db:
+            when = db.execute("SELECT last_change FROM gpkg_contents").fetchone()[0]
+        return out["gpkg"].read_bytes(), when
+
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1600000000")
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    first = written("a")
+    time.sleep(1.1)
+    assert written("b") == first and first[1].startswith("2020-09-13T12:26:40")
     if importlib.util.find_spec("pyarrow") is not None:  # Parquet beside, same columns and CRS
         import pyarrow.parquet as pq
 

@@ -253,11 +253,14 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
             projected = False
         xy = np.vstack([gt_all[:, 7:9], pred_all[:, 7:9]])
         xy = xy[~np.all(xy == -1, axis=1)]
-        if projected and len(xy) and np.all(np.abs(xy[:, 0]) <= 180) \
-                and np.all(np.abs(xy[:, 1]) <= 90):
+        degrees = bool(projected and len(xy) and np.all(np.abs(xy[:, 0]) <= 180)
+                       and np.all(np.abs(xy[:, 1]) <= 90))
+        if degrees:
             log.warning("--geo-crs %s is a projected CRS (metres), but every x, y is within "
                         "+-180, +-90: lon/lat degrees? (EPSG:4326)", geo_crs)
         geo = geo_errors(gt_all, pred_all, geo_crs, iou_threshold=iou_threshold)
+        if degrees:  # the numbers stay (a small local grid is possible), flagged as such
+            geo["suspect"] = "x, y look like lon/lat degrees, read as metres of --geo-crs"
         if geo.get("matches") and geo.get("median_m", 0) > 10_000:
             # boxes that match in the frame but lie kilometres apart on the ground: the two files'
             # x, y are in different CRSs (a prediction on a UTM map against lon/lat ground truth
@@ -285,6 +288,7 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
                + (", corrected ground truth" if fix_gt else "") + ")")
     if geo is not None:
         click.echo(f"geo error over {geo['matches']} matched boxes: median {geo['median_m']:.2f} m, "
-                   f"mean {geo['mean_m']:.2f} m, 90% {geo['p90_m']:.2f} m")
+                   f"mean {geo['mean_m']:.2f} m, 90% {geo['p90_m']:.2f} m"
+                   + (f" ({geo['suspect']}: see the warning)" if "suspect" in geo else ""))
     if any(np.isnan(float(c[k])) for k in ("HOTA", "MOTA", "IDF1")):
         log.warning("some scores are undefined (empty ground truth or predictions)")

@@ -193,8 +193,11 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
     lists = ["frames", "times_s", "observed", "speeds_mps"]
     data = [np.array([f["properties"][k] for f in feats]) for k in scalar]
     data += [np.array([json.dumps(f["properties"][k]) for f in feats], dtype=object) for k in lists]
-    pyogrio.raw.write(tmp, geoms, data, scalar + lists, layer="tracks", driver="GPKG",
-                      geometry_type="LineString", crs="EPSG:4326")
+    from .geotable import gpkg_date
+
+    with gpkg_date():
+        pyogrio.raw.write(tmp, geoms, data, scalar + lists, layer="tracks", driver="GPKG",
+                          geometry_type="LineString", crs="EPSG:4326")
     pts, cols = [], {k: [] for k in ("id", "frame", "time_s", "observed", "speed_mps")}
     for f in feats:
         p = f["properties"]
@@ -206,8 +209,10 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
             cols["time_s"].append(p["times_s"][i])
             cols["observed"].append(int(p["observed"][i]))
             cols["speed_mps"].append(p["speeds_mps"][i])
-    pyogrio.raw.write(tmp, np.array(pts, dtype=object), [np.asarray(v) for v in cols.values()],
-                      list(cols), layer="track_points", driver="GPKG", geometry_type="Point",
-                      crs="EPSG:4326", append=True)
+    with gpkg_date():
+        pyogrio.raw.write(tmp, np.array(pts, dtype=object),
+                          [np.asarray(v) for v in cols.values()], list(cols),
+                          layer="track_points", driver="GPKG", geometry_type="Point",
+                          crs="EPSG:4326", append=True)
     tmp.replace(path)
     return path

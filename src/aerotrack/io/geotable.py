@@ -338,6 +338,31 @@ def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
                               for c in COLUMNS) + "\n")
 
 
+@contextlib.contextmanager
+def gpkg_date():
+    """GDAL stamps a GeoPackage's ``gpkg_contents.last_change`` with the time of writing, so two
+    identical runs gave different files; with ``SOURCE_DATE_EPOCH`` set (the reproducible-builds
+    convention: seconds since 1970, UTC) that time is used instead, and the files are equal."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if not epoch:
+        yield
+        return
+    import datetime
+
+    from pyogrio import set_gdal_config_options
+
+    try:
+        when = datetime.datetime.fromtimestamp(int(epoch), datetime.UTC)
+    except (ValueError, OverflowError, OSError):
+        raise InputError(f"SOURCE_DATE_EPOCH={epoch!r}: not a number of seconds since "
+                         "1970-01-01") from None
+    set_gdal_config_options({"OGR_CURRENT_DATE": when.strftime("%Y-%m-%dT%H:%M:%S.000Z")})
+    try:
+        yield
+    finally:
+        set_gdal_config_options({"OGR_CURRENT_DATE": None})
+
+
 def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
     try:
         from pyogrio.raw import write
@@ -359,8 +384,9 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
             from pyproj import CRS
 
             crs = CRS.from_user_input(crs_name).to_wkt()
-        write(str(tmp), geom, data, names, layer="observations", driver="GPKG",
-              geometry_type="Point", crs=crs)
+        with gpkg_date():
+            write(str(tmp), geom, data, names, layer="observations", driver="GPKG",
+                  geometry_type="Point", crs=crs)
         os.replace(tmp, path)
     except (OSError, RuntimeError, ValueError) as exc:  # pyogrio's errors are RuntimeErrors
         with contextlib.suppress(OSError):
