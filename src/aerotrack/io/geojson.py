@@ -47,27 +47,47 @@ def _merge(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None) -> np.nda
     return rows[keep] if len(rows) else rows
 
 
-def vertex_speeds(lonlat: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Speed at each vertex, metres per second, from geodesic distances (WGS 84 ellipsoid).
+#: Width of the centred window of :func:`window_motion`, seconds (``observations.csv`` uses the
+#: same): per-vertex differences turned half a metre of box jitter at 30 frames/s into 30 m/s.
+SPEED_WINDOW_S = 0.5
 
-    Central differences inside the line, one-sided at its ends: ``(d(i-1, i) + d(i, i+1)) /
-    (t[i+1] - t[i-1])``. (N, 2) lon/lat degrees and (N,) seconds in; (N,) out (0 for one vertex).
+
+def window_motion(lonlat: np.ndarray, times: np.ndarray, smooth_s: float = SPEED_WINDOW_S
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Ground speed (m/s) and compass azimuth (degrees clockwise from true north) at each vertex
+    of one track, over a centred window of ``smooth_s`` seconds (geodesic, WGS 84).
+
+    The window's ends are the first and last vertices within ``smooth_s / 2`` of the vertex
+    (widened to its neighbours when none is); (N, 2) lon/lat degrees and increasing (N,)
+    seconds in; NaN where a vertex has no neighbour.
     """
     from pyproj import Geod
 
     n = len(lonlat)
+    speed = np.full(n, np.nan)
+    azimuth = np.full(n, np.nan)
     if n < 2:
-        return np.zeros(n)
-    _, _, d = Geod(ellps="WGS84").inv(lonlat[:-1, 0], lonlat[:-1, 1], lonlat[1:, 0], lonlat[1:, 1])
-    d = np.asarray(d, dtype=np.float64)
-    dt = np.diff(times)
-    out = np.empty(n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out[0] = d[0] / dt[0]
-        out[-1] = d[-1] / dt[-1]
-        if n > 2:
-            out[1:-1] = (d[:-1] + d[1:]) / (times[2:] - times[:-2])
-    return np.where(np.isfinite(out), out, 0.0)
+        return speed, azimuth
+    tt = np.asarray(times, dtype=np.float64)
+    half = smooth_s / 2.0
+    lo = np.searchsorted(tt, tt - half - 1e-9, side="left")
+    hi = np.searchsorted(tt, tt + half + 1e-9, side="right") - 1
+    lo = np.where(hi == lo, np.maximum(lo - 1, 0), lo)
+    hi = np.where(hi == lo, np.minimum(hi + 1, n - 1), hi)
+    ok = hi > lo
+    az, _, dist = Geod(ellps="WGS84").inv(lonlat[lo[ok], 0], lonlat[lo[ok], 1],
+                                          lonlat[hi[ok], 0], lonlat[hi[ok], 1])
+    speed[ok] = np.asarray(dist) / (tt[hi[ok]] - tt[lo[ok]])
+    azimuth[ok] = np.mod(np.asarray(az), 360.0)
+    return speed, azimuth
+
+
+def vertex_speeds(lonlat: np.ndarray, times: np.ndarray, smooth_s: float = SPEED_WINDOW_S
+                  ) -> np.ndarray:
+    """Speed at each vertex, metres per second: :func:`window_motion`'s (0 where undefined), as
+    ``observations.csv``'s ``speed_mps``. (N, 2) lon/lat degrees and (N,) seconds in."""
+    speed, _ = window_motion(np.asarray(lonlat, dtype=np.float64), times, smooth_s)
+    return np.where(np.isfinite(speed), speed, 0.0)
 
 
 def wrap_lon(lonlat: np.ndarray) -> np.ndarray:
@@ -147,7 +167,9 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
                     "mean_speed_mps": round(float(np.mean(speeds)), 3) if len(speeds) else 0.0,
                     "frames": frames.tolist(),
                     "times_s": np.round(times, 4).tolist(),
-                    "observed": observed.tolist(),
+                    # 0/1, not JSON booleans: GDAL reads a list of booleans as a boolean
+                    # integer list that pyogrio and geopandas could not read (the whole file failed)
+                    "observed": observed.astype(int).tolist(),
                     "speeds_mps": np.round(speeds, 3).tolist(),
                     "conf": np.round(r[:, 6], 4).tolist(),
                 },

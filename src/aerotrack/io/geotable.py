@@ -150,6 +150,8 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     """
     from pyproj import CRS, Geod, Transformer
 
+    from .geojson import window_motion
+
     if geomap is None:
         raise InputError("observation table: needs a map (--map) for lon/lat and the output CRS")
     if not fps > 0:
@@ -200,7 +202,6 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     t = (frame - 1) / float(fps)
     speed = np.full(n, np.nan)
     heading = np.full(n, np.nan)
-    half = smooth_s / 2.0
     starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
     ends = np.r_[starts[1:], n]
     for s, e in zip(starts, ends):
@@ -211,16 +212,9 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         idx = idx[first]
         if len(idx) < 2:
             continue
-        tt = t[idx]
-        lo = np.searchsorted(tt, tt - half - 1e-9, side="left")
-        hi = np.searchsorted(tt, tt + half + 1e-9, side="right") - 1
-        lo = np.where(hi == lo, np.maximum(lo - 1, 0), lo)
-        hi = np.where(hi == lo, np.minimum(hi + 1, len(tt) - 1), hi)
-        ok = hi > lo
-        az, _, dist = geod.inv(lonlat[idx[lo[ok]], 0], lonlat[idx[lo[ok]], 1],
-                               lonlat[idx[hi[ok]], 0], lonlat[idx[hi[ok]], 1])
-        v = np.asarray(dist) / (tt[hi[ok]] - tt[lo[ok]])
-        hd = np.where(v >= min_heading_speed_mps, np.mod(np.asarray(az), 360.0), np.nan)
+        v, az = window_motion(lonlat[idx], t[idx], smooth_s)
+        ok = np.isfinite(v)
+        v, hd = v[ok], np.where(v[ok] >= min_heading_speed_mps, az[ok], np.nan)
         # spread the per-frame values to every row of that frame in this track
         per_frame = dict(zip(frame[idx[ok]].tolist(), zip(v.tolist(), hd.tolist())))
         for i in range(s, e):
