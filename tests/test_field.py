@@ -497,6 +497,16 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path, monkeypatch):
                                        predicted=pred, homographies=homs, formats=("parquet",))
         t = pq.read_table(pout["parquet"])
         assert t.schema.metadata[b"crs"] == UTM11.encode()
+        # GeoParquet: a WKB point geometry in the output CRS, the CRS as PROJJSON (it was plain
+        # Parquet, which geopandas.read_parquet and GDAL refused as a layer)
+        geo = json.loads(t.schema.metadata[b"geo"])
+        col = geo["columns"][geo["primary_column"]]
+        assert col["encoding"] == "WKB" and CRS.from_json_dict(col["crs"]).to_epsg() == 32611
+        px, py = np.frombuffer(t.column("geometry")[0].as_py()[-16:], "<f8")
+        assert (px, py) == pytest.approx(tuple(_utm(lon[0], lat[0])[0]), abs=0.01)
+        if "Parquet" in pyogrio.list_drivers():  # GDAL opens it as a point layer
+            info = pyogrio.read_info(pout["parquet"])
+            assert info["features"] == n and "32611" in info["crs"]
         assert t.column("speed_mps")[10].as_py() == pytest.approx(float(r["speed_mps"]), abs=1e-3)
         assert t.column("kind").to_pylist().count("predicted") == 10
     # What each tracks.csv row is, when the caller knows (bridged and held rows are not seen)

@@ -196,7 +196,7 @@ def test_geojson_known_answer_and_pyogrio(tmp_path):
     assert info["features"] == 3 and "4326" in info["crs"]
     assert info["geometry_type"] == "LineString"
     # the features themselves read (a JSON list of booleans made pyogrio, and geopandas, fail)
-    meta, _, geom, fields = pyogrio.raw.read(path)
+    meta, _, geom, _ = pyogrio.raw.read(path)
     assert len(geom) == 3 and "observed" in list(meta["fields"])
     gpkg = write_tracks_gpkg(tmp_path / "tracks.gpkg", res.tracks, res.predicted, gm, FPS)
     assert pyogrio.read_info(gpkg, layer="tracks")["features"] == 3

@@ -26,8 +26,9 @@ diagonal in the frame (an axis-aligned box cannot tell its orientation). Without
 the frame they are empty, or ``frame_gsd`` x the box sides when a frame scale is given.
 
 The GeoPackage (``pyogrio``, extra ``gis``) holds one point layer ``observations`` in the output
-CRS; the Parquet file (written when ``pyarrow`` is installed) holds the same columns with the CRS in
-its schema metadata.
+CRS; the Parquet file (written when ``pyarrow`` is installed) is GeoParquet 1.0: the same columns
+plus a WKB point ``geometry`` in the output CRS (``geo`` metadata with the CRS as PROJJSON, so
+``geopandas.read_parquet`` and GDAL open it as a layer; the short CRS name is also in a ``crs`` key).
 """
 
 from __future__ import annotations
@@ -389,11 +390,26 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
 
 
 def _write_parquet(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
+    import json
+
     import pyarrow as pa
     import pyarrow.parquet as pq
+    from pyproj import CRS
 
-    table = pa.table({c: (cols[c].astype(str) if cols[c].dtype == object else cols[c])
-                      for c in COLUMNS}).replace_schema_metadata({"crs": crs_name})
+    x, y = np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64)
+    geometry = [struct.pack("<BIdd", 1, 1, a, b) if np.isfinite(a) and np.isfinite(b) else None
+                for a, b in zip(x, y)]
+    data = {c: (cols[c].astype(str) if cols[c].dtype == object else cols[c]) for c in COLUMNS}
+    data["geometry"] = pa.array(geometry, type=pa.binary())
+    ok = np.isfinite(x) & np.isfinite(y)
+    # GeoParquet 1.0 (geopandas.read_parquet, GDAL): WKB points, the CRS as PROJJSON
+    geo = {"version": "1.0.0", "primary_column": "geometry",
+           "columns": {"geometry": {
+               "encoding": "WKB", "geometry_types": ["Point"],
+               "crs": json.loads(CRS.from_user_input(crs_name).to_json()),
+               **({"bbox": [float(x[ok].min()), float(y[ok].min()), float(x[ok].max()),
+                            float(y[ok].max())]} if ok.any() else {})}}}
+    table = pa.table(data).replace_schema_metadata({"geo": json.dumps(geo), "crs": crs_name})
     with atomic_write(path, "wb") as fh:
         pq.write_table(table, fh)
 
