@@ -138,7 +138,9 @@ def test_track_mixed_sizes_names_file(tmp_path, capsys):
     ("nan", "1,-1,10,nan,8,4,1\n", "NaN"),
     ("neg", "1,-1,10,10,-8,4,1\n", "negative"),
     ("text", "1,-1,ten,10,8,4,1\n", "non-numeric"),
-    ("dup", "1,5,10,10,8,4,1\n1,5,10,10,8,4,1\n", "repeated"),
+    # an empty cell (pandas writes NaN so) shifted the later columns: wrong boxes, exit 0
+    ("emptyid", "1,,133.9,148.0,104.9,42.5,0.6,-1,-1,-1\n", "line 1: empty field (column 2, id)"),
+    ("emptyconf", "1,-1,10,10,8,4,,-1\n", "empty field (column 7, conf)"),
     ("frame0", "0,-1,10,10,8,4,1\n", "frame"),
     ("zero", "1,-1,10,10,0,4,1\n", "zero-size"),
     ("binary", "\x00\x01\x02garbage\n", "line 1"),
@@ -501,8 +503,62 @@ def test_track_implausible_detections(tmp_path, capsys, row, frag):
     with pytest.raises(InputError, match="row 2"):
         check_detections(read_mot(p, strict=True), p)
     if not row.startswith("100000000"):  # the CLI path (the frame case would hang before the fix)
-        expect_error(capsys, ["--detections", "row 2", frag], "track", "--detections", p, "--out",
+        expect_error(capsys, ["--detections", "line 2", frag], "track", "--detections", p, "--out",
                      tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_track_detections_messages_name_the_file_line(tmp_path, capsys):
+    """Messages named the row's place after sorting by frame: 'row 3' for line 1 here."""
+    p = tmp_path / "d.txt"
+    p.write_text("frame,id,x,y,w,h,conf\n3,-1,10,10,8,0,0.9\n1,-1,10,10,8,4,0.9\n"
+                 "2,-1,10,10,8,4,0.9\n")
+    expect_error(capsys, ["line 2 has a zero-size box"], "track", "--detections", p, "--out",
+                 tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_track_detections_from_a_real_detector(tmp_path, capsys, video):
+    """What a detector's file holds: class ids in the id column (ignored, as documented: repeated
+    (frame, id) pairs were refused), frames from 0 (--detections-zero-based), low-confidence boxes
+    (--min-conf drops them: every box was tracked, the option did nothing), confidences in
+    percent, boxes of another image size; each odd thing is said."""
+    from aerotrack.io.mot import read_mot
+
+    rows = ["0,0,10,10,8,4,0.9", "0,0,40,40,8,4,0.1", "1,0,11,10,8,4,0.9", "1,0,41,40,8,4,0.1",
+            "2,0,12,10,8,4,0.9", "2,0,42,40,8,4,0.1"]
+    p = tmp_path / "yolo.txt"
+    p.write_text("\n".join(rows) + "\n")
+    expect_error(capsys, ["a 0-based file?", "track: --detections-zero-based"], "track",
+                 "--detections", p, "--out", tmp_path / "o", out_dir=tmp_path / "o")
+    code, _, err = run_cli(capsys, "track", "--detections", p, "--detections-zero-based",
+                           "--out", tmp_path / "a")
+    assert code == 0, err
+    dets = read_mot(tmp_path / "a" / "detections.csv")
+    assert sorted(set(dets[:, 0])) == [1, 2, 3] and len(dets) == 6
+    assert "confidence below 0.25" in err, err  # half of them: said, with the option to use
+    code, _, err = run_cli(capsys, "track", "--detections", p, "--detections-zero-based",
+                           "--min-conf", "0.5", "--out", tmp_path / "b")
+    assert code == 0, err
+    assert len(read_mot(tmp_path / "b" / "detections.csv")) == 3
+    assert "min_conf = 0.5" in (tmp_path / "b" / "config.toml").read_text()
+    expect_error(capsys, ["--min-conf 1.5"], "track", "--detections", p, "--min-conf", "1.5",
+                 "--out", tmp_path / "c", out_dir=tmp_path / "c")
+    # percent confidences, boxes beyond the frame (the video is 160x120), every 5th frame
+    q = tmp_path / "odd.txt"
+    q.write_text("".join(f"{f},-1,{500 + f},300,8,4,90\n" for f in range(1, 60, 5)))
+    code, _, err = run_cli(capsys, "track", video, "--detections", q, "--out", tmp_path / "d")
+    assert code == 0, err
+    assert "outside [0, 1]" in err and "outside the 160x120 frame" in err, err
+    assert "5 apart" in err, err
+    # normalised coordinates
+    r = tmp_path / "norm.txt"
+    r.write_text("".join(f"{f},-1,0.5,0.5,0.02,0.01,0.9\n" for f in range(1, 4)))
+    code, _, err = run_cli(capsys, "track", "--detections", r, "--out", tmp_path / "e")
+    assert code == 0 and "normalised" in err, err
+    # an empty file: a complete, empty result, said
+    e = tmp_path / "empty.txt"
+    e.write_text("")
+    code, _, err = run_cli(capsys, "track", "--detections", e, "--out", tmp_path / "f")
+    assert code == 0 and "no detections in the file" in err, err
 
 
 def test_track_detections_after_the_video_warn(tmp_path, capsys, video):
@@ -1039,3 +1095,25 @@ def test_batch_messages_name_their_input(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "WARNING: clip.mp4: something about a frame" in err
     assert "WARNING: after" in err
+
+
+def test_api_detections_below_min_conf_are_dropped(tmp_path, capsys):
+    """``detection.min_conf`` applies to given detections in the Python API too (it applied to
+    the built-in detector only), and ``track --from`` a detections-only run does not warn about
+    colour histograms that run never had."""
+    from aerotrack.config import load_config
+    from aerotrack.pipeline import run
+
+    rows = np.array([[f, -1, 10 + 3 * f, 10, 8, 4, c, -1, -1, -1]
+                     for f in range(1, 31) for c in (0.9, 0.2)], float)
+    rows[1::2, 2] += 60  # the low-confidence boxes drive beside the others
+    full = run(detections=rows, fps=10)
+    kept = run(detections=rows, fps=10, config=load_config(overrides=["detection.min_conf=0.5"]))
+    assert sum(len(d) for d in full.detections) == 60
+    assert sum(len(d) for d in kept.detections) == 30 and len(kept.tracks) == 1
+    p = tmp_path / "d.txt"
+    p.write_text("".join(",".join(f"{v:g}" for v in r) + "\n" for r in rows))
+    code, _, err = run_cli(capsys, "track", "--detections", p, "--out", tmp_path / "a")
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "b")
+    assert code == 0 and "colour histograms" not in err, err

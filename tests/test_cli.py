@@ -51,7 +51,7 @@ def test_track_map_without_init(tmp_path):
     ("1,-1,1,1,5\n", "line 1"),
     ("1,-1,1,1,-5,5,1\n", "negative"),
     ("1,-1,x,1,5,5,1\n", "non-numeric"),
-    ("1,3,1,1,5,5,1\n1,3,1,1,5,5,1\n", "repeated"),
+    ("1,,1,1,5,5,1\n", "empty field"),
 ])
 def test_track_bad_detections(tmp_path, text, frag):
     d = tmp_path / "d.txt"

@@ -556,7 +556,8 @@ class DetectionConfig:
         commercial tool at one size per track, are about 2 px wider than the vehicles); truck4
         unchanged.
     min_conf : float
-        Detections with a lower confidence are dropped.
+        Detections with a lower confidence are dropped: the built-in detector's, and the boxes
+        of ``--detections`` (their conf column clipped to [0, 1]; ``track --min-conf``).
     persist : bool
         Multi-frame persistence for small, faint movers (``detection.persistence``): a
         motion-compensated leaky sum of each frame's weak residual reports targets whose

@@ -304,6 +304,11 @@ class Pipeline:
     def _external_detections(self, frame: Frame | None, reg: Registration | None) -> Detections:
         idx = frame.index
         rows = self.external.get(idx)
+        if rows is not None and len(rows):
+            # the given confidences count: boxes below detection.min_conf are dropped, as the
+            # built-in detector's are (they were all tracked, a detector's low-confidence false
+            # alarms included)
+            rows = rows[np.clip(rows[:, 6], 0.0, 1.0) >= self.config.detection.min_conf]
         if rows is None or not len(rows):
             return Detections.empty(idx)
         boxes = rows[:, 2:6].copy()
@@ -946,7 +951,9 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
 
     config = config or Config()
     regs, dets, _ = load_chunks(stages)
-    if any(len(d) and d.hist is None for d in dets):
+    no_frames = not regs  # --detections without INPUT: no registrations, no frames
+    if any(len(d) and d.hist is None for d in dets) and not no_frames:  # (without frames, the
+        # first run compared motion only too: nothing to say)
         log.warning("%s: the cached detections carry no colour histograms (a --workers run keeps "
                     "them light): association compares motion only", stages)
     pipe = Pipeline(config, fps, geomap=geomap, seed=seed, detections={},

@@ -110,7 +110,7 @@ class GracefulStop:
 
 def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
                 telemetry_path=None, intrinsics_path=None, start: int = 1, config=None,
-                telemetry_defaults=()):
+                telemetry_defaults=(), detections_zero_based: bool = False):
     """Open and validate every input before any work starts (so bad input fails fast).
 
     With ``start`` > 1 (``--frames A:B``) the map placement returned is frame A's: the
@@ -142,8 +142,10 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     source = open_source(input_path, fps) if input_path is not None else None
     dets = None
     if detections_path is not None:
-        dets = read_mot(detections_path, option="--detections", strict=True)
-        check_detections(dets, detections_path, source)
+        dets, lines = read_mot(detections_path, option="--detections", strict=True,
+                               zero_based=detections_zero_based, detections=True, lines=True)
+        check_detections(dets, detections_path, source, lines=lines,
+                         min_conf=config.detection.min_conf if config is not None else None)
     undistort = None
     if intrinsics_path is not None:
         from ..geo.lens import Undistorter, read_intrinsics
@@ -223,11 +225,16 @@ MAX_FRAME = 10_000_000
 MAX_COORD = 1e8
 
 
-def check_detections(dets, path, source=None) -> None:
-    """Refuse ``--detections`` rows no video can have; warn about rows after the video's end.
+def check_detections(dets, path, source=None, *, lines=None, min_conf: float | None = None
+                     ) -> None:
+    """Refuse ``--detections`` rows no video can have; warn about what is likely a mistake.
 
     ``dets`` is the (N, >= 7) array of :func:`~aerotrack.io.mot.read_mot` (1-based frames, frame
-    pixels); its rows are the file's data rows in order, so messages name them by row number.
+    pixels), ``lines`` the file's line number of each row (messages name them; without it, the
+    row's place). Warned: an empty file, rows after the video's end, boxes mostly outside the
+    frame (made on another image size), confidences outside [0, 1] (clipped), the boxes below
+    ``min_conf`` (dropped by the pipeline, ``detection.min_conf``), many low-confidence boxes,
+    tiny normalised boxes, and frame numbers that step by more than 1.
     """
     import numpy as np
 
@@ -235,27 +242,73 @@ def check_detections(dets, path, source=None) -> None:
 
     label = f"--detections {path}"
     if not len(dets):
+        log.warning("%s: no detections in the file: nothing to track", label)
         return
+
+    def line(k: int) -> str:
+        return f"line {int(lines[k])}" if lines is not None else f"row {k + 1}"
+
     bad = (dets[:, 4] <= 0) | (dets[:, 5] <= 0)
     if bad.any():
-        raise InputError(f"{label}: row {int(bad.argmax()) + 1} has a zero-size box")
+        raise InputError(f"{label}: {line(int(bad.argmax()))} has a zero-size box")
     bad = dets[:, 0] > MAX_FRAME
     if bad.any():
         r = int(bad.argmax())
-        raise InputError(f"{label}: row {r + 1} has frame {dets[r, 0]:.0f}, beyond any video "
+        raise InputError(f"{label}: {line(r)} has frame {dets[r, 0]:.0f}, beyond any video "
                          f"(more than {MAX_FRAME}); frames must be 1-based frame numbers, not times")
     bad = (np.abs(dets[:, 2:4]) > MAX_COORD).any(axis=1) | (dets[:, 4:6] > MAX_COORD).any(axis=1)
     if bad.any():
         r = int(bad.argmax())
-        raise InputError(f"{label}: row {r + 1} has a box beyond any image (a coordinate or size "
+        raise InputError(f"{label}: {line(r)} has a box beyond any image (a coordinate or size "
                          f"over {MAX_COORD:.0e})")
+    n = len(dets)
     count = getattr(source, "count", None) if source is not None else None
     if count:
         late = dets[:, 0] > count
         if late.any():
             log.warning("%s: %d row(s) after the input's last frame %d are ignored "
-                        "(first: row %d, frame %d)", label, int(late.sum()), count,
-                        int(late.argmax()) + 1, int(dets[late.argmax(), 0]))
+                        "(first: %s, frame %d)", label, int(late.sum()), count,
+                        line(int(late.argmax())), int(dets[late.argmax(), 0]))
+    size = getattr(source, "size", None) if source is not None else None
+    if size:
+        w, h = size
+        cx, cy = dets[:, 2] + dets[:, 4] / 2, dets[:, 3] + dets[:, 5] / 2
+        out = (cx < 0) | (cx > w) | (cy < 0) | (cy > h)
+        if out.mean() > 0.05:
+            log.warning("%s: %d of %d boxes (%.0f%%) have their centre outside the %dx%d frame "
+                        "(first: %s): made on another image size, or another video?", label,
+                        int(out.sum()), n, 100 * out.mean(), w, h, line(int(out.argmax())))
+    conf = dets[:, 6]
+    outside = (conf < 0) | (conf > 1)
+    if outside.any():
+        log.warning("%s: %d confidence(s) outside [0, 1] (from %g to %g; first: %s) are clipped "
+                    "to it", label, int(outside.sum()), float(conf.min()), float(conf.max()),
+                    line(int(outside.argmax())))
+    conf = np.clip(conf, 0.0, 1.0)
+    if min_conf is not None and min_conf > 0:
+        low = conf < min_conf
+        if low.all():
+            log.warning("%s: every box's confidence is below detection.min_conf %g (--min-conf): "
+                        "nothing is tracked", label, min_conf)
+        elif low.any():
+            log.info("%s: %d of %d boxes have a confidence below detection.min_conf %g "
+                     "(--min-conf) and are dropped", label, int(low.sum()), n, min_conf)
+        conf = conf[~low]
+    if len(conf) and np.mean(conf < 0.25) > 0.2:
+        log.warning("%s: %.0f%% of the boxes kept have a confidence below 0.25; each is tracked "
+                    "like any other (false alarms become tracks): --min-conf drops them",
+                    label, 100 * np.mean(conf < 0.25))
+    if np.median(np.maximum(dets[:, 4], dets[:, 5])) < 1.0:
+        log.warning("%s: the boxes are under a pixel (median longer side %.3g): coordinates "
+                    "normalised to [0, 1]? aerotrack needs frame pixels", label,
+                    float(np.median(np.maximum(dets[:, 4], dets[:, 5]))))
+    frames = np.unique(dets[:, 0].astype(np.int64))
+    if len(frames) >= 10:
+        step = int(np.gcd.reduce(np.diff(frames)))
+        if step > 1:
+            log.warning("%s: every frame number is %d apart from the next: detections on every "
+                        "%dth frame only, or times instead of frame numbers? (frames are 1-based "
+                        "frame numbers; frames between are bridged or missed)", label, step, step)
 
 
 def _check_overlap(size, H_init, geomap, init_label) -> None:
@@ -339,8 +392,14 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder (new, or empty; see --overwrite/--resume).")
 @click.option("--detections", "detections_path", type=click.Path(path_type=Path), default=None,
-              help="MOTChallenge detections (frame,id,x,y,w,h,conf; 1-based) replacing the built-in "
-                   "detector. Without INPUT: association alone in image coordinates.")
+              help="MOTChallenge detections (frame,id,x,y,w,h,conf; 1-based; the id column is "
+                   "ignored) replacing the built-in detector. Without INPUT: association alone "
+                   "in image coordinates.")
+@click.option("--detections-zero-based", "detections_zero_based", is_flag=True,
+              help="--detections numbers frames from 0 (as many detectors do); 1 is added.")
+@click.option("--min-conf", "min_conf", type=float, default=None,
+              help="Drop detections whose confidence is below this (0-1; sets "
+                   "detection.min_conf, default 0.05): for a detector's low-confidence boxes.")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
 @map_init_option
@@ -385,7 +444,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                   seed, config_path, overrides, telemetry_path, telemetry_defaults,
                   intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
                   overwrite, resume, workers, scheduler, from_dir=None, roads_path=None,
-                  stabilised=False):
+                  stabilised=False, detections_zero_based=False, min_conf=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -413,6 +472,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     from ..outputs import write_outputs
     from ..pipeline import check_config, run
 
+    if min_conf is not None:
+        if not 0.0 <= min_conf <= 1.0:
+            raise InputError(f"--min-conf {min_conf}: must be a confidence between 0 and 1")
+        overrides = (*overrides, f"detection.min_conf={min_conf!r}")
     config = load_config(config_path, overrides)
     if resume and overwrite:
         raise InputError("--resume and --overwrite: give one (continue the run in --out, or "
@@ -424,7 +487,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             ("--telemetry", telemetry_path), ("--telemetry-default", telemetry_defaults),
             ("--intrinsics", intrinsics_path),
             ("--roi", roi_paths), ("--ignore-region", ignore_paths), ("--resume", resume),
-            ("--workers", workers), ("--scheduler", scheduler), ("--stabilised", stabilised))
+            ("--workers", workers), ("--scheduler", scheduler), ("--stabilised", stabilised),
+            ("--detections-zero-based", detections_zero_based))
             if value]
         if given:
             raise InputError(f"--from {from_dir}: re-runs association on that run's cached "
@@ -442,7 +506,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
-        intrinsics_path, start=start, config=config, telemetry_defaults=telemetry_defaults)
+        intrinsics_path, start=start, config=config, telemetry_defaults=telemetry_defaults,
+        detections_zero_based=detections_zero_based)
     roads = load_roads(roads_path, geomap, config)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_out_crs(out_crs, geomap)
@@ -468,6 +533,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "fps": fps, "gsd": gsd, "seed": seed, "frames": [start, stop], "stride": stride,
         "min_speed": min_speed, "config": dumps_config(config),
         **({"stabilised": True} if stabilised else {}),  # absent: run.json of earlier runs match
+        **({"detections_zero_based": True} if detections_zero_based else {}),
     }
     check_overwrite(out_dir, overwrite)
     if resume and finished_run(out_dir, input_path, detections_path, seed, manifest):

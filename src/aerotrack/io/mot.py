@@ -49,7 +49,18 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
         s = line.strip()
         if not s or s.startswith("#"):
             continue
-        parts = s.replace(",", " ").split()
+        if "," in s:
+            parts = [p.strip() for p in s.split(",")]
+            while parts and not parts[-1]:  # a trailing comma
+                parts.pop()
+            if "" in parts:  # an empty cell (pandas writes NaN so): splitting on runs of
+                # separators shifted every later column and the row was read with wrong boxes
+                k = parts.index("")
+                raise FormatError(f"{name} line {lineno}: empty field (column {k + 1}"
+                                  + (f", {MOT_COLUMNS[k]}" if k < len(MOT_COLUMNS) else "") + ")")
+            parts = [q for p in parts for q in p.split()]
+        else:
+            parts = s.split()
         if first and all(_HEADER_FIELD.match(p) for p in parts):
             first = False
             continue
@@ -68,8 +79,8 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
         if vals[0] < lowest or not float(vals[0]).is_integer():
             kind = "a non-negative integer (0-based)" if zero_based else \
                 "a positive integer (1-based)"
-            hint = ("; a 0-based file? (eval: --zero-based / --gt-zero-based; report: "
-                    "--gt-zero-based)"
+            hint = ("; a 0-based file? (track: --detections-zero-based; eval: --zero-based / "
+                    "--gt-zero-based; report: --gt-zero-based)"
                     if not zero_based and vals[0] == 0 else "")
             raise FormatError(f"{name} line {lineno}: frame must be {kind}, got {parts[0]}{hint}")
         if zero_based:
@@ -101,8 +112,8 @@ def repeated_frame_id(rows: np.ndarray) -> np.ndarray:
 
 
 def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True,
-             allow_empty: bool = True, zero_based: bool = False, tracks: bool = False
-             ) -> np.ndarray:
+             allow_empty: bool = True, zero_based: bool = False, tracks: bool = False,
+             detections: bool = False, lines: bool = False):
     """Read a MOTChallenge file into an (N, 10) array sorted by (frame, id), 1-based frames.
 
     Parameters
@@ -122,6 +133,11 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
     tracks : bool
         The rows are tracks (``eval --pred``, ``predict``): every id must be >= 0. A file of
         detections (id -1) would otherwise be scored as one track with many boxes a frame.
+    detections : bool
+        The rows are detections (``--detections``): the id column is ignored (set to -1; a
+        detector's class id there repeated (frame, id) pairs, which were refused).
+    lines : bool
+        Also return the file's line number of each (sorted) row, for messages.
 
     Raises
     ------
@@ -138,6 +154,8 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{label}: cannot read ({exc})") from None
     data, linenos = _parse(text, label, zero_based=zero_based)
+    if detections and len(data):
+        data[:, 1] = -1.0
     if not len(data) and not allow_empty:
         raise InputError(f"{label}: no rows")
     shown = "0-based " if zero_based else ""
@@ -157,7 +175,7 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
             raise FormatError(f"{label} line {linenos[k]}: repeated (frame, id) = ({frame}, "
                               f"{int(data[k, 1])}){' (' + shown.strip() + ' frame)' if shown else ''}")
     order = np.lexsort((data[:, 1], data[:, 0])) if len(data) else np.zeros(0, int)
-    return data[order]
+    return (data[order], linenos[order]) if lines else data[order]
 
 
 def format_mot_rows(rows: Iterable[Iterable[float]]) -> str:
