@@ -494,7 +494,15 @@ def test_track_from_keeps_the_runs_roads_and_its_own_folder(scene, tmp_path, cap
         assert code == 2 and "--out-crs" in err and not bad.exists(), err
     code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "far", "--out-crs",
                            "EPSG:32633")
-    assert code == 0 and "distorted" in err, err
+    assert code == 0 and "distorted" in err and "area of use is lon" in err, err
+    assert "Between" not in err, err  # the CRS's paragraph of places is left out
+    # Web Mercator: within its area of use, but its distances are 1.24x the ground's here
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "wm", "--out-crs",
+                           "EPSG:3857")
+    assert code == 0 and "1.24x the ground's" in err, err
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "utm", "--out-crs",
+                           "EPSG:32611")
+    assert code == 0 and "the ground's" not in err and "distorted" not in err, err
 
 
 def test_roads_and_regions_off_the_map_are_not_silent(scene, tmp_path, capsys):
@@ -544,3 +552,41 @@ def test_roads_and_regions_off_the_map_are_not_silent(scene, tmp_path, capsys):
     assert code == 0, err
     assert (tmp_path / "none" / "observations.csv").read_text().startswith("frame,time_s,id,")
     assert (tmp_path / "none" / "observations.gpkg").is_file()
+
+
+def test_roads_from_a_geopackage_or_shapefile(scene, tmp_path):
+    """Road centre-lines in the formats GIS users keep them (a GeoPackage in UTM, with Z; a
+    Shapefile) read as the same network as the GeoJSON (they were refused: 'cannot read as
+    GeoJSON ('utf-8' codec can't decode ...)')."""
+    pyogrio = pytest.importorskip("pyogrio")
+    import struct
+
+    from pyproj import Transformer
+
+    from aerotrack.geo import GeoMap
+
+    gm = GeoMap(scene / "map.tif")
+    ref = read_roads(scene / "roads.geojson", geomap=gm)
+    doc = json.loads((scene / "roads.geojson").read_text())
+    to_utm = Transformer.from_crs("EPSG:4326", "EPSG:32611", always_xy=True)
+
+    def wkb(coords, z):  # LineString Z (ISO 1002) or LineString, little-endian
+        pts = [to_utm.transform(*c[:2]) for c in coords]
+        if z:
+            return struct.pack("<BII", 1, 1002, len(pts)) + b"".join(
+                struct.pack("<ddd", x, y, 700.0) for x, y in pts)
+        return struct.pack("<BII", 1, 2, len(pts)) + b"".join(struct.pack("<dd", *p) for p in pts)
+
+    lines = [f["geometry"]["coordinates"] for f in doc["features"]
+             if f["geometry"]["type"] == "LineString"]
+    for name, z, kind in (("roads.gpkg", True, "LineString Z"), ("roads.shp", False, "LineString")):
+        geoms = np.array([wkb(c, z) for c in lines], dtype=object)
+        pyogrio.raw.write(str(tmp_path / name), geoms, [np.arange(len(lines))], ["fid_"],
+                          geometry_type=kind, crs="EPSG:32611")
+        net = read_roads(tmp_path / name, geomap=gm)
+        assert len(net.lines) == len(ref.lines) == len(lines)
+        for a, b in zip(net.lines, ref.lines):
+            assert np.abs(np.asarray(a) - np.asarray(b)).max() < 0.01  # map pixels
+    (tmp_path / "junk.bin").write_bytes(b"\x00\x01garbage")
+    with pytest.raises(InputError, match="GDAL vector file"):
+        read_roads(tmp_path / "junk.bin", geomap=gm)

@@ -414,8 +414,9 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @roi_option
 @ignore_option
 @click.option("--roads", "roads_path", type=click.Path(path_type=Path), default=None,
-              help="Road centre-lines (GeoJSON LineStrings, any CRS; needs --map): unobserved "
-                   "vehicles are predicted along the roads.")
+              help="Road centre-lines (GeoJSON LineStrings, any CRS, or a GeoPackage, "
+                   "Shapefile, ... with pyogrio; needs --map): unobserved vehicles are predicted "
+                   "along the roads.")
 @click.option("--min-speed", "min_speed", type=float, default=None,
               help="Drop tracks never faster than this many m/s (parked vehicles).")
 @click.option("--out-crs", "out_crs", default=None,
@@ -746,18 +747,32 @@ def check_out_crs(out_crs: str | None, geomap=None) -> None:
         log.warning("--out-crs %s: without --map there is no observations.csv; ignored", out_crs)
 
     crs = projected_crs(out_crs)
-    area = crs.area_of_use
-    if geomap is None or area is None:
+    if geomap is None:
         return
     import numpy as np
 
     lon, lat = geomap.pixel_to_lonlat(np.array([[geomap.width / 2, geomap.height / 2]]))[0]
+    area = crs.area_of_use
     margin = 1.0  # degrees: a map just across a zone border is fine
-    if not (area.west - margin <= lon <= area.east + margin
-            and area.south - margin <= lat <= area.north + margin):
-        log.warning("--out-crs %s: defined for %s (lon %.0f..%.0f, lat %.0f..%.0f), but the map "
-                    "is at lon %.3f, lat %.3f: its coordinates there are distorted", out_crs,
-                    area.name, area.west, area.east, area.south, area.north, lon, lat)
+    if area is not None and not (area.west - margin <= lon <= area.east + margin
+                                 and area.south - margin <= lat <= area.north + margin):
+        # (area.name is a paragraph of places: "Between 114°W and 108°W, ... Canada - Alberta; ...")
+        log.warning("--out-crs %s: its area of use is lon %.0f..%.0f, lat %.0f..%.0f, but the "
+                    "map is at lon %.3f, lat %.3f: its coordinates there are distorted", out_crs,
+                    area.west, area.east, area.south, area.north, lon, lat)
+        return
+    try:
+        from pyproj import Proj
+
+        f = Proj(crs).get_factors(float(lon), float(lat))
+        scale = max(f.meridional_scale, f.parallel_scale, key=lambda k: abs(k - 1.0))
+    except Exception:  # noqa: BLE001 - a CRS pyproj cannot give factors for: nothing to say
+        return
+    if np.isfinite(scale) and abs(scale - 1.0) > 0.02:
+        # Web Mercator at 36 degrees north: 1.24 (accepted without a word)
+        log.warning("--out-crs %s: distances between its x, y are %.2fx the ground's at the map "
+                    "(lat %.1f); speed_mps and length_m are measured on the ground all the same "
+                    "(the default, the local UTM zone, is within 0.1%%)", out_crs, scale, lat)
 
 
 def load_roads(roads_path, geomap, config):

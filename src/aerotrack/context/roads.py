@@ -31,6 +31,7 @@ import itertools
 import json
 import logging
 import math
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,6 +49,75 @@ __all__ = ["HEDGES", "RoadNetwork", "RoadPrediction", "branch_probabilities", "h
 
 # --------------------------------------------------------------------------------------------------
 # reading
+
+
+def _ogr_document(path: Path, label: str) -> dict:
+    """A file GDAL reads (GeoPackage, Shapefile, FlatGeobuf, ...; its first layer) as the GeoJSON
+    document :func:`read_roads` reads: line geometries and the layer's CRS as a ``crs`` member."""
+    try:
+        from pyogrio.errors import DataSourceError
+        from pyogrio.raw import read
+    except ImportError:
+        raise InputError(f"{label}: not GeoJSON; reading other formats (GeoPackage, Shapefile) "
+                         "needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
+    try:
+        meta, _, wkbs, _ = read(str(path), read_geometry=True, columns=[])
+    except (DataSourceError, OSError, RuntimeError, ValueError) as exc:
+        raise InputError(f"{label}: cannot read as GeoJSON or as a GDAL vector file "
+                         f"({str(exc).splitlines()[0]})") from None
+    geoms = []
+    for b in wkbs if wkbs is not None else []:
+        if b is None:
+            continue
+        try:
+            parts = _wkb_lines(memoryview(bytes(b)), 0)[0]
+        except (struct.error, IndexError, ValueError):
+            raise InputError(f"{label}: a geometry GDAL returned cannot be decoded") from None
+        if parts:
+            geoms.append({"type": "MultiLineString", "coordinates": parts})
+    doc: dict = {"type": "FeatureCollection",
+                 "features": [{"type": "Feature", "geometry": g} for g in geoms]}
+    if meta.get("crs"):
+        doc["crs"] = {"type": "name", "properties": {"name": meta["crs"]}}
+    return doc
+
+
+def _wkb_lines(b: memoryview, at: int) -> tuple[list, int]:
+    """The line parts ((n, 2) coordinate lists) of the WKB geometry at offset ``at``, and the offset
+    after it. LineStrings and MultiLineStrings (ISO or EWKB Z/M flavours, collections of them);
+    other geometry types give no parts."""
+    order = "<" if b[at] == 1 else ">"
+    (code,) = struct.unpack_from(order + "I", b, at + 1)
+    at += 5
+    if code & 0x20000000:  # EWKB SRID
+        at += 4
+    dims = 2 + bool(code & 0x80000000) + bool(code & 0x40000000)
+    code &= 0x0FFFFFFF
+    base, flavour = code % 1000, code // 1000
+    dims += {1: 1, 2: 1, 3: 2}.get(flavour, 0)
+    if base == 1:
+        return [], at + 8 * dims
+    if base == 2:
+        (n,) = struct.unpack_from(order + "I", b, at)
+        vals = struct.unpack_from(order + f"{n * dims}d", b, at + 4)
+        pts = [list(vals[i * dims:i * dims + 2]) for i in range(n)]
+        return [pts], at + 4 + 8 * n * dims
+    if base == 3:  # polygon: skip its rings
+        (rings,) = struct.unpack_from(order + "I", b, at)
+        at += 4
+        for _ in range(rings):
+            (n,) = struct.unpack_from(order + "I", b, at)
+            at += 4 + 8 * n * dims
+        return [], at
+    if base in (4, 5, 6, 7):  # multi-geometries and collections: their members in turn
+        (n,) = struct.unpack_from(order + "I", b, at)
+        at += 4
+        out = []
+        for _ in range(n):
+            parts, at = _wkb_lines(b, at)
+            out += parts
+        return out, at
+    raise ValueError(f"WKB geometry type {code}")
 
 
 def _crs_of(doc: dict, label: str):
@@ -137,9 +207,17 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
     if not p.is_file():
         raise InputError(f"{label}: file not found")
     try:
-        doc = json.loads(p.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{label}: cannot read as GeoJSON ({str(exc).splitlines()[0]})") from None
+        head = p.read_bytes()[:64].lstrip(b"\xef\xbb\xbf \t\r\n")
+    except OSError as exc:
+        raise InputError(f"{label}: cannot read ({exc.strerror})") from None
+    if head[:1] in (b"{", b"[") or p.suffix.lower() in (".geojson", ".json"):
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8-sig"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{label}: cannot read as GeoJSON "
+                             f"({str(exc).splitlines()[0]})") from None
+    else:  # a GeoPackage, Shapefile, ... through GDAL
+        doc = _ogr_document(p, label)
     if not isinstance(doc, dict):
         raise InputError(f"{label}: not a GeoJSON object")
     src = _crs_of(doc, label)
