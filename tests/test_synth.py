@@ -149,14 +149,17 @@ def test_occluders_hide_vehicles():
 
 
 def test_occluder_outlines_agree_with_states(scene):
-    """occluders.geojson (map pixels) decides the occluded state, up to half a map pixel."""
+    """occluders.geojson (its map_px rings) decides the occluded state, up to half a map pixel;
+    its geometry is lon/lat (RFC 7946: it was map pixels, read by GIS tools as degrees)."""
     feats = json.loads((scene / "occluders.geojson").read_text())["features"]
     assert {f["properties"]["kind"] for f in feats} >= {"tree", "overpass"}
     rings = []
     for f in feats:
         g = f["geometry"]
         polys = [g["coordinates"]] if g["type"] == "Polygon" else g["coordinates"]
-        rings += [np.asarray(p[0], np.float32) for p in polys]
+        assert all(-115.3 < x < -115.0 and 36.0 < y < 36.3 for p in polys for x, y in p[0])
+        px = f["properties"]["map_px"]
+        rings += [np.asarray(r, np.float32) for r in px]
     checked = 0
     for s in states(scene / "states.csv"):
         if s["state"] == "outside":

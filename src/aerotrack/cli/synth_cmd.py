@@ -47,9 +47,10 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, gsd_scal
 
     \b
     Writes to --out: frames/000001.jpg..., gt.txt (visible targets), states.csv (every target,
-    visible/occluded/outside), homographies.csv (true frame -> map pixels), map.tif,
-    map_init.txt, map_init_gcps.csv, map_init_lonlat.csv, occluders.csv/.geojson, roads.geojson,
-    scenario.json.
+    visible/occluded/outside; its heading_deg is on the map image, from east towards south, not
+    a compass bearing), homographies.csv (true frame -> map pixels), map.tif, map_init.txt,
+    map_init_gcps.csv, map_init_lonlat.csv, occluders.csv, occluders.geojson (lon/lat),
+    roads.geojson, scenario.json.
 
     \b
     Examples:

@@ -34,8 +34,8 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
     from its +x axis (east) towards +y (down, south), so 90 is south and 270 north: not the
     compass bearing of ``observations.csv``), ``homographies.csv`` (true frame -> map pixels), ``map.tif``,
     ``map_init.txt`` (frame-1 homography), ``map_init_gcps.csv`` and ``map_init_lonlat.csv``
-    (control points), ``occluders.csv`` (bounding boxes), ``occluders.geojson`` (outlines in map
-    pixels), ``roads.geojson`` (the road centre-lines, lon/lat) and ``scenario.json``.
+    (control points), ``occluders.csv`` (bounding boxes), ``occluders.geojson`` (outlines, lon/lat,
+    with map pixels in a ``map_px`` property), ``roads.geojson`` (the road centre-lines, lon/lat) and ``scenario.json``.
     ``gsd_scale``: see :class:`Scenario`.
     """
     if not isinstance(out, OutputDir):
@@ -116,10 +116,12 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
 
 
 def _occluders_geojson(world) -> str:
-    """Occluder outlines as a GeoJSON FeatureCollection in **map pixels** (col, row), not lon/lat.
+    """Occluder outlines as an RFC 7946 GeoJSON FeatureCollection: lon/lat geometry (GIS tools
+    place it on the map), and the same rings in map pixels (col, row) in each feature's ``map_px``
+    property, for scoring against ``states.csv``'s ``map_x, map_y``.
 
     One feature per occluder (``kind`` tree or overpass), a Polygon or MultiPolygon of its mask's
-    outline(s); each feature also carries ``lonlat``, the same rings in degrees, for GIS tools.
+    outline(s). (The geometry was in map pixels, read by GDAL as degrees: latitudes up to 1170.)
     """
     feats = []
     for i, o in enumerate(world.occluders, start=1):
@@ -129,11 +131,10 @@ def _occluders_geojson(world) -> str:
         px = [[[round(float(x), 3), round(float(y), 3)] for x, y in r] for r in rings]
         ll = [[[round(float(x), 9), round(float(y), 9)] for x, y in world.geomap.pixel_to_lonlat(r)]
               for r in rings]
-        geom = ({"type": "Polygon", "coordinates": px} if len(px) == 1
-                else {"type": "MultiPolygon", "coordinates": [[r] for r in px]})
+        geom = ({"type": "Polygon", "coordinates": ll} if len(ll) == 1
+                else {"type": "MultiPolygon", "coordinates": [[r] for r in ll]})
         feats.append({"type": "Feature", "id": i,
-                      "properties": {"kind": o["kind"], "crs": "map pixels (col, row)",
-                                     "lonlat": ll},
+                      "properties": {"kind": o["kind"], "map_px": px},
                       "geometry": geom})
     return json.dumps({"type": "FeatureCollection", "features": feats}) + "\n"
 
