@@ -296,3 +296,18 @@ def test_verbose_progress_lines_say_the_time_left_and_come_at_least_every_30_s(m
     finally:
         logging.getLogger("aerotrack").removeHandler(handler)
     assert lines == ["track: 30/1000 frames (1.0 frames/s, about 16 min left)"]
+
+
+def test_config_toml_names_the_options_that_repeat_the_run(tmp_path):
+    """config.toml alone did not repeat a run made with --seed/--fps/--gsd (a user's --config of it
+    gave other tracks): its first line names them, and it still loads as a config."""
+    from aerotrack.config import load_config
+
+    d = tmp_path / "d.txt"
+    d.write_text("".join(f"{f},-1,{10 + 2 * f},20,8,4,0.9\n" for f in range(1, 20)))
+    res = run("track", "--detections", d, "--out", tmp_path / "o", "--fps", "10", "--seed", "3",
+              "--gsd", "0.15")
+    assert res.returncode == 0, res.stderr
+    text = (tmp_path / "o" / "config.toml").read_text()
+    assert text.splitlines()[0].startswith("# run with: --seed 3 --fps 10 --gsd 0.15"), text
+    load_config(tmp_path / "o" / "config.toml")

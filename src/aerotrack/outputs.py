@@ -127,7 +127,16 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
                  if p.kind in IN_VIEW}
         write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
                                 out_crs, predicted=predicted, homographies=homs, kinds=kinds)
-    out.write_text("config.toml", dumps_config(config))
+    # the run's options that are not configuration, so that `--config config.toml` is known to
+    # need them (a run with --seed 3 --fps 10 --gsd 0.15 was not repeated by the file alone)
+    info = run_info or {}
+    opts = ([f"--seed {info['seed']}"] if info.get("seed") is not None else []) \
+        + [f"--fps {result.fps:g}"] \
+        + ([f"--gsd {result.metres_per_unit:g}"]
+           if geomap is None and result.metres_per_unit else [])
+    out.write_text("config.toml", f"# run with: {' '.join(opts)} (inputs and the other options: "
+                                  "summary.json); --config of this file with them repeats it\n"
+                   + dumps_config(config))
     failures = [
         {"frame": i, "status": r.status, "reason": r.reason}
         for i, r in sorted(result.registrations.items()) if r.status not in ("ok", "refined")
