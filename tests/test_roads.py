@@ -590,3 +590,42 @@ def test_roads_from_a_geopackage_or_shapefile(scene, tmp_path):
     (tmp_path / "junk.bin").write_bytes(b"\x00\x01garbage")
     with pytest.raises(InputError, match="GDAL vector file"):
         read_roads(tmp_path / "junk.bin", geomap=gm)
+
+
+def test_start_time_dates_the_geo_outputs(scene, tmp_path, capsys):
+    """--start-time gives observations a time_utc column (a date-time in the GeoPackage, a UTC
+    timestamp in the Parquet file) and each tracks.geojson feature its start and end times, for
+    GIS time sliders (there were seconds since frame 1 only); a time without a UTC offset is
+    refused; --from keeps the earlier run's."""
+    import csv
+    import datetime
+
+    out = tmp_path / "run"
+    args = ["track", scene / "frames", "--map", scene / "map.tif", "--map-init",
+            scene / "map_init.txt", "--frames", "1:20"]
+    code, _, err = run_cli(capsys, *args, "--out", out, "--start-time", "2024-05-01T12:30:00+02:00")
+    assert code == 0, err
+    assert json.loads((out / "summary.json").read_text())["start_time"] == \
+        "2024-05-01T10:30:00.000+00:00"
+    with open(out / "observations.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and list(rows[0])[-1] == "time_utc"
+    fps = json.loads((out / "summary.json").read_text())["fps"]
+    for r in rows:
+        t = datetime.datetime.fromisoformat(r["time_utc"])
+        want = datetime.datetime(2024, 5, 1, 10, 30, tzinfo=datetime.UTC) \
+            + datetime.timedelta(seconds=(int(r["frame"]) - 1) / fps)
+        assert abs((t - want).total_seconds()) <= 0.0005, r
+    feats = json.loads((out / "tracks.geojson").read_text())["features"]
+    assert feats and all(f["properties"]["start_time_utc"].startswith("2024-05-01T10:30:")
+                         for f in feats)
+    pyogrio = pytest.importorskip("pyogrio")
+    fields = pyogrio.read_info(out / "observations.gpkg")
+    assert dict(zip(fields["fields"], fields["dtypes"]))["time_utc"].startswith("datetime64")
+    again = tmp_path / "again"
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", again)
+    assert code == 0, err
+    assert json.loads((again / "summary.json").read_text())["start_time"].startswith("2024-05-01")
+    code, _, err = run_cli(capsys, *args, "--out", tmp_path / "bad", "--start-time",
+                           "2024-05-01T10:30:00")
+    assert code == 2 and "UTC offset" in err and not (tmp_path / "bad").exists(), err

@@ -102,7 +102,15 @@ def registration_rows(result: Result) -> list[Registration]:
 
 def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: GeoMap | None,
                   run_info: dict | None = None, out_crs: str | None = None) -> dict:
-    """Write every contract file into ``out`` (atomically) and return the summary dict."""
+    """Write every contract file into ``out`` (atomically) and return the summary dict.
+
+    ``run_info["start_time"]`` (ISO 8601 with a UTC offset, ``track --start-time``) dates the
+    geo outputs: ``observations``' ``time_utc`` and ``tracks.geojson``'s start and end times."""
+    start_time = None
+    if (run_info or {}).get("start_time"):
+        import datetime
+
+        start_time = datetime.datetime.fromisoformat(run_info["start_time"])
     tracks, predicted = track_rows(result, geomap)
     write_mot(out.file("tracks.csv"), tracks)
     write_mot(out.file("predicted.csv"), predicted)
@@ -117,7 +125,8 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         except ImportError:
             log.warning("GeoJSON writer unavailable; tracks.geojson not written")
         else:
-            write_tracks_geojson(out.file("tracks.geojson"), tracks, predicted, geomap, result.fps)
+            write_tracks_geojson(out.file("tracks.geojson"), tracks, predicted, geomap, result.fps,
+                                 start_time)
         # written with no track too (a header, an empty layer): scripts and GIS projects
         # expect the files of a run with a map
         from .io.geotable import write_observation_table
@@ -126,7 +135,8 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         kinds = {(p.frame, t.id): p.kind for t in result.tracks for p in t.points
                  if p.kind in IN_VIEW}
         write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
-                                out_crs, predicted=predicted, homographies=homs, kinds=kinds)
+                                out_crs, predicted=predicted, homographies=homs, kinds=kinds,
+                                start_time=start_time)
     # the run's options that are not configuration, so that `--config config.toml` is known to
     # need them (a run with --seed 3 --fps 10 --gsd 0.15 was not repeated by the file alone)
     info = run_info or {}

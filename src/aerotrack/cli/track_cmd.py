@@ -419,6 +419,10 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
                    "along the roads.")
 @click.option("--min-speed", "min_speed", type=float, default=None,
               help="Drop tracks never faster than this many m/s (parked vehicles).")
+@click.option("--start-time", "start_time", metavar="TIME", default=None,
+              help="Wall-clock time of frame 1, ISO 8601 with a UTC offset (2024-05-01T10:30:00Z): "
+                   "observations get a time_utc column and tracks.geojson start and end times, "
+                   "for GIS time sliders.")
 @click.option("--out-crs", "out_crs", default=None,
               help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
 @frames_option
@@ -445,7 +449,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                   seed, config_path, overrides, telemetry_path, telemetry_defaults,
                   intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
                   overwrite, resume, workers, scheduler, from_dir=None, roads_path=None,
-                  stabilised=False, detections_zero_based=False, min_conf=None):
+                  stabilised=False, detections_zero_based=False, min_conf=None,
+                  start_time=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -496,7 +501,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                              f"registrations and detections, so {', '.join(given)} cannot be "
                              "given with it (they were the earlier run's)")
         return _track_from_cache(ctx, from_dir, out_dir, config, map_path, seed, gsd, fps,
-                                 min_speed, out_crs, overwrite, roads_path=roads_path)
+                                 min_speed, out_crs, overwrite, roads_path=roads_path,
+                                 start_time=start_time)
     if stabilised and map_path is not None:
         raise InputError("--stabilised: not with --map (frames are registered to the map)")
     if stabilised and input_path is None:
@@ -512,6 +518,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     roads = load_roads(roads_path, geomap, config)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_out_crs(out_crs, geomap)
+    start_time = parse_start_time(start_time, geomap)
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     check_frame_range(frame_range, start, last, stop)
     check_config(config, fps, detector=dets is None)  # before --out is touched
@@ -598,6 +605,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             "min_speed": min_speed,
             "seed": seed,
             **({"stabilised": True} if stabilised else {}),
+            **({"start_time": start_time} if start_time else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3),
             **notes,
         }
@@ -736,6 +744,29 @@ def warn_if_never_refined(result, geomap, config, placed_by: str | None) -> None
                 "off by as much as it is%s", placed_by or "the initial placement", hint)
 
 
+def parse_start_time(text: str | None, geomap=None) -> str | None:
+    """``--start-time``: ISO 8601 with a UTC offset, as normalised ISO text (UTC), or None.
+    A time without an offset is refused (local time or UTC? a drone's clock is often local)."""
+    if text is None:
+        return None
+    import datetime
+
+    from ..errors import InputError
+
+    try:
+        t = datetime.datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise InputError(f"--start-time {text}: not an ISO 8601 time (e.g. "
+                         "2024-05-01T10:30:00Z or 2024-05-01T12:30:00+02:00)") from None
+    if t.tzinfo is None or t.utcoffset() is None:
+        raise InputError(f"--start-time {text}: give its UTC offset (Z for UTC, or +02:00): a "
+                         "time without one could be local time or UTC")
+    if geomap is None:
+        log.warning("--start-time %s: without --map there are no geo outputs to date; kept in "
+                    "summary.json", text)
+    return t.astimezone(datetime.UTC).isoformat(timespec="milliseconds")
+
+
 def check_out_crs(out_crs: str | None, geomap=None) -> None:
     """``--out-crs``: a projected CRS pyproj knows; a warning when the map lies outside the area
     the CRS is defined for (UTM 33N for Las Vegas: x of -4 000 km, distances distorted)."""
@@ -788,7 +819,7 @@ def load_roads(roads_path, geomap, config):
 
 
 def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed, gsd, fps,
-                      min_speed, out_crs, overwrite, roads_path=None) -> None:
+                      min_speed, out_crs, overwrite, roads_path=None, start_time=None) -> None:
     """``track --from DIR``: association and linking on DIR/stages."""
     import json
 
@@ -826,6 +857,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     if min_speed is None:
         min_speed = prev.get("min_speed")
     check_out_crs(out_crs, geomap)
+    # the earlier run's start time unless another is given
+    start_time = parse_start_time(start_time, geomap) or prev.get("start_time")
     check_config(config, fps, detector=False)  # before --out is touched
     same = Path(out_dir).resolve() == Path(from_dir).resolve()
     if same and not overwrite:
@@ -842,6 +875,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
             "from": str(from_dir), "min_speed": min_speed,
             "roads": str(Path(roads_path).resolve()) if roads_path else None,
             **({"stabilised": True} if prev.get("stabilised") else {}),  # the cached stages'
+            **({"start_time": start_time} if start_time else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3)}
     summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                             out_crs=out_crs)

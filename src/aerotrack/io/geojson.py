@@ -113,7 +113,7 @@ def line_geometry(coords: list[list[float]]) -> dict[str, Any]:
 
 
 def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None, geomap,
-                              fps: float) -> dict[str, Any]:
+                              fps: float, start_time=None) -> dict[str, Any]:
     """Build the GeoJSON FeatureCollection (a dict) of a run's tracks.
 
     Parameters
@@ -126,6 +126,10 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
         The run's map (its CRS turns ``x, y`` into lon/lat).
     fps : float
         Frame rate: time of frame n is ``(n - 1) / fps`` seconds.
+    start_time : datetime, optional
+        Wall-clock time of frame 1 (timezone-aware): each feature also gets ``start_time_utc``
+        and ``end_time_utc`` (ISO 8601; GDAL reads them as date-times, for QGIS's temporal
+        controller).
 
     Rows whose ``x, y`` are both -1 (no map position) are left out.
     """
@@ -174,13 +178,18 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
                     "conf": np.round(r[:, 6], 4).tolist(),
                 },
             })
+            if start_time is not None:
+                from .geotable import frame_times, iso_utc
+
+                first, last = iso_utc(frame_times(frames[[0, -1]], fps, start_time))
+                features[-1]["properties"].update(start_time_utc=first, end_time_utc=last)
     return {"type": "FeatureCollection", "features": features}
 
 
 def write_tracks_geojson(path: str | Path, tracks_rows: np.ndarray, predicted_rows: np.ndarray | None,
-                         geomap, fps: float) -> Path:
+                         geomap, fps: float, start_time=None) -> Path:
     """Write ``tracks.geojson`` atomically (see :func:`tracks_feature_collection`)."""
-    fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps)
+    fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps, start_time)
     atomic_write_text(path, json.dumps(fc, separators=(",", ":")) + "\n")
     return Path(path)
 

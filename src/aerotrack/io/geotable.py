@@ -5,6 +5,8 @@ Columns (CSV header, GeoPackage fields and Parquet columns alike):
 ==============  ==============================================================================
 frame           1-based frame number
 time_s          seconds since frame 1, ``(frame - 1) / fps``
+time_utc        (with a start time only, the last column) ``time_s`` after frame 1's wall-clock
+                time, ISO 8601 UTC with milliseconds
 id              track id (as in ``tracks.csv``)
 lon, lat        WGS 84 degrees of the ground point (8 decimals)
 x, y            the ground point in the output CRS (metres; the local UTM zone by default)
@@ -47,6 +49,28 @@ from .output import atomic_write
 
 COLUMNS = ("frame", "time_s", "id", "lon", "lat", "x", "y", "crs", "speed_mps", "heading_deg",
            "length_m", "width_m", "kind")
+#: Columns written only when asked for: ``time_utc`` with a start time (``track --start-time``).
+OPTIONAL_COLUMNS = ("time_utc",)
+
+
+def _names(cols: dict[str, np.ndarray]) -> list[str]:
+    """The table's columns present in ``cols``, in order."""
+    return [c for c in (*COLUMNS, *OPTIONAL_COLUMNS) if c in cols]
+
+
+def frame_times(frames: np.ndarray, fps: float, start_time) -> np.ndarray:
+    """UTC ``datetime64[ms]`` of 1-based ``frames``: ``start_time`` (an aware datetime, frame 1's)
+    plus ``(frame - 1) / fps`` seconds."""
+    import datetime
+
+    t0 = np.datetime64(start_time.astimezone(datetime.UTC).replace(tzinfo=None), "ms")
+    offset = np.round((np.asarray(frames, np.float64) - 1) / float(fps) * 1000).astype(np.int64)
+    return t0 + offset.astype("timedelta64[ms]")
+
+
+def iso_utc(t: np.ndarray) -> list[str]:
+    """``datetime64`` values as ISO 8601 UTC text with milliseconds: ``2024-05-01T10:30:00.033Z``."""
+    return [f"{v}Z" for v in np.asarray(t, "datetime64[ms]")]
 
 
 def utm_crs_for(lon: float, lat: float) -> str:
@@ -112,7 +136,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
                       predicted: Any = None, homographies: dict[int, np.ndarray] | None = None,
                       frame_gsd: float | None = None, smooth_s: float = 0.5,
                       min_heading_speed_mps: float = 0.5,
-                      kinds: dict[tuple[int, int], str] | None = None
+                      kinds: dict[tuple[int, int], str] | None = None, start_time=None
                       ) -> tuple[dict[str, np.ndarray], str]:
     """Compute the table's columns (see the module docstring) without writing anything.
 
@@ -140,6 +164,9 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     kinds : dict {(frame, id): str}, optional
         What each ``tracks.csv`` row is (``observed``, ``bridged``, ``stationary``); rows not
         in it are ``observed``.
+    start_time : datetime, optional
+        Wall-clock time of frame 1 (timezone-aware): adds ``time_utc`` (a GIS time slider's
+        field; a date-time field in the GeoPackage, a UTC timestamp in the Parquet file).
 
     Returns
     -------
@@ -261,6 +288,8 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
             "x": xy[:, 0], "y": xy[:, 1], "crs": np.array([crs_name] * n, dtype=object),
             "speed_mps": speed, "heading_deg": heading, "length_m": length, "width_m": width,
             "kind": kind}
+    if start_time is not None:
+        cols["time_utc"] = frame_times(frame, fps, start_time)
     return cols, crs_name
 
 
@@ -326,11 +355,13 @@ _DIGITS = {"time_s": 4, "lon": 8, "lat": 8, "x": 3, "y": 3, "speed_mps": 3, "hea
 
 def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
     n = len(cols["frame"])
+    names = _names(cols)
+    text = {c: np.array(iso_utc(cols[c]), dtype=object) for c in names if c == "time_utc"}
     with atomic_write(path, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(",".join(COLUMNS) + "\n")
+        fh.write(",".join(names) + "\n")
         for i in range(n):
-            fh.write(",".join(_fmt(cols[c][i], _DIGITS.get(c, 0), c == "heading_deg")
-                              for c in COLUMNS) + "\n")
+            fh.write(",".join(_fmt(text[c][i] if c in text else cols[c][i], _DIGITS.get(c, 0),
+                                   c == "heading_deg") for c in names) + "\n")
 
 
 @contextlib.contextmanager
@@ -365,7 +396,7 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
         raise InputError("GeoPackage output needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
     geom = np.array([struct.pack("<BIdd", 1, 1, x, y) if np.isfinite(x) and np.isfinite(y)
                      else None for x, y in zip(cols["x"], cols["y"])], dtype=object)
-    names = [c for c in COLUMNS if c != "crs"]
+    names = [c for c in _names(cols) if c != "crs"]
     data = []
     for c in names:
         v = cols[c]
@@ -399,7 +430,11 @@ def _write_parquet(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> No
     x, y = np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64)
     geometry = [struct.pack("<BIdd", 1, 1, a, b) if np.isfinite(a) and np.isfinite(b) else None
                 for a, b in zip(x, y)]
-    data = {c: (cols[c].astype(str) if cols[c].dtype == object else cols[c]) for c in COLUMNS}
+    data = {c: (cols[c].astype(str) if cols[c].dtype == object else cols[c])
+            for c in _names(cols) if c != "time_utc"}
+    if "time_utc" in cols:
+        data["time_utc"] = pa.array(np.asarray(cols["time_utc"], "datetime64[ms]"),
+                                    type=pa.timestamp("ms", tz="UTC"))
     data["geometry"] = pa.array(geometry, type=pa.binary())
     ok = np.isfinite(x) & np.isfinite(y)
     # GeoParquet 1.0 (geopandas.read_parquet, GDAL): WKB points, the CRS as PROJJSON
