@@ -657,3 +657,47 @@ def test_every_other_frame_loses_no_tracklet(first):
     ids = _identities(out, truth)
     assert sorted({v for seq in ids.values() for v in seq}) == [0, 1, 2, 3]
     assert len(out) == 4
+
+
+def test_iou_pairs_are_the_dense_matrix_pairs():
+    """The sparse same-frame overlaps equal the (n, n) matrix's upper-triangle pairs, values and
+    order (that matrix cost 0.9 s a frame at 3000 detections)."""
+    from aerotrack.association.posterior import iou_pairs, iou_xywh_centre
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 2, 50, 400):
+        z = np.column_stack([rng.uniform(0, 300, n), rng.uniform(0, 200, n),
+                             rng.uniform(2, 40, n), rng.uniform(2, 20, n)])
+        if n > 10:
+            z[5] = z[6]  # a duplicate box
+            z[7, 2] = 0.0  # a box without width
+        dense = np.triu(iou_xywh_centre(z, z), 1) if n else np.zeros((0, 0))
+        ii, jj = np.nonzero(dense > 0)
+        i, j, v = iou_pairs(z)
+        assert np.array_equal(i, ii) and np.array_equal(j, jj), n
+        assert np.array_equal(v, dense[ii, jj]), n
+
+
+def test_sparse_assignment_equals_the_dense_one():
+    """Large assignments are solved per connected group of gated pairs: the same matching (its
+    gated pairs) as the dense solve on problems with distinct costs."""
+    from scipy.optimize import linear_sum_assignment
+
+    from aerotrack.association import local
+
+    rng = np.random.default_rng(5)
+    for R, C in ((40, 60), (90, 70), (200, 200)):
+        gated = rng.random((R, C)) < 0.02
+        cost = np.where(gated, rng.uniform(-10, 5, (R, C)), 1e9)
+        ri, ci = linear_sum_assignment(cost)
+        keep = cost[ri, ci] < 1e9
+        dense = set(zip(ri[keep].tolist(), ci[keep].tolist()))
+        old = local.SPARSE_ASSIGNMENT_CELLS
+        local.SPARSE_ASSIGNMENT_CELLS = 0
+        try:
+            si, sj = local._assignment(cost, gated)
+        finally:
+            local.SPARSE_ASSIGNMENT_CELLS = old
+        keep = cost[si, sj] < 1e9
+        assert set(zip(si[keep].tolist(), sj[keep].tolist())) == dense, (R, C)
+        assert np.all(np.diff(si) > 0)

@@ -854,6 +854,12 @@ class AssociationConfig:
         first). ``stitch_gap_s`` 0.2: the five scenes the same, the six others 0.783 -> 0.777.
         Keeping every short piece for linking instead (``min_length_s`` 0.2) cost IDF1
         0.836 -> 0.828 and 0.784 -> 0.725.
+    follow_on_gap_s : float
+        A piece too short to be a tracklet is kept when it begins at most this long after a
+        tracklet's last observation, within ``stitch_dist_m`` of where that tracklet's velocity
+        puts it, heading the same way (``LocalAssociator._follows_ended``): the end of a vehicle
+        that the sampler cut off (a bus leaving the view shrank faster than the size model
+        follows), for global linking to join. 0 disables.
     split_appearance : float
         A finished tracklet is cut where it bridges a run of missed frames across which its
         mean colour histogram changes by more than this Bhattacharyya distance
@@ -969,6 +975,7 @@ class AssociationConfig:
     stitch_dist_m: float = 3.0
     stitch_max_turn_deg: float = 60.0
     stitch_min_speed_mps: float = 1.0
+    follow_on_gap_s: float = 0.2
     split_appearance: float = 0.4
     split_min_gap_s: float = 0.1
     split_side_obs: int = 6

@@ -61,9 +61,11 @@ class NodeStore:
         return self.next - self.base
 
     def add_frame(self, frame: int, z: np.ndarray, hist: np.ndarray | None, payload: list,
-                  ious: np.ndarray, pok: np.ndarray | None = None) -> np.ndarray:
-        """Append one frame's nodes; ``ious`` (n, n) their pairwise overlaps (eq. 10), ``pok``
-        (n,) which may be partial observations (default all).
+                  ious: tuple[np.ndarray, np.ndarray, np.ndarray],
+                  pok: np.ndarray | None = None) -> np.ndarray:
+        """Append one frame's nodes; ``ious`` their overlapping pairs ``(i, j, IoU)``, i < j
+        (eq. 10; :func:`~aerotrack.association.posterior.iou_pairs`), ``pok`` (n,) which may be
+        partial observations (default all).
 
         Returns their gids."""
         n = len(z)
@@ -87,12 +89,12 @@ class NodeStore:
         self.fend[frame] = self.next + n
         self.next += n
         if n > 1:
-            ii, jj = np.nonzero(np.triu(ious, 1) > 0)
-            for i, j in zip(ii.tolist(), jj.tolist()):
+            ii, jj, vv = ious
+            for i, j, v in zip(ii.tolist(), jj.tolist(), vv.tolist()):
                 for a, b in ((i, j), (j, i)):
                     g, h = int(gids[a]), int(gids[b])
                     og, ov = self.overlaps.get(g, (np.zeros(0, np.int64), np.zeros(0)))
-                    self.overlaps[g] = (np.append(og, h), np.append(ov, ious[a, b]))
+                    self.overlaps[g] = (np.append(og, h), np.append(ov, v))
         return gids
 
     def _reserve(self, n: int) -> None:

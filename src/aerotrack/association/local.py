@@ -30,7 +30,7 @@ from ..kalman import ConstantVelocityKF
 from ..types import Detections, Track, Tracklet, TrackPoint
 from .graph import HIST_EPS
 from .moves import Prior, SamplerParams, WindowSampler, WTrack
-from .posterior import iou_xywh_centre, link_step, partial_candidates, score_matrix
+from .posterior import iou_pairs, link_step, partial_candidates, score_matrix
 
 
 class LocalAssociator:
@@ -118,6 +118,8 @@ class LocalAssociator:
         self.last_frame: int | None = None
         self.points: dict[int, list[TrackPoint]] = {}  # final points of each internal track
         self.lead_in: dict[int, list[TrackPoint]] = {}  # short pieces to put before a live track
+        #: (last frame, world, velocity) of recently finished tracklets (``_follows_ended``)
+        self.recent_ends: list[tuple[int, np.ndarray, np.ndarray]] = []
         self.next_id = 1
         self.stats = {"frames": 0, "mcmc_iters": 0}
 
@@ -306,7 +308,7 @@ class LocalAssociator:
         z = np.zeros((n, 4))
         z[:, :2] = world * self.mpu
         z[:, 2:] = self._sizes(det) * self.mpu
-        ious = iou_xywh_centre(z, z) if n > 1 else np.zeros((n, n))
+        ious = iou_pairs(z)
         payload = [(det, i) for i in range(n)]
         pok = None
         if self.config.partial_score > 0 and n:
@@ -406,14 +408,58 @@ class LocalAssociator:
         for k, piece in enumerate(pieces):
             n_obs = sum(p.kind == "observed" for p in piece)
             if n_obs < 2 or (piece[-1].frame - piece[0].frame) / self.fps < c.min_length_s:
-                if k == len(pieces) - 1 and piece:
-                    self._lead_into(piece)
-                continue
+                if k == len(pieces) - 1 and piece and self._lead_into(piece):
+                    continue
+                if not (k == 0 and piece and self._follows_ended(piece)):
+                    continue
             out.append(Track(id=self.next_id, points=piece))
             self.next_id += 1
+        if out:
+            self._remember_end(out[-1].points)
         return out
 
-    def _lead_into(self, piece: list[TrackPoint]) -> None:
+    def _remember_end(self, pts: list[TrackPoint]) -> None:
+        """Keep where and how a finished tracklet ended, for :meth:`_follows_ended`."""
+        if self.config.follow_on_gap_s <= 0:
+            return
+        obs = [(p.frame, p.world) for p in pts if p.kind == "observed"][-STITCH_OBS:]
+        if len(obs) < 2:
+            return
+        # a piece starting within the gap after this end is finished at most a window, a batch
+        # and the largest gap after its own last frame (or at the flush): keep ends that long
+        keep = 2 * self.window + self.max_gap + max(1, int(round(self.config.follow_on_gap_s
+                                                                 * self.fps)))
+        now = self.sampler.now if self.sampler is not None else obs[-1][0]
+        ends = [e for e in getattr(self, "recent_ends", []) if e[0] >= now - keep]
+        ends.append((int(obs[-1][0]), np.asarray(obs[-1][1], float).reshape(2), _velocity(obs)))
+        self.recent_ends = ends
+
+    def _follows_ended(self, piece: list[TrackPoint]) -> bool:
+        """Whether a piece too short to be a tracklet goes on from one that ended just before it:
+        it begins at most ``follow_on_gap_s`` after that one's last observation, within
+        ``stitch_dist_m`` of where its velocity puts it then, heading the same way. Kept, the
+        piece lets global linking join the end of a vehicle the sampler cut off (Santiago's bus
+        leaving the view at the left edge shrank faster than the size model follows; its last six
+        detections were dropped). aerotrack's own step, the mirror of :meth:`_lead_into`."""
+        c = self.config
+        obs = [p for p in piece if p.kind == "observed"]
+        if c.follow_on_gap_s <= 0 or c.stitch_dist_m <= 0 or len(obs) < 2:
+            return False
+        start = obs[0]
+        v_piece = _velocity([(p.frame, p.world) for p in obs[:STITCH_OBS]])
+        gap_max = max(1, int(round(c.follow_on_gap_s * self.fps)))
+        reach = c.stitch_dist_m / self.mpu
+        for f_end, w_end, v_end in getattr(self, "recent_ends", []):
+            gap = start.frame - f_end
+            if not 0 < gap <= gap_max:
+                continue
+            d = float(np.hypot(*(np.asarray(start.world, float).reshape(2) - (w_end + v_end * gap))))
+            if d <= reach and _same_heading(v_piece, v_end, c.stitch_max_turn_deg,
+                                            c.stitch_min_speed_mps / self.mpu / self.fps):
+                return True
+        return False
+
+    def _lead_into(self, piece: list[TrackPoint]) -> bool:
         """Keep a piece too short to be a tracklet as the start of a live track that begins
         right after it, close to where it ended (``stitch_gap_s``, ``stitch_dist_m``) and heading
         the same way (within ``stitch_max_turn_deg``).
@@ -427,7 +473,7 @@ class LocalAssociator:
         c = self.config
         obs = [p for p in piece if p.kind == "observed"]
         if c.stitch_dist_m <= 0 or len(obs) < 2 or self.sampler is None:
-            return
+            return False
         end = obs[-1]
         v_piece = _velocity([(p.frame, p.world) for p in obs[-STITCH_OBS:]])
         gap = max(1, int(round(c.stitch_gap_s * self.fps)))
@@ -451,6 +497,7 @@ class LocalAssociator:
             best, best_d = tid, d
         if best is not None:
             self.lead_in[best] = [p for p in piece if p.frame <= end.frame]
+        return best is not None
 
     # ------------------------------------------------------------------ initialisation
     def _initialise(self, gids: np.ndarray) -> int:
@@ -495,7 +542,7 @@ class LocalAssociator:
             if len(ok_rows):
                 sub = score[ok_rows]
                 cost = np.where(np.isfinite(sub), -sub, 1e9)
-                ri, ci = linear_sum_assignment(cost)
+                ri, ci = _assignment(cost, np.isfinite(sub))
                 for r, j in zip(ri.tolist(), ci.tolist()):
                     if cost[r, j] >= 1e9:
                         continue
@@ -536,6 +583,49 @@ class LocalAssociator:
             f, h = fg, S.hist_of(gg)
             chain.append(gg)
         return chain[::-1]
+
+
+#: Above this many cells the assignment is solved per connected group of gated pairs.
+SPARSE_ASSIGNMENT_CELLS = 250_000
+
+
+def _assignment(cost: np.ndarray, gated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``linear_sum_assignment(cost)``, rows ascending, for a cost whose ungated cells hold 1e9.
+
+    Large problems (3000 tracks by 3000 detections: a dense solve of about 0.1 s a frame) are
+    split into the connected groups of gated (track, detection) pairs, each solved alone: groups
+    share no gated pair, so the optimum of each is the whole problem's there, and ungated pairs
+    are dropped by the caller anyway. Small problems are solved whole, as they always were."""
+    R, C = cost.shape
+    if R * C <= SPARSE_ASSIGNMENT_CELLS:
+        return linear_sum_assignment(cost)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    r, c = np.nonzero(gated)
+    graph = coo_matrix((np.ones(len(r)), (r, R + c)), shape=(R + C, R + C))
+    _, lab = connected_components(graph, directed=False)
+    rl, cl = lab[:R], lab[R:]
+    ro = np.argsort(rl, kind="stable")
+    co = np.argsort(cl, kind="stable")
+    groups = np.unique(rl)
+    r_cut = np.searchsorted(rl[ro], groups)
+    r_end = np.searchsorted(rl[ro], groups, side="right")
+    c_cut = np.searchsorted(cl[co], groups)
+    c_end = np.searchsorted(cl[co], groups, side="right")
+    out_r, out_c = [], []
+    for a, b, p, q in zip(r_cut.tolist(), r_end.tolist(), c_cut.tolist(), c_end.tolist()):
+        if q <= p:
+            continue  # a row with no gated detection (callers pass rows with one)
+        rows, cols = ro[a:b], co[p:q]
+        i, j = linear_sum_assignment(cost[np.ix_(rows, cols)])
+        out_r.append(rows[i])
+        out_c.append(cols[j])
+    if not out_r:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ri, ci = np.concatenate(out_r), np.concatenate(out_c)
+    o = np.argsort(ri, kind="stable")
+    return ri[o], ci[o]
 
 
 def _is_followed(payload) -> bool:

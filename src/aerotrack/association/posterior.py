@@ -66,6 +66,53 @@ def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.where(union > 0, inter / union, 0.0)
 
 
+def iou_pairs(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs ``i < j`` of boxes (centre x, centre y, w, h rows) that overlap, with their IoU,
+    ordered by (i, j): what ``np.nonzero(np.triu(iou_xywh_centre(z, z), 1) > 0)`` gives, without
+    the (n, n) matrix (3000 detections a frame took 0.9 s a frame for it).
+
+    Boxes sorted by left edge are compared only while the second's left edge is within the widest
+    box of the first's; the IoU is computed as :func:`iou_xywh_centre` computes it."""
+    z = np.asarray(z, float).reshape(-1, 4)
+    n = len(z)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    if n < 2:
+        return empty
+    x0 = z[:, 0] - z[:, 2] / 2
+    order = np.argsort(x0, kind="stable")
+    xs = x0[order]
+    finite = np.isfinite(z[:, 2])
+    wmax = float(np.abs(z[finite, 2]).max()) if finite.any() else 0.0
+    out_i, out_j = [], []
+    d = 1
+    while d < n:
+        r = np.flatnonzero(xs[d:] <= xs[:-d] + wmax)
+        if not len(r):
+            break
+        out_i.append(order[r])
+        out_j.append(order[r + d])
+        d += 1
+    if not out_i:
+        return empty
+    i, j = np.concatenate(out_i), np.concatenate(out_j)
+    i, j = np.minimum(i, j), np.maximum(i, j)
+    a, b = z[i], z[j]
+    ax0, ay0 = a[:, 0] - a[:, 2] / 2, a[:, 1] - a[:, 3] / 2
+    ax1, ay1 = a[:, 0] + a[:, 2] / 2, a[:, 1] + a[:, 3] / 2
+    bx0, by0 = b[:, 0] - b[:, 2] / 2, b[:, 1] - b[:, 3] / 2
+    bx1, by1 = b[:, 0] + b[:, 2] / 2, b[:, 1] + b[:, 3] / 2
+    iw = np.clip(np.minimum(ax1, bx1) - np.maximum(ax0, bx0), 0, None)
+    ih = np.clip(np.minimum(ay1, by1) - np.maximum(ay0, by0), 0, None)
+    inter = iw * ih
+    union = a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iou = np.where(union > 0, inter / union, 0.0)
+    keep = iou > 0
+    i, j, iou = i[keep], j[keep], iou[keep]
+    o = np.lexsort((j, i))
+    return i[o], j[o], iou[o]
+
+
 #: d^2 recorded for a partial link (see :func:`link_step`): a partial observation has no
 #: Mahalanobis distance of its own, and the negative value marks the link.
 PARTIAL_D2 = -1.0
