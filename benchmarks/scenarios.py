@@ -59,10 +59,13 @@ def run_one(folder: Path, scenario: str, seed: int, overrides: list[str],
         sets = ["--from", str(out), *sets]
         out = out.with_suffix(".relink")
     d = scene(folder, scenario, seed)
-    geo = ["--map", str(d / "map.tif"), "--map-init", str(d / "map_init.txt")] if use_map else []
+    # --from takes the earlier run's inputs (the frames and --map-init are refused with it; the map
+    # it reads from that run's summary)
+    inputs = [] if relink else [str(d / "frames")] + (
+        ["--map", str(d / "map.tif"), "--map-init", str(d / "map_init.txt")] if use_map else [])
     t0 = time.perf_counter()
-    aerotrack("-q", "track", str(d / "frames"), "--out", str(out), *geo, "--seed",
-              str(track_seed), "--overwrite", *sets)
+    aerotrack("-q", "track", *inputs, "--out", str(out), "--seed", str(track_seed), "--overwrite",
+              *sets)
     wall = time.perf_counter() - t0
     e = json.loads(aerotrack("eval", "--gt", str(d / "gt.txt"), "--pred", str(out / "tracks.csv"),
                              "--json"))
