@@ -1117,3 +1117,32 @@ def test_api_detections_below_min_conf_are_dropped(tmp_path, capsys):
     assert code == 0, err
     code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "b")
     assert code == 0 and "colour histograms" not in err, err
+
+
+def test_detections_in_another_order_give_the_same_tracks(tmp_path, capsys):
+    """The same boxes listed in another order within their frames give the same tracks (the
+    sampler followed the file's order: a shuffled UAVDT file scored HOTA 0.919 against 0.925).
+    Real UAVDT boxes, jittered, with false alarms (skipped without ../shared)."""
+    gt = Path(__file__).resolve().parents[2] / "shared/data/uavdt_gt_only/M0101_gt.txt"
+    if not gt.is_file():
+        pytest.skip("../shared/data/uavdt_gt_only is absent")
+    rows = np.loadtxt(gt, delimiter=",")
+    rows = rows[rows[:, 0] <= 200]
+    rng = np.random.default_rng(0)
+    rows = rows[rng.random(len(rows)) > 0.1]
+    out = [[r[0], -1, r[2] + rng.normal(0, 0.05 * r[4]), r[3] + rng.normal(0, 0.05 * r[5]),
+            r[4] * (1 + rng.normal(0, 0.05)), r[5] * (1 + rng.normal(0, 0.05)),
+            rng.uniform(0.5, 1)] for r in rows]
+    out += [[f, -1, rng.uniform(0, 900), rng.uniform(0, 500), 60, 30, rng.uniform(0.5, 1)]
+            for f in range(1, 201) if rng.random() < 0.3]
+    out = np.array(out)
+    a = out[np.argsort(out[:, 0], kind="stable")]
+    b = out[rng.permutation(len(out))]
+    b = b[np.argsort(b[:, 0], kind="stable")]
+    for rows_, name in ((a, "a"), (b, "b")):
+        np.savetxt(tmp_path / f"{name}.txt", rows_, fmt="%.2f", delimiter=",")
+        code, _, err = run_cli(capsys, "track", "--detections", tmp_path / f"{name}.txt", "--out",
+                               tmp_path / f"o{name}", "--fps", "30")
+        assert code == 0, err
+    assert (tmp_path / "oa" / "tracks.csv").read_bytes() == \
+        (tmp_path / "ob" / "tracks.csv").read_bytes()

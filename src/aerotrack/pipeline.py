@@ -1031,11 +1031,15 @@ def _api_inputs(source, detections, H_init, geomap, fps):
 
 
 def _group_rows(rows: np.ndarray) -> dict[int, np.ndarray]:
+    """Given detection rows by frame, each frame's rows in a canonical order (by box, then
+    confidence): the sampler's moves follow the detections' order, so the same boxes listed in
+    another order gave other tracks (UAVDT M0101, rows shuffled within frames: HOTA 0.925 ->
+    0.919)."""
     out: dict[int, np.ndarray] = {}
     if not len(rows):
         return out
     frames = rows[:, 0].astype(np.int64)
-    order = np.argsort(frames, kind="stable")
+    order = np.lexsort((rows[:, 6], rows[:, 5], rows[:, 4], rows[:, 3], rows[:, 2], frames))
     rows, frames = rows[order], frames[order]
     cuts = np.flatnonzero(np.diff(frames)) + 1
     for chunk in np.split(rows, cuts):
