@@ -859,7 +859,11 @@ class AssociationConfig:
         tracklet's last observation, within ``stitch_dist_m`` of where that tracklet's velocity
         puts it, heading the same way (``LocalAssociator._follows_ended``): the end of a vehicle
         that the sampler cut off (a bus leaving the view shrank faster than the size model
-        follows), for global linking to join. 0 disables.
+        follows), for global linking to join. 0 (the default) disables. Measured at 0.2 s
+        (2026-12-02): Santiago HOTA 0.669 -> 0.670 (the bus's last six detections), but the 18
+        held-out generated scenes 0.718/0.865 -> 0.713/0.859 HOTA/IDF1, ID switches 44 -> 49
+        (occlusion:21 -0.060 HOTA: pieces of other vehicles emerging near a track's end were
+        kept and linked to it; dense:12 -0.023). Off.
     split_appearance : float
         A finished tracklet is cut where it bridges a run of missed frames across which its
         mean colour histogram changes by more than this Bhattacharyya distance
@@ -975,7 +979,7 @@ class AssociationConfig:
     stitch_dist_m: float = 3.0
     stitch_max_turn_deg: float = 60.0
     stitch_min_speed_mps: float = 1.0
-    follow_on_gap_s: float = 0.2
+    follow_on_gap_s: float = 0.0
     split_appearance: float = 0.4
     split_min_gap_s: float = 0.1
     split_side_obs: int = 6
