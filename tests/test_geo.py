@@ -113,9 +113,21 @@ def test_outputs_across_the_antimeridian(tmp_path):
     rows = np.array([[f + 1, 7, 10, 10, 8, 4, 1, lon[f], -16.0005, -1] for f in range(20)])
     fc = tracks_feature_collection(rows, None, m, 10.0)
     geom = fc["features"][0]["geometry"]
-    assert geom["type"] == "MultiLineString" and [len(g) for g in geom["coordinates"]] == [10, 10]
-    flat = np.array([c for part in geom["coordinates"] for c in part])
+    assert geom["type"] == "MultiLineString" and [len(g) for g in geom["coordinates"]] == [11, 11]
+    # the parts meet on the antimeridian (RFC 7946 3.1.9: 180 then -180, one latitude; they
+    # stopped short of it, a gap of about 0.3 m)
+    a, b = geom["coordinates"]
+    assert a[-1][0] == 180.0 and b[0][0] == -180.0 and a[-1][1] == b[0][1] == -16.0005
+    flat = np.array([c for part in geom["coordinates"] for c in part[:-1]][:-1])
     assert np.all((flat[:, 0] >= -180) & (flat[:, 0] < 180))
+    pyogrio = pytest.importorskip("pyogrio")
+    from aerotrack.io.geojson import write_tracks_gpkg
+
+    gp = write_tracks_gpkg(tmp_path / "t.gpkg", rows, None, m, 10.0)  # a MultiLineString layer
+    assert pyogrio.read_info(gp, layer="tracks")["geometry_type"] == "MultiLineString"
+    _, _, pts, _ = pyogrio.raw.read(gp, layer="track_points")
+    xs = np.array([np.frombuffer(bytes(b)[-16:], "<f8")[0] for b in pts])
+    assert len(xs) == 20 and np.allclose(xs[:10], lon[:10], atol=1e-9)  # one point a frame
     cols, crs = observation_table(rows, m, 10.0)
     assert np.all((cols["lon"] >= -180) & (cols["lon"] < 180)) and crs in ("EPSG:32760", "EPSG:32701")
     assert np.all(np.abs(cols["speed_mps"] - 10.7) < 0.2)  # no jump at the antimeridian

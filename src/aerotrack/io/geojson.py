@@ -108,6 +108,16 @@ def line_geometry(coords: list[list[float]]) -> dict[str, Any]:
     parts.append(coords[start:])
     if len(parts) == 1:
         return {"type": "LineString", "coordinates": coords}
+    # each part ends (and the next begins) on the antimeridian, at the latitude where the segment
+    # crosses it (RFC 7946 3.1.9): without it the parts stopped short of it (a 0.3 m gap)
+    for k in range(len(parts) - 1):
+        (x0, y0), (x1, y1) = parts[k][-1][:2], parts[k + 1][0][:2]
+        side = 180.0 if x0 > 0 else -180.0
+        span = (x1 + 360.0 if side > 0 else x1 - 360.0) - x0
+        f = (side - x0) / span if span else 0.5
+        lat = round(y0 + f * (y1 - y0), DECIMALS)
+        parts[k] = [*parts[k], [side, lat]]
+        parts[k + 1] = [[-side, lat], *parts[k + 1]]
     parts = [p * 2 if len(p) == 1 else p for p in parts]
     return {"type": "MultiLineString", "coordinates": parts}
 
@@ -198,6 +208,22 @@ def _wkb_linestring(coords: list[list[float]]) -> bytes:
     return struct.pack(f"<BII{2 * len(coords)}d", 1, 2, len(coords), *np.ravel(coords))
 
 
+def _wkb_multilinestring(parts: list[list[list[float]]]) -> bytes:
+    return struct.pack("<BII", 1, 5, len(parts)) + b"".join(_wkb_linestring(p) for p in parts)
+
+
+def _vertices(geom: dict[str, Any]) -> list[list[float]]:
+    """A track line's vertices, one per frame: a MultiLineString's parts joined without the
+    vertices :func:`line_geometry` put on the antimeridian."""
+    if geom["type"] == "LineString":
+        return geom["coordinates"]
+    parts = geom["coordinates"]
+    out: list[list[float]] = []
+    for k, p in enumerate(parts):
+        out += p[1 if k > 0 else 0:len(p) - 1 if k < len(parts) - 1 else len(p)]
+    return out
+
+
 def _wkb_point(x: float, y: float) -> bytes:
     return struct.pack("<BIdd", 1, 1, x, y)
 
@@ -218,7 +244,13 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
     tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
     tmp.unlink(missing_ok=True)
     feats = fc["features"]
-    geoms = np.array([_wkb_linestring(f["geometry"]["coordinates"]) for f in feats], dtype=object)
+    # a track across the antimeridian is a MultiLineString: then the layer's every line is one
+    multi = any(f["geometry"]["type"] == "MultiLineString" for f in feats)
+    geoms = np.array([_wkb_multilinestring(f["geometry"]["coordinates"]
+                                           if f["geometry"]["type"] == "MultiLineString"
+                                           else [f["geometry"]["coordinates"]]) if multi
+                      else _wkb_linestring(f["geometry"]["coordinates"]) for f in feats],
+                     dtype=object)
     scalar = ["id", "first_frame", "last_frame", "start_time_s", "end_time_s", "n_observed",
               "n_predicted", "length_m", "mean_speed_mps"]
     lists = ["frames", "times_s", "observed", "speeds_mps"]
@@ -228,12 +260,14 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
 
     with gpkg_date():
         pyogrio.raw.write(tmp, geoms, data, scalar + lists, layer="tracks", driver="GPKG",
-                          geometry_type="LineString", crs="EPSG:4326")
+                          geometry_type="MultiLineString" if multi else "LineString",
+                          crs="EPSG:4326")
     pts, cols = [], {k: [] for k in ("id", "frame", "time_s", "observed", "speed_mps")}
     for f in feats:
         p = f["properties"]
+        vertices = _vertices(f["geometry"])
         for i, fr in enumerate(p["frames"]):
-            x, y = f["geometry"]["coordinates"][i]
+            x, y = vertices[i]
             pts.append(_wkb_point(x, y))
             cols["id"].append(p["id"])
             cols["frame"].append(fr)
