@@ -1146,3 +1146,21 @@ def test_detections_in_another_order_give_the_same_tracks(tmp_path, capsys):
         assert code == 0, err
     assert (tmp_path / "oa" / "tracks.csv").read_bytes() == \
         (tmp_path / "ob" / "tracks.csv").read_bytes()
+
+
+def test_detections_with_a_latin1_comment_or_an_odd_header(tmp_path, capsys):
+    """A Latin-1 comment line gave a raw codec message, a header with 'conf%' was read as data
+    ("non-numeric value 'frame'"); both are read now, and bad bytes in a data row name the line."""
+    from aerotrack.io.mot import read_mot
+
+    p = tmp_path / "d.txt"
+    p.write_bytes("# détections de la caméra\nframe,id,x,y,w,h,conf%\n1,-1,10,10,8,4,0.9\n"
+                  .encode("latin-1"))
+    assert len(read_mot(p, option="--detections")) == 1
+    u = tmp_path / "u16.txt"  # Windows "Unicode" text: UTF-16 with its byte order mark
+    u.write_text("1,-1,10,10,8,4,0.9\n2,-1,11,10,8,4,0.9\n", encoding="utf-16")
+    assert len(read_mot(u, option="--detections")) == 2
+    q = tmp_path / "e.txt"
+    q.write_bytes(b"1,-1,10,10,8,4,0.9\n2,-1,1\xe90,10,8,4,0.9\n")
+    expect_error(capsys, ["--detections", "line 2", "non-numeric"], "track", "--detections", q,
+                 "--out", tmp_path / "o", out_dir=tmp_path / "o")

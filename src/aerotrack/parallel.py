@@ -1361,6 +1361,9 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
     except (OSError, ValueError):
         return []
     changed = []
+    # the first line naming the run's options (outputs.write_outputs) is not configuration
+    stored = "".join(ln for ln in stored.splitlines(keepends=True)
+                     if not ln.startswith("# run with:"))
     if stored != dumps_config(config):
         changed.append("--config/--set")
     if summary.get("seed", seed) != seed:

@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import FormatError, InputError
 from .output import atomic_write
 
-_HEADER_FIELD = re.compile(r"^[A-Za-z_][\w.()\-]*$")
+_HEADER_FIELD = re.compile(r"^[A-Za-z_]\S*$")  # a word: "conf%", "bb_left(px)" too
 MOT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "conf", "x", "y", "z")
 
 
@@ -93,6 +93,24 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
     return np.asarray(rows, dtype=np.float64), np.asarray(linenos)
 
 
+def _decode(raw: bytes, label: str) -> str:
+    """A MOT file's text: UTF-8 (with or without a BOM), UTF-16 with its BOM (Windows "Unicode"
+    text), else Latin-1 when no NUL byte says it is binary: numbers are ASCII in any of these, so a
+    Latin-1 comment or header line is read (it gave a raw codec message) and a data row with other
+    bytes is refused as non-numeric, naming its line."""
+    import codecs
+
+    try:
+        if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+            return raw.decode("utf-16")
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        if b"\x00" in raw[:4096]:
+            raise InputError(f"{label}: cannot read as text (a binary file, or an unknown "
+                             "encoding): expected MOTChallenge text rows") from None
+        return raw.decode("latin-1")
+
+
 def _is_float(s: str) -> bool:
     try:
         float(s)
@@ -150,9 +168,10 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
     if p.is_dir():
         raise InputError(f"{label}: is a folder, expected a MOTChallenge text file")
     try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{label}: cannot read ({exc})") from None
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
+    text = _decode(raw, label)
     data, linenos = _parse(text, label, zero_based=zero_based)
     if detections and len(data):
         data[:, 1] = -1.0
