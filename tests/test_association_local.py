@@ -701,3 +701,27 @@ def test_sparse_assignment_equals_the_dense_one():
         keep = cost[si, sj] < 1e9
         assert set(zip(si[keep].tolist(), sj[keep].tolist())) == dense, (R, C)
         assert np.all(np.diff(si) > 0)
+
+
+def test_follow_on_keeps_a_piece_where_an_ended_tracklet_was_going():
+    """``association.follow_on_gap_s`` (off by default): a short piece that begins within the gap
+    after a finished tracklet's end, where that tracklet's velocity puts it and heading its way,
+    is kept; one elsewhere, later, or heading back is not."""
+    from dataclasses import replace
+
+    from aerotrack.types import TrackPoint
+
+    def pts(frames, x0, vx):
+        return [TrackPoint(frame=f, box=np.array([0.0, 0, 4, 2]),
+                           world=np.array([x0 + vx * (f - frames[0]), 50.0]), conf=1.0,
+                           kind="observed") for f in frames]
+
+    la = LocalAssociator(replace(AssociationConfig(), follow_on_gap_s=0.2), 30.0, 1.0)
+    la._remember_end(pts(range(1, 31), 0.0, 1.0))  # ends at frame 30, x = 29, 1 unit a frame
+    assert la._follows_ended(pts(range(33, 38), 32.0, 1.0))  # 3 frames on, where it would be
+    assert not la._follows_ended(pts(range(33, 38), 45.0, 1.0))  # 13 units off
+    assert not la._follows_ended(pts(range(40, 45), 39.0, 1.0))  # 10 frames on: beyond 0.2 s
+    assert not la._follows_ended(pts(range(33, 38), 32.0, -1.0))  # heading back
+    off = LocalAssociator(AssociationConfig(), 30.0, 1.0)  # the default: off
+    off._remember_end(pts(range(1, 31), 0.0, 1.0))
+    assert not off._follows_ended(pts(range(33, 38), 32.0, 1.0))
