@@ -464,11 +464,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
       aerotrack track frames/ --out run/ --map ortho.tif --map-init h.txt --fps 30
       aerotrack track --detections yolo.txt --out run/          # association alone
       aerotrack track flight.mp4 --detections yolo.txt --out run/ --seed 3
-      aerotrack track far.mp4 --out run/ --set detection.persist=true  # tiny, faint targets
+      aerotrack track far.mp4 --out run/ --set detection.persist=true
+        --set detection.stopping_share=0                    # tiny, faint targets
 
     \b
     Settings worth knowing (README "Fitting it to your footage"): --gsd or --map for a
-    metric scale; detection.persist=true for vehicles a few pixels long (slower);
+    metric scale; detection.persist=true with detection.stopping_share=0 for vehicles a few
+    pixels long (slower);
     finish.static_extent_m, wander_extent_m, min_size_m and min_size_estimated_m set to 0
     keep pedestrians and objects that linger; detection.causal=true for live use.
     """
