@@ -150,7 +150,11 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="aerotrack", standalone_mode=False)
     except (click.exceptions.Abort, KeyboardInterrupt) as exc:
-        # click turns KeyboardInterrupt into Abort; the cause says which signal and what was kept
+        # click turns KeyboardInterrupt into Abort; the cause says which signal and what was kept.
+        # The run is over: a further Ctrl-C while the process shuts down (a local Dask cluster
+        # closing) killed it by SIGINT with a KeyboardInterrupt traceback instead of exit 130
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         cause = exc.__cause__ if isinstance(exc, click.exceptions.Abort) else exc
         click.echo(f"aerotrack: interrupted{getattr(cause, 'note', '')}", err=True)
         sys.exit(128 + int(getattr(cause, "signum", 2)))

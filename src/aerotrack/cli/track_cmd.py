@@ -570,9 +570,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     on_dask = workers is not None or scheduler is not None
     until = "when the running segments are finished (they are kept)" if on_dask \
         else "after this frame"
-    # a second signal drops the running segments: only those finished before it are kept
-    note = ("; the segments finished before it are kept in the output folder's .partial/ "
-            "(continue with --resume: the others are tracked again)") if on_dask else None
+    # a second signal drops the running segments: only the finished ones are kept
+    note = ("; finished segments are kept in the output folder's .partial/ (continue with "
+            "--resume: segments not finished are tracked again)") if on_dask else None
     with cleanup, GracefulStop(until=until, note=note) as stopper:
         try:
             result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
