@@ -141,6 +141,9 @@ def test_track_mixed_sizes_names_file(tmp_path, capsys):
     # an empty cell (pandas writes NaN so) shifted the later columns: wrong boxes, exit 0
     ("emptyid", "1,,133.9,148.0,104.9,42.5,0.6,-1,-1,-1\n", "line 1: empty field (column 2, id)"),
     ("emptyconf", "1,-1,10,10,8,4,,-1\n", "empty field (column 7, conf)"),
+    # a missing conf at the end of the row, as pandas writes NaN: it was read as conf 1.0
+    ("emptylast", "1,-1,10,10,8,4,\n", "empty field (column 7, conf)"),
+    ("semicolons", "1;-1;10;10;8;4;0.9\n", "separated by ';'?"),
     ("frame0", "0,-1,10,10,8,4,1\n", "frame"),
     ("zero", "1,-1,10,10,0,4,1\n", "zero-size"),
     ("binary", "\x00\x01\x02garbage\n", "line 1"),
@@ -1117,6 +1120,14 @@ def test_api_detections_below_min_conf_are_dropped(tmp_path, capsys):
     assert code == 0, err
     code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "b")
     assert code == 0 and "colour histograms" not in err, err
+    # --from with a higher --min-conf drops the cached boxes below it (it was ignored)
+    code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "c",
+                           "--min-conf", "0.5")
+    assert code == 0, err
+    from aerotrack.io.mot import read_mot
+
+    assert len(read_mot(tmp_path / "c" / "detections.csv")) == 30
+    assert len(read_mot(tmp_path / "b" / "detections.csv")) == 60
 
 
 def test_detections_in_another_order_give_the_same_tracks(tmp_path, capsys):
@@ -1157,6 +1168,9 @@ def test_detections_with_a_latin1_comment_or_an_odd_header(tmp_path, capsys):
     p.write_bytes("# détections de la caméra\nframe,id,x,y,w,h,conf%\n1,-1,10,10,8,4,0.9\n"
                   .encode("latin-1"))
     assert len(read_mot(p, option="--detections")) == 1
+    h = tmp_path / "h.txt"  # a header whose cells hold spaces; a trailing comma after a row
+    h.write_text("frame,id,bb_left (px),bb_top (px),w [px],h [px],score/1\n1,-1,10,10,8,4,0.9,\n")
+    assert read_mot(h, option="--detections")[0, 6] == pytest.approx(0.9)
     u = tmp_path / "u16.txt"  # Windows "Unicode" text: UTF-16 with its byte order mark
     u.write_text("1,-1,10,10,8,4,0.9\n2,-1,11,10,8,4,0.9\n", encoding="utf-16")
     assert len(read_mot(u, option="--detections")) == 2

@@ -560,6 +560,7 @@ def test_roads_from_a_geopackage_or_shapefile(scene, tmp_path):
     GeoJSON ('utf-8' codec can't decode ...)')."""
     pyogrio = pytest.importorskip("pyogrio")
     import struct
+    import warnings
 
     from pyproj import Transformer
 
@@ -587,6 +588,13 @@ def test_roads_from_a_geopackage_or_shapefile(scene, tmp_path):
         assert len(net.lines) == len(ref.lines) == len(lines)
         for a, b in zip(net.lines, ref.lines):
             assert np.abs(np.asarray(a) - np.asarray(b)).max() < 0.01  # map pixels
+    nocrs = np.array([wkb(c, False) for c in lines], dtype=object)  # UTM, and no .prj
+    with warnings.catch_warnings():  # pyogrio's "crs was not provided": the point here
+        warnings.simplefilter("ignore", UserWarning)
+        pyogrio.raw.write(str(tmp_path / "nocrs.shp"), nocrs, [np.arange(len(lines))], ["fid_"],
+                          geometry_type="LineString")
+    with pytest.raises(InputError, match=r"needs its \.prj"):
+        read_roads(tmp_path / "nocrs.shp", geomap=gm)
     (tmp_path / "junk.bin").write_bytes(b"\x00\x01garbage")
     with pytest.raises(InputError, match="GDAL vector file"):
         read_roads(tmp_path / "junk.bin", geomap=gm)

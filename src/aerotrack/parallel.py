@@ -1413,8 +1413,9 @@ def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bo
     why = ("--overwrite" if not resume else
            "its settings differ from this batch's (config, --fps, --seed, --gsd, --stride or "
            "--stabilised)")
-    log.warning("%s: an interrupted run in %s is not continued (%s): tracking it again from the "
-                "first frame", item.input, item.out, why)
+    # (the batch's messages already start with the input's name)
+    log.warning("an interrupted run in %s is not continued (%s): tracking it again from the "
+                "first frame", item.out, why)
     return False
 
 

@@ -951,6 +951,11 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
 
     config = config or Config()
     regs, dets, _ = load_chunks(stages)
+    # a higher detection.min_conf (--min-conf) applies to the cached boxes too (it was ignored,
+    # while config.toml said it was used); the earlier run already dropped those below its own
+    floor = config.detection.min_conf
+    dets = [d.subset(np.asarray(d.conf, float) >= floor) if len(d) and floor > 0 else d
+            for d in dets]
     no_frames = not regs  # --detections without INPUT: no registrations, no frames
     if any(len(d) and d.hist is None for d in dets) and not no_frames:  # (without frames, the
         # first run compared motion only too: nothing to say)

@@ -306,8 +306,8 @@ def check_detections(dets, path, source=None, *, lines=None, min_conf: float | N
     if len(frames) >= 10:
         step = int(np.gcd.reduce(np.diff(frames)))
         if step > 1:
-            log.warning("%s: every frame number is %d apart from the next: detections on every "
-                        "%dth frame only, or times instead of frame numbers? (frames are 1-based "
+            log.warning("%s: every frame number is %d apart from the next: detections on one "
+                        "frame in %d only, or times instead of frame numbers? (frames are 1-based "
                         "frame numbers; frames between are bridged or missed)", label, step, step)
 
 

@@ -75,7 +75,7 @@ def _ogr_document(path: Path, label: str) -> dict:
             raise InputError(f"{label}: a geometry GDAL returned cannot be decoded") from None
         if parts:
             geoms.append({"type": "MultiLineString", "coordinates": parts})
-    doc: dict = {"type": "FeatureCollection",
+    doc: dict = {"type": "FeatureCollection", "read_by_gdal": True,
                  "features": [{"type": "Feature", "geometry": g} for g in geoms]}
     if meta.get("crs"):
         doc["crs"] = {"type": "name", "properties": {"name": meta["crs"]}}
@@ -225,9 +225,11 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
     if src.is_geographic:
         allpts = np.vstack(lines)
         if np.any(np.abs(allpts[:, 0]) > 180) or np.any(np.abs(allpts[:, 1]) > 90):
+            fix = ("the file names no CRS: a Shapefile needs its .prj beside it"
+                   if doc.get("read_by_gdal") else
+                   "GeoJSON is lon, lat: swapped? or give the file's CRS in its 'crs' member")
             raise InputError(f"{label}: coordinates are not lon/lat (a latitude beyond 90 or a "
-                             "longitude beyond 180; GeoJSON is lon, lat: swapped? or give the "
-                             "file's CRS in its 'crs' member)")
+                             f"longitude beyond 180; {fix})")
     if geomap is not None:
         dst = CRS.from_user_input(geomap.crs.to_wkt())
     elif crs is not None:

@@ -16,6 +16,7 @@ from ..errors import FormatError, InputError
 from .output import atomic_write
 
 _HEADER_FIELD = re.compile(r"^[A-Za-z_]\S*$")  # a word: "conf%", "bb_left(px)" too
+_HEADER_CELL = re.compile(r"^[A-Za-z_][^,]*$")  # a comma-separated header's cell: "w [px]" too
 MOT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "conf", "x", "y", "z")
 
 
@@ -50,15 +51,19 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
         if not s or s.startswith("#"):
             continue
         if "," in s:
-            parts = [p.strip() for p in s.split(",")]
-            while parts and not parts[-1]:  # a trailing comma
-                parts.pop()
-            if "" in parts:  # an empty cell (pandas writes NaN so): splitting on runs of
-                # separators shifted every later column and the row was read with wrong boxes
-                k = parts.index("")
+            cells = [p.strip() for p in s.split(",")]
+            if first and all(_HEADER_CELL.match(c) for c in cells if c):  # "w [px]" too
+                first = False
+                continue
+            if len(cells) > 7 and cells[-1] == "" and "" not in cells[:-1]:
+                cells.pop()  # one trailing comma after a whole row (conf given)
+            if "" in cells:  # an empty cell (pandas writes NaN so): splitting on runs of
+                # separators shifted every later column and the row was read with wrong boxes;
+                # an empty last cell is a missing conf, not a trailing comma (read as 1.0)
+                k = cells.index("")
                 raise FormatError(f"{name} line {lineno}: empty field (column {k + 1}"
                                   + (f", {MOT_COLUMNS[k]}" if k < len(MOT_COLUMNS) else "") + ")")
-            parts = [q for p in parts for q in p.split()]
+            parts = [q for p in cells for q in p.split()]
         else:
             parts = s.split()
         if first and all(_HEADER_FIELD.match(p) for p in parts):
@@ -66,14 +71,18 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
             continue
         first = False
         if not (min_columns <= len(parts) <= 10):
+            hint = ("; separated by ';'? use commas, tabs or spaces"
+                    if len(parts) < min_columns and ";" in s else "")
             raise FormatError(
                 f"{name} line {lineno}: expected {min_columns} to 10 columns, found {len(parts)}"
-            )
+                + hint)
         try:
             vals = [float(p) for p in parts]
         except ValueError:
             bad = next(p for p in parts if not _is_float(p))
-            raise FormatError(f"{name} line {lineno}: non-numeric value {bad!r}") from None
+            hint = "; UTF-16 text without its byte order mark? save it as UTF-8" \
+                if "\x00" in bad else ""
+            raise FormatError(f"{name} line {lineno}: non-numeric value {bad!r}{hint}") from None
         if not all(np.isfinite(vals)):
             raise FormatError(f"{name} line {lineno}: NaN or infinite value")
         if vals[0] < lowest or not float(vals[0]).is_integer():
