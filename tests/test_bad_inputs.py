@@ -1130,14 +1130,11 @@ def test_api_detections_below_min_conf_are_dropped(tmp_path, capsys):
     assert len(read_mot(tmp_path / "b" / "detections.csv")) == 60
 
 
-def test_detections_in_another_order_give_the_same_tracks(tmp_path, capsys):
+def test_detections_in_another_order_give_the_same_tracks(tmp_path, capsys, shared_data):
     """The same boxes listed in another order within their frames give the same tracks (the
     sampler followed the file's order: a shuffled UAVDT file scored HOTA 0.919 against 0.925).
     Real UAVDT boxes, jittered, with false alarms (skipped without ../shared)."""
-    gt = Path(__file__).resolve().parents[2] / "shared/data/uavdt_gt_only/M0101_gt.txt"
-    if not gt.is_file():
-        pytest.skip("../shared/data/uavdt_gt_only is absent")
-    rows = np.loadtxt(gt, delimiter=",")
+    rows = np.loadtxt(shared_data / "uavdt_gt_only" / "M0101_gt.txt", delimiter=",")
     rows = rows[rows[:, 0] <= 200]
     rng = np.random.default_rng(0)
     rows = rows[rng.random(len(rows)) > 0.1]
