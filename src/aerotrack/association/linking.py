@@ -788,33 +788,19 @@ def _boxes(t: Track) -> dict[int, np.ndarray]:
 def same_frame_overlaps(frames: np.ndarray, boxes: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every pair of rows of one frame whose boxes touch: (row i, row j, overlap of the smaller
-    box, :func:`_box_overlap`), rows indexing ``frames`` (n,) and ``boxes`` (n, 4) as given."""
+    box, :func:`_box_overlap`), rows indexing ``frames`` (n,) and ``boxes`` (n, 4) as given;
+    candidates from :func:`~aerotrack.association.posterior.left_edge_pairs`."""
+    from .posterior import left_edge_pairs
+
     B = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    # rows sorted by frame, then by left edge: rows r and r + d of one frame can only touch while
-    # r + d's left edge is within the widest box of r's, so the passes stop after the most boxes
-    # one box's width holds, not after the busiest frame's count (1000 vehicles a frame had made
-    # this quadratic: minutes)
-    order = np.lexsort((B[:, 0], np.asarray(frames)))
-    fr = np.asarray(frames)[order]
-    B = B[order]
-    x0 = B[:, 0]
     finite = np.isfinite(B[:, 2])
     wmax = float(B[finite, 2].max()) if finite.any() else 0.0
-    out_i, out_j, out_o = [], [], []
-    d = 1
-    while d < len(fr):
-        r = np.flatnonzero((fr[:-d] == fr[d:]) & (x0[d:] <= x0[:-d] + wmax))
-        if not len(r):
-            break
-        ov = _box_overlap(B[r], B[r + d])
-        touch = ov > 0
-        out_i.append(order[r[touch]])
-        out_j.append(order[r[touch] + d])
-        out_o.append(ov[touch])
-        d += 1
-    if not out_i:
+    i, j = left_edge_pairs(B[:, 0], wmax, np.asarray(frames))
+    if not len(i):
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    return np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_o)
+    ov = _box_overlap(B[i], B[j])
+    touch = ov > 0
+    return i[touch], j[touch], ov[touch]
 
 
 def coexisting_overlaps(tracklets: list[Track]) -> dict[tuple[int, int], tuple[float, int]]:

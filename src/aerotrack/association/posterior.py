@@ -66,35 +66,47 @@ def iou_xywh_centre(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.where(union > 0, inter / union, 0.0)
 
 
-def iou_pairs(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The pairs ``i < j`` of boxes (centre x, centre y, w, h rows) that overlap, with their IoU,
-    ordered by (i, j): what ``np.nonzero(np.triu(iou_xywh_centre(z, z), 1) > 0)`` gives, without
-    the (n, n) matrix (3000 detections a frame took 0.9 s a frame for it).
-
-    Boxes sorted by left edge are compared only while the second's left edge is within the widest
-    box of the first's; the IoU is computed as :func:`iou_xywh_centre` computes it."""
-    z = np.asarray(z, float).reshape(-1, 4)
-    n = len(z)
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
-    if n < 2:
-        return empty
-    x0 = z[:, 0] - z[:, 2] / 2
-    order = np.argsort(x0, kind="stable")
-    xs = x0[order]
-    finite = np.isfinite(z[:, 2])
-    wmax = float(np.abs(z[finite, 2]).max()) if finite.any() else 0.0
+def left_edge_pairs(x0: np.ndarray, wmax: float, groups: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate pairs ``(i, j)`` of boxes that can touch: in one group (a frame), the second's
+    left edge ``x0`` within ``wmax`` (the widest box) of the first's. Boxes sorted by group, then
+    by left edge, are compared at distances 1, 2, ... in that order until no pair is within reach,
+    so the work grows with how many boxes one box's width holds, not with the square of a frame's
+    boxes (1000 vehicles a frame made linking take minutes; 3000 made association's (n, n) IoU
+    matrix 0.48 s a frame). Pairs come in that order, indices as given."""
+    x0 = np.asarray(x0, dtype=np.float64)
+    n = len(x0)
+    g = np.zeros(n, np.int64) if groups is None else np.asarray(groups)
+    order = np.lexsort((x0, g))
+    xs, gs = x0[order], g[order]
     out_i, out_j = [], []
     d = 1
     while d < n:
-        r = np.flatnonzero(xs[d:] <= xs[:-d] + wmax)
+        r = np.flatnonzero((gs[:-d] == gs[d:]) & (xs[d:] <= xs[:-d] + wmax))
         if not len(r):
             break
         out_i.append(order[r])
         out_j.append(order[r + d])
         d += 1
     if not out_i:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(out_i), np.concatenate(out_j)
+
+
+def iou_pairs(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs ``i < j`` of boxes (centre x, centre y, w, h rows) that overlap, with their IoU,
+    ordered by (i, j): what ``np.nonzero(np.triu(iou_xywh_centre(z, z), 1) > 0)`` gives, without
+    the (n, n) matrix (:func:`left_edge_pairs`); the IoU is computed as
+    :func:`iou_xywh_centre` computes it."""
+    z = np.asarray(z, float).reshape(-1, 4)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    if len(z) < 2:
         return empty
-    i, j = np.concatenate(out_i), np.concatenate(out_j)
+    finite = np.isfinite(z[:, 2])
+    wmax = float(np.abs(z[finite, 2]).max()) if finite.any() else 0.0
+    i, j = left_edge_pairs(z[:, 0] - z[:, 2] / 2, wmax)
+    if not len(i):
+        return empty
     i, j = np.minimum(i, j), np.maximum(i, j)
     a, b = z[i], z[j]
     ax0, ay0 = a[:, 0] - a[:, 2] / 2, a[:, 1] - a[:, 3] / 2
