@@ -389,13 +389,19 @@ def gpkg_date():
         set_gdal_config_options({"OGR_CURRENT_DATE": None})
 
 
+def _point_wkbs(cols: dict[str, np.ndarray]) -> list[bytes | None]:
+    """Each row's ground point (x, y in the output CRS) as little-endian WKB, None without one:
+    the GeoPackage's and the GeoParquet's geometry."""
+    return [struct.pack("<BIdd", 1, 1, a, b) if np.isfinite(a) and np.isfinite(b) else None
+            for a, b in zip(np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64))]
+
+
 def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
     try:
         from pyogrio.raw import write
     except ImportError:
         raise InputError("GeoPackage output needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
-    geom = np.array([struct.pack("<BIdd", 1, 1, x, y) if np.isfinite(x) and np.isfinite(y)
-                     else None for x, y in zip(cols["x"], cols["y"])], dtype=object)
+    geom = np.array(_point_wkbs(cols), dtype=object)
     names = [c for c in _names(cols) if c != "crs"]
     data = []
     for c in names:
@@ -428,8 +434,7 @@ def _write_parquet(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> No
     from pyproj import CRS
 
     x, y = np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64)
-    geometry = [struct.pack("<BIdd", 1, 1, a, b) if np.isfinite(a) and np.isfinite(b) else None
-                for a, b in zip(x, y)]
+    geometry = _point_wkbs(cols)
     data = {c: (cols[c].astype(str) if cols[c].dtype == object else cols[c])
             for c in _names(cols) if c != "time_utc"}
     if "time_utc" in cols:
