@@ -206,7 +206,7 @@ def test_cli_santiago_json(shared_data, capsys):
                            "--zero-based", "--frames", "2:98", "--fix-gt", "--json"], capsys)
     assert code == 0
     res = json.loads(out)
-    assert list(res) == list(METRIC_KEYS)
+    assert list(res)[:len(METRIC_KEYS)] == list(METRIC_KEYS)  # the contract's keys, then counts
     assert res["IDF1"] == pytest.approx(0.879, abs=0.005)
     assert "reflected 375" in err and "duplicate" in err
 
@@ -216,7 +216,7 @@ def test_cli_santiago_json(shared_data, capsys):
 def _run(argv, capsys):
     """Run the console entry point; returns (exit code, stdout, stderr)."""
     try:
-        main(argv)
+        main([str(a) for a in argv])
         code = 0
     except SystemExit as exc:
         code = exc.code
@@ -533,3 +533,95 @@ def test_cli_regressions_found_by_a_second_probe(tmp_path, capsys):
     code, out, err = _run(["eval", "--gt", str(tmp_path / "ll.txt"), "--pred",
                            str(tmp_path / "ll.txt"), "--geo-crs", "EPSG:32611", "--json"], capsys)
     assert "lon/lat" in json.loads(out)["geo_error"]["suspect"], out
+
+
+# --------------------------------------------------------------------------- protocol (probe)
+
+def test_rows_flagged_not_to_be_considered_are_pointed_out_and_can_be_left_out(tmp_path, capsys):
+    """MOT16/17 and VisDrone mark rows not to score with 0 in the 7th column; they were counted
+    silently (a tracker of the valid objects only scored MOTA 0.74 where TrackEval says 1.0)."""
+    gt = _two_targets(10)
+    flagged = gt[gt[:, 1] == 2].copy()
+    flagged[:, 6] = 0
+    gt = np.vstack([gt[gt[:, 1] == 1], flagged])
+    only_valid = gt[gt[:, 1] == 1]
+    r = evaluate(gt, only_valid, drop_flagged=True)
+    assert (r["MOTA"], r["IDF1"], r["GT_Dets"]) == (pytest.approx(1.0), pytest.approx(1.0), 10)
+    both = evaluate(gt, gt, drop_flagged=True)  # the flagged object tracked: not a false positive
+    assert (both["MOTA"], both["FP"], both["Pred_Dets"]) == (pytest.approx(1.0), 0, 10)
+    assert evaluate(gt, only_valid)["MOTA"] == pytest.approx(0.5)  # the contract: every row
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "pred.txt", only_valid)
+    code, out, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt",
+                           "--json"], capsys)
+    assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(0.5), err
+    assert "10 rows are flagged 0" in err and "--drop-flagged" in err
+    code, out, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt",
+                           "--json", "--drop-flagged"], capsys)
+    assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
+
+
+def test_a_motchallenge_sequence_is_scored_over_its_seqinfo_length(tmp_path, capsys):
+    """Boxes invented after the last annotated frame but inside seqLength cost nothing."""
+    seq = tmp_path / "gt" / "SEQ"
+    (seq / "gt").mkdir(parents=True)
+    write_mot(seq / "gt" / "gt.txt", _two_targets(10))
+    (seq / "seqinfo.ini").write_text("[Sequence]\nname=SEQ\nseqLength=15\n")
+    (tmp_path / "pred").mkdir()
+    write_mot(tmp_path / "pred" / "SEQ.txt", _two_targets(20))
+    code, out, err = _run(["eval", "--gt", tmp_path / "gt", "--pred", tmp_path / "pred",
+                           "--json"], capsys)
+    assert code == 0, err
+    r = json.loads(out)
+    assert (r["FP"], r["Pred_Dets"]) == (10, 30)  # frames 11-15 counted, 16-20 past the sequence
+
+
+def test_a_frame_numbering_mistake_is_warned_about(tmp_path, capsys):
+    gt = _two_targets(30)
+    write_mot(tmp_path / "gt.txt", gt)
+    shifted = gt.copy()
+    shifted[:, 0] += 1  # 1-based tracks read as 0-based and shifted once more
+    write_mot(tmp_path / "pred.txt", shifted)
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt"],
+                        capsys)
+    assert code == 0 and "better one frame later" in err
+    write_mot(tmp_path / "pred.txt", gt)
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt"],
+                        capsys)
+    assert code == 0 and "one frame" not in err
+
+
+def test_unused_ignore_regions_beside_the_ground_truth_are_pointed_out(tmp_path, capsys):
+    (tmp_path / "gt").mkdir()
+    (tmp_path / "pred").mkdir()
+    write_mot(tmp_path / "gt" / "M1_gt.txt", _two_targets(5))
+    write_mot(tmp_path / "gt" / "M1_gt_ignore.txt", np.array([[1, -1, 500, 500, 50, 50, 1, -1, -1, -1]]))
+    write_mot(tmp_path / "pred" / "M1.txt", _two_targets(5))
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt", "--pred", tmp_path / "pred"], capsys)
+    assert code == 0 and "--ignore auto" in err
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt", "--pred", tmp_path / "pred",
+                         "--ignore", "auto"], capsys)
+    assert code == 0 and "--ignore auto" not in err
+
+
+def test_json_has_the_counts_and_null_for_undefined_scores(tmp_path, capsys):
+    write_mot(tmp_path / "gt.txt", _two_targets(5))
+    (tmp_path / "pred.txt").write_text("")
+    code, out, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt",
+                           "--json"], capsys)
+    assert code == 0, err
+    r = json.loads(out)  # strict JSON: no NaN
+    assert r["LocA"] is None and r["MOTP"] is None
+    assert (r["TP"], r["FP"], r["FN"], r["ML"]) == (0, 0, 10, 2)
+
+
+def test_non_integer_ids_are_refused(tmp_path, capsys):
+    """TrackEval truncates them: 1000.3 and 1000 would be scored as one track."""
+    gt = _two_targets(5)
+    pred = gt.copy()
+    pred[pred[:, 0] > 3, 1] += 0.3
+    write_mot(tmp_path / "gt.txt", gt)
+    np.savetxt(tmp_path / "pred.txt", pred, fmt="%g", delimiter=",")
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt"],
+                        capsys)
+    assert code == 2 and "ids are integers" in err and "Traceback" not in err

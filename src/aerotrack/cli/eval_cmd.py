@@ -16,7 +16,7 @@ from ..evaluation import (
     evaluate_sequences,
     fix_ground_truth,
 )
-from ..evaluation.mot import scored_rows
+from ..evaluation.mot import EXTRA_KEYS, frame_offset_overlap, has_consider_flag, scored_rows
 from ..io.mot import read_mot
 
 log = logging.getLogger(__name__)
@@ -61,6 +61,54 @@ def _find_in(folder: Path, seq: str, option: str, candidates: list[str]) -> Path
                      f"(looked for {', '.join(candidates)})")
 
 
+def _seq_length(gt_file: Path) -> int | None:
+    """``seqLength`` of a MOTChallenge sequence (``SEQ/seqinfo.ini`` beside ``SEQ/gt/gt.txt``):
+    the frames a tracker is scored on, which may run past the last annotated one."""
+    if gt_file.parent.name != "gt":
+        return None
+    ini = gt_file.parent.parent / "seqinfo.ini"
+    if not ini.is_file():
+        return None
+    import configparser
+
+    cp = configparser.ConfigParser()
+    try:
+        cp.read(ini, encoding="utf-8")
+        n = cp.getint("Sequence", "seqLength", fallback=None)
+    except (configparser.Error, ValueError, UnicodeDecodeError):
+        log.warning("%s: unreadable; the sequence is scored up to its last annotated frame", ini)
+        return None
+    return n if n is not None and n >= 1 else None
+
+
+def _unused_ignore_hint(pairs) -> None:
+    """UAVDT ships ignore regions beside its ground truth; scoring without them counts every
+    vehicle in them (unannotated parking lots) as a false positive."""
+    found = [g.parent / f"{_seq_name(g)}{suffix}.txt" for _, g, _ in pairs
+             for suffix in ("_gt_ignore", "_ignore")
+             if (g.parent / f"{_seq_name(g)}{suffix}.txt").is_file()]
+    if found:
+        log.warning("%d of %d ground truths have ignore regions beside them (e.g. %s) that are not "
+                    "used: --ignore auto drops the boxes in them, as UAVDT's protocol does",
+                    len(found), len(pairs), found[0])
+
+
+def _frame_shift_hint(seqs: dict) -> None:
+    """Warn when the predictions overlap the ground truth clearly better one frame off: a 0- or
+    1-based numbering mistake (Santiago's published tracks scored with the wrong flag lost 0.17
+    HOTA, silently)."""
+    for name, (gt, pred, _) in seqs.items():
+        if not len(gt) or not len(pred):
+            continue
+        at = {d: frame_offset_overlap(gt, pred, d) for d in (-1, 0, 1)}
+        best = max((-1, 1), key=lambda d: at[d])
+        if at[best] > 0.1 and at[best] > 1.15 * at[0]:
+            log.warning("%s: the predictions overlap the ground truth better one frame %s (mean "
+                        "best IoU %.2f against %.2f in the same frame): is one file numbered from "
+                        "0 and the other from 1? (--zero-based, --gt-zero-based)",
+                        name or "sequence", "later" if best > 0 else "earlier", at[best], at[0])
+
+
 def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
           ) -> list[tuple[str, Path, Path, Path | None]]:
     """(name, gt file, pred file, ignore file or None) per sequence."""
@@ -93,6 +141,7 @@ def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
 
     out = []
     if not ignores:
+        _unused_ignore_hint(pairs)
         return [(n, g, p, None) for n, g, p in pairs]
     if len(ignores) == 1 and (ignores[0] == "auto" or Path(ignores[0]).is_dir()):
         for n, g, p in pairs:
@@ -121,6 +170,11 @@ def _parse_frames(text: str | None, last_gt: int | None = None) -> tuple[int, in
     if a < 1 or b < a:
         raise InputError(f"--frames: expected 1 <= FIRST <= LAST, got {text!r}")
     return a, b
+
+
+def _json_number(v):
+    """NaN (an undefined score: nothing to match) as JSON's null; NaN is not JSON."""
+    return None if isinstance(v, float) and not np.isfinite(v) else v
 
 
 def _fmt(v: float, key: str) -> str:
@@ -180,18 +234,26 @@ def _coverage_hint(seqs: dict) -> None:
 @click.option("--geo-crs", "geo_crs", default=None, metavar="CRS",
               help="Also report the geo error: metres between the x, y columns of matched true and "
                    "predicted boxes, both in this CRS (e.g. EPSG:4326 for lon/lat).")
+@click.option("--drop-flagged", is_flag=True,
+              help="Read a 7th ground-truth column holding only 0 and 1 as MOTChallenge's "
+                   "'consider' flag (MOT16/17, VisDrone): rows flagged 0 are not scored, nor the "
+                   "predictions matching them (IoU >= 0.5). Default: every row counts.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
-                   "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets; combined over sequences, with a "
-                   "'sequences' entry when there are several).")
+                   "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets, then TP, FP, FN, MT, PT, ML, IDP, IDR, "
+                   "HOTA(0); combined over sequences, with a 'sequences' entry when there are "
+                   "several; an undefined score is null).")
 def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero_based, fix_gt,
-                 geo_crs, as_json):
+                 drop_flagged, geo_crs, as_json):
     """Score tracks against a ground truth: HOTA, MOTA, IDF1 and counts (TrackEval).
 
-    Boxes are class-agnostic; every ground-truth row counts whatever its confidence. The ground
-    truth may hold boxes with negative sizes and exact duplicate rows (published ground truths do):
-    they are accepted with a warning (duplicates dropped, negative boxes kept, matching nothing)
-    unless --fix-gt corrects them. Predictions with them are refused.
+    Boxes are class-agnostic; every ground-truth row counts whatever its confidence (rows
+    flagged 0 in a MOTChallenge 'consider' column too, unless --drop-flagged). The ground truth may hold
+    boxes with negative sizes and exact duplicate rows (published ground truths do): they are
+    accepted with a warning (duplicates dropped, negative boxes kept, matching nothing) unless
+    --fix-gt corrects them. Predictions with them are refused. A MOTChallenge sequence is scored
+    over its seqinfo.ini seqLength (predictions after the last annotated frame count); other
+    ground truths from frame 1 to their last frame.
 
     \b
     Examples:
@@ -205,8 +267,10 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     """
     _parse_frames(frames)  # a malformed range: refused before any file is read
     seqs = {}
+    lengths = {}
     gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
     for name, g, p, ign in _pair(gts, preds, ignores):
+        lengths[name] = _seq_length(g)
         gt = read_mot(g, option="--gt", strict=False, allow_empty=False, zero_based=gt_zero)
         pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
         if fix_gt:
@@ -217,16 +281,24 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
                   if ign is not None else None)
         seqs[name] = (gt, pred, ignore)
+        if has_consider_flag(gt) and not drop_flagged:
+            log.warning("--gt %s: %d rows are flagged 0 in the 7th column (MOTChallenge's "
+                        "'consider' flag?) and are scored like every row; --drop-flagged leaves "
+                        "them out, as MOTChallenge's protocol does", g, int((gt[:, 6] == 0).sum()))
     window = _parse_frames(frames, max(int(g[:, 0].max()) for g, _, _ in seqs.values()))
     if window is None:
         _coverage_hint(seqs)
+    _frame_shift_hint(seqs)
+    per_seq = ({n: window for n in seqs} if window else
+               {n: (1, max(n_len, int(seqs[n][0][:, 0].max()))) for n, n_len in lengths.items()
+                if n_len is not None})
     if window is not None and not any(((g[:, 0] >= window[0]) & (g[:, 0] <= window[1])).any()
                                       for g, _, _ in seqs.values()):
         last = max(int(g[:, 0].max()) for g, _, _ in seqs.values())
         raise InputError(f"--frames {frames}: no ground-truth rows in these frames (the ground "
                          f"truth ends at frame {last})")
-    res = evaluate_sequences(seqs, iou_threshold=iou_threshold,
-                             frames={n: window for n in seqs} if window else None)
+    res = evaluate_sequences(seqs, iou_threshold=iou_threshold, frames=per_seq or None,
+                             drop_flagged=drop_flagged)
     single = len(seqs) == 1
     geo = None
     if geo_crs is not None:
@@ -237,7 +309,8 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         off = 0
         parts_g, parts_p = [], []
         for name, (g, p, ign) in seqs.items():
-            g, p, _, _ = scored_rows(g, p, ignore=ign, frames=window, name=name, quiet=True)
+            g, p, _, _ = scored_rows(g, p, ignore=ign, frames=per_seq.get(name), name=name,
+                                     quiet=True, drop_flagged=drop_flagged)
             g, p = g.copy(), p.copy()
             g[:, 0] += off
             p[:, 0] += off
@@ -269,13 +342,14 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
                         "--pred's x, y in the same CRS? (the ground truth's must be in %s too)",
                         geo_crs, geo["median_m"] / 1000, geo_crs)
     if as_json:
-        out = {k: res["combined"][k] for k in METRIC_KEYS}
+        keys = (*METRIC_KEYS, *EXTRA_KEYS)
+        out = {k: _json_number(res["combined"][k]) for k in keys}
         if geo is not None:
             out["geo_error"] = geo
         if not single:
-            out["sequences"] = {n: {k: r[k] for k in METRIC_KEYS}
+            out["sequences"] = {n: {k: _json_number(r[k]) for k in keys}
                                 for n, r in res["sequences"].items()}
-        click.echo(json.dumps(out))
+        click.echo(json.dumps(out, allow_nan=False))
         return
     rows = list(res["sequences"].items())
     if not single:

@@ -206,6 +206,81 @@ def drop_ignored(pred: np.ndarray, ignore: np.ndarray, *, min_overlap: float = 0
     return pred[~drop], int(drop.sum())
 
 
+def has_consider_flag(gt: np.ndarray) -> bool:
+    """Whether the ground truth's 7th column is MOTChallenge's 0/1 "consider" flag: it holds only
+    0 and 1, and both (MOT16/17's and VisDrone's ``gt.txt``; a confidence column of 1 everywhere,
+    as UAVDT's, of 0 everywhere, or of 0.8 and 0.9, as Santiago's, is not)."""
+    gt = np.asarray(gt, dtype=np.float64)
+    if gt.ndim != 2 or gt.shape[1] < 7 or not len(gt):
+        return False
+    flag = gt[:, 6]
+    return bool(np.isin(flag, (0.0, 1.0)).all() and (flag == 0).any() and (flag == 1).any())
+
+
+def drop_unconsidered(gt: np.ndarray, pred: np.ndarray, *, min_iou: float = 0.5
+                      ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Leave out the ground-truth rows flagged 0 ("not to be considered") and the predictions
+    that match them.
+
+    In each frame predictions and all ground-truth boxes are matched one to one (Hungarian on IoU,
+    pairs of at least ``min_iou``), as TrackEval matches MOTChallenge's distractors; predictions
+    matched to a flagged box are dropped, so tracking an object the ground truth does not score
+    costs nothing, and the flagged rows are dropped. (TrackEval's MOT17 preprocessing does this
+    for the pedestrian classes it calls distractors and counts predictions on other flagged
+    classes, such as cars, as false positives; for a class-agnostic vehicle benchmark a flagged
+    row is one not to score, whatever its class.)
+
+    Returns
+    -------
+    gt, pred : arrays
+        The rows kept.
+    n_gt, n_pred : int
+        Flagged ground-truth rows and predictions dropped.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    flagged = gt[:, 6] == 0
+    drop = np.zeros(len(pred), bool)
+    if len(pred):
+        for f in np.unique(gt[flagged, 0]):
+            gi = np.flatnonzero(gt[:, 0] == f)
+            pi = np.flatnonzero(pred[:, 0] == f)
+            if not len(pi):
+                continue
+            iou = _box_ious(gt[gi, 2:6], pred[pi, 2:6])
+            score = np.where(iou >= min_iou - np.finfo(float).eps, iou, 0.0)
+            r, c = linear_sum_assignment(-score)
+            hit = (score[r, c] > 0) & flagged[gi[r]]
+            drop[pi[c[hit]]] = True
+    return gt[~flagged], pred[~drop], int(flagged.sum()), int(drop.sum())
+
+
+def frame_offset_overlap(gt: np.ndarray, pred: np.ndarray, offset: int, *,
+                         max_frames: int = 300) -> float:
+    """Mean over ground-truth boxes of their best IoU with a prediction ``offset`` frames later
+    (predicted frame ``f + offset`` against true frame ``f``), on at most ``max_frames`` true
+    frames spread over the sequence. Comparing offsets -1, 0 and 1 tells a frame numbering
+    mistake (0- against 1-based) from a tracker's error: moving objects overlap best in the
+    right frame."""
+    gt = np.asarray(gt, dtype=np.float64)
+    pred = np.asarray(pred, dtype=np.float64)
+    if not len(gt) or not len(pred):
+        return 0.0
+    frames = np.unique(gt[:, 0])
+    if len(frames) > max_frames:
+        frames = frames[np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
+    total, n = 0.0, 0
+    for f in frames:
+        g = gt[gt[:, 0] == f, 2:6]
+        p = pred[pred[:, 0] == f + offset, 2:6]
+        n += len(g)
+        if len(p):
+            g, p = g.copy(), p.copy()
+            g[:, 2:4], p[:, 2:4] = np.maximum(g[:, 2:4], 0), np.maximum(p[:, 2:4], 0)
+            total += float(np.nan_to_num(_box_ious(g, p)).max(axis=1).sum())
+    return total / max(n, 1)
+
+
 # --------------------------------------------------------------------------- TrackEval adapters
 
 def _box_ious(gt_boxes: np.ndarray, pred_boxes: np.ndarray) -> np.ndarray:
@@ -231,6 +306,9 @@ def _as_rows(rows: np.ndarray, label: str) -> np.ndarray:
     if len(bad):
         raise InputError(f"{label}: row {bad[0]} has frame {a[bad[0], 0]:g}; frames are 1-based "
                          "integers (add 1 to 0-based ones)")
+    bad = np.flatnonzero(a[:, 1] != np.round(a[:, 1]))
+    if len(bad):  # TrackEval truncates such ids: 1000.3 and 1000 would silently be one track
+        raise InputError(f"{label}: row {bad[0]} has id {a[bad[0], 1]:g}; ids are integers")
     return a
 
 
@@ -351,7 +429,8 @@ class SequenceScore:
 
 
 def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None = None,
-                frames: tuple[int, int] | None = None, name: str = "", quiet: bool = False
+                frames: tuple[int, int] | None = None, name: str = "", quiet: bool = False,
+                drop_flagged: bool = False
                 ) -> tuple[np.ndarray, np.ndarray, int, tuple[int, int]]:
     """The rows a sequence is scored on: ``(gt, pred, predictions dropped in ignore regions,
     scoring window)``.
@@ -359,8 +438,12 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
     The ground truth loses exact duplicates (with a warning); both lose boxes in ``ignore``
     regions (:func:`drop_ignored`; annotated boxes too, or a perfect prediction would lose them)
     and rows outside the scoring window ``frames`` (default ``1..`` the ground truth's last
-    frame). Predictions must be tracks (ids >= 0, one row per frame and id, no negative size).
-    ``eval --geo-crs`` measures its distances on the same rows.
+    frame). With ``drop_flagged``, a ground truth whose 7th column is MOTChallenge's 0/1
+    "consider" flag (:func:`has_consider_flag`) loses its rows flagged 0 and the predictions
+    matching them (:func:`drop_unconsidered`); by default every row counts, whatever its
+    confidence (the file contract). Predictions must be tracks (ids >= 0, one
+    row per frame and id, no negative size). ``eval --geo-crs`` measures its distances on the
+    same rows.
     """
     suffix = f" {name}" if name else ""
     gt = _prepare_gt(gt, "ground truth" + suffix)
@@ -377,6 +460,12 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
         log.info("%sdropped %d prediction rows outside the scoring frames %d..%d",
                  f"{name}: " if name else "", int((~in_pred).sum()), first, last)
     gt, pred = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)], pred[in_pred]
+    if drop_flagged and has_consider_flag(gt):
+        gt, pred, n_gt, n_pred = drop_unconsidered(gt, pred)
+        if not quiet:
+            log.info("%s: %d ground-truth rows flagged 0 in the 7th column (MOTChallenge's "
+                     "'consider' flag) are not scored, nor the %d predictions matching them",
+                     name or "ground truth", n_gt, n_pred)
     n_ignored = 0
     if ignore is not None:  # after the window: the counts are of the scored frames
         ignore = _as_rows(ignore, "ignore regions" + suffix)
@@ -389,8 +478,10 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
 
 
 def _score_sequence(name: str, gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float,
-                    ignore: np.ndarray | None, frames: tuple[int, int] | None) -> SequenceScore:
-    gt, pred, n_ignored, frames = scored_rows(gt, pred, ignore=ignore, frames=frames, name=name)
+                    ignore: np.ndarray | None, frames: tuple[int, int] | None,
+                    drop_flagged: bool = False) -> SequenceScore:
+    gt, pred, n_ignored, frames = scored_rows(gt, pred, ignore=ignore, frames=frames, name=name,
+                                              drop_flagged=drop_flagged)
     data = sequence_data(gt, pred, frames=frames)
     raw = {k: m.eval_sequence(data) for k, m in _metrics(iou_threshold).items()}
     s = SequenceScore(name, raw, n_ignored)
@@ -412,7 +503,9 @@ def summarise(raw: Mapping[str, Mapping]) -> dict:
         "AssA": float(np.mean(h["AssA"])),
         # TrackEval reports LocA 1 when nothing matched (0/0 guarded by 1e-10): undefined here
         "LocA": float(np.mean(h["LocA"])) if np.sum(h["HOTA_TP"]) > 0 else float("nan"),
-        "MOTA": float(c["MOTA"]), "MOTP": float(c["MOTP"]), "IDF1": float(i["IDF1"]),
+        "MOTA": float(c["MOTA"]),
+        # mean IoU of the matches: undefined without any (TrackEval says 0)
+        "MOTP": float(c["MOTP"]) if c["CLR_TP"] > 0 else float("nan"), "IDF1": float(i["IDF1"]),
         "IDSW": int(c["IDSW"]), "Frag": int(c["Frag"]),
         "GT_IDs": int(n["GT_IDs"]), "Pred_IDs": int(n["IDs"]),
         "GT_Dets": int(n["GT_Dets"]), "Pred_Dets": int(n["Dets"]),
@@ -424,15 +517,19 @@ def summarise(raw: Mapping[str, Mapping]) -> dict:
 
 
 def evaluate(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0.5,
-             ignore: np.ndarray | None = None, frames: tuple[int, int] | None = None) -> dict:
+             ignore: np.ndarray | None = None, frames: tuple[int, int] | None = None,
+             drop_flagged: bool = False) -> dict:
     """Score one sequence's predicted tracks against its ground truth (class-agnostic boxes).
 
     Parameters
     ----------
     gt : (N, >=6) float array
         Ground-truth MOT rows (``frame, id, bb_left, bb_top, bb_width, bb_height, ...``), 1-based
-        frames, frame pixels. Every row counts whatever its confidence. Exact duplicate rows are
-        dropped with a warning; negative sizes are kept (see the module docstring).
+        frames, frame pixels. Every row counts whatever its confidence, unless
+        ``drop_flagged``: then a 7th column holding only 0 and 1 is MOTChallenge's "consider"
+        flag, and rows flagged 0 are not scored, nor the predictions matching them
+        (:func:`drop_unconsidered`). Exact duplicate rows are dropped with a warning; negative sizes are kept
+        (see the module docstring).
     pred : (M, >=6) float array
         Predicted MOT rows in the same frame and pixel convention.
     iou_threshold : float
@@ -452,11 +549,12 @@ def evaluate(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0.5,
     """
     _check_iou(iou_threshold)
     return _score_sequence("", gt, pred, iou_threshold=iou_threshold, ignore=ignore,
-                           frames=frames).summary
+                           frames=frames, drop_flagged=drop_flagged).summary
 
 
 def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: float = 0.5,
-                       frames: Mapping[str, tuple[int, int]] | None = None) -> dict:
+                       frames: Mapping[str, tuple[int, int]] | None = None,
+                       drop_flagged: bool = False) -> dict:
     """Score several sequences and combine them as TrackEval does.
 
     Parameters
@@ -467,6 +565,9 @@ def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: floa
         As in :func:`evaluate`.
     frames : mapping name -> (first, last), optional
         Per-sequence scoring windows.
+    drop_flagged : bool
+        Leave out ground-truth rows flagged 0 in a MOTChallenge "consider" column
+        (:func:`evaluate`).
 
     Returns
     -------
@@ -485,7 +586,8 @@ def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: floa
         gt, pred = entry[0], entry[1]
         ign = entry[2] if len(entry) > 2 else None
         scores[name] = _score_sequence(name, gt, pred, iou_threshold=iou_threshold, ignore=ign,
-                                       frames=(frames or {}).get(name))
+                                       frames=(frames or {}).get(name),
+                                       drop_flagged=drop_flagged)
     metrics = _metrics(iou_threshold)
     combined_raw = {k: m.combine_sequences({n: s.raw[k] for n, s in scores.items()})
                     for k, m in metrics.items()}
