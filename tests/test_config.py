@@ -45,3 +45,26 @@ def test_misplaced_and_misspelt_keys_are_named_helpfully(tmp_path):
         load_config(None, ["detection.treshold_sigma=6"])
     with pytest.raises(ConfigError, match=r"did you mean \[detection\]"):
         load_config(None, ["detections.threshold_sigma=6"])
+
+
+def test_configs_built_in_python_are_checked_like_files():
+    """persist="false" turned persistence on (a non-empty string is true); a dict config failed
+    with an AttributeError."""
+    import dataclasses
+
+    from aerotrack import pipeline
+    from aerotrack.config import Config, as_config
+
+    base = Config()
+    bad = dataclasses.replace(base, detection=dataclasses.replace(base.detection, persist="false"))
+    with pytest.raises(ConfigError, match="detection.persist: expected bool"):
+        pipeline.check_config(bad)
+    bad = dataclasses.replace(base, detection=dataclasses.replace(base.detection, window_s="3"))
+    with pytest.raises(ConfigError, match="detection.window_s: expected float"):
+        pipeline.Pipeline(bad, 30.0)
+    with pytest.raises(ConfigError, match="expected an aerotrack Config"):
+        as_config(["detection.persist=true"])
+    assert as_config({"detection": {"persist": True}}).detection.persist is True
+    assert as_config(None) == base
+    ok = dataclasses.replace(base, association=dataclasses.replace(base.association, window_s=2))
+    assert as_config(ok) is ok  # an int where a float goes is fine

@@ -175,3 +175,60 @@ def test_cli_track_stabilised_skips_registration(scene, tmp_path, capsys):
     main(["-q", "track", str(scene / "frames"), "--out", str(tmp_path / "o2"), "--stabilised",
           "--frames", "1:20", "--out-crs", "EPSG:32611"])
     assert "without --map there is no observations.csv" in capsys.readouterr().err
+
+
+def test_frames_pushed_from_python_are_checked_and_grey_ones_converted(scene):
+    """A grey frame failed a window later with a raw cv2.error; 16-bit pixels, a size change and
+    frames out of order were not named."""
+    import cv2
+
+    from aerotrack.config import Config
+    from aerotrack.errors import InputError
+    from aerotrack.types import Frame
+
+    source = io.open_source(scene / "frames")
+    frames = [f for f, _ in zip(source.frames(), range(40))]
+    grey = pipeline.Pipeline(Config(), source.fps)
+    colour = pipeline.Pipeline(Config(), source.fps)
+    for f in frames:
+        g = cv2.cvtColor(f.image, cv2.COLOR_BGR2GRAY)
+        grey.step(Frame(f.index, g, f.time))
+        colour.step(Frame(f.index, cv2.cvtColor(g, cv2.COLOR_GRAY2BGR), f.time))
+    a, b = grey.finish(), colour.finish()
+    assert a.tracks and [t.frames.tolist() for t in a.tracks] == [t.frames.tolist() for t in b.tracks]
+    img = frames[0].image
+    for frame, needle in ((Frame(0, img, 0.0), "integers from 1"),
+                          (Frame(1, img.astype(np.uint16) * 256, 0.0), "uint16"),
+                          (Frame(1, np.moveaxis(img, 2, 0).copy(), 0.0), "channels last")):
+        with pytest.raises(InputError, match=needle):
+            pipeline.Pipeline(Config(), 30.0).step(frame)
+    p = pipeline.Pipeline(Config(), 30.0)
+    p.step(Frame(5, img, 0.0))
+    with pytest.raises(InputError, match="increasing order"):
+        p.step(Frame(5, img, 0.0))
+    with pytest.raises(InputError, match="differs from the first frame"):
+        p.step(Frame(6, img[:100], 0.2))
+
+
+def test_results_have_short_reprs(scene):
+    """Typing a result in a notebook printed 15 MB (every point's histogram and descriptor)."""
+    result = pipeline.run(scene / "frames", stop=40)
+    assert len(repr(result)) < 200 and "tracks" in repr(result)
+    assert result.tracks and all(len(repr(t)) < 200 for t in result.tracks)
+    assert len(repr(result.tracks[0].points[0])) < 400
+    assert all(len(repr(d)) < 100 for d in result.detections)
+
+
+def test_the_package_shows_its_modules_without_importing_them_all():
+    """``import aerotrack; aerotrack.pipeline`` raised AttributeError and dir() showed nothing."""
+    import subprocess
+    import sys
+
+    code = ("import sys, aerotrack; assert 'aerotrack.pipeline' not in sys.modules; "
+            "assert 'pipeline' in dir(aerotrack); print(aerotrack.pipeline.run.__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "run"
+    import aerotrack
+
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        aerotrack.nope  # noqa: B018

@@ -198,6 +198,22 @@ def test_santiago_loader_is_one_based(shared_data):
     assert pred[:, 0].min() == 1
 
 
+def test_santiago_scores_a_one_based_file_when_told_and_warns_when_not(shared_data, tmp_path,
+                                                                       caplog):
+    """aerotrack's own 1-based tracks.csv passed as a path was read as 0-based, silently."""
+    s = shared_data / "santiago_intersection_dfs"
+    _, pred = load_santiago(s, "bytetrack")
+    write_mot(tmp_path / "tracks.csv", pred)  # 1-based, as aerotrack writes
+    want = evaluate_santiago(s, pred)
+    assert evaluate_santiago(s, tmp_path / "tracks.csv", zero_based=False)["HOTA"] == \
+        pytest.approx(want["HOTA"], abs=1e-3)  # written rounded
+    with caplog.at_level("WARNING", logger="aerotrack.evaluation.santiago"):
+        caplog.clear()
+        wrong = evaluate_santiago(s, tmp_path / "tracks.csv")
+    assert wrong["HOTA"] < want["HOTA"] - 0.05
+    assert "zero_based=False" in caplog.text
+
+
 @pytest.mark.data
 def test_cli_santiago_json(shared_data, capsys):
     s = shared_data / "santiago_intersection_dfs"

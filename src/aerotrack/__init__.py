@@ -13,6 +13,29 @@ The pipeline, one subpackage per stage::
     evaluation/    TrackEval wrappers, MPE_n
     viz/           overlays, map plots, report
     cli/           the command-line layer
+
+Start with :func:`aerotrack.pipeline.run` (a video or image folder in, a
+:class:`~aerotrack.pipeline.Result` out), :func:`aerotrack.config.load_config` for settings,
+:func:`aerotrack.evaluation.evaluate` for scores and :func:`aerotrack.io.write_mot` for files.
+Subpackages are imported on first use (``import aerotrack; aerotrack.pipeline.run(...)``), so
+``import aerotrack`` stays fast.
 """
 
+import importlib as _importlib
+
 __version__ = "0.1.0"
+
+#: The subpackages and modules reachable as attributes of the package.
+__all__ = ["association", "config", "context", "detection", "errors", "evaluation", "geo", "io",
+           "kalman", "outputs", "parallel", "pipeline", "registration", "synth", "types", "viz",
+           "__version__"]
+
+
+def __getattr__(name: str):
+    if name in __all__ and name != "__version__":
+        return _importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'aerotrack' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

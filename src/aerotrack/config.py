@@ -1845,6 +1845,53 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     return Config(**kwargs)
 
 
+def as_config(config: Config | dict | None) -> Config:
+    """``config`` checked for the library's entry points: ``None`` gives the defaults, a dict of
+    sections is read as a config file is (:func:`config_from_dict`), and a :class:`Config` built in
+    Python (``dataclasses.replace``) must hold values of its fields' types, as a file's are made
+    to: ``persist="false"`` had turned persistence on (a non-empty string is true) and
+    ``window_s="3"`` failed deep inside a stage.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first setting of the wrong type (or a config that is neither).
+    """
+    import numpy as np
+
+    if config is None:
+        return Config()
+    if isinstance(config, dict):
+        return config_from_dict(config)
+    if not isinstance(config, Config):
+        raise ConfigError(f"config: expected an aerotrack Config or a dict of sections, got "
+                          f"{type(config).__name__}")
+    sections = _section_types()
+    for name, cls in sections.items():
+        section = getattr(config, name)
+        if not isinstance(section, cls):
+            raise ConfigError(f"config.{name}: expected a {cls.__name__}, got "
+                              f"{type(section).__name__}")
+        hints = typing.get_type_hints(cls)
+        for f in fields(cls):
+            value, typ = getattr(section, f.name), hints[f.name]
+            if typ is bool:
+                ok = isinstance(value, (bool, np.bool_))
+            elif typ is int:
+                ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+            elif typ is float:
+                ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+                    value, bool)
+            elif typ is str:
+                ok = isinstance(value, str)
+            else:
+                continue
+            if not ok:
+                raise ConfigError(f"config {name}.{f.name}: expected {typ.__name__}, got "
+                                  f"{value!r} ({type(value).__name__})")
+    return config
+
+
 def config_to_dict(config: Config) -> dict[str, dict[str, Any]]:
     return {f.name: dataclasses.asdict(getattr(config, f.name)) for f in fields(config)}
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Config
+from .config import Config, as_config
 from .errors import InputError
 from .geo import GeoMap
 from .io.frames import read_ahead
@@ -80,6 +80,11 @@ class Result:
     followed: int | None = None
     frames_timed: int | None = None
 
+    def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
+        n_dets = sum(len(d) for d in self.detections)
+        return (f"Result({len(self.tracks)} tracks, frames {self.first_frame}-{self.last_frame} "
+                f"({self.frames} processed), {n_dets} detections, fps={self.fps:g})")
+
 
 class Pipeline:
     """The whole tracker, fed one frame at a time.
@@ -133,6 +138,7 @@ class Pipeline:
         from .io.checkpoint import TrackletSpill
         from .io.state import as_built
 
+        config = as_config(config)
         self.config = config
         self.fps = float(fps)
         self.geomap = geomap
@@ -177,6 +183,8 @@ class Pipeline:
         self.n_timed = 0  # frames stepped in this process (a resumed run's: after the restart)
         self.first_frame: int | None = None
         self.last_frame = 0
+        self._last_step: int | None = None  # the frame last given to step (its order is checked)
+        self._size: tuple[int, int] | None = None  # (H, W) of the first frame given to step
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
         # checkpoints (DIR/.partial) for --resume
         self.checkpoint_dir = checkpoint_dir
@@ -250,12 +258,57 @@ class Pipeline:
         return np.hstack([centre - half, 2 * half])
 
     def step(self, frame: Frame) -> None:
-        """Process one frame (frames must come in increasing order)."""
+        """Process one frame (frames must come in increasing order, all of one size).
+
+        ``frame.image`` is BGR ``(H, W, 3)`` uint8 as OpenCV decodes it; grey ``(H, W)`` or
+        ``(H, W, 1)`` and BGRA ``(H, W, 4)`` frames are converted. Anything else (16-bit or float
+        pixels, channels first) raises :class:`~aerotrack.errors.InputError` naming the frame,
+        as do frame numbers below 1 or not increasing and a frame size that changes.
+        """
         from .detection.detector import cv_threads
 
+        frame = self._checked(frame)
         self._wide_threads()
         with cv_threads(self.opencv_threads):
             self._step(frame)
+
+    def _checked(self, frame: Frame) -> Frame:
+        """``frame`` with a BGR uint8 image, or an InputError naming what is wrong with it (a grey
+        frame failed deep in OpenCV a window later; a frame size change was accepted)."""
+        import dataclasses
+
+        index = frame.index
+        if int(index) != index or index < 1:
+            raise InputError(f"frame {index!r}: frame numbers are integers from 1")
+        if self._last_step is not None and index <= self._last_step:
+            raise InputError(f"frame {index}: frames must come in increasing order (the previous "
+                             f"one was {self._last_step})")
+        self._last_step = index
+        img = frame.image
+        if img is None:
+            return frame
+        if not isinstance(img, np.ndarray):
+            raise InputError(f"frame {index}: image is a {type(img).__name__}, expected a numpy "
+                             "array")
+        if img.dtype != np.uint8:
+            raise InputError(f"frame {index}: pixels are {img.dtype}, expected uint8 (scale 16-bit "
+                             "or float frames to 0-255 first)")
+        channels = 1 if img.ndim == 2 else (img.shape[2] if img.ndim == 3 else 0)
+        if channels not in (1, 3, 4) or min(img.shape[:2]) < 2:
+            raise InputError(f"frame {index}: image shape {img.shape}, expected (H, W, 3) BGR, "
+                             "(H, W) grey or (H, W, 4) BGRA, channels last")
+        if channels != 3:
+            import cv2
+
+            code = cv2.COLOR_GRAY2BGR if channels == 1 else cv2.COLOR_BGRA2BGR
+            img = cv2.cvtColor(np.ascontiguousarray(img.reshape(img.shape[:2]) if channels == 1
+                                                    else img), code)
+        if self._size is None:
+            self._size = img.shape[:2]
+        elif img.shape[:2] != self._size:
+            raise InputError(f"frame {index}: size {img.shape[1]}x{img.shape[0]} differs from the "
+                             f"first frame's {self._size[1]}x{self._size[0]}")
+        return frame if img is frame.image else dataclasses.replace(frame, image=img)
 
     def _wide_threads(self) -> None:
         """The OpenCV threads the process has outside the stages, for the detector's whole-frame
@@ -754,7 +807,23 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     ----------
     source : FrameSource or path, optional
         Frames (a path is opened with :func:`aerotrack.io.open_source`); may be None when
-        ``detections`` is given (association alone, image coordinates).
+        ``detections`` is given (association alone, image coordinates). Frames already in memory:
+        feed :class:`Pipeline` one :class:`~aerotrack.types.Frame` at a time (``step``, then
+        ``finish``), or wrap them in a :class:`~aerotrack.io.frames.FrameSource`.
+    config : Config or dict, optional
+        Settings (:func:`aerotrack.config.load_config` reads a file and ``section.key=value``
+        overrides, as ``--config`` and ``--set`` do; a dict of sections is read as a file is);
+        default :class:`~aerotrack.config.Config`.
+    fps : float, optional
+        Frame rate; default the source's.
+    geomap : GeoMap, optional
+        The map (:class:`aerotrack.geo.GeoMap`): world coordinates are then its pixels, and
+        tracks get map and lon/lat positions.
+    seed : int
+        Seed of every random choice: the same input, config and seed give the same tracks.
+    start, stop, stride : int
+        1-based first and last frame (inclusive; ``stop`` None: the last) and the step between
+        frames processed, as ``--frames A:B`` and ``--stride``.
     detections : ndarray (N, 6..10) or path, optional
         External MOT detection rows (1-based frames), or a MOTChallenge file of them; they
         replace the built-in detector.
@@ -785,6 +854,17 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
         The frames are already registered to each other (a stabilised video, a fixed camera):
         identity homographies instead of the registrar; not with a map.
 
+    Returns
+    -------
+    Result
+        ``tracks`` (linked and finished, world coordinates), ``registrations``, ``detections``
+        and timings; :func:`aerotrack.outputs.track_rows` gives the rows of ``tracks.csv``.
+
+    Raises
+    ------
+    InputError, ConfigError
+        Bad input or settings (both are ``ValueError``), named in one line.
+
     Examples
     --------
     >>> from aerotrack import io, pipeline
@@ -792,7 +872,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     >>> result = pipeline.run(src)                               # doctest: +SKIP
     >>> for track in result.tracks: print(track.id, track.world()[:3])  # doctest: +SKIP
     """
-    config = config or Config()
+    config = as_config(config)
     if source is None and detections is None:
         raise InputError("give an INPUT video/folder or --detections")
     source, detections, H_init = _api_inputs(source, detections, H_init, geomap, fps)
@@ -898,7 +978,7 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
     >>> result = pipeline.detect(io.open_source("flight.mp4"))       # doctest: +SKIP
     >>> sum(len(d) for d in result.detections)                      # doctest: +SKIP
     """
-    config = config or Config()
+    config = as_config(config)
     if source is None:
         raise InputError("detect needs a source (a video, an image folder, or a FrameSource)")
     source, _, H_init = _api_inputs(source, None, H_init, geomap, None)
@@ -949,7 +1029,7 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
     detection."""
     from .io.checkpoint import load_chunks
 
-    config = config or Config()
+    config = as_config(config)
     regs, dets, _ = load_chunks(stages)
     # a higher detection.min_conf (--min-conf) applies to the cached boxes too (it was ignored,
     # while config.toml said it was used); the earlier run already dropped those below its own

@@ -182,6 +182,9 @@ class Detections:
         for name, arr in self.extra.items():
             _check_len(f"extra[{name!r}]", arr, n)
 
+    def __repr__(self) -> str:
+        return f"Detections(frame={self.frame}, {len(self.boxes)} boxes)"
+
     def __len__(self) -> int:
         return len(self.boxes)
 
@@ -230,8 +233,9 @@ class TrackPoint:
     kind: str = "observed"
     det_index: int = -1  # row in that frame's Detections, -1 if not observed
     size_world: np.ndarray | None = None  # (2,) box width, height in world units
-    hist: np.ndarray | None = None  # (B,) colour histogram of the blob (Detections.hist row)
-    desc: np.ndarray | None = None  # ring-descriptor statistics (Detections.extra["desc"] row)
+    # appearance, left out of the repr (a track's repr was 0.5 MB, a run's 15 MB: a notebook froze)
+    hist: np.ndarray | None = field(default=None, repr=False)  # (B,) colour histogram (Detections.hist row)
+    desc: np.ndarray | None = field(default=None, repr=False)  # ring descriptor (Detections.extra["desc"])
     weak: bool = False  # found by multi-frame persistence: a faint box, its place but not its size
 
 
@@ -249,6 +253,15 @@ class Track:
 
     id: int
     points: list[TrackPoint] = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        if not self.points:
+            return f"Track(id={self.id}, no points)"
+        kinds: dict[str, int] = {}
+        for p in self.points:
+            kinds[p.kind] = kinds.get(p.kind, 0) + 1
+        parts = ", ".join(f"{n} {k}" for k, n in kinds.items())
+        return f"Track(id={self.id}, frames {self.first}-{self.last}, {len(self.points)} points: {parts})"
 
     @property
     def frames(self) -> np.ndarray:
