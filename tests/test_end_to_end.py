@@ -232,3 +232,44 @@ def test_the_package_shows_its_modules_without_importing_them_all():
 
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         aerotrack.nope  # noqa: B018
+
+
+def test_a_run_stopped_early_keeps_its_work(scene):
+    """A notebook interrupt (or a progress callback stopping the run) lost every frame done."""
+    def stop_at_30(done):
+        if done == 30:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt) as info:
+        pipeline.run(scene / "frames", progress=stop_at_30)
+    partial = info.value.pipeline.finish()
+    whole = pipeline.run(scene / "frames", stop=30)
+    assert partial.tracks and partial.last_frame == 30
+    assert [t.frames.tolist() for t in partial.tracks] == [t.frames.tolist() for t in whole.tracks]
+
+
+def test_clips_too_short_or_with_repeated_frames_are_pointed_out(scene, tmp_path, capsys):
+    """10 frames gave 0 tracks with no word; repeated frames (a recorder dropping frames) passed
+    silently."""
+    import shutil
+
+    from conftest import run_cli
+
+    frames = sorted((scene / "frames").iterdir())
+    short = tmp_path / "short"
+    short.mkdir()
+    for f in frames[:10]:
+        shutil.copy(f, short / f.name)
+    code, _, err = run_cli(capsys, "track", short, "--out", tmp_path / "o1", "--fps", "30")
+    assert code == 0 and "the clip is 10 frames" in err, err
+    assert "min_length_s" in json.loads((tmp_path / "o1" / "summary.json").read_text())["hints"][0]
+    rep = tmp_path / "repeated"
+    rep.mkdir()
+    for i, f in enumerate(frames[:120]):
+        src = frames[19] if i in (20, 21) else f  # frames 21 and 22 repeat frame 20
+        shutil.copy(src, rep / f.name)
+    code, _, err = run_cli(capsys, "track", rep, "--out", tmp_path / "o2", "--fps", "30")
+    assert code == 0 and "2 frames repeat the one before exactly (frames 21, 22)" in err, err
+    code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o3",
+                           "--frames", "1:120")
+    assert code == 0 and "repeat" not in err and "the clip" not in err, err

@@ -60,6 +60,9 @@ class Result:
     frames_timed : int or None
         Frames processed in this process, which ``timings`` cover (a resumed run's frames
         before the interruption are in ``frames``, not in ``timings``); None: ``frames``.
+    repeated_frames : list of int
+        Frames whose pixels repeat the frame before exactly (a recorder that dropped frames and
+        re-emitted the last one): the tracker sees a stop, then a jump.
     followed : int or None
         Detections the stop follower added (``association.follow_stopped``; None when it is
         off; a segment-parallel run counts each segment's own frames): associated like the
@@ -79,6 +82,7 @@ class Result:
     last_frame: int = 0
     followed: int | None = None
     frames_timed: int | None = None
+    repeated_frames: list[int] = field(default_factory=list)
 
     def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
         n_dets = sum(len(d) for d in self.detections)
@@ -185,6 +189,8 @@ class Pipeline:
         self.last_frame = 0
         self._last_step: int | None = None  # the frame last given to step (its order is checked)
         self._size: tuple[int, int] | None = None  # (H, W) of the first frame given to step
+        self._prev_sample: np.ndarray | None = None  # every 4th pixel of the last frame
+        self.repeated_frames: list[int] = []
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
         # checkpoints (DIR/.partial) for --resume
         self.checkpoint_dir = checkpoint_dir
@@ -308,6 +314,10 @@ class Pipeline:
         elif img.shape[:2] != self._size:
             raise InputError(f"frame {index}: size {img.shape[1]}x{img.shape[0]} differs from the "
                              f"first frame's {self._size[1]}x{self._size[0]}")
+        sample = img[::4, ::4]
+        if self._prev_sample is not None and np.array_equal(sample, self._prev_sample):
+            self.repeated_frames.append(int(index))
+        self._prev_sample = sample.copy()
         return frame if img is frame.image else dataclasses.replace(frame, image=img)
 
     def _wide_threads(self) -> None:
@@ -677,7 +687,7 @@ class Pipeline:
                       frames=self.n_frames, first_frame=self.first_frame or 1,
                       last_frame=self.last_frame,
                       followed=None if self.follower is None else self.follower.n_followed,
-                      frames_timed=self.n_timed)
+                      frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames))
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
@@ -835,7 +845,11 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     H_init_frame : int
         The frame ``H_init`` places (the command line passes ``start``: it has carried it).
     progress : callable, optional
-        Called with the number of frames done after each frame.
+        Called with the number of frames done after each frame. A ``KeyboardInterrupt`` (Ctrl-C,
+        a notebook's interrupt, or raised by ``progress`` to stop early) carries the
+        :class:`Pipeline` as ``exc.pipeline``: ``exc.pipeline.finish()`` gives the tracks of the
+        frames done (linking them takes a moment), as ``checkpoint_dir`` and ``resume`` keep them
+        across processes.
     checkpoint_dir : path, optional
         Folder for checkpoints (``DIR/.partial``): finished work is saved every
         ``checkpoint_every`` frames and on Ctrl-C.
@@ -875,7 +889,8 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
     config = as_config(config)
     if source is None and detections is None:
         raise InputError("give an INPUT video/folder or --detections")
-    source, detections, H_init = _api_inputs(source, detections, H_init, geomap, fps)
+    source, detections, H_init = _api_inputs(source, detections, H_init, geomap, fps,
+                                             config.detection.min_conf)
     _check_range(source, start, stop, stride)
     if fps is None:
         fps = source.fps if source is not None else 30.0
@@ -916,6 +931,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                 if progress:
                     progress(done)
     except KeyboardInterrupt as exc:
+        exc.pipeline = pipe  # the work so far: ``exc.pipeline.finish()`` links and finishes it
         pipe.checkpoint()
         exact = not stepping and pipe.save_state()
         if not exact and isinstance(getattr(exc, "note", None), str) and exc.note:
@@ -1067,7 +1083,7 @@ def _check_range(source, start: int, stop: int | None, stride: int) -> None:
         raise InputError(f"start {start}: after the input's last frame ({count})")
 
 
-def _api_inputs(source, detections, H_init, geomap, fps):
+def _api_inputs(source, detections, H_init, geomap, fps, min_conf: float = 0.0):
     """The Python API's inputs checked as the command line checks them: paths opened or read,
     arrays of the right shape (one-line :class:`InputError` instead of an error frames deep)."""
     from .io import open_source
@@ -1091,12 +1107,18 @@ def _api_inputs(source, detections, H_init, geomap, fps):
             raise InputError(f"detections: expected an (N, 6..10) array of MOT rows (frame, id, "
                              f"x, y, w, h, conf, ...), got shape {d.shape}")
         if not np.isfinite(d[:, :6]).all() or np.any(d[:, 0] < 1) \
-                or np.any(d[:, 0] != np.round(d[:, 0])) or np.any(d[:, 4:6] < 0):
+                or np.any(d[:, 0] != np.round(d[:, 0])) or np.any(d[:, 4:6] <= 0):
             raise InputError("detections: frames must be 1-based integers and boxes finite with "
-                             "sizes >= 0")
+                             "sizes > 0 (as in a --detections file)")
+        if d.shape[1] >= 7 and not np.isfinite(d[:, 6]).all():
+            raise InputError(f"detections: row {int(np.argmax(~np.isfinite(d[:, 6])))} has a "
+                             "non-finite confidence (as in a --detections file)")
         if d.shape[1] < 10:  # conf 1, x, y, z -1, as the file reader fills them
             d = np.hstack([d, np.array([1.0, -1.0, -1.0, -1.0])[d.shape[1] - 6:]
                            * np.ones((len(d), 1))])
+        if len(d) and not (d[:, 6] >= min_conf).any():
+            log.warning("detections: every confidence is below detection.min_conf %g (the "
+                        "highest is %g): nothing to track", min_conf, float(d[:, 6].max()))
         detections = d
     if H_init is not None:
         try:

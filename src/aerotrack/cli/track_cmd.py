@@ -225,6 +225,34 @@ MAX_FRAME = 10_000_000
 MAX_COORD = 1e8
 
 
+def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
+    """Warnings about the clip itself, each a line for the log and ``summary.json`` ``hints``:
+    a clip shorter than the shortest track kept (``association.min_length_s``: 10 frames at 30 fps
+    gave 0 tracks and no word), one shorter than the background window (a wrong frame-rate tag:
+    Santiago tagged 59.94 fps lost 0.22 HOTA), and frames that repeat the one before (a recorder
+    that dropped frames: 6 repeated frames cost 0.04 HOTA and 4 ID switches)."""
+    hints = []
+    fps = float(result.fps or 30.0)
+    seconds = result.frames / fps
+    if result.frames and not result.tracks and seconds < 2 * config.association.min_length_s:
+        hints.append(f"the clip is {result.frames} frames ({seconds:.2f} s at {fps:g} frames/s) "
+                     f"and tracks shorter than association.min_length_s "
+                     f"({config.association.min_length_s:g} s) are dropped: is --fps right? "
+                     f"(an image folder is read at 30 unless told)")
+    elif builtin_detector and result.frames and seconds < config.detection.window_s:
+        hints.append(f"the clip ({result.frames} frames, {seconds:.1f} s at {fps:g} frames/s) is "
+                     f"shorter than the background window detection.window_s "
+                     f"({config.detection.window_s:g} s), so the background has few samples: is "
+                     f"--fps right?")
+    rep = getattr(result, "repeated_frames", None) or []
+    if rep:
+        shown = ", ".join(str(f) for f in rep[:5]) + (", ..." if len(rep) > 5 else "")
+        hints.append(f"{len(rep)} frame{'s' * (len(rep) != 1)} repeat the one before exactly "
+                     f"(frame{'s' * (len(rep) != 1)} {shown}): a recorder that dropped frames? "
+                     f"The tracker sees each as a stop and then a jump")
+    return hints
+
+
 def check_detections(dets, path, source=None, *, lines=None, min_conf: float | None = None
                      ) -> None:
     """Refuse ``--detections`` rows no video can have; warn about what is likely a mistake.
@@ -590,14 +618,17 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         warn_if_never_refined(result, geomap, config,
                               f"--telemetry {telemetry_path}" if telemetry_path is not None
                               else f"--map-init {map_init_path}" if map_init_path else None)
+        hints = clip_hints(result, config, builtin_detector=dets is None)
         if dets is None and geomap is None and gsd is None:
             from ..detection.moving import small_vehicles_hint
 
-            hint = small_vehicles_hint(result.tracks, result.frame_size, config.detection,
-                                       result.frames)
-            if hint:
-                log.warning(hint)
-                notes = {**notes, "hints": [hint]}
+            hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
+                                             result.frames))
+        hints = [h for h in hints if h]
+        for hint in hints:
+            log.warning(hint)
+        if hints:
+            notes = {**notes, "hints": hints}
         info = {
             # absolute, so that --from, render and report find them from any folder
             "input": where(input_path),
