@@ -217,14 +217,14 @@ def test_verbose_and_quiet_work_after_the_subcommand_too(tmp_path, capsys, where
     from conftest import run_cli
 
     d = tmp_path / "d.txt"
-    d.write_text("1,-1,10,10,8,4,0.9\n2,-1,12,10,8,4,0.9\n")
+    d.write_text("".join(f"{f},-1,{10 + 2 * f},10,8,4,0.9\n" for f in range(1, 21)))
 
     def track(flag, out):
         argv = ["track", "--detections", d, "--out", tmp_path / out]
         return run_cli(capsys, *([flag, *argv] if where == "before" else [*argv, flag]))
 
     code, _, err = track("-v", "v")
-    assert code == 0 and "INFO: track: 2/2 frames" in err, err  # progress lines off a terminal
+    assert code == 0 and "INFO: track: 20/20 frames" in err, err  # progress lines off a terminal
     code, _, err = track("-q", "q")
     assert code == 0 and err == "", err
     code, _, err = track("--verbose", "v2")

@@ -237,8 +237,8 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
     if result.frames and not result.tracks and seconds < 2 * config.association.min_length_s:
         hints.append(f"the clip is {result.frames} frames ({seconds:.2f} s at {fps:g} frames/s) "
                      f"and tracks shorter than association.min_length_s "
-                     f"({config.association.min_length_s:g} s) are dropped: is --fps right? "
-                     f"(an image folder is read at 30 unless told)")
+                     f"({config.association.min_length_s:g} s) are dropped: is --fps right?"
+                     + (" (an image folder is read at 30 unless told)" if builtin_detector else ""))
     elif builtin_detector and result.frames and seconds < config.detection.window_s:
         hints.append(f"the clip ({result.frames} frames, {seconds:.1f} s at {fps:g} frames/s) is "
                      f"shorter than the background window detection.window_s "
