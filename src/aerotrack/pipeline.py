@@ -189,6 +189,9 @@ class Pipeline:
         self.last_frame = 0
         self._last_step: int | None = None  # the frame last given to step (its order is checked)
         self._size: tuple[int, int] | None = None  # (H, W) of the first frame given to step
+        self.overlay = None  # detection.overlay.OverlayFinder (on-screen text, crosshairs)
+        self._given_overlay: np.ndarray | None = None  # a mask found by an earlier run (--from)
+        self._region_mask: np.ndarray | None = None  # the detector's mask from the regions
         self._prev_sample: np.ndarray | None = None  # every 4th pixel of the last frame
         self.repeated_frames: list[int] = []
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
@@ -243,6 +246,12 @@ class Pipeline:
             from .geo.roi import frame_mask
 
             self.detector.frame_mask = frame_mask(self.regions, frame_size)
+            self._region_mask = self.detector.frame_mask
+            if self.config.detection.overlay_mask and not self.stabilised:
+                from .detection.overlay import OverlayFinder
+
+                self.overlay = OverlayFinder(self.fps, self.config.detection.overlay_min_s,
+                                             self.config.detection.overlay_share)
         # what the constructors made: save_state leaves it out (the resumed run makes it again)
         self._built = {"registrar": as_built(self.registrar)}
         if self.detector is not None:
@@ -349,6 +358,8 @@ class Pipeline:
             if self.checkpoint_dir is not None:  # else nothing ever empties it (a leak per frame)
                 self._pending_regs.append(reg)
         with self._timed("detection"):
+            if self.overlay is not None and frame.image is not None:
+                self._mask_overlay(frame, reg)
             if self.external is not None:
                 final = [self._external_detections(frame, reg)]
             elif reg is None:
@@ -408,6 +419,9 @@ class Pipeline:
                 for region in self.regions:
                     if len(dets):
                         dets = dets.subset(region.keep_detections(dets.centers, dets.world))
+                mask = self.overlay_mask
+                if mask is not None and len(dets):
+                    dets = dets.subset(_outside(mask, dets.centers))
                 self.detections.append(_light(dets))
                 if self.checkpoint_dir is not None:  # full detections, appearance included: only
                     self._pending_dets.append(dets)  # kept until the next checkpoint empties them
@@ -447,6 +461,19 @@ class Pipeline:
         self._associate(dets)
         self._pending_dets = []  # already in the checkpoints
         self._skip_until = max((d.frame for d in dets), default=0)
+
+    def _mask_overlay(self, frame: Frame, reg) -> None:
+        """Feed the overlay finder; when its mask changes, the detector works around it (with
+        the regions' own mask), and detections whose centre falls in it are dropped."""
+        self.overlay.step(frame.image, None if reg is None else reg.H)
+        if not self.overlay.changed:
+            return
+        mask = self.overlay.mask
+        work = None if mask is None else np.where(mask, 0, 255).astype(np.uint8)
+        if work is not None and self._region_mask is not None:
+            work = np.minimum(work, self._region_mask)
+        self.detector.frame_mask = work if work is not None else self._region_mask
+        self.detector._mask_small = None  # made again at the model's resolution
 
     def step_detections_only(self, index: int) -> None:
         """Association alone: feed frame ``index`` of the external detections (no image)."""
@@ -669,8 +696,12 @@ class Pipeline:
             from .io.state import drop_state
 
             drop_state(self.checkpoint_dir)
+        tracklets = self.tracklets
+        mask = self.overlay_mask
+        if mask is not None:
+            tracklets = self._drop_overlay(mask)
         with self._timed("linking"):
-            tracks = self._link(self.tracklets)
+            tracks = self._link(tracklets)
             if self.min_speed_mps:
                 from .geo.roi import filter_min_speed
 
@@ -688,6 +719,41 @@ class Pipeline:
                       last_frame=self.last_frame,
                       followed=None if self.follower is None else self.follower.n_followed,
                       frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames))
+
+    @property
+    def overlay_mask(self) -> np.ndarray | None:
+        """On-screen overlay pixels (H, W) bool found in this run, or given (``track --from``
+        takes the first run's from ``stages/``), or None."""
+        if self.overlay is not None:
+            return self.overlay.mask
+        return self._given_overlay
+
+    def _drop_overlay(self, mask: np.ndarray) -> list[Track]:
+        """The tracklets and detections not on the overlay: its pixels were left out of detection
+        from the moment it was found; what came before (the first second or two of the camera's
+        motion) goes now. A tracklet goes when most of its observed boxes centre on it. The mask
+        is saved beside the checkpoints for ``track --from``."""
+        from .detection.overlay import OVERLAY_FILE, write_mask
+
+        kept = []
+        dropped = 0
+        for t in self.tracklets:
+            obs = np.array([[p.box[0] + p.box[2] / 2, p.box[1] + p.box[3] / 2] for p in t.points
+                            if p.kind == "observed" and p.box is not None]).reshape(-1, 2)
+            if len(obs) and (~_outside(mask, obs)).mean() > 0.5:
+                dropped += 1
+            else:
+                kept.append(t)
+        before = sum(len(d) for d in self.detections)
+        self.detections = [d.subset(_outside(mask, d.centers)) if len(d) else d
+                           for d in self.detections]
+        n = before - sum(len(d) for d in self.detections)
+        if dropped or n:
+            log.info("on-screen overlay: %d tracklets and %d detections on it, from before it was "
+                     "found, dropped", dropped, n)
+        if self.checkpoint_dir is not None:
+            write_mask(Path(self.checkpoint_dir) / OVERLAY_FILE, mask)
+        return kept
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
@@ -756,6 +822,15 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
 
 #: Observed points per tracklet that keep their appearance data (first, last and evenly spread).
 APPEARANCE_KEEP = 16
+
+
+def _outside(mask: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """Which frame-pixel ``centers`` fall outside ``mask`` (True pixels; outside the frame:
+    outside)."""
+    h, w = mask.shape
+    x = np.clip(np.floor(centers[:, 0]).astype(int), 0, w - 1)
+    y = np.clip(np.floor(centers[:, 1]).astype(int), 0, h - 1)
+    return ~mask[y, x]
 
 
 def _light(dets: Detections) -> Detections:
@@ -1062,6 +1137,11 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                     roads=roads)
     pipe.registrations.update(regs)
     pipe.frame_size = frame_size
+    from .detection.overlay import OVERLAY_FILE, read_mask
+
+    # the first run's on-screen overlay, applied to every frame here (that run found it a second
+    # or two in and dropped what it had made of the frames before)
+    pipe._given_overlay = read_mask(Path(stages) / OVERLAY_FILE)
     frames = sorted({*regs, *(d.frame for d in dets)})
     if frames:
         pipe.first_frame, pipe.last_frame, pipe.n_frames = frames[0], frames[-1], len(frames)
