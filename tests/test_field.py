@@ -676,3 +676,33 @@ def test_telemetry_defaults_fill_empty_cells_and_are_checked(tmp_path):
     for bad, needle in ((["alt_m=-5"], "alt_m must be"), (["heading=1", "yaw=2"], "twice")):
         with pytest.raises(InputError, match=needle):
             parse_telemetry_defaults(bad)
+
+
+def test_a_run_with_a_ground_resolution_but_no_map_gets_metric_observations(tmp_path, capsys):
+    """``--gsd`` without a map wrote no speeds anywhere (observations.csv needed a map)."""
+    from conftest import run_cli
+
+    from aerotrack.io.geotable import LOCAL_CRS, local_observation_table
+
+    # known answer: 10 px a frame to the right at 30 fps and 0.1 m a pixel is 30 m/s at 90 deg
+    rows = np.array([[f, 1, 100 + 10 * f, 50, 40, 20, 1, -1, -1, -1] for f in range(1, 31)], float)
+    homs = {f: np.eye(3) for f in range(1, 31)}
+    cols, crs = local_observation_table(rows, 30.0, 0.1, homographies=homs)
+    assert crs == LOCAL_CRS and np.all(np.isnan(cols["lon"]))
+    assert np.allclose(cols["speed_mps"], 30.0) and np.allclose(cols["heading_deg"], 90.0)
+    assert np.allclose(cols["length_m"], 4.0) and np.allclose(cols["width_m"], 2.0)
+    assert np.allclose(cols["x"], (120 + 10 * np.arange(1, 31)) * 0.1)
+    assert np.allclose(cols["y"], -60 * 0.1)  # y up: image rows grow down
+    # end to end on given detections (no frames: no registrations, no table) and on frames
+    from aerotrack.synth import render_to
+
+    scene = tmp_path / "scene"
+    render_to(scene, seed=4, frames=60, scenario="default")
+    code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "run",
+                           "--gsd", "0.3")
+    assert code == 0, err
+    with open(tmp_path / "run" / "observations.csv", newline="") as fh:
+        table = list(csv.DictReader(fh))
+    assert table and {r["crs"] for r in table} == {LOCAL_CRS}
+    speeds = [float(r["speed_mps"]) for r in table if r["speed_mps"]]
+    assert speeds and 0 < np.median(speeds) < 40

@@ -137,6 +137,17 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
                                 out_crs, predicted=predicted, homographies=homs, kinds=kinds,
                                 start_time=start_time)
+    elif result.metres_per_unit and result.registrations:
+        # --gsd without a map: the same table in metres on frame 1's ground plane (no lon/lat,
+        # CSV only); a traffic study needs speeds, which were nowhere in such a run's outputs
+        from .io.geotable import write_local_observation_table
+
+        homs = {i: r.H for i, r in result.registrations.items()}
+        kinds = {(p.frame, t.id): p.kind for t in result.tracks for p in t.points
+                 if p.kind in IN_VIEW}
+        write_local_observation_table(out.file("observations.csv"), tracks, result.fps,
+                                      result.metres_per_unit, predicted=predicted,
+                                      homographies=homs, kinds=kinds, start_time=start_time)
     # the run's options that are not configuration, so that `--config config.toml` is known to
     # need them (a run with --seed 3 --fps 10 --gsd 0.15 was not repeated by the file alone)
     info = run_info or {}

@@ -25,7 +25,7 @@ log = logging.getLogger("aerotrack")
               help="Output folder; each input gets OUT/<name>/ with the files of "
                    "`aerotrack track`.")
 @click.option("--gsd", type=float, default=None,
-              help="Metres per frame pixel (speeds and gates become metric).")
+              help="Metres per frame pixel (gates become metric; observations.csv in metres).")
 @fps_option
 @seed_option
 @config_option

@@ -36,7 +36,8 @@ map_init_option = click.option(
     help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
 gsd_option = click.option(
     "--gsd", type=float, default=None,
-    help="Metres per frame pixel when no map is given (speeds and gates become metric).")
+    help="Metres per frame pixel when no map is given: gates become metric, and observations.csv "
+         "gives positions (metres on frame 1's ground plane) and speeds.")
 telemetry_option = click.option(
     "--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
     help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")

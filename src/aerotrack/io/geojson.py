@@ -52,6 +52,20 @@ def _merge(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None) -> np.nda
 SPEED_WINDOW_S = 0.5
 
 
+def window_ends(times: np.ndarray, smooth_s: float = SPEED_WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
+    """For each of a track's increasing ``times`` (seconds), the indices of the first and last
+    vertex within ``smooth_s / 2`` of it, widened to its neighbours when none is (equal where a
+    vertex has no neighbour): the ends of :func:`window_motion`'s centred window."""
+    tt = np.asarray(times, dtype=np.float64)
+    n = len(tt)
+    half = smooth_s / 2.0
+    lo = np.searchsorted(tt, tt - half - 1e-9, side="left")
+    hi = np.searchsorted(tt, tt + half + 1e-9, side="right") - 1
+    lo = np.where(hi == lo, np.maximum(lo - 1, 0), lo)
+    hi = np.where(hi == lo, np.minimum(hi + 1, n - 1), hi)
+    return lo, hi
+
+
 def window_motion(lonlat: np.ndarray, times: np.ndarray, smooth_s: float = SPEED_WINDOW_S
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Ground speed (m/s) and compass azimuth (degrees clockwise from true north) at each vertex
@@ -69,11 +83,7 @@ def window_motion(lonlat: np.ndarray, times: np.ndarray, smooth_s: float = SPEED
     if n < 2:
         return speed, azimuth
     tt = np.asarray(times, dtype=np.float64)
-    half = smooth_s / 2.0
-    lo = np.searchsorted(tt, tt - half - 1e-9, side="left")
-    hi = np.searchsorted(tt, tt + half + 1e-9, side="right") - 1
-    lo = np.where(hi == lo, np.maximum(lo - 1, 0), lo)
-    hi = np.where(hi == lo, np.minimum(hi + 1, n - 1), hi)
+    lo, hi = window_ends(tt, smooth_s)
     ok = hi > lo
     az, _, dist = Geod(ellps="WGS84").inv(lonlat[lo[ok], 0], lonlat[lo[ok], 1],
                                           lonlat[hi[ok], 0], lonlat[hi[ok], 1])

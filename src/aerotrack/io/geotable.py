@@ -132,6 +132,120 @@ def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
         return h[:, :2] / h[:, 2:3]
 
 
+def _nearest_homography(homs: dict[int, np.ndarray], fps: float):
+    """``f -> H`` of frame ``f``, or of the nearest registered frame within half a second: a frame
+    without one of its own (skipped by --stride, or a row bridged over a frame that failed) is
+    hardly moved from it, and the box is the track's, not that frame's measurement."""
+    registered = np.array(sorted(homs), dtype=np.int64)
+    reach = max(1, int(round(0.5 * fps)))
+
+    def near(f: int):
+        if f in homs or not len(registered):
+            return homs.get(f)
+        k = int(np.searchsorted(registered, f))
+        cand = [registered[j] for j in (k - 1, k) if 0 <= j < len(registered)]
+        best = min(cand, key=lambda g: abs(int(g) - f))
+        return homs[int(best)] if abs(int(best) - f) <= reach else None
+
+    return near
+
+
+#: The ``crs`` of a table without a map (``track --gsd``): metres in frame 1's ground plane.
+LOCAL_CRS = "LOCAL:frame1_metres"
+
+
+def local_observation_table(rows: Any, fps: float, metres_per_unit: float, *,
+                            predicted: Any = None,
+                            homographies: dict[int, np.ndarray] | None = None,
+                            smooth_s: float = 0.5, min_heading_speed_mps: float = 0.5,
+                            kinds: dict[tuple[int, int], str] | None = None, start_time=None
+                            ) -> tuple[dict[str, np.ndarray], str]:
+    """The table's columns for a run without a map but with a ground resolution (``--gsd``).
+
+    x, y are metres on the ground plane of frame 1 (where the run's world coordinates are: frame
+    1's pixels), x to the right and y up in frame 1's image, from its top-left corner; heading is
+    clockwise from frame 1's up; lon and lat are empty and ``crs`` is :data:`LOCAL_CRS`. Speed,
+    heading and box sizes are measured as with a map (the same centred window), in the plane.
+    ``homographies``: frame pixels -> world (frame-1 pixels) per frame; rows are placed through
+    them (``tracks.csv``'s x, y are -1 without a map).
+    """
+    from .geojson import window_ends
+
+    if not fps > 0:
+        raise InputError(f"--fps {fps}: must be positive")
+    if not metres_per_unit or metres_per_unit <= 0:
+        raise InputError(f"--gsd {metres_per_unit}: must be a positive number of metres per pixel")
+    obs, pred = _rows(rows, "tracks"), _rows(predicted, "predicted")
+    a = np.vstack([obs, pred])
+    kinds = kinds or {}
+    kind = np.array([kinds.get((int(r[0]), int(r[1])), "observed") for r in obs]
+                    + ["predicted"] * len(pred), dtype=object)
+    order = np.lexsort((kind == "predicted", a[:, 0], a[:, 1]))
+    a, kind = a[order], kind[order]
+    n = len(a)
+    frame, ids = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
+    boxes = a[:, 2:6]
+    near = _nearest_homography(homographies or {}, fps)
+    flip = np.array([metres_per_unit, -metres_per_unit])  # image rows grow down, y grows up
+    xy = np.full((n, 2), np.nan)
+    length = np.full(n, np.nan)
+    width = np.full(n, np.nan)
+    for i in range(n):
+        H = near(int(frame[i]))
+        if H is None:
+            continue
+        H = np.asarray(H, np.float64)
+        bx, by, bw, bh = boxes[i]
+        pts = _apply(H, np.array([[bx + bw / 2, by + bh / 2], [bx, by + bh / 2],
+                                  [bx + bw, by + bh / 2], [bx + bw / 2, by],
+                                  [bx + bw / 2, by + bh]]))
+        if not np.isfinite(pts).all():
+            continue
+        xy[i] = pts[0] * flip
+        sw = float(np.hypot(*(pts[2] - pts[1]))) * metres_per_unit
+        sh = float(np.hypot(*(pts[4] - pts[3]))) * metres_per_unit
+        length[i], width[i] = max(sw, sh), min(sw, sh)
+    t = (frame - 1) / float(fps)
+    speed = np.full(n, np.nan)
+    heading = np.full(n, np.nan)
+    good = np.isfinite(xy).all(axis=1)
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    for s, e in zip(starts, np.r_[starts[1:], n]):
+        idx = np.arange(s, e)
+        idx = idx[good[idx]]
+        _, first = np.unique(frame[idx], return_index=True)  # observed before predicted
+        idx = idx[first]
+        if len(idx) < 2:
+            continue
+        lo, hi = window_ends(t[idx], smooth_s)
+        ok = hi > lo
+        d = xy[idx[hi[ok]]] - xy[idx[lo[ok]]]
+        v = np.hypot(d[:, 0], d[:, 1]) / (t[idx[hi[ok]]] - t[idx[lo[ok]]])
+        hd = np.where(v >= min_heading_speed_mps,
+                      np.mod(np.degrees(np.arctan2(d[:, 0], d[:, 1])), 360.0), np.nan)
+        per_frame = dict(zip(frame[idx[ok]].tolist(), zip(v.tolist(), hd.tolist())))
+        for i in range(s, e):
+            if int(frame[i]) in per_frame:
+                speed[i], heading[i] = per_frame[int(frame[i])]
+    cols = {"frame": frame, "time_s": t, "id": ids, "lon": np.full(n, np.nan),
+            "lat": np.full(n, np.nan), "x": xy[:, 0], "y": xy[:, 1],
+            "crs": np.array([LOCAL_CRS] * n, dtype=object), "speed_mps": speed,
+            "heading_deg": heading, "length_m": length, "width_m": width, "kind": kind}
+    if start_time is not None:
+        cols["time_utc"] = frame_times(frame, fps, start_time)
+    return cols, LOCAL_CRS
+
+
+def write_local_observation_table(path: str | Path, rows: Any, fps: float,
+                                  metres_per_unit: float, **kwargs: Any) -> Path:
+    """Write :func:`local_observation_table` as ``observations.csv`` (CSV only: GIS formats need
+    a CRS, which a run without a map has not)."""
+    cols, _ = local_observation_table(rows, fps, metres_per_unit, **kwargs)
+    p = Path(path).with_suffix(".csv")
+    _write_csv(p, cols)
+    return p
+
+
 def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *,
                       predicted: Any = None, homographies: dict[int, np.ndarray] | None = None,
                       frame_gsd: float | None = None, smooth_s: float = 0.5,
@@ -252,20 +366,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     # Box ground sizes via the frame's homography (or a frame GSD).
     length = np.full(n, np.nan)
     width = np.full(n, np.nan)
-    # A frame without a homography of its own (skipped by --stride, or a row bridged over a
-    # frame that failed) takes the nearest registered frame's within half a second: the camera
-    # hardly moves in between, and the box is the track's, not that frame's measurement.
-    registered = np.array(sorted(homs), dtype=np.int64)
-    reach = max(1, int(round(0.5 * fps)))
-
-    def homography_near(f: int):
-        if f in homs or not len(registered):
-            return homs.get(f)
-        k = int(np.searchsorted(registered, f))
-        near = [registered[j] for j in (k - 1, k) if 0 <= j < len(registered)]
-        best = min(near, key=lambda g: abs(int(g) - f))
-        return homs[int(best)] if abs(int(best) - f) <= reach else None
-
+    homography_near = _nearest_homography(homs, fps)
     for i in range(n):
         bx, by, bw, bh = boxes[i]
         H = homography_near(int(frame[i]))
