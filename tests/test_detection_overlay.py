@@ -87,3 +87,12 @@ def test_track_leaves_a_burned_in_caption_out(tmp_path, capsys):
     assert code == 0, err
     rows = read_mot(tmp_path / "again" / "tracks.csv")
     assert not np.any((rows[:, 3] + rows[:, 5] / 2 < 36) & (rows[:, 2] + rows[:, 4] / 2 < 560))
+    # segments on Dask: each finds it, the join drops what came before
+    code, _, err = run_cli(capsys, "track", frames, "--out", tmp_path / "dask", "--fps", "30",
+                           "--workers", "2")
+    assert code == 0, err
+    assert (tmp_path / "dask" / "stages" / "overlay_mask.png").is_file()
+    for name in ("detections.csv", "tracks.csv"):
+        rows = read_mot(tmp_path / "dask" / name, detections=name == "detections.csv")
+        on = (rows[:, 3] + rows[:, 5] / 2 < 36) & (rows[:, 2] + rows[:, 4] / 2 < 560)
+        assert not np.any(on), name

@@ -385,6 +385,8 @@ class SegmentResult:
     ended: float = 0.0  # timeline of a run: dispatch, imbalance, return of results)
     #: The segment's world is the map's pixels (registered against it), not its first frame's.
     on_map: bool = False
+    #: On-screen overlay pixels the segment found (frame pixels), or None.
+    overlay_mask: np.ndarray | None = None
 
 
 def limit_threads() -> None:
@@ -481,7 +483,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     return SegmentResult(segment=seg, registrations=dict(pipe.registrations),
                          detections=list(pipe.detections), tracklets=list(tracklets),
                          frame_size=pipe.frame_size, timings=timings, pid=os.getpid(),
-                         on_map=geomap is not None,
+                         on_map=geomap is not None, overlay_mask=pipe.overlay_mask,
                          followed=None if pipe.follower is None else pipe.follower.n_followed,
                          wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
                          started=started, ended=time.time())
@@ -1130,6 +1132,13 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     if world_regions and len(results) > 1:
         dets, tracklets = _apply_world_regions(dets, tracklets, world_regions,
                                                results[0].segment.own_stop)
+    # an overlay found in any segment: the whole run's (each segment left it out once found)
+    masks = [m for m in (getattr(r, "overlay_mask", None) for r in results) if m is not None]
+    overlay = np.logical_or.reduce(masks) if masks else None
+    if overlay is not None:
+        from .pipeline import drop_on_overlay
+
+        tracklets, dets = drop_on_overlay(tracklets, dets, overlay)
     t1 = time.perf_counter()
     frame_size = next((r.frame_size for r in results if r.frame_size), None)
     mpu = geomap.metres_per_pixel if geomap is not None else metres_per_unit
@@ -1162,7 +1171,8 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
                     first_frame=segs[0].own_start if segs else 1,
                     last_frame=segs[-1].own_stop if segs else 0,
                     followed=(None if all(getattr(r, "followed", None) is None for r in results)
-                              else sum(getattr(r, "followed", None) or 0 for r in results)))
+                              else sum(getattr(r, "followed", None) or 0 for r in results)),
+                    overlay_mask=overlay)
     return result, report
 
 

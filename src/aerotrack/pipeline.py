@@ -60,6 +60,8 @@ class Result:
     frames_timed : int or None
         Frames processed in this process, which ``timings`` cover (a resumed run's frames
         before the interruption are in ``frames``, not in ``timings``); None: ``frames``.
+    overlay_mask : ndarray (H, W) bool or None
+        On-screen overlay pixels found (``detection.overlay_mask``), left out of detection.
     repeated_frames : list of int
         Frames whose pixels repeat the frame before exactly (a recorder that dropped frames and
         re-emitted the last one): the tracker sees a stop, then a jump.
@@ -83,6 +85,7 @@ class Result:
     followed: int | None = None
     frames_timed: int | None = None
     repeated_frames: list[int] = field(default_factory=list)
+    overlay_mask: np.ndarray | None = None
 
     def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
         n_dets = sum(len(d) for d in self.detections)
@@ -718,7 +721,8 @@ class Pipeline:
                       frames=self.n_frames, first_frame=self.first_frame or 1,
                       last_frame=self.last_frame,
                       followed=None if self.follower is None else self.follower.n_followed,
-                      frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames))
+                      frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames),
+                      overlay_mask=mask)
 
     @property
     def overlay_mask(self) -> np.ndarray | None:
@@ -729,28 +733,11 @@ class Pipeline:
         return self._given_overlay
 
     def _drop_overlay(self, mask: np.ndarray) -> list[Track]:
-        """The tracklets and detections not on the overlay: its pixels were left out of detection
-        from the moment it was found; what came before (the first second or two of the camera's
-        motion) goes now. A tracklet goes when most of its observed boxes centre on it. The mask
-        is saved beside the checkpoints for ``track --from``."""
+        """The tracklets and detections not on the overlay (:func:`drop_on_overlay`); the mask is
+        saved beside the checkpoints for ``track --from``."""
         from .detection.overlay import OVERLAY_FILE, write_mask
 
-        kept = []
-        dropped = 0
-        for t in self.tracklets:
-            obs = np.array([[p.box[0] + p.box[2] / 2, p.box[1] + p.box[3] / 2] for p in t.points
-                            if p.kind == "observed" and p.box is not None]).reshape(-1, 2)
-            if len(obs) and (~_outside(mask, obs)).mean() > 0.5:
-                dropped += 1
-            else:
-                kept.append(t)
-        before = sum(len(d) for d in self.detections)
-        self.detections = [d.subset(_outside(mask, d.centers)) if len(d) else d
-                           for d in self.detections]
-        n = before - sum(len(d) for d in self.detections)
-        if dropped or n:
-            log.info("on-screen overlay: %d tracklets and %d detections on it, from before it was "
-                     "found, dropped", dropped, n)
+        kept, self.detections = drop_on_overlay(self.tracklets, self.detections, mask)
         if self.checkpoint_dir is not None:
             write_mask(Path(self.checkpoint_dir) / OVERLAY_FILE, mask)
         return kept
@@ -822,6 +809,30 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
 
 #: Observed points per tracklet that keep their appearance data (first, last and evenly spread).
 APPEARANCE_KEEP = 16
+
+
+def drop_on_overlay(tracklets: Iterable[Track], detections: list[Detections], mask: np.ndarray
+                    ) -> tuple[list[Track], list[Detections]]:
+    """The tracklets and detections not on an on-screen overlay (``mask``, frame pixels): its
+    pixels were left out of detection from the moment it was found; what came before (the first
+    second or two of the camera's motion) goes now. A tracklet goes when most of its observed
+    boxes centre on it."""
+    kept = []
+    dropped = 0
+    for t in tracklets:
+        obs = np.array([[p.box[0] + p.box[2] / 2, p.box[1] + p.box[3] / 2] for p in t.points
+                        if p.kind == "observed" and p.box is not None]).reshape(-1, 2)
+        if len(obs) and (~_outside(mask, obs)).mean() > 0.5:
+            dropped += 1
+        else:
+            kept.append(t)
+    before = sum(len(d) for d in detections)
+    detections = [d.subset(_outside(mask, d.centers)) if len(d) else d for d in detections]
+    n = before - sum(len(d) for d in detections)
+    if dropped or n:
+        log.info("on-screen overlay: %d tracklets and %d detections on it, from before it was "
+                 "found, dropped", dropped, n)
+    return kept, detections
 
 
 def _outside(mask: np.ndarray, centers: np.ndarray) -> np.ndarray:

@@ -651,6 +651,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
 
             save_chunk(out.partial, 0, [result.registrations[k] for k in sorted(result.registrations)],
                        list(result.detections))
+            if result.overlay_mask is not None:  # for --from, as a single process keeps it
+                from ..detection.overlay import OVERLAY_FILE, write_mask
+
+                write_mask(out.partial / OVERLAY_FILE, result.overlay_mask)
         out.finish(keep_as="stages")
     c = summary["counts"]
     if not quiet:
