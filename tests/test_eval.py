@@ -641,3 +641,14 @@ def test_non_integer_ids_are_refused(tmp_path, capsys):
     code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt"],
                         capsys)
     assert code == 2 and "ids are integers" in err and "Traceback" not in err
+
+
+def test_zero_size_ground_truth_boxes_are_pointed_out(tmp_path, capsys):
+    """Santiago's 4 zero-area boxes made a perfect prediction score 0.997 with no word."""
+    gt = _two_targets(5)
+    gt[2, 4] = 0.0
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "pred.txt", _two_targets(5))
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt"],
+                        capsys)
+    assert code == 0 and "1 boxes with a zero width or height" in err, err

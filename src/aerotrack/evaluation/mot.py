@@ -415,6 +415,11 @@ def _prepare_gt(gt: np.ndarray, label: str) -> np.ndarray:
         ids = ", ".join(str(int(i)) for i in np.unique(gt[neg, 1]))
         log.warning("%s: %d boxes with a negative width or height (ids %s) are kept as published "
                     "(they match nothing); --fix-gt reflects them", label, int(neg.sum()), ids)
+    zero = (gt[:, 4] == 0) | (gt[:, 5] == 0) if len(gt) else np.zeros(0, bool)
+    if zero.any():  # Santiago has 4: a perfect prediction then scores HOTA 0.997, not 1
+        ids = ", ".join(str(int(i)) for i in np.unique(gt[zero, 1]))
+        log.warning("%s: %d boxes with a zero width or height (ids %s) count as objects no box can "
+                    "match (IoU 0)", label, int(zero.sum()), ids)
     return gt
 
 
