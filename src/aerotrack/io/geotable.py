@@ -132,6 +132,18 @@ def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
         return h[:, :2] / h[:, 2:3]
 
 
+def _ordered_rows(rows: Any, predicted: Any, kinds: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """``tracks.csv`` and ``predicted.csv`` rows together, sorted by (id, frame, predicted last),
+    with each row's kind (``kinds`` of the in-view rows; ``observed`` where not given)."""
+    obs, pred = _rows(rows, "tracks"), _rows(predicted, "predicted")
+    a = np.vstack([obs, pred])
+    kinds = kinds or {}
+    kind = np.array([kinds.get((int(r[0]), int(r[1])), "observed") for r in obs]
+                    + ["predicted"] * len(pred), dtype=object)
+    order = np.lexsort((kind == "predicted", a[:, 0], a[:, 1]))
+    return a[order], kind[order]
+
+
 def _nearest_homography(homs: dict[int, np.ndarray], fps: float):
     """``f -> H`` of frame ``f``, or of the nearest registered frame within half a second: a frame
     without one of its own (skipped by --stride, or a row bridged over a frame that failed) is
@@ -175,13 +187,7 @@ def local_observation_table(rows: Any, fps: float, metres_per_unit: float, *,
         raise InputError(f"--fps {fps}: must be positive")
     if not metres_per_unit or metres_per_unit <= 0:
         raise InputError(f"--gsd {metres_per_unit}: must be a positive number of metres per pixel")
-    obs, pred = _rows(rows, "tracks"), _rows(predicted, "predicted")
-    a = np.vstack([obs, pred])
-    kinds = kinds or {}
-    kind = np.array([kinds.get((int(r[0]), int(r[1])), "observed") for r in obs]
-                    + ["predicted"] * len(pred), dtype=object)
-    order = np.lexsort((kind == "predicted", a[:, 0], a[:, 1]))
-    a, kind = a[order], kind[order]
+    a, kind = _ordered_rows(rows, predicted, kinds)
     n = len(a)
     frame, ids = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
     boxes = a[:, 2:6]
@@ -298,13 +304,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         raise InputError("observation table: needs a map (--map) for lon/lat and the output CRS")
     if not fps > 0:
         raise InputError(f"--fps {fps}: must be positive")
-    obs, pred = _rows(rows, "tracks"), _rows(predicted, "predicted")
-    a = np.vstack([obs, pred])
-    kinds = kinds or {}
-    kind = np.array([kinds.get((int(r[0]), int(r[1])), "observed") for r in obs]
-                    + ["predicted"] * len(pred), dtype=object)
-    order = np.lexsort((kind == "predicted", a[:, 0], a[:, 1]))
-    a, kind = a[order], kind[order]
+    a, kind = _ordered_rows(rows, predicted, kinds)
     n = len(a)
     frame, ids = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
     boxes = a[:, 2:6]
