@@ -105,7 +105,8 @@ def main(argv=None) -> None:
     print(f"{'scene':14s} " + " ".join(f"{k:>8s}" for k in KEYS))
     for r in rows:
         print(f"{r['scene']:14s} " + " ".join(
-            f"{r[k]:8.3f}" if isinstance(r[k], float) else f"{r[k]:8d}" for k in KEYS))
+            f"{r[k]:8.3f}" if isinstance(r[k], float) else f"{r[k]:8d}" if isinstance(r[k], int)
+            else f"{'-':>8s}" for k in KEYS))  # null: undefined (eval --json)
     means = {}
     for name in [*args.scenarios, "all"]:
         sel = [r for r in rows if name == "all" or r["scene"].split(":")[0] == name]

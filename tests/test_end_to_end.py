@@ -273,3 +273,7 @@ def test_clips_too_short_or_with_repeated_frames_are_pointed_out(scene, tmp_path
     code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o3",
                            "--frames", "1:120")
     assert code == 0 and "repeat" not in err and "the clip" not in err, err
+    # --stride processes fewer frames of the same clip: not a short clip (it said 1.0 s)
+    code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o4",
+                           "--stride", "5")
+    assert code == 0 and "the clip" not in err, err

@@ -430,11 +430,13 @@ class DetectionConfig:
         the luma residual for vehicles that stand out in it (sharp in 4:2:0), and a one-pixel
         erosion of colour-only vehicles' residual, added nothing on the generated scenes
         (0.718/0.863) and cost Santiago seed 0 0.644 -> 0.629 HOTA; not kept.
-    overlay_mask : bool
-        Find on-screen overlays (burned-in text, crosshairs, logos: fixed on the screen while a
-        moving camera's ground moves under them) and leave their pixels out of detection, as an
-        ``--ignore-region`` does (:mod:`aerotrack.detection.overlay`). A fixed camera gives no
-        evidence and nothing is left out.
+    overlay_mask : str
+        On-screen overlays (burned-in text, crosshairs, logos: fixed on the screen while a
+        moving camera's ground moves under them) found and their pixels left out of detection,
+        as an ``--ignore-region``'s are (:mod:`aerotrack.detection.overlay`): ``edges`` (only
+        marks near the frame's edges: captions, time stamps, logos; a mark in the middle is
+        reported, as it may be a vehicle the camera keeps centred), ``all`` (central crosshairs
+        too), ``off``. A fixed camera gives no evidence and nothing is left out.
     overlay_min_s : float
         Seconds of camera motion before any pixel is called an overlay.
     overlay_share : float
@@ -684,7 +686,7 @@ class DetectionConfig:
     shadow_trim_share: float = 0.5
     shadow_trim_pool_s: float = 60.0
     structure_ncc: float = 0.0
-    overlay_mask: bool = True
+    overlay_mask: str = "edges"
     overlay_min_s: float = 1.0
     overlay_share: float = 0.5
     hold_stopped: bool = True

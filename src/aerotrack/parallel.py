@@ -387,6 +387,8 @@ class SegmentResult:
     on_map: bool = False
     #: On-screen overlay pixels the segment found (frame pixels), or None.
     overlay_mask: np.ndarray | None = None
+    #: Frames of the segment repeating the one before exactly (Pipeline.repeated_frames).
+    repeated_frames: list[int] = field(default_factory=list)
 
 
 def limit_threads() -> None:
@@ -484,6 +486,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
                          detections=list(pipe.detections), tracklets=list(tracklets),
                          frame_size=pipe.frame_size, timings=timings, pid=os.getpid(),
                          on_map=geomap is not None, overlay_mask=pipe.overlay_mask,
+                         repeated_frames=[f for f in pipe.repeated_frames
+                                          if seg.own_start <= f <= seg.own_stop],
                          followed=None if pipe.follower is None else pipe.follower.n_followed,
                          wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
                          started=started, ended=time.time())
@@ -1172,7 +1176,9 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
                     last_frame=segs[-1].own_stop if segs else 0,
                     followed=(None if all(getattr(r, "followed", None) is None for r in results)
                               else sum(getattr(r, "followed", None) or 0 for r in results)),
-                    overlay_mask=overlay)
+                    overlay_mask=overlay,
+                    repeated_frames=sorted(f for r in results
+                                           for f in getattr(r, "repeated_frames", [])))
     return result, report
 
 

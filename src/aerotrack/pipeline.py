@@ -62,6 +62,9 @@ class Result:
         before the interruption are in ``frames``, not in ``timings``); None: ``frames``.
     overlay_mask : ndarray (H, W) bool or None
         On-screen overlay pixels found (``detection.overlay_mask``), left out of detection.
+    overlay_held : list of (x, y, w, h)
+        Overlay-like marks in the middle of the frame, left in (a crosshair, or a vehicle the
+        camera keeps centred; ``detection.overlay_mask = "edges"``).
     repeated_frames : list of int
         Frames whose pixels repeat the frame before exactly (a recorder that dropped frames and
         re-emitted the last one): the tracker sees a stop, then a jump.
@@ -86,6 +89,7 @@ class Result:
     frames_timed: int | None = None
     repeated_frames: list[int] = field(default_factory=list)
     overlay_mask: np.ndarray | None = None
+    overlay_held: list[tuple[int, int, int, int]] = field(default_factory=list)
 
     def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
         n_dets = sum(len(d) for d in self.detections)
@@ -250,11 +254,12 @@ class Pipeline:
 
             self.detector.frame_mask = frame_mask(self.regions, frame_size)
             self._region_mask = self.detector.frame_mask
-            if self.config.detection.overlay_mask and not self.stabilised:
+            mode = self.config.detection.overlay_mask
+            if mode != "off" and not self.stabilised:
                 from .detection.overlay import OverlayFinder
 
                 self.overlay = OverlayFinder(self.fps, self.config.detection.overlay_min_s,
-                                             self.config.detection.overlay_share)
+                                             self.config.detection.overlay_share, mode)
         # what the constructors made: save_state leaves it out (the resumed run makes it again)
         self._built = {"registrar": as_built(self.registrar)}
         if self.detector is not None:
@@ -722,7 +727,8 @@ class Pipeline:
                       last_frame=self.last_frame,
                       followed=None if self.follower is None else self.follower.n_followed,
                       frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames),
-                      overlay_mask=mask)
+                      overlay_mask=mask,
+                      overlay_held=[] if self.overlay is None else list(self.overlay.held))
 
     @property
     def overlay_mask(self) -> np.ndarray | None:
@@ -1099,11 +1105,16 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
             detector.debug_frames.clear()
 
     def result() -> Result:
-        return Result(tracks=[], registrations=pipe.registrations, detections=pipe.detections,
+        dets = pipe.detections
+        mask = pipe.overlay_mask
+        if mask is not None:  # as track drops them: what came before the overlay was found
+            _, dets = drop_on_overlay([], dets, mask)
+        return Result(tracks=[], registrations=pipe.registrations, detections=dets,
                       fps=pipe.fps, frame_size=pipe.frame_size,
                       metres_per_unit=pipe.metres_per_unit, timings=dict(pipe.timings),
                       cpu_timings=dict(pipe.cpu_timings), frames=pipe.n_frames,
-                      first_frame=pipe.first_frame or 1, last_frame=pipe.last_frame)
+                      first_frame=pipe.first_frame or 1, last_frame=pipe.last_frame,
+                      repeated_frames=list(pipe.repeated_frames), overlay_mask=mask)
 
     done = 0
     try:

@@ -233,17 +233,23 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
     that dropped frames: 6 repeated frames cost 0.04 HOTA and 4 ID switches)."""
     hints = []
     fps = float(result.fps or 30.0)
-    seconds = result.frames / fps
+    # the clip's length, not the frames processed (--stride k processes every k-th)
+    seconds = (result.last_frame - result.first_frame + 1) / fps if result.frames else 0.0
     if result.frames and not result.tracks and seconds < 2 * config.association.min_length_s:
-        hints.append(f"the clip is {result.frames} frames ({seconds:.2f} s at {fps:g} frames/s) "
+        hints.append(f"the clip is {round(seconds * fps)} frames ({seconds:.2f} s at {fps:g} frames/s) "
                      f"and tracks shorter than association.min_length_s "
                      f"({config.association.min_length_s:g} s) are dropped: is --fps right?"
                      + (" (an image folder is read at 30 unless told)" if builtin_detector else ""))
     elif builtin_detector and result.frames and seconds < config.detection.window_s:
-        hints.append(f"the clip ({result.frames} frames, {seconds:.1f} s at {fps:g} frames/s) is "
+        hints.append(f"the clip ({round(seconds * fps)} frames, {seconds:.1f} s at {fps:g} frames/s) is "
                      f"shorter than the background window detection.window_s "
                      f"({config.detection.window_s:g} s), so the background has few samples: is "
                      f"--fps right?")
+    for x, y, w, h in getattr(result, "overlay_held", None) or []:
+        hints.append(f"a mark stays put in the middle of the screen while the camera moves (frame "
+                     f"pixels x {x}-{x + w}, y {y}-{y + h}) and was left in: a crosshair? "
+                     f"--set detection.overlay_mask=all (or an --ignore-region) leaves it out. A "
+                     f"vehicle the camera keeps centred looks the same: then keep it")
     rep = getattr(result, "repeated_frames", None) or []
     if rep:
         shown = ", ".join(str(f) for f in rep[:5]) + (", ..." if len(rep) > 5 else "")

@@ -39,6 +39,9 @@ LAG_S = 0.3
 MEMORY_S = 3.0
 #: Seconds between the frames looked at (the evidence needs a second or two, not every frame).
 SAMPLE_S = 0.1
+#: A mark whose centre lies within this share of the frame's width or height from an edge is
+#: masked in mode ``edges``.
+EDGE_SHARE = 0.2
 #: Where a run keeps the mask beside its cached stages (``track --from`` uses it).
 OVERLAY_FILE = "overlay_mask.png"
 
@@ -74,6 +77,12 @@ class OverlayFinder:
         Seconds of camera motion (decayed) before any pixel is called an overlay.
     share : float
         Share of those frames in which a pixel must behave as an overlay.
+    mode : str
+        ``edges``: only marks whose centre lies within ``EDGE_SHARE`` of the frame's edge are
+        masked (captions, time stamps and logos sit there); a mark in the middle could be a
+        vehicle the camera keeps centred, pixel for pixel, which would be lost with it (a
+        synthetic follow-camera clip lost its target so): it is reported in :attr:`held`.
+        ``all``: every mark, central crosshairs too.
 
     Attributes
     ----------
@@ -81,7 +90,14 @@ class OverlayFinder:
         Overlay pixels at full frame resolution (None while nothing is found).
     """
 
-    def __init__(self, fps: float, min_s: float = 1.0, share: float = 0.5) -> None:
+    def __init__(self, fps: float, min_s: float = 1.0, share: float = 0.5,
+                 mode: str = "edges") -> None:
+        if mode not in ("edges", "all"):
+            raise ValueError(f"overlay mode {mode!r}: expected 'edges' or 'all'")
+        self.mode = mode
+        #: Boxes (x, y, w, h, frame pixels) of overlay-like marks away from the frame's edges,
+        #: not masked in mode ``edges``.
+        self.held: list[tuple[int, int, int, int]] = []
         self.fps = float(fps)
         self.min_s = float(min_s)
         self.share = float(share)
@@ -160,20 +176,28 @@ class OverlayFinder:
         if self._moving < self._min_moving:
             return
         edges = (self._evidence >= 255.0 * self.share * self._moving_share).astype(np.uint8)
+        small = np.zeros_like(edges)
+        held = []
         if edges.any():
             gap = max(3, round(0.012 * max(edges.shape)))  # a glyph or two apart
             k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * gap + 1, 2 * gap + 1))
-            small = cv2.dilate(edges, k)
-            # isolated speckles (a few pixels) are not an overlay
-            n, labels, stats, _ = cv2.connectedComponentsWithStats(small)
-            big = np.zeros(n, bool)
-            big[1:] = stats[1:, cv2.CC_STAT_AREA] >= 4 * (2 * gap + 1) ** 2
-            small = big[labels].astype(np.uint8)
-        else:
-            small = edges
+            n, labels, stats, _ = cv2.connectedComponentsWithStats(cv2.dilate(edges, k))
+            gh, gw = edges.shape
+            f = 1.0 / self._scale
+            for j in range(1, n):
+                x, y, w, h, area = stats[j]
+                if area < 4 * (2 * gap + 1) ** 2:  # isolated speckles are not an overlay
+                    continue
+                cx, cy = (x + w / 2) / gw, (y + h / 2) / gh
+                border = min(cx, 1 - cx) < EDGE_SHARE or min(cy, 1 - cy) < EDGE_SHARE
+                if border or self.mode == "all":
+                    small[labels == j] = 1
+                else:  # central: a crosshair, or a vehicle the camera keeps in the middle
+                    held.append((round(x * f), round(y * f), round(w * f), round(h * f)))
         mask = cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
         if not mask.any():
             mask = None
+        self.held = held
         if (mask is None) != (self.mask is None) or (
                 mask is not None and not np.array_equal(mask, self.mask)):
             self.changed = True
