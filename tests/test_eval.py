@@ -618,6 +618,10 @@ def test_unused_ignore_regions_beside_the_ground_truth_are_pointed_out(tmp_path,
     code, _, err = _run(["eval", "--gt", tmp_path / "gt", "--pred", tmp_path / "pred",
                          "--ignore", "auto"], capsys)
     assert code == 0 and "--ignore auto" not in err
+    write_mot(tmp_path / "gt" / "M1_gt_whole.txt", _two_targets(5))  # UAVDT's other ground truth
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt" / "M1_gt_whole.txt", "--pred",
+                         tmp_path / "pred" / "M1.txt"], capsys)
+    assert code == 0 and "--ignore auto" in err
 
 
 def test_json_has_the_counts_and_null_for_undefined_scores(tmp_path, capsys):

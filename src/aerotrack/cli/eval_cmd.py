@@ -29,7 +29,7 @@ def _seq_name(path: Path) -> str:
     stem = path.stem
     if path.name in ("gt.txt", "tracks.csv"):  # MOTChallenge seq/gt/gt.txt or a run folder
         return path.parent.parent.name if path.parent.name == "gt" else path.parent.name
-    return stem.removesuffix("_gt")
+    return stem.removesuffix("_gt_whole").removesuffix("_gt")  # UAVDT's M0101_gt(_whole).txt
 
 
 def _gt_files(folder: Path) -> list[Path]:
