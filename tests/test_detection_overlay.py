@@ -90,6 +90,11 @@ def test_track_leaves_a_burned_in_caption_out(tmp_path, capsys):
         cy = rows[:, 3] + rows[:, 5] / 2
         cx = rows[:, 2] + rows[:, 4] / 2
         assert not np.any((cy < 36) & (cx < 560)), name
+    # `detect` writes the detections of a full run: none on the caption either
+    code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "det", "--fps", "30")
+    assert code == 0, err
+    rows = read_mot(tmp_path / "det" / "detections.csv", detections=True)
+    assert not np.any((rows[:, 3] + rows[:, 5] / 2 < 36) & (rows[:, 2] + rows[:, 4] / 2 < 560))
     code, _, err = run_cli(capsys, "track", "--from", tmp_path / "run", "--out", tmp_path / "again")
     assert code == 0, err
     rows = read_mot(tmp_path / "again" / "tracks.csv")
