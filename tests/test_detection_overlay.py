@@ -108,3 +108,19 @@ def test_track_leaves_a_burned_in_caption_out(tmp_path, capsys):
         rows = read_mot(tmp_path / "dask" / name, detections=name == "detections.csv")
         on = (rows[:, 3] + rows[:, 5] / 2 < 36) & (rows[:, 2] + rows[:, 4] / 2 < 560)
         assert not np.any(on), name
+
+
+def test_bad_overlay_settings_name_the_setting():
+    from aerotrack.config import load_config
+    from aerotrack.detection.detector import check_config
+    from aerotrack.errors import ConfigError
+
+    for kv, needle in (("overlay_mask=bogus", "expected edges, all or off"),
+                       ("overlay_share=2", "detection.overlay_share: must be in (0, 1]"),
+                       ("overlay_min_s=0", "detection.overlay_min_s: must be > 0")):
+        try:
+            check_config(load_config(overrides=[f"detection.{kv}"]).detection)
+        except ConfigError as exc:
+            assert needle in str(exc), (kv, exc)
+        else:
+            raise AssertionError(kv)

@@ -806,7 +806,9 @@ def check_config(c: DetectionConfig) -> None:
     if c.overlay_mask not in ("edges", "all", "off"):
         raise ConfigError(f"config detection.overlay_mask: expected edges, all or off, got "
                           f"{c.overlay_mask!r}")
-    if not (c.overlay_min_s > 0 and 0 < c.overlay_share <= 1):
-        raise ConfigError("config detection.overlay_min_s must be > 0 and overlay_share in (0, 1]")
+    for name, ok, want in (("overlay_min_s", c.overlay_min_s > 0, "> 0"),
+                           ("overlay_share", 0 < c.overlay_share <= 1, "in (0, 1]")):
+        if not ok:
+            raise ConfigError(f"config detection.{name}: must be {want}, got {getattr(c, name)!r}")
     if c.persist:
         check_persistence(c)
