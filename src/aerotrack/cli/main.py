@@ -30,6 +30,7 @@ COMMANDS = [
     ("render_cmd", "render_command"),
     ("report_cmd", "report_command"),
     ("batch_cmd", "batch_command"),
+    ("count_cmd", "count_command"),
 ]
 
 log = logging.getLogger("aerotrack")

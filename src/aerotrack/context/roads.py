@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 
 from ..config import ContextConfig
 from ..errors import ConfigError, InputError
+from ..io.geojson import document_crs
 
 log = logging.getLogger(__name__)
 
@@ -118,24 +119,6 @@ def _wkb_lines(b: memoryview, at: int) -> tuple[list, int]:
             out += parts
         return out, at
     raise ValueError(f"WKB geometry type {code}")
-
-
-def _crs_of(doc: dict, label: str):
-    """The CRS of a GeoJSON document: its legacy ``crs`` member, else WGS 84 lon/lat (RFC 7946)."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
-    member = doc.get("crs")
-    props = member.get("properties") if isinstance(member, dict) else None
-    name = props.get("name") if isinstance(props, dict) else None
-    if member is not None and not isinstance(name, str):
-        raise InputError(f"{label}: malformed crs member (expected properties.name)")
-    if not name:
-        return CRS.from_epsg(4326)
-    try:
-        return CRS.from_user_input(name)
-    except CRSError:
-        raise InputError(f"{label}: unknown crs {name!r}") from None
 
 
 def _lines_of(doc: dict, label: str) -> list[np.ndarray]:
@@ -220,7 +203,7 @@ def read_roads(path: str | Path, *, geomap=None, crs=None, snap_m: float = 5.0,
         doc = _ogr_document(p, label)
     if not isinstance(doc, dict):
         raise InputError(f"{label}: not a GeoJSON object")
-    src = _crs_of(doc, label)
+    src = document_crs(doc, label)
     lines = _lines_of(doc, label)
     if src.is_geographic:
         allpts = np.vstack(lines)

@@ -31,6 +31,26 @@ from .output import atomic_write_text
 DECIMALS = 8  # ~1 mm at the equator; the contract asks for at least 7
 
 
+def document_crs(doc: dict, label: str):
+    """The CRS of a GeoJSON document: its legacy ``crs`` member, else WGS 84 lon/lat (RFC 7946).
+
+    ``label`` starts the one-line :class:`InputError` of a malformed or unknown CRS."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    member = doc.get("crs")
+    props = member.get("properties") if isinstance(member, dict) else None
+    name = props.get("name") if isinstance(props, dict) else None
+    if member is not None and not isinstance(name, str):
+        raise InputError(f"{label}: malformed crs member (expected properties.name)")
+    if not name:
+        return CRS.from_epsg(4326)
+    try:
+        return CRS.from_user_input(name)
+    except CRSError:
+        raise InputError(f"{label}: unknown crs {name!r}") from None
+
+
 def _merge(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None) -> np.ndarray:
     """(N, 11) rows of both files with a last column 1 = in view, 0 = predicted; one row per
     (id, frame), in-view rows winning."""

@@ -303,6 +303,15 @@ class RunResults:
                                  r[:, 10].astype(bool)))
         return out
 
+    def boxes_world(self, frames: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        """(N, 2) world positions of box centres (frame pixels, ``bb_left, bb_top, bb_width,
+        bb_height``) through this run's ``registration.csv``: map pixels with a map, the first
+        frame's pixels without (NaN in frames it did not register; the boxes themselves without
+        a registration file). For boxes from elsewhere, e.g. a ground truth."""
+        frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+        return self._world(frames, boxes, np.full((len(frames), 2), np.nan), None)
+
     def _world(self, frames, boxes, mapxy, geomap) -> np.ndarray:
         centres = boxes[:, :2] + boxes[:, 2:] / 2.0
         world = np.full((len(frames), 2), np.nan)

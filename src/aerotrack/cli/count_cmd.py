@@ -1,0 +1,257 @@
+"""``aerotrack count``: screen-line counts and turning movements of a run's tracks."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+
+import click
+import numpy as np
+
+from .common import root_flags
+
+log = logging.getLogger(__name__)
+
+#: Default band about a line (:mod:`aerotrack.analysis.counting`): metres with a scale, pixels
+#: without.
+BAND_M, BAND_PX = 1.0, 4.0
+
+
+@click.command("count")
+@click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
+@click.option("--line", "line_texts", multiple=True, metavar="NAME:x1,y1,x2,y2",
+              help="A count line from (x1, y1) to (x2, y2) in the pixels of the run's first "
+                   "frame (repeatable). Crossings from its left to its right, as seen on the "
+                   "screen walking from the first point to the second, count as '+'.")
+@click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
+              help="GeoJSON of count lines (2-vertex LineStrings named by a 'name' property; "
+                   "lon/lat, or the CRS of its 'crs' member); needs a run with a map.")
+@click.option("--band", type=float, default=None,
+              help=f"How far beyond a line a track must be to be on its other side: metres "
+                   f"when the run has a scale (a map or --gsd), first-frame pixels otherwise. "
+                   f"Default {BAND_M:g} m or {BAND_PX:g} px. Larger ignores more jitter about "
+                   f"the line, smaller counts vehicles that only clip its end.")
+@click.option("--bin", "bin_s", type=float, default=None,
+              help="Also count per time bin of this many seconds (counts.csv). Default: one bin "
+                   "for the whole run.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Folder for crossings.csv, counts.csv and movements.csv. Default: DIR.")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+              help="The run's map raster (default: the map named in DIR/summary.json).")
+@click.option("--gt", "gt_path", type=click.Path(dir_okay=False), default=None,
+              help="Ground-truth boxes (MOTChallenge, the run's frames): counted the same way "
+                   "through the run's registration and compared (count error, crossing "
+                   "precision and recall, turning-movement error).")
+@click.option("--gt-zero-based", is_flag=True,
+              help="The ground truth numbers frames from 0 (as Santiago's): add 1.")
+@click.option("--fix-gt", is_flag=True,
+              help="Correct the ground truth first (as `aerotrack eval --fix-gt`).")
+@click.option("--tolerance", "tolerance_s", type=float, default=1.0, show_default=True,
+              help="With --gt: seconds within which a crossing matches a true one.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the totals (and the comparison with --gt) as JSON instead of a table.")
+@click.pass_context
+def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin_s, out_dir,
+                  map_path, gt_path, gt_zero_based, fix_gt, tolerance_s, as_json) -> None:
+    """Count the tracks of DIR crossing lines, per direction and time bin, and each track's way
+    through them (turning movements: the first and last line it crossed).
+
+    A track changes side only when it is --band beyond a line, so jitter about it is not counted;
+    predicted positions between two sightings count (a crossing under a bridge), predictions
+    after a track's last sighting do not. Writes crossings.csv (one row per crossing),
+    counts.csv (per line, direction and bin) and movements.csv (per track), and prints the
+    totals and the origin-destination matrix.
+
+    \b
+    Examples:
+      aerotrack count run/ --line north:850,200,1100,260 --line south:700,900,980,960
+      aerotrack count run/ --lines approaches.geojson --bin 60
+      aerotrack count run/ --line stop:100,400,300,400 --gt gt.txt
+    """
+    from ..analysis.counting import (
+        CountLine,
+        compare_counts,
+        count_crossings,
+        movement_matrix,
+        movements,
+        parse_line,
+        read_count_lines,
+        tally,
+    )
+    from ..errors import InputError
+    from ..io.output import check_writable
+    from ..viz.results import RunResults
+    from .render_cmd import load_map
+
+    parsed = [parse_line(t) for t in line_texts]  # malformed lines before any file is read
+    for name, label in ((band, "--band"), (tolerance_s, "--tolerance")):
+        if name is not None and not (math.isfinite(name) and name >= 0):
+            raise InputError(f"{label} {name}: must be a number >= 0")
+    if bin_s is not None and not (math.isfinite(bin_s) and bin_s > 0):
+        raise InputError(f"--bin {bin_s}: must be a number of seconds > 0")
+    if not parsed and lines_path is None:
+        raise InputError("no count lines: give --line NAME:x1,y1,x2,y2 (first-frame pixels) or "
+                         "--lines FILE.geojson")
+    if gt_path is None and (gt_zero_based or fix_gt):
+        raise InputError("--gt-zero-based and --fix-gt only apply with --gt")
+    results = RunResults.load(run_dir)
+    geomap = load_map(results, map_path)
+    if lines_path is not None and geomap is None:
+        raise InputError(f"--lines {lines_path}: GeoJSON lines need a run with a map (this run "
+                         "has none); give the lines with --line in first-frame pixels")
+    out = Path(out_dir) if out_dir is not None else Path(results.path)
+    for name in ("crossings.csv", "counts.csv", "movements.csv"):
+        check_writable(out / name, "--out")
+
+    lines = []
+    first = results.first_frame
+    for name, pts in parsed:
+        lines.append(CountLine(name, *_first_frame_to_world(results, first, pts)))
+    if lines_path is not None:
+        lines += [CountLine(n, *p) for n, p in read_count_lines(lines_path, geomap)]
+    names = [ln.name for ln in lines]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise InputError(f"--line: the name {dup[0]!r} is given to two lines; names must differ")
+
+    mpu = geomap.metres_per_pixel if geomap is not None else results.metres_per_unit
+    band_world = (band if band is not None else BAND_M) / mpu if mpu else \
+        (band if band is not None else BAND_PX)
+    views = results.track_views(geomap)
+    crossings = count_crossings(views, lines, band_world)
+    moves = movements(crossings)
+    fps = results.fps
+    rows = tally(crossings, lines, fps, first, max(results.last_frame, first), bin_s)
+    _write(out, crossings, rows, moves, fps, geomap)
+
+    comparison = None
+    if gt_path is not None:
+        comparison = _compare(results, gt_path, gt_zero_based, fix_gt, lines, band_world,
+                              crossings, tolerance_s * fps, compare_counts)
+    quiet, _ = root_flags(ctx)
+    totals = tally(crossings, lines, fps, first, max(results.last_frame, first), None)
+    od = movement_matrix(moves)
+    if as_json:
+        doc = {"lines": {ln.name: {d: n for (nm, d, _, _, n) in totals if nm == ln.name}
+                         for ln in lines},
+               "movements": [{"from": a, "to": b, "tracks": n} for (a, b), n in sorted(od.items())]}
+        if comparison is not None:
+            doc["comparison"] = _comparison_doc(comparison)
+        click.echo(json.dumps(doc, indent=2, allow_nan=False))
+        return
+    if quiet:
+        return
+    click.echo(f"{'line':<16}{'+':>7}{'-':>7}{'total':>8}")
+    for ln in lines:
+        n = {d: c for (nm, d, _, _, c) in totals if nm == ln.name}
+        click.echo(f"{ln.name:<16}{n['+']:>7}{n['-']:>7}{n['+'] + n['-']:>8}")
+    if od:
+        click.echo("turning movements (first line crossed -> last line crossed: tracks)")
+        for (a, b), n in sorted(od.items()):
+            click.echo(f"  {a} -> {b}: {n}")
+    if comparison is not None:
+        _print_comparison(comparison, tolerance_s)
+    click.echo(f"wrote {out / 'crossings.csv'}, counts.csv, movements.csv")
+
+
+def _first_frame_to_world(results, first: int, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b) world points of a line given in the pixels of the run's first frame."""
+    from ..errors import InputError
+
+    reg = results.registration
+    if reg is None or not len(reg):
+        return pts[0], pts[1]
+    k = np.searchsorted(reg.frames, first)
+    if k >= len(reg.frames) or reg.frames[k] != first:
+        raise InputError(f"--line: the run's first frame ({first}) has no registration in "
+                         f"{results.path / 'registration.csv'}, so its pixels cannot be placed")
+    w = results.boxes_world(np.full(2, first), np.column_stack([pts, np.zeros((2, 2))]))
+    if not np.all(np.isfinite(w)):
+        raise InputError("--line: an end point cannot be placed through the first frame's "
+                         "registration (beyond the horizon?)")
+    return w[0], w[1]
+
+
+def _write(out: Path, crossings, rows, moves, fps: float, geomap) -> None:
+    from ..io.output import atomic_write
+
+    xy = np.array([c.world for c in crossings], dtype=np.float64).reshape(-1, 2)
+    ll = np.full_like(xy, np.nan)
+    if geomap is not None and len(xy):
+        ll = geomap.pixel_to_lonlat(xy)
+        xy = geomap.pixel_to_crs(xy)
+    digits = 8 if geomap is not None and geomap.crs.is_geographic else 3
+    with atomic_write(out / "crossings.csv", "w", encoding="utf-8", newline="\n") as fh:
+        fh.write("line,direction,id,frame,time_s,x,y,lon,lat,observed\n")
+        for c, (x, y), (lon, lat) in zip(crossings, xy, ll):
+            fh.write(f"{_csv(c.line)},{c.direction},{c.id},{c.frame:.2f},{(c.frame - 1) / fps:.3f},"
+                     f"{x:.{digits}f},{y:.{digits}f},{_num(lon, 8)},{_num(lat, 8)},"
+                     f"{int(c.observed)}\n")
+    with atomic_write(out / "counts.csv", "w", encoding="utf-8", newline="\n") as fh:
+        fh.write("line,direction,start_s,end_s,count\n")
+        for name, d, a, b, n in rows:
+            fh.write(f"{_csv(name)},{d},{a:.3f},{b:.3f},{n}\n")
+    with atomic_write(out / "movements.csv", "w", encoding="utf-8", newline="\n") as fh:
+        fh.write("id,from_line,from_direction,from_time_s,to_line,to_direction,to_time_s\n")
+        for m in moves:
+            fh.write(f"{m.id},{_csv(m.from_line)},{m.from_direction},"
+                     f"{(m.from_frame - 1) / fps:.3f},{_csv(m.to_line)},{m.to_direction},"
+                     f"{_num((m.to_frame - 1) / fps, 3)}\n")
+
+
+def _compare(results, gt_path, zero_based, fix_gt, lines, band_world, crossings, tol_frames,
+             compare_counts):
+    from types import SimpleNamespace
+
+    from ..analysis.counting import count_crossings
+    from ..evaluation.mot import drop_exact_duplicates, fix_ground_truth
+    from ..io.mot import read_mot
+
+    gt = read_mot(gt_path, option="--gt", strict=False, allow_empty=False, zero_based=zero_based)
+    if fix_gt:
+        gt, _ = fix_ground_truth(gt, f"--gt {gt_path}")
+    else:
+        drop_exact_duplicates(gt, f"--gt {gt_path}")
+    views = []
+    for tid in np.unique(gt[:, 1]).astype(int):
+        r = gt[gt[:, 1] == tid]
+        r = r[np.argsort(r[:, 0], kind="stable")]
+        frames = r[:, 0].astype(np.int64)
+        views.append(SimpleNamespace(id=int(tid), frames=frames,
+                                     world=results.boxes_world(frames, r[:, 2:6]),
+                                     observed=np.ones(len(r), bool)))
+    truth = count_crossings(views, lines, band_world)
+    return compare_counts(crossings, truth, lines, tol_frames)
+
+
+def _comparison_doc(c) -> dict:
+    def f(v):
+        return v if math.isfinite(v) else None
+
+    return {"count_error": f(c.count_error), "precision": f(c.precision), "recall": f(c.recall),
+            "movement_error": f(c.movement_error), "movements_true": c.movements_true,
+            "movements_measured": c.movements_measured,
+            "per_line": [{"line": a, "direction": d, "true": t, "measured": m, "matched": k}
+                         for a, d, t, m, k in c.per_line]}
+
+
+def _print_comparison(c, tolerance_s: float) -> None:
+    click.echo(f"against the ground truth (crossings matched within {tolerance_s:g} s):")
+    click.echo(f"{'line':<16}{'dir':>4}{'true':>7}{'counted':>9}{'matched':>9}")
+    for a, d, t, m, k in c.per_line:
+        click.echo(f"{a:<16}{d:>4}{t:>7}{m:>9}{k:>9}")
+    click.echo(f"count error {_num(c.count_error, 3)}  crossing precision "
+               f"{_num(c.precision, 3)} recall {_num(c.recall, 3)}  turning-movement error "
+               f"{_num(c.movement_error, 3)} ({c.movements_measured} tracks with a movement, "
+               f"{c.movements_true} true)")
+
+
+def _num(v: float, digits: int) -> str:
+    return "" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
+
+
+def _csv(text: str) -> str:
+    s = str(text)
+    return '"' + s.replace('"', '""') + '"' if any(ch in s for ch in ',"\n') else s
