@@ -11,6 +11,7 @@ The pipeline, one subpackage per stage::
     pipeline.py    wires the stages
     synth/         scenario generator with ground truth
     evaluation/    TrackEval wrappers, MPE_n
+    analysis/      what users make of tracks: screen-line counts, turning movements
     viz/           overlays, map plots, report
     cli/           the command-line layer
 
@@ -26,7 +27,7 @@ import importlib as _importlib
 __version__ = "0.1.0"
 
 #: The subpackages and modules reachable as attributes of the package.
-__all__ = ["association", "config", "context", "detection", "errors", "evaluation", "geo", "io",
+__all__ = ["analysis", "association", "config", "context", "detection", "errors", "evaluation", "geo", "io",
            "kalman", "outputs", "parallel", "pipeline", "registration", "synth", "types", "viz",
            "__version__"]
 
