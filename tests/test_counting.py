@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 from conftest import run_cli
-from test_viz import _H, make_run  # the tests folder is on sys.path
+from test_viz import _H, VEGAS, _east_metres_per_px, make_run  # the tests folder is on sys.path
 
 from aerotrack.analysis.counting import (
     CountLine,
@@ -21,6 +21,7 @@ from aerotrack.analysis.counting import (
     track_crossings,
 )
 from aerotrack.errors import InputError
+from aerotrack.geo import GeoMap
 
 
 def _path(n=40, x0=0.0, step=1.0, y=0.0, jitter=0.0, seed=0):
@@ -37,6 +38,7 @@ def test_a_straight_crossing_is_counted_once_where_and_when_it_happens():
     f, w, ob = _path()  # x = 0..39 along y = 0, one unit a frame: at x = 20 in frame 21
     (c,) = track_crossings(f, w, ob, VERTICAL, band=1.0, track_id=7)
     assert c.frame == pytest.approx(21.0) and np.allclose(c.world, [20.0, 0.0])
+    assert np.allclose(c.velocity, [1.0, 0.0])
     assert c.id == 7 and c.observed
     # walking down the line (+y on the screen) its right is -x: eastwards is right to left
     assert c.direction == "-"
@@ -129,6 +131,10 @@ def test_count_command_on_a_run_folder(tmp_path, capsys):
     assert [int(r["id"]) for r in rows] == [2, 1, 3]
     assert [float(r["frame"]) for r in rows] == pytest.approx([5.946, 11.351, 16.757], abs=0.01)
     assert all(abs(float(r["lon"]) + 115.23) < 0.02 for r in rows)  # the Vegas tile
+    # spot speed: 3.7 map px a frame at 10 frames/s eastwards, in metres on the ground
+    gm = GeoMap(VEGAS)
+    want = 3.7 * 10 * _east_metres_per_px(gm, at=(462.0, 600.0))
+    assert [float(r["speed_mps"]) for r in rows] == pytest.approx([want] * 3, rel=0.01)
     # a line the predicted stretch of target 2 crosses (map x 440 + 3.7 f = 520 at f ~ 21.6)
     code, out, err = run_cli(capsys, "count", run, "--line", "p:218,50,218,150", "--out",
                              tmp_path / "c2", "--json")

@@ -95,6 +95,10 @@ class Crossing:
     observed : bool
         Both rows around the crossing were in view (False: it happened in a predicted stretch
         between two sightings, e.g. under a bridge).
+    velocity : ndarray, shape (2,)
+        World units per frame at the crossing: the straight line from the track's position
+        ``SPEED_WINDOW`` frames before it to the one as long after (the nearest rows inside the
+        track), which averages out box jitter (NaN when the track has no row on one side).
     """
 
     line: str
@@ -103,6 +107,11 @@ class Crossing:
     frame: float
     world: np.ndarray = field(repr=False)
     observed: bool = True
+    velocity: np.ndarray = field(default_factory=lambda: np.full(2, np.nan), repr=False)
+
+
+#: Half-width, frames, of the window a crossing's velocity is measured over (0.25 s at 30 fps).
+SPEED_WINDOW = 8
 
 
 @dataclass(frozen=True)
@@ -244,10 +253,14 @@ def track_crossings(frames: np.ndarray, world: np.ndarray, observed: np.ndarray,
             u = s[j] / (s[j] - s[j + 1]) if s[j] != s[j + 1] else 0.0
             tt = t[j] + u * (t[j + 1] - t[j])
             if -slack <= tt <= 1.0 + slack:
-                out.append(Crossing(line.name, "+" if side > 0 else "-", int(track_id),
-                                    float(f[j] + u * (f[j + 1] - f[j])),
-                                    p[j] + u * (p[j + 1] - p[j]),
-                                    bool(ob[j] and ob[j + 1])))
+                at = float(f[j] + u * (f[j + 1] - f[j]))
+                lo = int(np.searchsorted(f, at - SPEED_WINDOW, side="left"))
+                hi = int(np.searchsorted(f, at + SPEED_WINDOW, side="right")) - 1
+                lo, hi = min(lo, j), max(hi, j + 1)
+                vel = (p[hi] - p[lo]) / (f[hi] - f[lo]) if f[hi] > f[lo] else np.full(2, np.nan)
+                out.append(Crossing(line.name, "+" if side > 0 else "-", int(track_id), at,
+                                    p[j] + u * (p[j + 1] - p[j]), bool(ob[j] and ob[j + 1]),
+                                    vel))
         state, last = side, int(k)
     return out
 

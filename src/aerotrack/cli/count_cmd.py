@@ -124,7 +124,7 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     moves = movements(crossings)
     fps = results.fps
     rows = tally(crossings, lines, fps, first, max(results.last_frame, first), bin_s)
-    _write(out, crossings, rows, moves, fps, geomap)
+    _write(out, crossings, rows, moves, fps, geomap, mpu)
 
     comparison = None
     if gt_path is not None:
@@ -174,21 +174,30 @@ def _first_frame_to_world(results, first: int, pts: np.ndarray) -> tuple[np.ndar
     return w[0], w[1]
 
 
-def _write(out: Path, crossings, rows, moves, fps: float, geomap) -> None:
+def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | None) -> None:
     from ..io.output import atomic_write
 
     xy = np.array([c.world for c in crossings], dtype=np.float64).reshape(-1, 2)
+    vel = np.array([c.velocity for c in crossings], dtype=np.float64).reshape(-1, 2)
     ll = np.full_like(xy, np.nan)
+    speed = np.full(len(xy), np.nan)
     if geomap is not None and len(xy):
         ll = geomap.pixel_to_lonlat(xy)
+        ahead = geomap.pixel_to_lonlat(xy + np.nan_to_num(vel))  # a frame's travel, on the ground
+        from pyproj import Geod
+
+        metres = Geod(ellps="WGS84").inv(ll[:, 0], ll[:, 1], ahead[:, 0], ahead[:, 1])[2]
+        speed = np.where(np.all(np.isfinite(vel), axis=1), np.asarray(metres) * fps, np.nan)
         xy = geomap.pixel_to_crs(xy)
+    elif mpu:
+        speed = np.hypot(vel[:, 0], vel[:, 1]) * mpu * fps
     digits = 8 if geomap is not None and geomap.crs.is_geographic else 3
     with atomic_write(out / "crossings.csv", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write("line,direction,id,frame,time_s,x,y,lon,lat,observed\n")
-        for c, (x, y), (lon, lat) in zip(crossings, xy, ll):
+        fh.write("line,direction,id,frame,time_s,x,y,lon,lat,speed_mps,observed\n")
+        for c, (x, y), (lon, lat), v in zip(crossings, xy, ll, speed):
             fh.write(f"{_csv(c.line)},{c.direction},{c.id},{c.frame:.2f},{(c.frame - 1) / fps:.3f},"
                      f"{x:.{digits}f},{y:.{digits}f},{_num(lon, 8)},{_num(lat, 8)},"
-                     f"{int(c.observed)}\n")
+                     f"{_num(v, 2)},{int(c.observed)}\n")
     with atomic_write(out / "counts.csv", "w", encoding="utf-8", newline="\n") as fh:
         fh.write("line,direction,start_s,end_s,count\n")
         for name, d, a, b, n in rows:
