@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 from conftest import run_cli
-from test_viz import _H, VEGAS, _east_metres_per_px, make_run  # the tests folder is on sys.path
+from test_viz import _H, VEGAS, _east_metres_per_px, grey_frames, make_run  # tests on sys.path
 
 from aerotrack.analysis.counting import (
     CountLine,
@@ -135,10 +135,18 @@ def test_count_command_on_a_run_folder(tmp_path, capsys):
     gm = GeoMap(VEGAS)
     want = 3.7 * 10 * _east_metres_per_px(gm, at=(462.0, 600.0))
     assert [float(r["speed_mps"]) for r in rows] == pytest.approx([want] * 3, rel=0.01)
+    assert not (run / "count_lines.png").exists()  # no input at hand: no picture
     # a line the predicted stretch of target 2 crosses (map x 440 + 3.7 f = 520 at f ~ 21.6)
+    frames = grey_frames(tmp_path / "frames", n=3)
     code, out, err = run_cli(capsys, "count", run, "--line", "p:218,50,218,150", "--out",
-                             tmp_path / "c2", "--json")
+                             tmp_path / "c2", "--json", "--input", frames)
     assert code == 0, err
+    import cv2
+
+    img = cv2.imread(str(tmp_path / "c2" / "count_lines.png"))
+    assert img.shape == (240, 320, 3)
+    # the line in yellow (but where the crossings' dots, its arrow and its name cover it)
+    assert (img[50:150, 218] == (0, 255, 255)).all(axis=1).mean() > 0.6
     with open(tmp_path / "c2" / "crossings.csv", newline="") as fh:
         rows = {int(r["id"]): r["observed"] for r in csv.DictReader(fh)}
     assert rows == {1: "1", 2: "0", 3: "1"}
@@ -163,10 +171,6 @@ def test_count_command_refuses_bad_input_in_one_line(tmp_path, capsys):
 
 
 def test_geojson_lines_in_lonlat(tmp_path, capsys):
-    from test_viz import VEGAS
-
-    from aerotrack.geo import GeoMap
-
     run = make_run(tmp_path, with_map=True, n_frames=60)
     gm = GeoMap(VEGAS)
     ll = gm.pixel_to_lonlat(np.array([[462.0, 500.0], [462.0, 700.0]]))  # map x 462, as above

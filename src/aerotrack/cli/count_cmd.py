@@ -50,11 +50,19 @@ BAND_M, BAND_PX = 1.0, 4.0
               help="Correct the ground truth first (as `aerotrack eval --fix-gt`).")
 @click.option("--tolerance", "tolerance_s", type=float, default=1.0, show_default=True,
               help="With --gt: seconds within which a crossing matches a true one.")
+@click.option("--picture/--no-picture", default=True, show_default=True,
+              help="Write DIR/count_lines.png (or into --out): the run's first frame with the "
+                   "lines, their '+' side, the tracks' paths and every crossing, to check where "
+                   "the lines fell (needs the run's input, named in summary.json, or --input).")
+@click.option("--input", "input_path", type=click.Path(), default=None,
+              help="The run's input video or image folder, for --picture (default: the input "
+                   "named in DIR/summary.json, if it still exists).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the totals (and the comparison with --gt) as JSON instead of a table.")
 @click.pass_context
 def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin_s, out_dir,
-                  map_path, gt_path, gt_zero_based, fix_gt, tolerance_s, as_json) -> None:
+                  map_path, gt_path, gt_zero_based, fix_gt, tolerance_s, picture, input_path,
+                  as_json) -> None:
     """Count the tracks of DIR crossing lines, per direction and time bin, and each track's way
     through them (turning movements: the first and last line it crossed).
 
@@ -101,8 +109,11 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     if lines_path is not None and geomap is None:
         raise InputError(f"--lines {lines_path}: GeoJSON lines need a run with a map (this run "
                          "has none); give the lines with --line in first-frame pixels")
+    if input_path is not None and not Path(input_path).exists():
+        raise InputError(f"--input {input_path}: no such file or folder")
     out = Path(out_dir) if out_dir is not None else Path(results.path)
-    for name in ("crossings.csv", "counts.csv", "movements.csv"):
+    for name in ("crossings.csv", "counts.csv", "movements.csv") + \
+            (("count_lines.png",) if picture else ()):
         check_writable(out / name, "--out")
 
     lines = []
@@ -125,6 +136,16 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     fps = results.fps
     rows = tally(crossings, lines, fps, first, max(results.last_frame, first), bin_s)
     _write(out, crossings, rows, moves, fps, geomap, mpu)
+    if picture:
+        image = results.reference_image(Path(input_path) if input_path else results.input_path)
+        if image is None:
+            log.info("count: no picture (the run's input is not at hand; give --input)")
+        else:
+            from ..io.output import atomic_write_bytes
+
+            png = _picture(image, results, first, lines, views, crossings)
+            if png is not None:
+                atomic_write_bytes(out / "count_lines.png", png)
 
     comparison = None
     if gt_path is not None:
@@ -153,7 +174,8 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
             click.echo(f"  {a} -> {b}: {n}")
     if comparison is not None:
         _print_comparison(comparison, tolerance_s)
-    click.echo(f"wrote {out / 'crossings.csv'}, counts.csv, movements.csv")
+    click.echo(f"wrote {out / 'crossings.csv'}, counts.csv, movements.csv"
+               + (", count_lines.png" if (out / "count_lines.png").is_file() and picture else ""))
 
 
 def _first_frame_to_world(results, first: int, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -172,6 +194,67 @@ def _first_frame_to_world(results, first: int, pts: np.ndarray) -> tuple[np.ndar
         raise InputError("--line: an end point cannot be placed through the first frame's "
                          "registration (beyond the horizon?)")
     return w[0], w[1]
+
+
+def _picture(image: np.ndarray, results, first: int, lines, views, crossings) -> bytes | None:
+    """PNG of the run's first frame with the lines (name at the first point, an arrow to the '+'
+    side), every track's path in grey and each crossing as a dot (green '+', red '-'), all
+    carried from the world into the first frame's pixels."""
+    import cv2
+
+    img = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    img = (img.astype(np.float32) * 0.6).astype(np.uint8)
+    to_frame = _world_to_first_frame(results, first)
+    if to_frame is None:
+        return None
+    h, w = img.shape[:2]
+    lw = max(1, round(h / 400))
+    for v in views:
+        q = to_frame(np.asarray(v.world, dtype=np.float64))
+        ok = np.all(np.isfinite(q), axis=1) & (np.abs(q) < 4 * max(h, w)).all(axis=1)
+        for a, b in zip(q[:-1][ok[:-1] & ok[1:]], q[1:][ok[:-1] & ok[1:]]):
+            cv2.line(img, _ipt(a), _ipt(b), (170, 170, 170), 1, cv2.LINE_AA)
+    for ln in lines:
+        a, b = to_frame(np.vstack([ln.a, ln.b]))
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            continue
+        cv2.line(img, _ipt(a), _ipt(b), (0, 255, 255), 2 * lw, cv2.LINE_AA)
+        d = (b - a) / max(np.hypot(*(b - a)), 1e-9)
+        right = np.array([-d[1], d[0]])  # y down: the '+' side as seen on the screen
+        mid = (a + b) / 2
+        cv2.arrowedLine(img, _ipt(mid), _ipt(mid + right * 12 * lw), (0, 255, 255), lw,
+                        cv2.LINE_AA, tipLength=0.4)
+        cv2.putText(img, ln.name, _ipt(a + np.array([4, -4])), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.4 * lw + 0.2, (0, 255, 255), lw, cv2.LINE_AA)
+    for c in crossings:
+        q = to_frame(np.asarray(c.world, dtype=np.float64)[None])[0]
+        if np.all(np.isfinite(q)):
+            cv2.circle(img, _ipt(q), 3 * lw, (0, 200, 0) if c.direction == "+" else (0, 0, 230),
+                       -1, cv2.LINE_AA)
+    ok, buf = cv2.imencode(".png", img)
+    return buf.tobytes() if ok else None
+
+
+def _world_to_first_frame(results, first: int):
+    """A function (N, 2) world -> (N, 2) pixels of the run's first frame, or None."""
+    reg = results.registration
+    if reg is None or not len(reg):
+        return lambda p: np.asarray(p, dtype=np.float64).reshape(-1, 2)
+    k = np.searchsorted(reg.frames, first)
+    if k >= len(reg.frames) or reg.frames[k] != first:
+        return None
+    Hi = np.linalg.inv(reg.H[k])
+
+    def apply(p):
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 2)
+        q = np.column_stack([p, np.ones(len(p))]) @ Hi.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(q[:, 2:3] > 0, q[:, :2] / q[:, 2:3], np.nan)
+    return apply
+
+
+def _ipt(p) -> tuple[int, int]:
+    return int(round(float(p[0]))), int(round(float(p[1])))
 
 
 def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | None) -> None:
