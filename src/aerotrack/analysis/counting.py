@@ -240,28 +240,25 @@ def track_crossings(frames: np.ndarray, world: np.ndarray, observed: np.ndarray,
         definite = np.where(s > 0, 1, np.where(s < 0, -1, 0))
     slack = band / line.length
     out: list[Crossing] = []
-    state, last = 0, -1
-    for k in np.flatnonzero(definite):
+    nz = np.flatnonzero(definite)
+    flips = np.flatnonzero(definite[nz][1:] != definite[nz][:-1])
+    for last, k in zip(nz[flips].tolist(), nz[flips + 1].tolist()):
         side = int(definite[k])
-        if state and side != state:
-            # the sign change between the last definite point and this one closest to this one
-            j = last
-            for m in range(k - 1, last - 1, -1):
-                if s[m] * s[m + 1] <= 0 and s[m] != s[m + 1]:
-                    j = m
-                    break
-            u = s[j] / (s[j] - s[j + 1]) if s[j] != s[j + 1] else 0.0
-            tt = t[j] + u * (t[j + 1] - t[j])
-            if -slack <= tt <= 1.0 + slack:
-                at = float(f[j] + u * (f[j + 1] - f[j]))
-                lo = int(np.searchsorted(f, at - SPEED_WINDOW, side="left"))
-                hi = int(np.searchsorted(f, at + SPEED_WINDOW, side="right")) - 1
-                lo, hi = min(lo, j), max(hi, j + 1)
-                vel = (p[hi] - p[lo]) / (f[hi] - f[lo]) if f[hi] > f[lo] else np.full(2, np.nan)
-                out.append(Crossing(line.name, "+" if side > 0 else "-", int(track_id), at,
-                                    p[j] + u * (p[j + 1] - p[j]), bool(ob[j] and ob[j + 1]),
-                                    vel))
-        state, last = side, int(k)
+        # the sign change between the last definite point and this one closest to this one
+        m = np.arange(last, k)
+        change = m[(s[m] * s[m + 1] <= 0) & (s[m] != s[m + 1])]
+        j = int(change[-1]) if len(change) else last
+        u = s[j] / (s[j] - s[j + 1]) if s[j] != s[j + 1] else 0.0
+        tt = t[j] + u * (t[j + 1] - t[j])
+        if -slack <= tt <= 1.0 + slack:
+            at = float(f[j] + u * (f[j + 1] - f[j]))
+            lo = int(np.searchsorted(f, at - SPEED_WINDOW, side="left"))
+            hi = int(np.searchsorted(f, at + SPEED_WINDOW, side="right")) - 1
+            lo, hi = min(lo, j), max(hi, j + 1)
+            vel = (p[hi] - p[lo]) / (f[hi] - f[lo]) if f[hi] > f[lo] else np.full(2, np.nan)
+            out.append(Crossing(line.name, "+" if side > 0 else "-", int(track_id), at,
+                                p[j] + u * (p[j + 1] - p[j]), bool(ob[j] and ob[j + 1]),
+                                vel))
     return out
 
 
