@@ -28,3 +28,17 @@ def test_demo_writes_scored_tracks_report_and_video(tmp_path, capsys):
     assert len(read_mot(run / "tracks.csv")) > 0
     assert ev["HOTA"] > 0.25 and ev["IDF1"] > 0.3
     assert ev["geo_error_median_m"] < 1.0
+
+
+def test_demo_replaces_an_earlier_demo_only(tmp_path, capsys):
+    from conftest import run_cli
+
+    run = tmp_path / "run_of_track"
+    run.mkdir()
+    (run / "tracks.csv").write_text("1,1,0,0,10,10,1,-1,-1,-1\n")  # a `track` run's results
+    code, _, err = run_cli(capsys, "demo", "--out", run, "--frames", "60")
+    assert code == 2 and "not an earlier demo" in err and "Traceback" not in err, err
+    assert (run / "tracks.csv").is_file() and sorted(p.name for p in run.iterdir()) == ["tracks.csv"]
+    code, _, err = run_cli(capsys, "demo", "--out", tmp_path / "d", "--seed", "-1")
+    assert code == 2 and "--seed" in err and "Traceback" not in err, err
+    assert not (tmp_path / "d").exists()

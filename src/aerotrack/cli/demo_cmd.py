@@ -16,7 +16,8 @@ DEMO_FRAMES = 600  # 20 s at 30 fps: enough for occlusions and an exit/re-entry,
               show_default=True, help="Folder for the scene, the run and the report.")
 @click.option("--frames", type=click.IntRange(min=60), default=DEMO_FRAMES, show_default=True,
               help="Length of the rendered scene.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Scene and tracker seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Scene and tracker seed.")
 @click.option("--overwrite/--no-overwrite", default=True, show_default=True,
               help="Replace an earlier demo in --out.")
 @click.pass_context
@@ -47,6 +48,7 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
 
     t0 = time.perf_counter()
     check_overwrite(out_dir, overwrite)
+    _check_earlier_demo(out_dir, overwrite)
     root = OutputDir(out_dir, overwrite=overwrite)
     scene, run_dir = root.path / "scene", root.path / "run"
     root.finish()
@@ -94,3 +96,18 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
     click.echo(f"overlay: {run_dir / 'overlay.webm'}")
     click.echo(f"tracks:  {run_dir / 'tracks.csv'} (map: {run_dir / 'tracks.geojson'})")
     click.echo(f"demo finished in {took:.0f} s")
+
+
+def _check_earlier_demo(out_dir: Path, overwrite: bool) -> None:
+    """``--overwrite`` replaces an earlier demo only: a folder holding anything but a demo's
+    ``scene/`` and ``run/`` (a ``track`` run's results given as --out by mistake) is refused."""
+    from ..errors import OutputError
+    from ..io.output import PARTIAL
+
+    p = Path(out_dir)
+    if not overwrite or not p.is_dir():
+        return
+    other = sorted(e.name for e in p.iterdir() if e.name not in ("scene", "run", PARTIAL))
+    if other:
+        raise OutputError(f"--out {p}: holds {other[0]!r}, so it is not an earlier demo's folder "
+                          "(scene/ and run/); give a new or empty folder, or an earlier demo's")
