@@ -1175,3 +1175,26 @@ def test_detections_with_a_latin1_comment_or_an_odd_header(tmp_path, capsys):
     q.write_bytes(b"1,-1,10,10,8,4,0.9\n2,-1,1\xe90,10,8,4,0.9\n")
     expect_error(capsys, ["--detections", "line 2", "non-numeric"], "track", "--detections", q,
                  "--out", tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_batch_fps_is_for_image_folders_and_keeps_a_videos_own_rate(tmp_path, capsys):
+    """``batch --fps 10`` over a 25 frames/s video and an image folder tracked the video at 10
+    frames/s too (speeds and every time window 2.5x off), so no mixed folder could be run right."""
+    import cv2
+
+    inputs = tmp_path / "in"
+    write_frames(inputs / "seq", [textured(shift=(0, i)) for i in range(4)])
+    h, w = textured().shape[:2]
+    vw = cv2.VideoWriter(str(inputs / "clip.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (w, h))
+    for i in range(4):
+        vw.write(textured(shift=(0, i)))
+    vw.release()
+    out = tmp_path / "o"
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--fps", "10")
+    assert code == 0, err
+    fps = {n: json.loads((out / n / "summary.json").read_text())["fps"] for n in ("seq", "clip")}
+    assert fps == {"seq": 10.0, "clip": 25.0}
+    assert "tracked at its own 25 frames/s" in err
+    # run again with the same settings: both are finished with them, nothing is named
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--fps", "10")
+    assert code == 0 and "WARNING" not in err and err.count("already finished") == 2, err

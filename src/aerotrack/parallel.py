@@ -1435,6 +1435,27 @@ def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bo
     return False
 
 
+def item_fps(input_path, fps: float | None) -> float | None:
+    """The ``--fps`` a batch gives one input: an image folder's rate, and a video's only when the
+    video names none. A video's own rate is kept (a folder of 30 frames/s videos beside 10
+    frames/s image sequences was all tracked at the rate given for the images)."""
+    if fps is None or Path(input_path).is_dir():
+        return fps
+    import cv2
+
+    cap = cv2.VideoCapture(str(input_path))
+    try:
+        native = cap.get(cv2.CAP_PROP_FPS) if cap.isOpened() else 0.0
+    finally:
+        cap.release()
+    if native and math.isfinite(native) and native > 0:
+        if abs(native - fps) > 1e-3 * fps:
+            log.info("%s: tracked at its own %g frames/s (--fps %g is for image folders and "
+                     "videos that name no rate)", input_path, native, fps)
+        return None
+    return fps
+
+
 def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: float | None = None,
               seed: int = 0, metres_per_unit: float | None = None, stride: int = 1, client=None,
               parallel: ParallelConfig | None = None, stabilised: bool = False,
@@ -1481,9 +1502,10 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         if on_done:
             on_done(it, None, exc)
 
+    given = {it.name: item_fps(it.input, fps) for it in todo}
     for it in todo:
         try:
-            sources[it.name] = open_source(it.input, fps)
+            sources[it.name] = open_source(it.input, given[it.name])
         except Exception as exc:  # noqa: BLE001  one bad input must not stop the batch
             fail(it, exc)
     if client is not None:
@@ -1510,8 +1532,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
             t0 = time.perf_counter()
             try:
                 if client is None:
-                    settings = _batch_settings(it, config, fps, seed, metres_per_unit, stride,
-                                               stabilised)
+                    settings = _batch_settings(it, config, given[it.name], seed,
+                                               metres_per_unit, stride, stabilised)
                     again = _interrupted_with(it, settings, resume)
                     folder = OutputDir(it.out, resume=True) if again else \
                         OutputDir(it.out, overwrite=True)
@@ -1531,7 +1553,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                          metres_per_unit=metres_per_unit, stride=stride,
                                          parallel=parallel)
                 info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
-                        "gsd": metres_per_unit, "fps_given": fps,
+                        "gsd": metres_per_unit, "fps_given": given[it.name],
                         **({"stabilised": True} if stabilised else {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3)}
                 summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)

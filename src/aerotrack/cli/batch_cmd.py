@@ -10,7 +10,6 @@ import click
 from .common import (
     check_positive,
     config_option,
-    fps_option,
     root_flags,
     seed_option,
     set_option,
@@ -26,7 +25,9 @@ log = logging.getLogger("aerotrack")
                    "`aerotrack track`.")
 @click.option("--gsd", type=float, default=None,
               help="Metres per frame pixel (gates become metric; observations.csv in metres).")
-@fps_option
+@click.option("--fps", type=float, default=None,
+              help="Frame rate of the image folders (default 30) and of videos that name none; a "
+                   "video's own rate is kept.")
 @seed_option
 @config_option
 @set_option
@@ -74,6 +75,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         batch_changes,
         check_scheduler,
         dask_client,
+        item_fps,
         plan_batch,
         run_batch,
     )
@@ -116,7 +118,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     for it in items:
         if not it.done:
             continue
-        changed = batch_changes(it, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
+        changed = batch_changes(it, config=config, fps=item_fps(it.input, fps), seed=seed,
+                                metres_per_unit=gsd,
                                 stride=stride, stabilised=stabilised)
         if changed:  # a warning: shown even with -q
             click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
