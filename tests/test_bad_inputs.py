@@ -1198,3 +1198,13 @@ def test_batch_fps_is_for_image_folders_and_keeps_a_videos_own_rate(tmp_path, ca
     # run again with the same settings: both are finished with them, nothing is named
     code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--fps", "10")
     assert code == 0 and "WARNING" not in err and err.count("already finished") == 2, err
+
+
+def test_the_frame_rate_assumed_for_an_image_folder_is_named(tmp_path, capsys):
+    """A 10 frames/s image sequence tracked without --fps was timed at 30 frames/s without a
+    word (speeds and every time window 3x off)."""
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(4)])
+    code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "o")
+    assert code == 0 and "timed at 30 frames/s (give --fps" in err, err
+    code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "o2", "--fps", "10")
+    assert code == 0 and "timed at" not in err, err

@@ -32,6 +32,8 @@ from ..types import Frame
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm"}
 DEFAULT_FOLDER_FPS = 30.0
+#: Image folders whose assumed frame rate was named (once per folder and process).
+_ASSUMED_RATE: set[Path] = set()
 
 
 class FrameSource:
@@ -296,6 +298,11 @@ class ImageFolderSource(FrameSource):
     def __init__(self, path: str | Path, fps: float | None = None) -> None:
         self.path = Path(path)
         self.fps = _check_fps(fps, str(self.path)) or DEFAULT_FOLDER_FPS
+        if fps is None and self.path.resolve() not in _ASSUMED_RATE:
+            _ASSUMED_RATE.add(self.path.resolve())
+            logging.getLogger(__name__).info(
+                "%s: image files hold no frame rate; timed at %g frames/s (give --fps if it is "
+                "another: speeds and every time-based setting follow it)", self.path, self.fps)
         self.files = sorted(
             (p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
              and not p.name.startswith(".")),
