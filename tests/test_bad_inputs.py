@@ -1208,3 +1208,12 @@ def test_the_frame_rate_assumed_for_an_image_folder_is_named(tmp_path, capsys):
     assert code == 0 and "timed at 30 frames/s (give --fps" in err, err
     code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "o2", "--fps", "10")
     assert code == 0 and "timed at" not in err, err
+
+
+def test_resume_with_nothing_to_resume_says_so(tmp_path, capsys):
+    """``--resume`` into a folder with no interrupted run (a typo in --out) ran from frame 1
+    without a word."""
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(4)])
+    code, _, err = run_cli(capsys, "track", frames, "--out", tmp_path / "typo", "--resume")
+    assert code == 0 and "no interrupted run there" in err, err
+    assert (tmp_path / "typo" / "tracks.csv").is_file()

@@ -585,6 +585,11 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             click.echo(f"aerotrack: {out_dir}: the run is already finished; nothing to resume "
                        "(--overwrite runs it again)", err=True)
         return
+    from ..io.output import PARTIAL
+
+    if resume and not (Path(out_dir) / PARTIAL).is_dir():
+        log.warning("--resume %s: no interrupted run there (no %s/): tracking from the first "
+                    "frame", out_dir, PARTIAL)
     cleanup = CleanupOnBadInput(out_dir, resume=resume)  # before the folder is made
     out = OutputDir(out_dir, overwrite=overwrite, resume=resume, resumable=True)
     with cleanup:
