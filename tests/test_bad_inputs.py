@@ -1217,3 +1217,16 @@ def test_resume_with_nothing_to_resume_says_so(tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", frames, "--out", tmp_path / "typo", "--resume")
     assert code == 0 and "no interrupted run there" in err, err
     assert (tmp_path / "typo" / "tracks.csv").is_file()
+
+
+def test_track_from_names_stage_settings_it_cannot_apply(tmp_path, capsys):
+    """``track --from DIR --set detection.window_s=2`` gave the cached run's tracks with no word
+    and wrote window_s 2 into config.toml as if used."""
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(4)])
+    assert run_cli(capsys, "track", frames, "--out", tmp_path / "a")[0] == 0
+    code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "b",
+                           "--set", "detection.window_s=2", "--set", "linking.max_cost=5")
+    assert code == 0 and "detection.window_s differs" in err and "max_cost" not in err, err
+    code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "c",
+                           "--set", "detection.min_conf=0.3")  # applied to the cached detections
+    assert code == 0 and "differ" not in err, err

@@ -866,6 +866,43 @@ def load_roads(roads_path, geomap, config):
     return read_roads(roads_path, geomap=geomap, snap_m=config.context.roads_snap_m)
 
 
+#: Detection settings ``track --from`` still applies (to the cached detections).
+FROM_APPLIED = {("detection", "min_conf")}
+
+
+def _warn_stage_settings(from_dir: Path, config) -> None:
+    """Name the registration and detection settings given (not at their defaults) that differ
+    from the --from run's: its cached registrations and detections are used as they are, so
+    those settings change nothing (a ``--set detection.window_s=2`` was accepted, gave the same
+    tracks, and was written into ``config.toml`` as if used)."""
+    import dataclasses
+
+    from ..config import Config, load_config
+    from ..errors import ConfigError
+
+    path = Path(from_dir) / "config.toml"
+    if not path.is_file():
+        return
+    try:
+        before = load_config(path)
+    except (ConfigError, OSError, ValueError):
+        return
+    names = []
+    for section in ("registration", "detection"):
+        a, b = getattr(before, section), getattr(config, section)
+        d = getattr(Config(), section)  # settings left at their defaults were not asked for
+        names += [f"{section}.{f.name}" for f in dataclasses.fields(a)
+                  if (section, f.name) not in FROM_APPLIED
+                  and getattr(a, f.name) != getattr(b, f.name) != getattr(d, f.name)]
+    if names:
+        log.warning("--from %s: %s differ%s from that run's, but its cached registrations and "
+                    "detections are used as they are: %s change%s nothing here (track the input "
+                    "again for them)", from_dir, ", ".join(names[:4])
+                    + (f" and {len(names) - 4} more" if len(names) > 4 else ""),
+                    "s" if len(names) == 1 else "", "it" if len(names) == 1 else "they",
+                    "s" if len(names) == 1 else "")
+
+
 def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed, gsd, fps,
                       min_speed, out_crs, overwrite, roads_path=None, start_time=None) -> None:
     """``track --from DIR``: association and linking on DIR/stages."""
@@ -908,6 +945,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     # the earlier run's start time unless another is given
     start_time = parse_start_time(start_time, geomap) or prev.get("start_time")
     check_config(config, fps, detector=False)  # before --out is touched
+    _warn_stage_settings(from_dir, config)
     same = Path(out_dir).resolve() == Path(from_dir).resolve()
     if same and not overwrite:
         raise InputError(f"--out {out_dir}: is the --from folder; its results are replaced only "
