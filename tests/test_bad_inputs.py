@@ -1230,3 +1230,26 @@ def test_track_from_names_stage_settings_it_cannot_apply(tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", "--from", tmp_path / "a", "--out", tmp_path / "c",
                            "--set", "detection.min_conf=0.3")  # applied to the cached detections
     assert code == 0 and "differ" not in err, err
+
+
+def test_batch_never_deletes_inputs_or_files_it_did_not_write(tmp_path, capsys):
+    """``batch same --out same`` deleted every image folder's frames (its results replaced
+    them) and reported success; and an item's output folder was emptied of a user's notes."""
+    inputs = tmp_path / "same"
+    write_frames(inputs / "imgs", [textured(shift=(0, i)) for i in range(4)])
+    write_frames(inputs / "other", [textured(shift=(i, 0)) for i in range(4)])
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", inputs)
+    assert code == 2 and "apart from the inputs" in err and "Traceback" not in err, err
+    assert len(list((inputs / "imgs").iterdir())) == 4
+    out = tmp_path / "o"
+    (out / "imgs").mkdir(parents=True)
+    (out / "imgs" / "notes.txt").write_text("mine")
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out)
+    assert code == 2 and "notes.txt" in err and "Traceback" not in err, err
+    assert (out / "imgs" / "notes.txt").read_text() == "mine"
+    assert (out / "other" / "summary.json").is_file()  # the other input is tracked
+    # a finished folder made from another input of the same name is named, not trusted silently
+    elsewhere = tmp_path / "elsewhere"
+    write_frames(elsewhere / "other", [textured(shift=(i, i)) for i in range(4)])
+    code, _, err = run_cli(capsys, "batch", elsewhere, "--out", out)
+    assert code == 0 and "finished with other input" in err, err

@@ -99,7 +99,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, OutputError
 from .pipeline import Pipeline, Result, _group_rows, link
 from .types import Detections, Registration, Track, TrackPoint, apply_homography, local_scales
 
@@ -1297,7 +1297,8 @@ def run_on_dask(source=None, *, workers: int | None = None, scheduler: str | Non
 
 # -- many videos ----------------------------------------------------------------------------------
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm", ".ts",
-                  ".mts", ".m2ts", ".flv", ".3gp", ".ogv"}
+                  ".mts", ".m2ts", ".flv", ".3gp", ".ogv", ".h264", ".264", ".h265", ".265",
+                  ".hevc", ".mjpeg", ".mjpg"}
 
 
 @dataclass(frozen=True)
@@ -1337,6 +1338,13 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     for p, stem in zip(found, stems):
         name = p.name if stems.count(stem) > 1 else stem
         out = out_dir / name
+        src, dst = p.resolve(), out.resolve()
+        if dst == src or src in dst.parents or dst in src.parents:
+            # its results would replace the images (``--out`` = INPUT_DIR deleted every image
+            # folder's frames and reported the batch a success)
+            raise InputError(f"--out {out_dir}: the results of {p.name} would go to {out}, "
+                             f"{'its own folder' if dst == src else 'inside or around it'}; give "
+                             "an output folder apart from the inputs")
         items.append(BatchItem(name, p, out, (out / "summary.json").is_file()))
     return items
 
@@ -1377,6 +1385,9 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
     except (OSError, ValueError):
         return []
     changed = []
+    before = summary.get("input")
+    if isinstance(before, str) and before and Path(before) != Path(item.input).resolve():
+        changed.append(f"input ({before})")  # another file of the same name, or a moved one
     # the first line naming the run's options (outputs.write_outputs) is not configuration
     stored = "".join(ln for ln in stored.splitlines(keepends=True)
                      if not ln.startswith("# run with:"))
@@ -1433,6 +1444,19 @@ def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bo
     log.warning("an interrupted run in %s is not continued (%s): tracking it again from the "
                 "first frame", item.out, why)
     return False
+
+
+def _check_item_folder(item: BatchItem) -> None:
+    """Refuse (as ``track --overwrite`` does) an item's output folder that holds files aerotrack
+    did not write: the batch replaced its whole content, a user's notes included."""
+    from .io.output import is_aerotrack_output
+
+    if not item.out.is_dir():
+        return
+    foreign = sorted(e.name for e in item.out.iterdir() if not is_aerotrack_output(e.name))
+    if foreign:
+        raise OutputError(f"{item.out}: holds files aerotrack did not write (e.g. "
+                          f"{foreign[0]!r}); move them, or give another --out")
 
 
 def item_fps(input_path, fps: float | None) -> float | None:
@@ -1497,7 +1521,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     out: dict[str, dict | BaseException] = {}
 
     def fail(it: BatchItem, exc: BaseException) -> None:
-        log.warning("%s: %s", it.input, exc, exc_info=not isinstance(exc, InputError))
+        log.warning("%s: %s", it.input, exc, exc_info=not isinstance(exc, (InputError, OutputError)))
         out[it.name] = exc
         if on_done:
             on_done(it, None, exc)
@@ -1505,6 +1529,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     given = {it.name: item_fps(it.input, fps) for it in todo}
     for it in todo:
         try:
+            _check_item_folder(it)
             sources[it.name] = open_source(it.input, given[it.name])
         except Exception as exc:  # noqa: BLE001  one bad input must not stop the batch
             fail(it, exc)

@@ -170,7 +170,12 @@ def unusable_videos(input_dir: Path) -> list[tuple[Path, str]]:
 
     out = []
     for p in sorted(Path(input_dir).iterdir(), key=lambda p: p.name):
-        if p.name.startswith(".") or p.suffix.lower() not in VIDEO_SUFFIXES or not p.is_file():
+        if p.name.startswith(".") or p.suffix.lower() not in VIDEO_SUFFIXES:
+            continue
+        if p.is_symlink() and not p.exists():
+            out.append((p, "a link to nothing (its target is gone)"))
+            continue
+        if not p.is_file():
             continue
         try:
             size = p.stat().st_size
