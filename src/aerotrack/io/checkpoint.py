@@ -83,8 +83,22 @@ def save_chunk(folder: Path, number: int, registrations: list[Registration],
                 arrays[f"extra_{k}"] = np.concatenate(parts)
     path = Path(folder) / f"chunk_{number:06d}.npz"
     with atomic_write(path, "wb") as fh:
-        np.savez(fh, **arrays)
+        savez_deflated(fh, arrays)
     return path
+
+
+def savez_deflated(fh, arrays: dict[str, np.ndarray]) -> None:
+    """``np.savez`` with each array deflated at zlib level 1, read back by ``np.load`` as any
+    ``.npz``. A run's ``stages/`` held 12.8 MB for 100 frames of Santiago (1080p, 30 vehicles:
+    the detections' colour histograms and ring descriptors in float64), 12 GB per hour of such
+    video; level 1 makes it 3.3 MB in 0.24 s (level 6, ``np.savez_compressed``: 3.0 MB in 0.87 s,
+    4% of the run's time)."""
+    import zipfile
+
+    with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for name, value in arrays.items():
+            with z.open(f"{name}.npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
 
 
 def load_chunks(folder: Path) -> tuple[dict[int, Registration], list[Detections], int]:
@@ -276,7 +290,7 @@ class TrackletSpill:
             return
         path = self._folder() / f"spill_{len(self._files):06d}.npz"
         with atomic_write(path, "wb") as fh:
-            np.savez(fh, **pack_tracks(self._buffer))
+            savez_deflated(fh, pack_tracks(self._buffer))
         self._files.append(path)
         self._buffer = []
 
