@@ -1567,6 +1567,9 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                     atomic_write_text(folder.partial / BATCH_SETTINGS, settings)
                     if again:
                         log.info("%s: continuing the interrupted run in %s", it.input, it.out)
+                    n_src = getattr(src, "count", None)
+                    log.info("tracking (input %d of %d%s) -> %s", todo.index(it) + 1, len(todo),
+                             f", {n_src} frames" if n_src else "", it.out)
                     result = run(src, config=config, fps=src.fps, seed=seed,
                                  metres_per_unit=metres_per_unit, stride=stride,
                                  checkpoint_dir=folder.partial, stabilised=stabilised,
