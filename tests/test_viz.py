@@ -399,3 +399,19 @@ def test_report_takes_a_zero_based_ground_truth(tmp_path, capsys):
           "--fix-gt", "--no-video"])
     text = (run / "report.html").read_text()
     assert "(corrected)" in text and "1.000" in text
+
+
+def test_report_renders_the_whole_run_over_a_partial_overlay(tmp_path, capsys):
+    """An overlay.webm rendered over frames 1-10 (`render --start/--stop`) was embedded in the
+    report of a 40-frame run as if it were the run's."""
+    from conftest import run_cli
+
+    run = make_run(tmp_path, n_frames=40)
+    frames = grey_frames(tmp_path / "frames", n=40)
+    code, _, err = run_cli(capsys, "render", frames, run, "--start", "1", "--stop", "10",
+                           "--no-pictures")
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "report", run, "--input", frames)
+    assert code == 0 and "rendering" in err and "frames 1-40" in err, err
+    code, _, err = run_cli(capsys, "report", run)  # no input: embedded, but named as partial
+    assert code == 0 and "covers only part" in err, err

@@ -248,18 +248,36 @@ def _video_width(path: Path) -> int:
         cap.release()
 
 
+def _covers_run(path: Path, results: RunResults) -> bool:
+    """Whether a video holds (about) as many frames as the run tracked: one `aerotrack render
+    --start/--stop` made over a part of it is not the run's overlay. A count the container does
+    not give (<= 0) is trusted."""
+    cap = cv2.VideoCapture(str(path))
+    try:
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+    finally:
+        cap.release()
+    want = results.last_frame - results.first_frame + 1 if results.last_frame else 0
+    return n <= 0 or want <= 0 or n >= 0.95 * want
+
+
 def _report_video(run_dir: Path, input_path, results: RunResults, options: ReportOptions,
                   t_tracks: float, progress) -> Path | None:
     """The overlay video the report embeds: ``DIR/overlay.webm`` when it is newer than
-    ``tracks.csv`` and no wider than ``options.video_width``; else, with the input, one rendered
+    ``tracks.csv``, no wider than ``options.video_width`` and covers the run's frames; else, with the input, one rendered
     at that width over the run's frames: into ``DIR/overlay.webm`` when there is none (kept
     beside the results), into a temporary file otherwise (a user's own overlay is not
     replaced) or when the run folder cannot be written. None: no video."""
     video_path = run_dir / "overlay.webm"
+    whole = video_path.is_file() and _covers_run(video_path, results)
     if video_path.is_file() and video_path.stat().st_mtime >= t_tracks \
-            and 0 < _video_width(video_path) <= options.video_width:
+            and 0 < _video_width(video_path) <= options.video_width and whole:
         return video_path
     if input_path is None or not options.render_video:
+        if video_path.is_file() and not whole:
+            log.warning("%s covers only part of the run's frames %d-%d (rendered with --start/"
+                        "--stop?); embedded as it is: give the input to render the whole run",
+                        video_path, results.first_frame, results.last_frame)
         return video_path if video_path.is_file() else None
     target = video_path
     if video_path.exists() or not os.access(run_dir, os.W_OK):
