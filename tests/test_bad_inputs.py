@@ -417,7 +417,7 @@ def test_mosaic_missing_input(tmp_path, capsys):
 
 def test_batch_missing_folder(tmp_path, capsys):
     code, _, err = run_cli(capsys, "batch", tmp_path / "nope", "--out", tmp_path / "o")
-    assert code == 2 and "Traceback" not in err and "nope" in err
+    assert code == 2 and "Traceback" not in err and "nope: no such folder" in err, err
 
 
 # -- every option value, the CLI audit --------------------------------------------------------------

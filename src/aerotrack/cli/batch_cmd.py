@@ -92,6 +92,10 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
         check_scheduler(scheduler)
+    if not Path(input_dir).is_dir():
+        raise InputError(f"INPUT_DIR {input_dir}: " + ("is a file; batch takes a folder of videos "
+                         "(track takes one video)" if Path(input_dir).exists() else
+                         "no such folder"))
     check_writable(out_dir, "--out", folder=True)  # once, not once per input
     items = plan_batch(input_dir, out_dir)
     unusable = unusable_videos(input_dir)

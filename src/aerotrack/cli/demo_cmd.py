@@ -87,7 +87,7 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
     took = time.perf_counter() - t0
     click.echo(
         f"HOTA {scores['HOTA']:.3f}  IDF1 {scores['IDF1']:.3f}  MOTA {scores['MOTA']:.3f}  "
-        f"ID switches {int(scores['IDSW'])}  ({scores['GT_IDs']} true vehicles, "
+        f"ID switches {int(scores['IDSW'])}  ({scores['GT_IDs']} vehicles came into view, "
         f"{scores['Pred_IDs']} tracks)  tracking at {summary.get('frames_per_second')} frames/s"
         + (f"\nmedian position error of matched vehicles: {geo['median_m']:.2f} m on the map"
            if geo else "")

@@ -15,7 +15,6 @@ from .common import (
     config_option,
     fps_option,
     frames_option,
-    gsd_option,
     ignore_option,
     intrinsics_option,
     make_progress,
@@ -41,7 +40,8 @@ log = logging.getLogger("aerotrack")
 @map_init_option
 @telemetry_option
 @telemetry_default_option
-@gsd_option
+@click.option("--gsd", type=float, default=None,
+              help="Metres per frame pixel when no map is given: the size gates become metric.")
 @fps_option
 @config_option
 @set_option

@@ -822,11 +822,9 @@ def check_out_crs(out_crs: str | None, geomap=None) -> None:
         return
     from ..io.geotable import projected_crs
 
-    if geomap is None:  # checked all the same, but said: it was ignored silently
+    crs = projected_crs(out_crs)  # a bad one is refused first, with or without a map
+    if geomap is None:  # said: it was ignored silently
         log.warning("--out-crs %s: without --map there is no observations.csv; ignored", out_crs)
-
-    crs = projected_crs(out_crs)
-    if geomap is None:
         return
     import numpy as np
 
