@@ -671,7 +671,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     if not quiet:
         click.echo(
             f"aerotrack: {result.frames} frames, {c['detections']} detections, {c['tracks']} tracks "
-            f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s)", err=True)
+            f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s); to look at "
+            f"them: aerotrack report {out.path}", err=True)
 
 
 MANIFEST = "run.json"
