@@ -1253,3 +1253,24 @@ def test_batch_never_deletes_inputs_or_files_it_did_not_write(tmp_path, capsys):
     write_frames(elsewhere / "other", [textured(shift=(i, i)) for i in range(4)])
     code, _, err = run_cli(capsys, "batch", elsewhere, "--out", out)
     assert code == 0 and "finished with other input" in err, err
+
+
+def test_a_second_batch_into_the_same_out_is_refused(tmp_path, capsys):
+    """Two batches into one --out took each other's running items for interrupted ones, tracked
+    everything twice and could leave an item with summary.json but no stages/."""
+    from aerotrack.cli.batch_cmd import lock_batch
+
+    inputs = tmp_path / "in"
+    write_frames(inputs / "clip", [textured(shift=(0, i)) for i in range(4)])
+    out = tmp_path / "o"
+    held = lock_batch(out)  # as a running batch holds it
+    try:
+        code, _, err = run_cli(capsys, "batch", inputs, "--out", out)
+        assert code == 2 and "another batch is writing into it" in err, err
+        assert not (out / "clip").exists()
+    finally:
+        held.close()
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out)  # released: it runs
+    assert code == 0 and (out / "clip" / "summary.json").is_file(), err
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--overwrite")
+    assert code == 0, err  # the lock file is aerotrack's own

@@ -103,6 +103,10 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     items = [it for it in items if Path(it.input) not in bad]
     if not items and not unusable:
         raise InputError(f"{input_dir}: no video files or image folders")
+    lock = lock_batch(out_dir)
+    if lock is not None:
+        ctx.call_on_close(lock.close)  # released when the command ends, however it ends
+    items = [it for it in plan_batch(input_dir, out_dir) if Path(it.input) not in bad]  # locked
     quiet, _ = root_flags(ctx)
 
     def report(item, summary, error):
@@ -162,6 +166,38 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     if failed:
         raise InputError(f"batch: {len(failed)} of {len(items) + len(unusable)} inputs failed: "
                          + ", ".join(failed))
+
+
+def lock_batch(out_dir):
+    """Hold ``OUT/.batch.lock`` (an exclusive ``flock``, released when the process ends, however
+    it ends) so that a second batch into the same --out is refused at once: two at a time each
+    took the other's running items for interrupted ones, tracked everything twice and left an
+    item with a summary.json but no stages/. Returns the open file (keep it); None where the
+    platform has no ``fcntl``."""
+    import os
+
+    from ..errors import InputError
+
+    try:
+        import fcntl
+    except ImportError:  # Windows: no lock
+        return None
+    path = Path(out_dir) / ".batch.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fh = open(path, "a+", encoding="utf-8")  # noqa: SIM115  kept open as the lock
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        fh.seek(0)
+        pid = fh.read().strip() or "?"
+        fh.close()
+        raise InputError(f"--out {out_dir}: another batch is writing into it (process {pid}); "
+                         "wait for it to end, or give another --out") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(str(os.getpid()))
+    fh.flush()
+    return fh
 
 
 def unusable_videos(input_dir: Path) -> list[tuple[Path, str]]:

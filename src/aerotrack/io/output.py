@@ -196,6 +196,10 @@ OUTPUT_NAMES = {
     "roads.geojson", "scenario.json",
     # demo
     "scene", "run",
+    # count
+    "crossings.csv", "counts.csv", "movements.csv", "count_lines.png",
+    # batch (its lock, in --out)
+    ".batch.lock",
 }
 
 
