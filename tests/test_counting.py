@@ -185,3 +185,15 @@ def test_geojson_lines_in_lonlat(tmp_path, capsys):
     (tmp_path / "l.geojson").write_text(json.dumps(doc))
     code, out, err = run_cli(capsys, "count", run, "--lines", tmp_path / "l.geojson")
     assert code == 2 and "exactly 2" in err
+
+
+def test_count_outputs_do_not_make_a_run_folder_foreign(tmp_path, capsys):
+    """count writes into the run folder; track --overwrite and batch refuse folders holding
+    files aerotrack did not write, so count's must be known as aerotrack's."""
+    from aerotrack.io.output import is_aerotrack_output
+
+    run = make_run(tmp_path, with_map=False, n_frames=20)
+    frames = grey_frames(tmp_path / "frames", n=3)
+    code, _, err = run_cli(capsys, "count", run, "--line", "a:10,0,10,100", "--input", frames)
+    assert code == 0, err
+    assert all(is_aerotrack_output(p.name) for p in run.iterdir()), sorted(p.name for p in run.iterdir())
