@@ -78,6 +78,8 @@ class GroundTruthFix:
                          f"{', '.join(map(str, self.reflected_ids))}")
         if self.duplicates:
             keys = ", ".join(f"frame {f + frame_offset} id {i}" for f, i in self.duplicates[:5])
+            if frame_offset:  # as the warning without --fix-gt names them: both numberings
+                keys += f"; frames as in the file, {-frame_offset:+d} counted from 1"
             more = f" and {len(self.duplicates) - 5} more" if len(self.duplicates) > 5 else ""
             n = len(self.duplicates)
             parts.append(f"dropped {n} exact duplicate row{'s' if n > 1 else ''} ({keys}{more})")
