@@ -1168,12 +1168,19 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     timings["linking"] = t2 - t1
     segs = [r.segment for r in results]
     frames = sum((s.own_stop - s.own_start) // stride + 1 for s in segs)
+    # the frames decoded, not planned: a video whose end is corrupt stops before the count its
+    # header gives (a 150-frame video with 49 decodable frames reported 150 frames here, 49 run
+    # in one process)
+    done = sorted(f for f in regs if any(s.own_start <= f <= s.own_stop for s in segs))
+    if done:
+        frames = min(frames, len(done))
     log.debug("joined %d segments: world rms %s, stitched %s, cut %s", len(segs),
              [round(x, 3) for x in report.world_rms], report.stitched, report.cut)
     result = Result(tracks=tracks, registrations=regs, detections=dets, fps=fps,
                     frame_size=frame_size, metres_per_unit=mpu, timings=timings, frames=frames,
                     first_frame=segs[0].own_start if segs else 1,
-                    last_frame=segs[-1].own_stop if segs else 0,
+                    last_frame=(min(segs[-1].own_stop, done[-1]) if done else
+                                segs[-1].own_stop if segs else 0),
                     followed=(None if all(getattr(r, "followed", None) is None for r in results)
                               else sum(getattr(r, "followed", None) or 0 for r in results)),
                     overlay_mask=overlay,
