@@ -197,3 +197,15 @@ def test_count_outputs_do_not_make_a_run_folder_foreign(tmp_path, capsys):
     code, _, err = run_cli(capsys, "count", run, "--line", "a:10,0,10,100", "--input", frames)
     assert code == 0, err
     assert all(is_aerotrack_output(p.name) for p in run.iterdir()), sorted(p.name for p in run.iterdir())
+
+
+def test_report_shows_the_counts(tmp_path, capsys):
+    run = make_run(tmp_path, with_map=True, n_frames=60)
+    frames = grey_frames(tmp_path / "frames", n=60)
+    code, _, err = run_cli(capsys, "count", run, "--line", "x160:160,0,160,200", "--input", frames)
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "report", run, "--input", frames, "--no-video")
+    assert code == 0, err
+    page = (run / "report.html").read_text()
+    assert '<section id="counts">' in page and "<td>x160</td><td>0</td><td>3</td>" in page
+    assert 'alt="count lines"' in page

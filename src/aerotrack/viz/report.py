@@ -233,7 +233,8 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
     metrics, eval_note = _evaluation(results, gt_path, zero_based=gt_zero_based, fix_gt=fix_gt)
     if video_path is not None and video_path.parent != run_dir:
         video_path.unlink(missing_ok=True)  # rendered for this report only
-    page = _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path)
+    page = _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path,
+                 counts=_counts_section(run_dir, t_tracks))
     out = Path(out_path) if out_path is not None else run_dir / "report.html"
     atomic_write_text(out, page)
     out.chmod(0o644)
@@ -446,7 +447,50 @@ def _metrics_table(metrics: dict) -> str:
     return f'<div class="cards">{cells}</div>'
 
 
-def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path) -> str:
+def _counts_section(run_dir: Path, t_tracks: float) -> str:
+    """The counts ``aerotrack count`` wrote into the run folder (newer than ``tracks.csv``): the
+    lines' picture, totals per line and direction, and the turning movements; "" without them."""
+    import csv
+
+    files = [run_dir / n for n in ("counts.csv", "movements.csv")]
+    if not all(f.is_file() and f.stat().st_mtime >= t_tracks for f in files):
+        return ""
+    try:
+        with open(files[0], newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+        with open(files[1], newline="", encoding="utf-8") as fh:
+            moves = list(csv.DictReader(fh))
+        totals: dict[str, dict[str, int]] = {}
+        for r in rows:
+            totals.setdefault(r["line"], {"+": 0, "-": 0})[r["direction"]] += int(r["count"])
+    except (OSError, KeyError, ValueError) as exc:
+        log.warning("counts in %s not shown: %s", run_dir, exc)
+        return ""
+    od: dict[tuple[str, str], int] = {}
+    for m in moves:
+        if m.get("to_line"):
+            od[(m["from_line"], m["to_line"])] = od.get((m["from_line"], m["to_line"]), 0) + 1
+    e = html.escape
+    table = ("<table><thead><tr><th>line</th><th>+</th><th>&minus;</th><th>total</th></tr></thead>"
+             + "".join(f"<tr><td>{e(n)}</td><td>{t['+']}</td><td>{t['-']}</td>"
+                       f"<td>{t['+'] + t['-']}</td></tr>" for n, t in totals.items())
+             + "</table>")
+    if od:
+        table += ("<h3>Turning movements</h3><table><thead><tr><th>first line crossed</th>"
+                  "<th>last line crossed</th><th>tracks</th></tr></thead>"
+                  + "".join(f"<tr><td>{e(a)}</td><td>{e(b)}</td><td>{n}</td></tr>"
+                            for (a, b), n in sorted(od.items())) + "</table>")
+    png = run_dir / "count_lines.png"
+    img = (f'<img class="fig" alt="count lines" src="{_data_uri(png.read_bytes(), "image/png")}">'
+           if png.is_file() and png.stat().st_mtime >= t_tracks else "")
+    return ('<section id="counts"><h2>Counts</h2><p class="note">From <code>aerotrack count</code> '
+            "(counts.csv, crossings.csv, movements.csv): '+' crosses a line from its left to its "
+            "right walking from its first point to its second, as seen on the screen.</p>"
+            f"{table}{img}</section>")
+
+
+def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path,
+          counts: str = "") -> str:
     full = results.path.resolve()
     name = html.escape("/".join(full.parts[-2:]) if len(full.parts) > 2 else full.name)
     when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -485,6 +529,8 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
     parts.append('<section><h2>Space-time view</h2><p class="note">Each track in (x, y, time), coloured by ID '
                  '(Yu &amp; Medioni 2007, fig. 6); dashed: predicted while out of view; stars: re-acquisitions.'
                  f'</p><img class="fig" alt="space-time view" src="{pictures["spacetime"]}"></section>')
+    if counts:
+        parts.append(counts)
     parts.append(f'<section><h2>Tracks</h2><p class="note">Click a heading to sort. Distance and speed '
                  f'use the in-view positions, smoothed over 0.5 s.</p>{_track_table(stats)}</section>')
     if "registration" in pictures:
