@@ -1472,6 +1472,10 @@ def item_fps(input_path, fps: float | None) -> float | None:
     frames/s image sequences was all tracked at the rate given for the images)."""
     if fps is None or Path(input_path).is_dir():
         return fps
+    from .io.frames import RAW_STREAM_SUFFIXES
+
+    if Path(input_path).suffix.lower() in RAW_STREAM_SUFFIXES:
+        return fps  # FFmpeg's guess (25), not a rate the stream names
     import cv2
 
     cap = cv2.VideoCapture(str(input_path))
@@ -1564,7 +1568,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
             t0 = time.perf_counter()
             try:
                 if client is None:
-                    settings = _batch_settings(it, config, given[it.name], seed,
+                    settings = _batch_settings(it, config, fps, seed,
                                                metres_per_unit, stride, stabilised)
                     again = _interrupted_with(it, settings, resume)
                     folder = OutputDir(it.out, resume=True) if again else \
@@ -1588,7 +1592,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                          metres_per_unit=metres_per_unit, stride=stride,
                                          parallel=parallel)
                 info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
-                        "gsd": metres_per_unit, "fps_given": given[it.name],
+                        "gsd": metres_per_unit, "fps_given": fps,
                         **({"stabilised": True} if stabilised else {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3)}
                 summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)

@@ -75,7 +75,6 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         batch_changes,
         check_scheduler,
         dask_client,
-        item_fps,
         plan_batch,
         run_batch,
     )
@@ -126,8 +125,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     for it in items:
         if not it.done:
             continue
-        changed = batch_changes(it, config=config, fps=item_fps(it.input, fps), seed=seed,
-                                metres_per_unit=gsd,
+        changed = batch_changes(it, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
                                 stride=stride, stabilised=stabilised)
         if changed:  # a warning: shown even with -q
             click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
