@@ -163,6 +163,8 @@ def test_count_command_refuses_bad_input_in_one_line(tmp_path, capsys):
         ((run, "--line", "a:1,2,3,4", "--bin", "0"), "--bin"),
         ((tmp_path / "nothing", "--line", "a:1,2,3,4"), "no such output folder"),
         ((run, "--line", "a:1,2,3,4", "--fix-gt"), "only apply with --gt"),
+        ((run, "--line", "a:1,2,3,4", "--gt", tmp_path / "nope.txt"), "--gt"),
+        ((run, "--line", "a:1,2,3,4", "--bin", "1e-7"), "shorter than one frame"),
     ]:
         code, _out, err = run_cli(capsys, "count", *argv)
         assert code == 2 and needle in err and "Traceback" not in err, (argv, err)

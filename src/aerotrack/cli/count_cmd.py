@@ -105,6 +105,12 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     if gt_path is None and (gt_zero_based or fix_gt):
         raise InputError("--gt-zero-based and --fix-gt only apply with --gt")
     results = RunResults.load(run_dir)
+    if gt_path is not None:  # a bad ground truth is refused before anything is written
+        from ..io.mot import read_mot
+
+        read_mot(gt_path, option="--gt", strict=False, allow_empty=False, zero_based=gt_zero_based)
+    if bin_s is not None and bin_s < 1.0 / results.fps:
+        raise InputError(f"--bin {bin_s}: shorter than one frame ({1.0 / results.fps:.4g} s)")
     geomap = load_map(results, map_path)
     if lines_path is not None and geomap is None:
         raise InputError(f"--lines {lines_path}: GeoJSON lines need a run with a map (this run "
