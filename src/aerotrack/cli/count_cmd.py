@@ -131,7 +131,8 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     names = [ln.name for ln in lines]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise InputError(f"--line: the name {dup[0]!r} is given to two lines; names must differ")
+        where = "--line/--lines" if lines_path is not None else "--line"
+        raise InputError(f"{where}: the name {dup[0]!r} is given to two lines; names must differ")
 
     mpu = geomap.metres_per_pixel if geomap is not None else results.metres_per_unit
     band_world = (band if band is not None else BAND_M) / mpu if mpu else \
