@@ -14,9 +14,12 @@ from aerotrack.analysis.counting import (
     CountLine,
     compare_counts,
     count_crossings,
+    in_view_per_bin,
+    line_in_view,
     movement_matrix,
     movements,
     parse_line,
+    speed_window_frames,
     tally,
     track_crossings,
 )
@@ -211,3 +214,67 @@ def test_report_shows_the_counts(tmp_path, capsys):
     page = (run / "report.html").read_text()
     assert '<section id="counts">' in page and "<td>x160</td><td>0</td><td>3</td>" in page
     assert 'alt="count lines"' in page
+
+
+def test_line_in_view_is_the_share_of_the_line_inside_each_frame():
+    line = CountLine("v", (50.0, -50.0), (50.0, 50.0))  # half above the frame's top edge
+    hs = np.stack([np.eye(3), np.array([[1.0, 0, -60.0], [0, 1, 0], [0, 0, 1]])])
+    share = line_in_view(line, hs, (100, 100), samples=101)
+    assert share[0] == pytest.approx(0.5, abs=0.01)
+    assert share[1] == 0.0  # frame 2's pixels start at world x -60: x 50 is past its right edge
+    # bins: frames 1-5 see half of it, 6-10 have no registration row (not seen)
+    per_bin = in_view_per_bin(np.arange(1, 6), np.full(5, 0.5), fps=5.0, first_frame=1,
+                              last_frame=10, bin_s=1.0)
+    assert per_bin == pytest.approx([0.5, 0.0])
+
+
+def test_counts_say_when_the_camera_did_not_see_a_line(tmp_path, capsys):
+    # make_run's camera drifts 2 map px a frame east: frame 1's x = 10 (map x 312) leaves the
+    # 320-px-wide view after frame 6; x = 160 stays in view for all 60 frames
+    run = make_run(tmp_path, with_map=True, n_frames=60)
+    code, _, err = run_cli(capsys, "count", run, "--line", "x160:160,0,160,200",
+                             "--line", "x10:10,0,10,200", "--bin", "1")
+    assert code == 0, err
+    assert "'x10' was in view for 10% of the run" in err and "'x160'" not in err
+    with open(run / "counts.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["direction"] == "+"]
+    seen = {r["line"]: [float(r["in_view"]) for r in rows if r["line"] == r2]
+            for r2 in ("x10", "x160") for r in rows if r["line"] == r2}
+    assert seen["x160"] == [1.0] * 6
+    assert seen["x10"] == pytest.approx([0.6, 0, 0, 0, 0, 0])
+
+
+def test_speed_window_is_a_time_not_a_number_of_frames(tmp_path):
+    # a vehicle at 10 px a frame that stops 5 frames after the line: measured over
+    # 0.25 s either side, the speed at the line does not depend on the frame rate's window
+    assert speed_window_frames(30.0) == 8 and speed_window_frames(10.0) == 2
+    assert speed_window_frames(100.0) == 25 and speed_window_frames(None) == 8
+    f = np.arange(1, 41)
+    x = np.minimum(f * 10.0, 250.0)  # crosses x 200 at frame 20, stops at frame 25
+    w = np.column_stack([x, np.zeros(40)])
+    line = CountLine("v", (200.0, -10.0), (200.0, 10.0))
+    (c10,) = track_crossings(f, w, np.ones(40, bool), line, band=1.0,
+                             speed_window=speed_window_frames(10.0))
+    assert c10.velocity[0] == pytest.approx(10.0)  # frames 18..22: before the stop
+    (c8,) = track_crossings(f, w, np.ones(40, bool), line, band=1.0, speed_window=8)
+    assert c8.velocity[0] < 8.5  # 8 frames at 10 fps (0.8 s) reach into the stop
+
+
+def test_geojson_names_multilinestrings_and_other_features(tmp_path, capsys):
+    run = make_run(tmp_path, with_map=True, n_frames=60)
+    gm = GeoMap(VEGAS)
+    ll = gm.pixel_to_lonlat(np.array([[462.0, 500.0], [462.0, 700.0]])).tolist()
+    pt = {"type": "Point", "coordinates": ll[0]}
+    doc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"name": None}, "id": "gate",
+         "geometry": {"type": "MultiLineString", "coordinates": [ll]}},
+        {"type": "Feature", "properties": {"name": " "}, "geometry": pt}]}
+    (tmp_path / "l.geojson").write_text(json.dumps(doc))
+    code, out, err = run_cli(capsys, "count", run, "--lines", tmp_path / "l.geojson", "--json")
+    assert code == 0, err
+    assert json.loads(out)["lines"] == {"gate": {"+": 0, "-": 3}}
+    assert "1 Point feature not count lines, ignored" in err
+    doc["features"][0]["geometry"]["coordinates"].append(ll)
+    (tmp_path / "l.geojson").write_text(json.dumps(doc))
+    code, out, err = run_cli(capsys, "count", run, "--lines", tmp_path / "l.geojson")
+    assert code == 2 and "'gate' is a MultiLineString of 2 parts" in err

@@ -26,6 +26,7 @@ predictions after a track's last in-view row are guesses and never count.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -34,9 +35,12 @@ import numpy as np
 
 from ..errors import InputError
 
+log = logging.getLogger(__name__)
+
 __all__ = ["CountLine", "Crossing", "Movement", "CountComparison", "parse_line", "read_count_lines",
            "track_crossings", "count_crossings", "movements", "tally", "movement_matrix",
-           "compare_counts"]
+           "compare_counts", "line_in_view", "in_view_per_bin", "speed_window_frames",
+           "SPEED_WINDOW_S"]
 
 
 @dataclass(frozen=True)
@@ -97,8 +101,8 @@ class Crossing:
         between two sightings, e.g. under a bridge).
     velocity : ndarray, shape (2,)
         World units per frame at the crossing: the straight line from the track's position
-        ``SPEED_WINDOW`` frames before it to the one as long after (the nearest rows inside the
-        track), which averages out box jitter (NaN when the track has no row on one side).
+        ``SPEED_WINDOW_S`` seconds before it to the one as long after (the nearest rows inside
+        the track), which averages out box jitter (NaN when the track has no row on one side).
     """
 
     line: str
@@ -110,8 +114,15 @@ class Crossing:
     velocity: np.ndarray = field(default_factory=lambda: np.full(2, np.nan), repr=False)
 
 
-#: Half-width, frames, of the window a crossing's velocity is measured over (0.25 s at 30 fps).
-SPEED_WINDOW = 8
+#: Half-width, seconds, of the window a crossing's velocity is measured over.
+SPEED_WINDOW_S = 0.25
+
+
+def speed_window_frames(fps: float | None) -> int:
+    """``SPEED_WINDOW_S`` in frames at ``fps`` (at least 1; 8 when the rate is unknown)."""
+    if not fps or not math.isfinite(fps) or fps <= 0:
+        return 8
+    return max(1, int(round(SPEED_WINDOW_S * fps)))
 
 
 @dataclass(frozen=True)
@@ -155,8 +166,10 @@ def read_count_lines(path, geomap, option: str = "--lines") -> list[tuple[str, n
     """Count lines from a GeoJSON file: ``(name, (2, 2) map pixels)`` per LineString.
 
     Coordinates are lon/lat (RFC 7946) or in the CRS of the file's legacy ``crs`` member; each
-    line needs exactly two vertices (a straight screen-line) and is named by its feature's
-    ``name`` property (else ``id``, else ``line<k>``). Needs the run's map (``geomap``).
+    line needs exactly two vertices (a straight screen-line; a MultiLineString of one part is
+    taken as its part) and is named by its feature's ``name`` property (else ``id``, else
+    ``line<k>``). Other geometries (points, polygons) are ignored with a warning. Needs the run's
+    map (``geomap``).
     """
     import json
     from pathlib import Path
@@ -181,14 +194,25 @@ def read_count_lines(path, geomap, option: str = "--lines") -> list[tuple[str, n
     dst = CRS.from_user_input(geomap.crs.to_wkt())
     move = Transformer.from_crs(src, dst, always_xy=True) if src != dst else None
     out = []
+    skipped: dict[str, int] = {}
     for k, f in enumerate(feats, start=1):
         g = f.get("geometry") if isinstance(f, dict) else None
-        if not isinstance(g, dict) or g.get("type") != "LineString":
+        kind = g.get("type") if isinstance(g, dict) else None
+        props = f.get("properties") if isinstance(f, dict) and \
+            isinstance(f.get("properties"), dict) else {}
+        name = _feature_name(f if isinstance(f, dict) else {}, props, k)
+        coords = g.get("coordinates") if isinstance(g, dict) else None
+        if kind == "MultiLineString":
+            parts = coords if isinstance(coords, list) else []
+            if len(parts) != 1:
+                raise InputError(f"{label}: line {name!r} is a MultiLineString of {len(parts)} "
+                                 "parts; give each count line its own LineString feature")
+            coords, kind = parts[0], "LineString"
+        if kind != "LineString":
+            skipped[str(kind)] = skipped.get(str(kind), 0) + 1
             continue
-        props = f.get("properties") if isinstance(f.get("properties"), dict) else {}
-        name = str(props.get("name", f.get("id", props.get("id", f"line{k}"))))
         try:
-            a = np.asarray([c[:2] for c in g.get("coordinates") or []], dtype=np.float64)
+            a = np.asarray([c[:2] for c in coords or []], dtype=np.float64)
         except (TypeError, ValueError, IndexError):
             raise InputError(f"{label}: line {name!r} has malformed coordinates") from None
         if a.shape != (2, 2) or not np.all(np.isfinite(a)):
@@ -199,13 +223,27 @@ def read_count_lines(path, geomap, option: str = "--lines") -> list[tuple[str, n
         if not np.all(np.isfinite(a)):
             raise InputError(f"{label}: line {name!r} falls outside the map's CRS")
         out.append((name, geomap.crs_to_pixel(a)))
+    if skipped and out:
+        log.warning(
+            "%s: %s not count lines, ignored", label,
+            ", ".join(f"{n} {t} feature{'s' if n > 1 else ''}" for t, n in sorted(skipped.items())))
     if not out:
         raise InputError(f"{label}: no LineString count lines")
     return out
 
 
+def _feature_name(feature: dict, props: dict, k: int) -> str:
+    """A feature's ``name`` property, else its ``id`` (member or property), else ``line<k>``;
+    empty and null values are skipped."""
+    for v in (props.get("name"), feature.get("id"), props.get("id")):
+        if v is not None and str(v).strip():
+            return str(v).strip()
+    return f"line{k}"
+
+
 def track_crossings(frames: np.ndarray, world: np.ndarray, observed: np.ndarray,
-                    line: CountLine, band: float, track_id: int = 0) -> list[Crossing]:
+                    line: CountLine, band: float, track_id: int = 0,
+                    speed_window: int = 8) -> list[Crossing]:
     """Every crossing of ``line`` by one track (see the module docstring for the rule).
 
     Parameters
@@ -219,6 +257,8 @@ def track_crossings(frames: np.ndarray, world: np.ndarray, observed: np.ndarray,
     band : float
         World units a track must be beyond the line to be on one side of it. Raising it ignores
         more jitter about the line but misses vehicles that cross its very end.
+    speed_window : int
+        Half-width, frames, of the velocity window (:func:`speed_window_frames`).
     """
     frames = np.asarray(frames, dtype=np.float64)
     world = np.asarray(world, dtype=np.float64).reshape(-1, 2)
@@ -252,8 +292,8 @@ def track_crossings(frames: np.ndarray, world: np.ndarray, observed: np.ndarray,
         tt = t[j] + u * (t[j + 1] - t[j])
         if -slack <= tt <= 1.0 + slack:
             at = float(f[j] + u * (f[j + 1] - f[j]))
-            lo = int(np.searchsorted(f, at - SPEED_WINDOW, side="left"))
-            hi = int(np.searchsorted(f, at + SPEED_WINDOW, side="right")) - 1
+            lo = int(np.searchsorted(f, at - speed_window, side="left"))
+            hi = int(np.searchsorted(f, at + speed_window, side="right")) - 1
             lo, hi = min(lo, j), max(hi, j + 1)
             vel = (p[hi] - p[lo]) / (f[hi] - f[lo]) if f[hi] > f[lo] else np.full(2, np.nan)
             out.append(Crossing(line.name, "+" if side > 0 else "-", int(track_id), at,
@@ -262,15 +302,19 @@ def track_crossings(frames: np.ndarray, world: np.ndarray, observed: np.ndarray,
     return out
 
 
-def count_crossings(tracks: Iterable, lines: Sequence[CountLine], band: float) -> list[Crossing]:
+def count_crossings(tracks: Iterable, lines: Sequence[CountLine], band: float,
+                    fps: float | None = None) -> list[Crossing]:
     """Crossings of every line by every track, sorted by frame, then line and ID.
 
     ``tracks`` yields objects with ``id``, ``frames``, ``world`` and ``observed`` (as
-    :class:`aerotrack.viz.results.TrackView`)."""
+    :class:`aerotrack.viz.results.TrackView`); ``fps`` sets the speed window
+    (:data:`SPEED_WINDOW_S`)."""
     out = []
+    window = speed_window_frames(fps)
     for tr in tracks:
         for line in lines:
-            out.extend(track_crossings(tr.frames, tr.world, tr.observed, line, band, tr.id))
+            out.extend(track_crossings(tr.frames, tr.world, tr.observed, line, band, tr.id,
+                                       window))
     out.sort(key=lambda c: (c.frame, c.line, c.id))
     return out
 
@@ -303,16 +347,22 @@ def movement_matrix(moves: Iterable[Movement]) -> dict[tuple[str, str], int]:
     return out
 
 
+def _bins(fps: float, first_frame: int, last_frame: int, bin_s: float | None
+          ) -> tuple[float, float, float, int]:
+    """(start s, run length s, bin width s, number of bins) of :func:`tally`'s bins."""
+    t0 = (first_frame - 1) / fps
+    span = (last_frame - first_frame + 1) / fps
+    width = span if not bin_s or bin_s <= 0 else float(bin_s)
+    return t0, span, width, max(1, int(math.ceil(span / width - 1e-9)))
+
+
 def tally(crossings: Iterable[Crossing], lines: Sequence[CountLine], fps: float,
           first_frame: int, last_frame: int, bin_s: float | None = None
           ) -> list[tuple[str, str, float, float, int]]:
     """Counts per line, direction and time bin: rows ``(line, direction, start_s, end_s, count)``
     with times in seconds since frame 1 (bins start at ``first_frame``), every (line, direction,
     bin) present, zeros too. ``bin_s`` None or 0: one bin over the whole run."""
-    t0 = (first_frame - 1) / fps
-    span = (last_frame - first_frame + 1) / fps
-    width = span if not bin_s or bin_s <= 0 else float(bin_s)
-    nbins = max(1, int(math.ceil(span / width - 1e-9)))
+    t0, span, width, nbins = _bins(fps, first_frame, last_frame, bin_s)
     counts: dict[tuple[str, str, int], int] = {}
     for c in crossings:
         b = min(nbins - 1, max(0, int(((c.frame - first_frame) / fps) // width)))
@@ -324,6 +374,70 @@ def tally(crossings: Iterable[Crossing], lines: Sequence[CountLine], fps: float,
                 rows.append((line.name, d, t0 + b * width, t0 + min(span, (b + 1) * width),
                              counts.get((line.name, d, b), 0)))
     return rows
+
+
+def line_in_view(line: CountLine, frame_to_world: np.ndarray, frame_size: tuple[int, int],
+                 samples: int = 33) -> np.ndarray:
+    """Share of ``line``'s length inside each frame: (N,) in [0, 1].
+
+    A zero count means something only while the camera saw the line: a moving camera that looked
+    away from it, or left it at the edge of the view, counted nothing there whatever drove by.
+
+    Parameters
+    ----------
+    frame_to_world : ndarray, shape (N, 3, 3)
+        Each frame's pixels -> world (``registration.csv``).
+    frame_size : (int, int)
+        Width and height of the frames, pixels.
+    samples : int
+        Points along the line tested (the share is the fraction inside).
+    """
+    hs = np.asarray(frame_to_world, dtype=np.float64).reshape(-1, 3, 3)
+    if not len(hs):
+        return np.zeros(0)
+    u = np.linspace(0.0, 1.0, samples)
+    pts = line.a[None, :] + u[:, None] * (line.b - line.a)[None, :]
+    ph = np.column_stack([pts, np.ones(samples)])
+    out = np.zeros(len(hs))
+    w, h = float(frame_size[0]), float(frame_size[1])
+    for i, H in enumerate(hs):
+        try:
+            q = ph @ np.linalg.inv(H).T
+        except np.linalg.LinAlgError:
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+        ok = (q[:, 2] > 0) & (x >= 0) & (x <= w) & (y >= 0) & (y <= h)
+        out[i] = float(np.mean(ok))
+    return out
+
+
+def in_view_per_bin(frames: np.ndarray, share: np.ndarray, fps: float, first_frame: int,
+                    last_frame: int, bin_s: float | None = None) -> list[float]:
+    """Mean of :func:`line_in_view` over each of :func:`tally`'s bins (frames without a row,
+    e.g. not registered, count as not seen; frames between rows of a ``--stride`` run take the
+    row before)."""
+    _, _, width, nbins = _bins(fps, first_frame, last_frame, bin_s)
+    frames = np.asarray(frames, dtype=np.float64).reshape(-1)
+    share = np.asarray(share, dtype=np.float64).reshape(-1)
+    order = np.argsort(frames, kind="stable")
+    frames, share = frames[order], share[order]
+    allf = np.arange(first_frame, last_frame + 1, dtype=np.float64)
+    pos = np.searchsorted(frames, allf, side="right") - 1
+    vals = np.where(pos >= 0, share[np.maximum(pos, 0)], 0.0)
+    if len(frames):
+        step = np.median(np.diff(frames)) if len(frames) > 1 else 1.0
+        vals[allf > frames[-1] + step - 1] = 0.0  # after the last registered frame
+        gaps = allf - frames[np.maximum(pos, 0)] >= max(step, 1.0)
+        vals[gaps] = 0.0  # a frame the registration skipped (failed)
+    else:
+        vals[:] = 0.0
+    b = np.minimum(nbins - 1, ((allf - first_frame) / fps // width).astype(int))
+    out = []
+    for k in range(nbins):
+        sel = b == k
+        out.append(float(vals[sel].mean()) if sel.any() else math.nan)
+    return out
 
 
 @dataclass(frozen=True)

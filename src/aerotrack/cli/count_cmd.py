@@ -69,8 +69,9 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     A track changes side only when it is --band beyond a line, so jitter about it is not counted;
     predicted positions between two sightings count (a crossing under a bridge), predictions
     after a track's last sighting do not. Writes crossings.csv (one row per crossing),
-    counts.csv (per line, direction and bin) and movements.csv (per track), and prints the
-    totals and the origin-destination matrix.
+    counts.csv (per line, direction and bin, with the share of the bin the camera saw the line:
+    a zero count in a bin it did not see means nothing) and movements.csv (per track), and
+    prints the totals and the origin-destination matrix.
 
     \b
     Examples:
@@ -82,6 +83,8 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
         CountLine,
         compare_counts,
         count_crossings,
+        in_view_per_bin,
+        line_in_view,
         movement_matrix,
         movements,
         parse_line,
@@ -138,11 +141,13 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     band_world = (band if band is not None else BAND_M) / mpu if mpu else \
         (band if band is not None else BAND_PX)
     views = results.track_views(geomap)
-    crossings = count_crossings(views, lines, band_world)
-    moves = movements(crossings)
     fps = results.fps
-    rows = tally(crossings, lines, fps, first, max(results.last_frame, first), bin_s)
-    _write(out, crossings, rows, moves, fps, geomap, mpu)
+    crossings = count_crossings(views, lines, band_world, fps)
+    moves = movements(crossings)
+    last = max(results.last_frame, first)
+    rows = tally(crossings, lines, fps, first, last, bin_s)
+    seen = _in_view(results, lines, first, last, bin_s, line_in_view, in_view_per_bin)
+    _write(out, crossings, rows, moves, fps, geomap, mpu, seen)
     if picture:
         image = results.reference_image(Path(input_path) if input_path else results.input_path)
         if image is None:
@@ -264,7 +269,32 @@ def _ipt(p) -> tuple[int, int]:
     return int(round(float(p[0]))), int(round(float(p[1])))
 
 
-def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | None) -> None:
+def _in_view(results, lines, first: int, last: int, bin_s, line_in_view, in_view_per_bin
+             ) -> dict[str, list[float]] | None:
+    """{line: share of each bin the camera saw it} (None when the run does not know its frame
+    size, e.g. a run from a detections file); warns of lines the camera did not always see."""
+    size = results.summary.get("frame_size")
+    if not (isinstance(size, list) and len(size) == 2 and min(size) > 0):
+        return None
+    reg = results.registration
+    if reg is not None and len(reg):
+        frames, hs = reg.frames, reg.H
+    else:  # a fixed camera (no registration file): the frame is the world
+        frames = np.arange(first, last + 1)
+        hs = np.broadcast_to(np.eye(3), (len(frames), 3, 3))
+    out = {}
+    for ln in lines:
+        share = line_in_view(ln, hs, (size[0], size[1]))
+        out[ln.name] = in_view_per_bin(frames, share, results.fps, first, last, bin_s)
+        whole = in_view_per_bin(frames, share, results.fps, first, last, None)[0]
+        if whole < 0.995:
+            log.warning("count: line %r was in view for %.0f%% of the run (line length x time); "
+                        "counts.csv's in_view column says when", ln.name, 100 * whole)
+    return out
+
+
+def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | None,
+           seen: dict[str, list[float]] | None = None) -> None:
     from ..io.output import atomic_write
 
     xy = np.array([c.world for c in crossings], dtype=np.float64).reshape(-1, 2)
@@ -289,9 +319,12 @@ def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | N
                      f"{x:.{digits}f},{y:.{digits}f},{_num(lon, 8)},{_num(lat, 8)},"
                      f"{_num(v, 2)},{int(c.observed)}\n")
     with atomic_write(out / "counts.csv", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write("line,direction,start_s,end_s,count\n")
+        fh.write("line,direction,start_s,end_s,count,in_view\n")
+        k: dict[tuple[str, str], int] = {}
         for name, d, a, b, n in rows:
-            fh.write(f"{_csv(name)},{d},{a:.3f},{b:.3f},{n}\n")
+            i = k[(name, d)] = k.get((name, d), -1) + 1
+            share = seen[name][i] if seen is not None else math.nan
+            fh.write(f"{_csv(name)},{d},{a:.3f},{b:.3f},{n},{_num(share, 3)}\n")
     with atomic_write(out / "movements.csv", "w", encoding="utf-8", newline="\n") as fh:
         fh.write("id,from_line,from_direction,from_time_s,to_line,to_direction,to_time_s\n")
         for m in moves:
@@ -321,7 +354,7 @@ def _compare(results, gt_path, zero_based, fix_gt, lines, band_world, crossings,
         views.append(SimpleNamespace(id=int(tid), frames=frames,
                                      world=results.boxes_world(frames, r[:, 2:6]),
                                      observed=np.ones(len(r), bool)))
-    truth = count_crossings(views, lines, band_world)
+    truth = count_crossings(views, lines, band_world, results.fps)
     return compare_counts(crossings, truth, lines, tol_frames)
 
 
