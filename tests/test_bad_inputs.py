@@ -1274,3 +1274,39 @@ def test_a_second_batch_into_the_same_out_is_refused(tmp_path, capsys):
     assert code == 0 and (out / "clip" / "summary.json").is_file(), err
     code, _, err = run_cli(capsys, "batch", inputs, "--out", out, "--overwrite")
     assert code == 0, err  # the lock file is aerotrack's own
+
+
+def test_a_batch_runs_where_its_folder_cannot_be_locked(tmp_path, capsys, monkeypatch):
+    """An NFS mount without a lock daemon raises ENOLCK from flock: the batch ran nothing and
+    printed a traceback; it now warns that it is unguarded and runs."""
+    import errno
+    import fcntl
+
+    def no_locks(fh, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    inputs = tmp_path / "in"
+    write_frames(inputs / "clip", [textured(shift=(0, i)) for i in range(4)])
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", tmp_path / "o")
+    assert code == 0 and "cannot lock .batch.lock (No locks available)" in err, err
+    assert (tmp_path / "o" / "clip" / "summary.json").is_file()
+
+
+def test_a_file_browser_s_clutter_is_not_a_user_s_file(tmp_path, capsys, dets):
+    """Opening an output folder in macOS Finder leaves .DS_Store: --overwrite and a batch
+    re-run refused the folder as holding a user's files."""
+    out = tmp_path / "o"
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out)
+    assert code == 0, err
+    for name in (".DS_Store", "._tracks.csv", "Thumbs.db"):
+        (out / name).write_bytes(b"\0\1")
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out, "--overwrite")
+    assert code == 0, err
+    assert not (out / ".DS_Store").exists()
+    inputs = tmp_path / "in"
+    write_frames(inputs / "clip", [textured(shift=(0, i)) for i in range(4)])
+    (tmp_path / "b" / "clip").mkdir(parents=True)
+    (tmp_path / "b" / "clip" / ".DS_Store").write_bytes(b"\0")
+    code, _, err = run_cli(capsys, "batch", inputs, "--out", tmp_path / "b")
+    assert code == 0 and (tmp_path / "b" / "clip" / "tracks.csv").is_file(), err

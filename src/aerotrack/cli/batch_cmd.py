@@ -191,6 +191,10 @@ def lock_batch(out_dir):
         fh.close()
         raise InputError(f"--out {out_dir}: another batch is writing into it (process {pid}); "
                          "wait for it to end, or give another --out") from None
+    except OSError as exc:  # e.g. ENOLCK on an NFS mount without a lock daemon
+        log.warning("--out %s: cannot lock %s (%s): nothing stops a second batch into the same "
+                    "folder; run one at a time", out_dir, path.name, exc.strerror or exc)
+        return fh
     fh.seek(0)
     fh.truncate()
     fh.write(str(os.getpid()))

@@ -203,6 +203,13 @@ OUTPUT_NAMES = {
 }
 
 
+#: Files a desktop's file browser drops into any folder it shows (macOS Finder, Windows
+#: Explorer): no user data, so they neither make an output folder foreign nor survive --overwrite.
+BROWSER_FILES = {".DS_Store", "Thumbs.db", "desktop.ini", ".directory"}
+
+
 def is_aerotrack_output(name: str) -> bool:
-    """Whether an entry named ``name`` at the top of a folder is one aerotrack writes."""
-    return name in OUTPUT_NAMES or (name.startswith(".") and name.endswith(".tmp"))
+    """Whether an entry named ``name`` at the top of a folder is one aerotrack writes (or a file
+    browser's clutter, :data:`BROWSER_FILES` and macOS's ``._*`` companions)."""
+    return (name in OUTPUT_NAMES or name in BROWSER_FILES or name.startswith("._")
+            or (name.startswith(".") and name.endswith(".tmp")))
