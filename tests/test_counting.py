@@ -278,3 +278,29 @@ def test_geojson_names_multilinestrings_and_other_features(tmp_path, capsys):
     (tmp_path / "l.geojson").write_text(json.dumps(doc))
     code, out, err = run_cli(capsys, "count", run, "--lines", tmp_path / "l.geojson")
     assert code == 2 and "'gate' is a MultiLineString of 2 parts" in err
+
+
+def test_counts_carry_speeds_travel_times_and_clock_times(tmp_path, capsys):
+    # make_run's targets drive east at 3.7 map px a frame (10 frames/s); frame 1's x = 160 and
+    # x = 200 are map x 462 and 502: 40 / 3.7 = 10.8 frames = 1.081 s from one line to the other
+    run = make_run(tmp_path, with_map=True, n_frames=60)
+    code, _, err = run_cli(capsys, "count", run, "--line", "a:160,0,160,200",
+                           "--line", "b:200,0,200,200", "--start-time", "2024-05-01T12:30:00+02:00")
+    assert code == 0, err
+    with open(run / "crossings.csv", newline="") as fh:
+        cross = list(csv.DictReader(fh))
+    first = min(cross, key=lambda r: float(r["frame"]))
+    assert first["time_utc"] == "2024-05-01T10:30:00.495Z"  # frame 5.946: 0.4946 s
+    with open(run / "movements.csv", newline="") as fh:
+        moves = list(csv.DictReader(fh))
+    assert [float(m["travel_time_s"]) for m in moves] == pytest.approx([1.081] * 3, abs=0.002)
+    with open(run / "counts.csv", newline="") as fh:
+        rows = {(r["line"], r["direction"]): r for r in csv.DictReader(fh)}
+    want = 3.7 * 10 * _east_metres_per_px(GeoMap(VEGAS), at=(462.0, 600.0))
+    assert float(rows[("a", "-")]["mean_speed_mps"]) == pytest.approx(want, rel=0.01)
+    assert rows[("a", "+")]["mean_speed_mps"] == ""  # no crossing, no speed
+    assert rows[("a", "-")]["start_utc"] == "2024-05-01T10:30:00.000Z"
+    assert rows[("a", "-")]["end_utc"] == "2024-05-01T10:30:06.000Z"
+    code, _, err = run_cli(capsys, "count", run, "--line", "a:160,0,160,200",
+                           "--start-time", "12:30")
+    assert code == 2 and "--start-time" in err

@@ -57,20 +57,25 @@ BAND_M, BAND_PX = 1.0, 4.0
 @click.option("--input", "input_path", type=click.Path(), default=None,
               help="The run's input video or image folder, for --picture (default: the input "
                    "named in DIR/summary.json, if it still exists).")
+@click.option("--start-time", "start_time", metavar="TIME", default=None,
+              help="Wall-clock time of the run's frame 1, ISO 8601 with a UTC offset "
+                   "(2024-05-01T10:30:00Z): crossings get time_utc and bins start_utc/end_utc. "
+                   "Default: the run's own --start-time, if it was given one.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the totals (and the comparison with --gt) as JSON instead of a table.")
 @click.pass_context
 def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin_s, out_dir,
                   map_path, gt_path, gt_zero_based, fix_gt, tolerance_s, picture, input_path,
-                  as_json) -> None:
+                  start_time, as_json) -> None:
     """Count the tracks of DIR crossing lines, per direction and time bin, and each track's way
     through them (turning movements: the first and last line it crossed).
 
     A track changes side only when it is --band beyond a line, so jitter about it is not counted;
     predicted positions between two sightings count (a crossing under a bridge), predictions
     after a track's last sighting do not. Writes crossings.csv (one row per crossing),
-    counts.csv (per line, direction and bin, with the share of the bin the camera saw the line:
-    a zero count in a bin it did not see means nothing) and movements.csv (per track), and
+    counts.csv (per line, direction and bin: the count, the mean spot speed, and the share of
+    the bin the camera saw the line, since a zero count in a bin it did not see means nothing)
+    and movements.csv (per track: first and last line crossed, travel time between them), and
     prints the totals and the origin-destination matrix.
 
     \b
@@ -107,7 +112,11 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
                          "--lines FILE.geojson")
     if gt_path is None and (gt_zero_based or fix_gt):
         raise InputError("--gt-zero-based and --fix-gt only apply with --gt")
+    from .track_cmd import parse_start_time
+
+    clock = parse_start_time(start_time, geomap=True)  # (no "without --map" warning here)
     results = RunResults.load(run_dir)
+    clock = clock or results.summary.get("start_time")
     if gt_path is not None:  # a bad ground truth is refused before anything is written
         from ..io.mot import read_mot
 
@@ -147,7 +156,7 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     last = max(results.last_frame, first)
     rows = tally(crossings, lines, fps, first, last, bin_s)
     seen = _in_view(results, lines, first, last, bin_s, line_in_view, in_view_per_bin)
-    _write(out, crossings, rows, moves, fps, geomap, mpu, seen)
+    _write(out, crossings, rows, moves, fps, geomap, mpu, seen, clock, first)
     if picture:
         image = results.reference_image(Path(input_path) if input_path else results.input_path)
         if image is None:
@@ -294,7 +303,8 @@ def _in_view(results, lines, first: int, last: int, bin_s, line_in_view, in_view
 
 
 def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | None,
-           seen: dict[str, list[float]] | None = None) -> None:
+           seen: dict[str, list[float]] | None = None, clock: str | None = None,
+           first: int = 1) -> None:
     from ..io.output import atomic_write
 
     xy = np.array([c.world for c in crossings], dtype=np.float64).reshape(-1, 2)
@@ -312,25 +322,63 @@ def _write(out: Path, crossings, rows, moves, fps: float, geomap, mpu: float | N
     elif mpu:
         speed = np.hypot(vel[:, 0], vel[:, 1]) * mpu * fps
     digits = 8 if geomap is not None and geomap.crs.is_geographic else 3
+    utc = _utc(clock)
     with atomic_write(out / "crossings.csv", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write("line,direction,id,frame,time_s,x,y,lon,lat,speed_mps,observed\n")
+        fh.write("line,direction,id,frame,time_s,x,y,lon,lat,speed_mps,observed"
+                 + (",time_utc" if utc else "") + "\n")
         for c, (x, y), (lon, lat), v in zip(crossings, xy, ll, speed):
-            fh.write(f"{_csv(c.line)},{c.direction},{c.id},{c.frame:.2f},{(c.frame - 1) / fps:.3f},"
+            t = (c.frame - 1) / fps
+            fh.write(f"{_csv(c.line)},{c.direction},{c.id},{c.frame:.2f},{t:.3f},"
                      f"{x:.{digits}f},{y:.{digits}f},{_num(lon, 8)},{_num(lat, 8)},"
-                     f"{_num(v, 2)},{int(c.observed)}\n")
+                     f"{_num(v, 2)},{int(c.observed)}" + (f",{utc(t)}" if utc else "") + "\n")
+    # the mean spot speed of each bin's crossings (a time-mean speed), from the same bins
+    sums: dict[tuple[str, str, int], list[float]] = {}
+    starts = {(name, d): [] for name, d, *_ in rows}
+    for name, d, a, _b, _n in rows:
+        starts[(name, d)].append(a)
+    for c, v in zip(crossings, speed):
+        if math.isfinite(v):
+            edges = starts[(c.line, c.direction)]
+            k = max(0, int(np.searchsorted(edges, (c.frame - 1) / fps, side="right")) - 1)
+            sums.setdefault((c.line, c.direction, k), []).append(float(v))
     with atomic_write(out / "counts.csv", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write("line,direction,start_s,end_s,count,in_view\n")
+        fh.write("line,direction,start_s,end_s,count,in_view,mean_speed_mps"
+                 + (",start_utc,end_utc" if utc else "") + "\n")
         k: dict[tuple[str, str], int] = {}
         for name, d, a, b, n in rows:
             i = k[(name, d)] = k.get((name, d), -1) + 1
             share = seen[name][i] if seen is not None else math.nan
-            fh.write(f"{_csv(name)},{d},{a:.3f},{b:.3f},{n},{_num(share, 3)}\n")
+            vs = sums.get((name, d, i))
+            mean = float(np.mean(vs)) if vs else math.nan
+            fh.write(f"{_csv(name)},{d},{a:.3f},{b:.3f},{n},{_num(share, 3)},{_num(mean, 2)}"
+                     + (f",{utc(a)},{utc(b)}" if utc else "") + "\n")
     with atomic_write(out / "movements.csv", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write("id,from_line,from_direction,from_time_s,to_line,to_direction,to_time_s\n")
+        fh.write("id,from_line,from_direction,from_time_s,to_line,to_direction,to_time_s,"
+                 "travel_time_s\n")
         for m in moves:
             fh.write(f"{m.id},{_csv(m.from_line)},{m.from_direction},"
                      f"{(m.from_frame - 1) / fps:.3f},{_csv(m.to_line)},{m.to_direction},"
-                     f"{_num((m.to_frame - 1) / fps, 3)}\n")
+                     f"{_num((m.to_frame - 1) / fps, 3)},"
+                     f"{_num((m.to_frame - m.from_frame) / fps, 3)}\n")
+
+
+def _utc(clock: str | None):
+    """Seconds since frame 1 -> ISO 8601 UTC text, from the run's start time (None without)."""
+    if not clock:
+        return None
+    import datetime
+
+    try:
+        t0 = datetime.datetime.fromisoformat(clock)
+    except (TypeError, ValueError):
+        log.warning("count: summary.json's start_time %r is not an ISO 8601 time; no clock "
+                    "times (give --start-time)", clock)
+        return None
+
+    def at(seconds: float) -> str:
+        return (t0 + datetime.timedelta(seconds=seconds)).astimezone(
+            datetime.UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+    return at
 
 
 def _compare(results, gt_path, zero_based, fix_gt, lines, band_world, crossings, tol_frames,
