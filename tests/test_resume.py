@@ -763,3 +763,43 @@ def test_frames_the_follower_holds_at_an_interruption_are_read_again(tmp_path, v
                          checkpoint_every=30, resume=True)
     assert _everything(full) == _everything(resumed)
     assert resumed.followed == full.followed
+
+
+def test_on_interrupt_finish_writes_the_results_of_the_frames_read(tmp_path, capsys, video_frames,
+                                                                  monkeypatch):
+    """A live feed or a flight cut short: Ctrl-C with --on-interrupt finish ends the run at the
+    last frame read and writes every result; they equal a run told to stop there (--frames)."""
+    import os
+
+    from conftest import run_cli
+
+    from aerotrack.cli import track_cmd
+
+    made = track_cmd.make_progress
+
+    def ctrl_c_at_60(*args, **kwargs):
+        progress, close = made(*args, **kwargs)
+
+        def wrapped(done):
+            progress(done)
+            if done == 60:
+                os.kill(os.getpid(), signal.SIGINT)
+        return wrapped, close
+
+    monkeypatch.setattr(track_cmd, "make_progress", ctrl_c_at_60)
+    code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "cut", "--fps", "30",
+                           "--on-interrupt", "finish")
+    assert code == 0, err
+    assert "finishing the run at frame 60" in err and "interrupted: frames 1-60" in err
+    summary = json.loads((tmp_path / "cut" / "summary.json").read_text())
+    assert summary["interrupted_at_frame"] == 60 and summary["frames"] == 60
+    assert not (tmp_path / "cut" / ".partial").exists()
+    monkeypatch.setattr(track_cmd, "make_progress", made)
+    code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "to60", "--fps",
+                           "30", "--frames", "1:60")
+    assert code == 0, err
+    cut = (tmp_path / "cut" / "tracks.csv").read_bytes()
+    assert cut == (tmp_path / "to60" / "tracks.csv").read_bytes() and cut.count(b"\n") > 60
+    code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "w", "--workers",
+                           "2", "--on-interrupt", "finish")
+    assert code == 2 and "--on-interrupt finish: one process only" in err

@@ -1024,6 +1024,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                     progress(done)
     except KeyboardInterrupt as exc:
         exc.pipeline = pipe  # the work so far: ``exc.pipeline.finish()`` links and finishes it
+        exc.between_frames = not stepping  # (only then is finishing it exact)
         pipe.checkpoint()
         exact = not stepping and pipe.save_state()
         if not exact and isinstance(getattr(exc, "note", None), str) and exc.note:

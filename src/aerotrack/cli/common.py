@@ -64,6 +64,20 @@ stride_option = click.option(
     help="Use every N-th frame.")
 
 
+class InputParam(click.Path):
+    """INPUT: a video file or image folder (a Path), or a network stream's URL (kept as the
+    text: ``Path("rtsp://host/live")`` would fold its double slash)."""
+
+    name = "input"
+
+    def convert(self, value, param, ctx):
+        from ..io.frames import is_stream_url
+
+        if isinstance(value, str) and is_stream_url(value):
+            return value
+        return super().convert(value, param, ctx)
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM, turned into an exception at a safe point of a run.
 

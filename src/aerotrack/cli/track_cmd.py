@@ -11,6 +11,7 @@ import click
 
 from .common import (
     CleanupOnBadInput,
+    InputParam,
     Interrupted,
     check_overwrite,
     check_positive,
@@ -422,7 +423,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 
 
 @click.command("track")
-@click.argument("input_path", metavar="[INPUT]", required=False, type=click.Path(path_type=Path))
+@click.argument("input_path", metavar="[INPUT]", required=False, type=InputParam(path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder (new, or empty; see --overwrite/--resume).")
 @click.option("--detections", "detections_path", type=click.Path(path_type=Path), default=None,
@@ -473,6 +474,11 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted run in --out from its .partial/ (give the same "
                    "inputs and options).")
+@click.option("--on-interrupt", "on_interrupt", type=click.Choice(["keep", "finish"]),
+              default="keep", show_default=True,
+              help="What Ctrl-C (or SIGTERM) does: keep the finished work in .partial/ for "
+                   "--resume, or finish: end the run there as if the video ended, and write "
+                   "every result for the frames read (a live feed, a flight cut short).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Split the video into overlapping segments processed by N local worker "
                    "processes (Dask; pip install '.[dask]' in the aerotrack checkout). Default: one process.")
@@ -484,7 +490,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                   intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
                   overwrite, resume, workers, scheduler, from_dir=None, roads_path=None,
                   stabilised=False, detections_zero_based=False, min_conf=None,
-                  start_time=None):
+                  start_time=None, on_interrupt="keep"):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -500,6 +506,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
       aerotrack track flight.mp4 --detections yolo.txt --out run/ --seed 3
       aerotrack track far.mp4 --out run/ --set detection.persist=true
         --set detection.stopping_share=0                    # tiny, faint targets
+      aerotrack track rtsp://192.168.1.10:8554/live --out run/ --on-interrupt finish
+        --set detection.causal=true                # a live feed: Ctrl-C writes the results
 
     \b
     Settings worth knowing (README "Fitting it to your footage"): --gsd or --map for a
@@ -544,6 +552,23 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     if stabilised and input_path is None:
         raise InputError("--stabilised: needs an INPUT video or folder (without one, --detections "
                          "are associated in image coordinates already)")
+    from ..io.frames import is_stream_url
+
+    if is_stream_url(input_path):
+        if resume or workers is not None or scheduler is not None:
+            what = ("--resume" if resume else "--workers" if workers is not None
+                    else "--scheduler")
+            raise InputError(f"{what}: not with a live stream as INPUT ({input_path}): a stream "
+                             "cannot be read again (record it to a file for that)")
+        if telemetry_path is not None:
+            raise InputError(f"--telemetry: not with a live stream as INPUT ({input_path}): "
+                             "its frames cannot be matched to the log's times (use --map-init)")
+        if parse_frame_range(frame_range)[0] > 1:
+            raise InputError(f"--frames {frame_range}: a live stream's frames are numbered as "
+                             "they arrive; it starts at its first (give --frames :B)")
+    if on_interrupt == "finish" and (workers is not None or scheduler is not None):
+        raise InputError("--on-interrupt finish: one process only (with --workers or "
+                         "--scheduler an interruption keeps the finished segments for --resume)")
     start, stop = parse_frame_range(frame_range)
     if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
@@ -566,6 +591,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         check_scheduler(scheduler)
 
     def where(path):
+        if is_stream_url(path):
+            return path
         return str(Path(path).resolve()) if path is not None else None
 
     manifest = {
@@ -612,6 +639,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     # a second signal drops the running segments: only the finished ones are kept
     note = ("; finished segments are kept in the output folder's .partial/ (continue with "
             "--resume: segments not finished are tracked again)") if on_dask else None
+    if on_interrupt == "finish":
+        until = "after this frame and finishing the run there"
     with cleanup, GracefulStop(until=until, note=note) as stopper:
         try:
             result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
@@ -621,11 +650,18 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                          undistort=undistort, regions=regions, min_speed_mps=min_speed,
                          stabilised=stabilised, H_init_frame=start,  # carried (load_inputs)
                          **({"roads": roads} if roads is not None else {}))
+        except Interrupted as exc:
+            if on_interrupt != "finish" or getattr(exc, "pipeline", None) is None \
+                    or not getattr(exc, "between_frames", False):
+                raise
+            close()
+            result = _finish_interrupted(exc.pipeline, stopper)
+            notes = {**notes, "interrupted_at_frame": result.last_frame}
         finally:
             close()
         if source is not None and not result.frames:
             raise InputError(no_frames_read(input_path, frame_range, source.count))
-        stopper.writing()
+        stopper.writing(partial="interrupted_at_frame" in notes)
         warn_if_never_refined(result, geomap, config,
                               f"--telemetry {telemetry_path}" if telemetry_path is not None
                               else f"--map-init {map_init_path}" if map_init_path else None)
@@ -669,10 +705,24 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         out.finish(keep_as="stages")
     c = summary["counts"]
     if not quiet:
+        cut = (f" (interrupted: frames {result.first_frame}-{result.last_frame})"
+               if "interrupted_at_frame" in notes else "")
         click.echo(
-            f"aerotrack: {result.frames} frames, {c['detections']} detections, {c['tracks']} tracks "
+            f"aerotrack: {result.frames} frames{cut}, {c['detections']} detections, "
+            f"{c['tracks']} tracks "
             f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s); to look at "
             f"them: aerotrack report {out.path}", err=True)
+
+
+def _finish_interrupted(pipe, stopper: GracefulStop):
+    """``--on-interrupt finish``: end an interrupted run as if its video ended at the last frame
+    read (the detector's last half window is decided with the frames it has, as at the end of
+    any video), link, and hand back the result. A further signal stops this at once, keeping
+    ``.partial/`` for ``--resume`` as an interruption does by default."""
+    log.warning("interrupt: finishing the run at frame %d (Ctrl-C again to stop at once and keep "
+                ".partial/ for --resume)", pipe.last_frame)
+    stopper.note = GracefulStop.NOTE
+    return pipe.finish()
 
 
 MANIFEST = "run.json"

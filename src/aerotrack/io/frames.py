@@ -491,14 +491,117 @@ def jpeg_complete(path: Path) -> bool:
     return b"\xff\xd9" in tail
 
 
+#: URL schemes of network streams FFmpeg reads (a drone's live feed, a ground station's relay).
+STREAM_SCHEMES = ("rtsp", "rtsps", "rtmp", "rtmps", "http", "https", "udp", "tcp", "srt", "rtp")
+
+#: Reads that fail in a row before a stream counts as ended (a network hiccup loses a frame or
+#: two; FFmpeg reconnects inside its own timeouts).
+STREAM_MAX_FAILS = 5
+
+#: Longest believable frame rate a stream announces (FFmpeg reports 90000 for some RTP streams).
+STREAM_MAX_FPS = 240.0
+
+
+def is_stream_url(path) -> bool:
+    """Whether ``path`` is a network stream's URL (``rtsp://...``, ``udp://...``; see
+    :data:`STREAM_SCHEMES`), not a file name."""
+    if not isinstance(path, str):
+        return False
+    scheme, sep, _ = path.partition("://")
+    return bool(sep) and scheme.lower() in STREAM_SCHEMES
+
+
+class StreamSource(FrameSource):
+    """A live network stream (RTSP, RTMP, SRT, UDP, HTTP): read once, in order, until it ends.
+
+    Frames are numbered as they arrive, from 1 (the first frame read when the stream was
+    opened). A stream cannot be sought, so ``start`` skips frames by reading them, and a stream
+    cannot be read twice: frames before the current one are gone (``--resume`` and segment-
+    parallel runs need a file). The length is unknown (``count`` None); the stream ends when
+    the sender closes it or :data:`STREAM_MAX_FAILS` reads fail in a row. When processing is
+    slower than the feed, FFmpeg buffers it and the run falls behind live (use ``--stride``).
+    """
+
+    def __init__(self, url: str, fps: float | None = None) -> None:
+        self.path = url  # type: ignore[assignment]  # (a URL: there is no file)
+        fps = _check_fps(fps, url)
+        cap = cv2.VideoCapture(url, cv2.CAP_FFMPEG)
+        if not cap.isOpened():
+            cap.release()
+            raise InputError(f"{url}: cannot open the stream (nothing answers there, or FFmpeg "
+                             "cannot read its format)")
+        ok, img = cap.read()
+        if not ok or img is None:
+            cap.release()
+            raise InputError(f"{url}: the stream opened but sent no decodable frame")
+        native = cap.get(cv2.CAP_PROP_FPS)
+        self._cap, self._first = cap, img
+        self.size = (img.shape[1], img.shape[0])
+        self.count = None
+        if fps is not None:
+            self.fps = fps
+        elif native and math.isfinite(native) and 0 < native <= STREAM_MAX_FPS:
+            self.fps = float(native)
+        else:
+            self.fps = DEFAULT_FOLDER_FPS
+            logging.getLogger(__name__).warning(
+                "%s: the stream names no believable frame rate (%g); timed at %g frames/s (give "
+                "--fps: speeds and every time-based setting follow it)", url, native, self.fps)
+
+    def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
+        """Frames ``start, start+stride, ...`` up to ``stop`` as they arrive. The first call
+        goes on from the frame read when the stream was opened; a later call opens the stream
+        again and numbers what arrives from 1 again (a live feed has moved on meanwhile)."""
+        cap, img = self._cap, self._first
+        self._cap = self._first = None
+        if cap is None:
+            cap = cv2.VideoCapture(self.path, cv2.CAP_FFMPEG)
+            ok, img = cap.read() if cap.isOpened() else (False, None)
+            if not ok:
+                cap.release()
+                return
+        try:
+            index, fails = 1, 0
+            while True:
+                if stop is not None and index > stop:
+                    return
+                if index >= start and (index - start) % stride == 0:
+                    if img.ndim == 2:
+                        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+                    yield Frame(index=index, image=img, time=(index - 1) / self.fps)
+                if stop is not None and index >= stop:
+                    return
+                while True:
+                    ok, img = cap.read()
+                    if ok and img is not None:
+                        fails = 0
+                        break
+                    fails += 1
+                    if fails >= STREAM_MAX_FAILS:
+                        logging.getLogger(__name__).info("%s: the stream ended after frame %d",
+                                                         self.path, index)
+                        return
+                index += 1
+        finally:
+            cap.release()
+
+    def close(self) -> None:
+        """Release the stream if no frame was read from it."""
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = self._first = None
+
+
 def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
-    """Open a video file or an image folder.
+    """Open a video file, an image folder or a network stream (a URL, :data:`STREAM_SCHEMES`).
 
     Raises
     ------
     InputError
         Missing path, unreadable video, empty folder, or a bad ``fps``.
     """
+    if is_stream_url(path):
+        return StreamSource(str(path), fps)
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
