@@ -89,3 +89,15 @@ def test_a_stream_nobody_sends_is_one_line(tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", "http://127.0.0.1:9/none.ts", "--out", tmp_path / "o")
     assert code == 2 and "cannot open the stream" in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_detect_on_a_stream(tmp_path, capsys, clip):
+    with served(clip) as base:
+        code, _, err = run_cli(capsys, "detect", f"{base}/clip.ts", "--out", tmp_path / "d",
+                               "--frames", ":60")
+        assert code == 0, err
+        code, _, err = run_cli(capsys, "detect", f"{base}/clip.ts", "--out", tmp_path / "e",
+                               "--frames", "10:60")
+        assert code == 2 and "it starts at its first" in err
+    rows = (tmp_path / "d" / "detections.csv").read_text().splitlines()
+    assert rows and max(int(r.split(",")[0]) for r in rows) <= 60

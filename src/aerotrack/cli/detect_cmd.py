@@ -10,6 +10,7 @@ import click
 
 from .common import (
     CleanupOnBadInput,
+    InputParam,
     Interrupted,
     check_overwrite,
     config_option,
@@ -31,7 +32,7 @@ log = logging.getLogger("aerotrack")
 
 
 @click.command("detect")
-@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
+@click.argument("input_path", metavar="INPUT", type=InputParam(path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder (new, or empty; see --overwrite).")
 @click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
@@ -80,9 +81,16 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     from ..errors import InputError
     from ..io.output import OutputDir
     from ..pipeline import check_config
-    from .track_cmd import check_frame_range, load_inputs, load_regions, parse_frame_range
+    from .track_cmd import (
+        check_frame_range,
+        check_stream_options,
+        load_inputs,
+        load_regions,
+        parse_frame_range,
+    )
 
     config = load_config(config_path, overrides)
+    check_stream_options(input_path, frame_range, telemetry_path)
     if stabilised and map_path is not None:
         raise InputError("--stabilised: not with --map (frames are registered to the map)")
     start, stop = parse_frame_range(frame_range)

@@ -198,6 +198,27 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     return source, dets, geomap, H_init, undistort, notes
 
 
+def check_stream_options(input_path, frame_range, telemetry_path, resume: bool = False,
+                         workers=None, scheduler=None) -> None:
+    """Options a live stream as INPUT cannot take, refused in one line: it is read once, as it
+    arrives (:class:`~aerotrack.io.frames.StreamSource`)."""
+    from ..errors import InputError
+    from ..io.frames import is_stream_url
+
+    if not is_stream_url(input_path):
+        return
+    if resume or workers is not None or scheduler is not None:
+        what = "--resume" if resume else "--workers" if workers is not None else "--scheduler"
+        raise InputError(f"{what}: not with a live stream as INPUT ({input_path}): a stream "
+                         "cannot be read again (record it to a file for that)")
+    if telemetry_path is not None:
+        raise InputError(f"--telemetry: not with a live stream as INPUT ({input_path}): "
+                         "its frames cannot be matched to the log's times (use --map-init)")
+    if parse_frame_range(frame_range)[0] > 1:
+        raise InputError(f"--frames {frame_range}: a live stream's frames are numbered as "
+                         "they arrive; it starts at its first (give --frames :B)")
+
+
 def warn_memory(source, window_s: float, share: float = 0.5) -> None:
     """Warn when the detector's window of full-size frames (it holds about ``window_s`` seconds
     of them: a frame is final half a window later, and boxes are refined on it at full size)
@@ -552,20 +573,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     if stabilised and input_path is None:
         raise InputError("--stabilised: needs an INPUT video or folder (without one, --detections "
                          "are associated in image coordinates already)")
-    from ..io.frames import is_stream_url
-
-    if is_stream_url(input_path):
-        if resume or workers is not None or scheduler is not None:
-            what = ("--resume" if resume else "--workers" if workers is not None
-                    else "--scheduler")
-            raise InputError(f"{what}: not with a live stream as INPUT ({input_path}): a stream "
-                             "cannot be read again (record it to a file for that)")
-        if telemetry_path is not None:
-            raise InputError(f"--telemetry: not with a live stream as INPUT ({input_path}): "
-                             "its frames cannot be matched to the log's times (use --map-init)")
-        if parse_frame_range(frame_range)[0] > 1:
-            raise InputError(f"--frames {frame_range}: a live stream's frames are numbered as "
-                             "they arrive; it starts at its first (give --frames :B)")
+    check_stream_options(input_path, frame_range, telemetry_path, resume=resume, workers=workers,
+                         scheduler=scheduler)
     if on_interrupt == "finish" and (workers is not None or scheduler is not None):
         raise InputError("--on-interrupt finish: one process only (with --workers or "
                          "--scheduler an interruption keeps the finished segments for --resume)")
@@ -589,6 +598,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
         check_scheduler(scheduler)
+
+    from ..io.frames import is_stream_url
 
     def where(path):
         if is_stream_url(path):
