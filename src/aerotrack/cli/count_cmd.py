@@ -53,7 +53,9 @@ BAND_M, BAND_PX = 1.0, 4.0
 @click.option("--picture/--no-picture", default=True, show_default=True,
               help="Write DIR/count_lines.png (or into --out): the run's first frame with the "
                    "lines, their '+' side, the tracks' paths and every crossing, to check where "
-                   "the lines fell (needs the run's input, named in summary.json, or --input).")
+                   "the lines fell (needs the run's input, named in summary.json, or --input); "
+                   "with a map, the map around them when a line lies outside that frame or the "
+                   "input is not at hand.")
 @click.option("--input", "input_path", type=click.Path(), default=None,
               help="The run's input video or image folder, for --picture (default: the input "
                    "named in DIR/summary.json, if it still exists).")
@@ -158,15 +160,11 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     seen = _in_view(results, lines, first, last, bin_s, line_in_view, in_view_per_bin)
     _write(out, crossings, rows, moves, fps, geomap, mpu, seen, clock, first)
     if picture:
-        image = results.reference_image(Path(input_path) if input_path else results.input_path)
-        if image is None:
-            log.info("count: no picture (the run's input is not at hand; give --input)")
-        else:
-            from ..io.output import atomic_write_bytes
+        from ..io.output import atomic_write_bytes
 
-            png = _picture(image, results, first, lines, views, crossings)
-            if png is not None:
-                atomic_write_bytes(out / "count_lines.png", png)
+        png = _count_picture(results, input_path, geomap, first, lines, views, crossings)
+        if png is not None:
+            atomic_write_bytes(out / "count_lines.png", png)
 
     comparison = None
     if gt_path is not None:
@@ -217,17 +215,64 @@ def _first_frame_to_world(results, first: int, pts: np.ndarray) -> tuple[np.ndar
     return w[0], w[1]
 
 
-def _picture(image: np.ndarray, results, first: int, lines, views, crossings) -> bytes | None:
-    """PNG of the run's first frame with the lines (name at the first point, an arrow to the '+'
-    side), every track's path in grey and each crossing as a dot (green '+', red '-'), all
-    carried from the world into the first frame's pixels."""
+def _count_picture(results, input_path, geomap, first: int, lines, views, crossings
+                   ) -> bytes | None:
+    """count_lines.png: on the run's first frame when every line lies in it (lines drawn in its
+    pixels are checked where they were drawn); else, or without the frame at hand, on the map
+    around the lines and tracks (a moving camera's lines further along its flight)."""
+    to_frame = _world_to_first_frame(results, first)
+    image = results.reference_image(Path(input_path) if input_path else results.input_path)
+    if image is not None and to_frame is not None:
+        h, w = image.shape[:2]
+        ends = to_frame(np.vstack([np.vstack([ln.a, ln.b]) for ln in lines]))
+        inside = np.all(np.isfinite(ends)) and bool(
+            ((ends >= 0) & (ends <= [w, h])).all())
+        if inside or geomap is None:
+            return _picture(image, to_frame, lines, views, crossings)
+    if geomap is None:
+        log.info("count: no picture (the run's input is not at hand; give --input)")
+        return None
+    return _map_picture(geomap, lines, views, crossings)
+
+
+#: Longest side, pixels, of count_lines.png drawn on the map.
+MAP_PICTURE_PX = 1600
+
+
+def _map_picture(geomap, lines, views, crossings) -> bytes | None:
+    """The map around the lines and the tracks' paths (a 10% margin, at most
+    :data:`MAP_PICTURE_PX` on its longest side), drawn as :func:`_picture` draws."""
+    import cv2
+
+    pts = [np.vstack([ln.a, ln.b]) for ln in lines]
+    pts += [np.asarray(v.world, dtype=np.float64)[np.all(np.isfinite(v.world), axis=1)]
+            for v in views]
+    allp = np.vstack(pts)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    pad = 0.1 * (hi - lo).max() + 20.0
+    x0, y0 = (max(0, int(v)) for v in np.floor(lo - pad))
+    x1 = min(geomap.width, int(np.ceil(hi[0] + pad)))
+    y1 = min(geomap.height, int(np.ceil(hi[1] + pad)))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    crop = geomap.read_image()[y0:y1, x0:x1]
+    k = min(1.0, MAP_PICTURE_PX / max(crop.shape[:2]))
+    if k < 1.0:
+        crop = cv2.resize(crop, (max(1, round(crop.shape[1] * k)), max(1, round(crop.shape[0] * k))),
+                          interpolation=cv2.INTER_AREA)
+    origin = np.array([x0, y0], dtype=np.float64)
+    return _picture(crop, lambda p: (np.asarray(p, dtype=np.float64).reshape(-1, 2) - origin) * k,
+                    lines, views, crossings)
+
+
+def _picture(image: np.ndarray, to_frame, lines, views, crossings) -> bytes | None:
+    """PNG of ``image`` (the run's first frame, or a map crop) with the lines (name at the first
+    point, an arrow to the '+' side), every track's path in grey and each crossing as a dot
+    (green '+', red '-'), all carried from the world into its pixels by ``to_frame``."""
     import cv2
 
     img = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     img = (img.astype(np.float32) * 0.6).astype(np.uint8)
-    to_frame = _world_to_first_frame(results, first)
-    if to_frame is None:
-        return None
     h, w = img.shape[:2]
     lw = max(1, round(h / 400))
     for v in views:
@@ -245,7 +290,8 @@ def _picture(image: np.ndarray, results, first: int, lines, views, crossings) ->
         mid = (a + b) / 2
         cv2.arrowedLine(img, _ipt(mid), _ipt(mid + right * 12 * lw), (0, 255, 255), lw,
                         cv2.LINE_AA, tipLength=0.4)
-        cv2.putText(img, ln.name, _ipt(a + np.array([4, -4])), cv2.FONT_HERSHEY_SIMPLEX,
+        at = np.clip(a + np.array([4, -4]), [2, 14 * lw], [max(2, w - 40 * lw), h - 4])
+        cv2.putText(img, ln.name, _ipt(at), cv2.FONT_HERSHEY_SIMPLEX,
                     0.4 * lw + 0.2, (0, 255, 255), lw, cv2.LINE_AA)
     for c in crossings:
         q = to_frame(np.asarray(c.world, dtype=np.float64)[None])[0]
