@@ -157,6 +157,12 @@ def test_count_command_on_a_run_folder(tmp_path, capsys):
     with open(tmp_path / "c2" / "crossings.csv", newline="") as fh:
         rows = {int(r["id"]): r["observed"] for r in csv.DictReader(fh)}
     assert rows == {1: "1", 2: "0", 3: "1"}
+    # counted again without a picture: the earlier lines' picture goes (the report showed it
+    # beside the new counts)
+    code, out, err = run_cli(capsys, "count", run, "--line", "q:100,50,100,150", "--out",
+                             tmp_path / "c2", "--no-picture")
+    assert code == 0, err
+    assert not (tmp_path / "c2" / "count_lines.png").exists()
 
 
 def test_count_command_refuses_bad_input_in_one_line(tmp_path, capsys):

@@ -159,12 +159,18 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     rows = tally(crossings, lines, fps, first, last, bin_s)
     seen = _in_view(results, lines, first, last, bin_s, line_in_view, in_view_per_bin)
     _write(out, crossings, rows, moves, fps, geomap, mpu, seen, clock, first)
-    if picture:
+    png = _count_picture(results, input_path, geomap, first, lines, views, crossings) \
+        if picture else None
+    if png is not None:
         from ..io.output import atomic_write_bytes
 
-        png = _count_picture(results, input_path, geomap, first, lines, views, crossings)
-        if png is not None:
-            atomic_write_bytes(out / "count_lines.png", png)
+        atomic_write_bytes(out / "count_lines.png", png)
+    elif (out / "count_lines.png").is_file():  # an earlier count's lines: the report showed them
+        try:  # beside these counts
+            (out / "count_lines.png").unlink()
+        except OSError as exc:
+            log.warning("count: %s is an earlier count's picture and could not be removed (%s)",
+                        out / "count_lines.png", exc.strerror or exc)
 
     comparison = None
     if gt_path is not None:
