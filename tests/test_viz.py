@@ -415,3 +415,20 @@ def test_report_renders_the_whole_run_over_a_partial_overlay(tmp_path, capsys):
     assert code == 0 and "rendering" in err and "frames 1-40" in err, err
     code, _, err = run_cli(capsys, "report", run)  # no input: embedded, but named as partial
     assert code == 0 and "covers only part" in err, err
+
+
+def test_an_uncertainty_circle_wider_than_the_frame_is_not_drawn(tmp_path, monkeypatch):
+    """truck4, 9.5 s after the truck was last seen: a 737-px circle crossed the whole frame as
+    a stray arc."""
+    from aerotrack.viz import overlay
+
+    res = RunResults.load(make_run(tmp_path))
+    img = np.full((H, W, 3), 90, np.uint8)
+
+    def drawn(uncertainty, max_circle):
+        monkeypatch.setattr(overlay, "MAX_CIRCLE", max_circle)
+        painter = OverlayPainter(res, OverlayStyle(trail_s=0.0, speed_uncertainty=uncertainty))
+        return painter.draw(img.copy(), 25)  # target 2 predicted in frame 25
+
+    assert not np.array_equal(drawn(0.3, 0.35), drawn(0.3, 0.0))  # a small circle is drawn
+    assert np.array_equal(drawn(50.0, 0.35), drawn(50.0, 0.0))  # a huge one is not

@@ -17,7 +17,9 @@ Text height is a fraction of the frame height (at least 1.5 %), so labels read t
 
 The uncertainty circle: ``predicted.csv`` carries no covariance, so the radius is modelled as the
 box's half-diagonal plus ``speed_uncertainty`` times the target's last observed speed times the time
-since it was last seen (a constant relative speed error integrated over the gap).
+since it was last seen (a constant relative speed error integrated over the gap). A circle wider
+than ``MAX_CIRCLE`` of the frame's shorter side is not drawn: it would cross the whole picture as a
+stray arc and say nothing (the label's ``+t s`` tells how old the prediction is).
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ from .results import RunResults, TrackView
 from .video import VideoEncoder
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+#: Largest uncertainty circle drawn, as a share of the frame's shorter side (radius).
+MAX_CIRCLE = 0.35
 
 
 @dataclass(frozen=True)
@@ -167,11 +172,11 @@ class OverlayPainter:
             x, y, bw, bh = (float(v) for v in r.box)
             cx, cy = x + bw / 2, y + bh / 2
             radius = 0.5 * math.hypot(bw, bh) + r.radius_world * self._world_scale(frame, np.array([cx, cy]))
-            radius = min(radius, 2.0 * h)
             text = f"{r.id} +{r.since_s:.1f}s"
             if 0 <= cx < w and 0 <= cy < h:
                 _dashed_rect(img, x, y, bw, bh, colour, lw)
-                _dashed_circle(img, cx, cy, radius, colour, max(1, lw // 2 + 1))
+                if radius <= MAX_CIRCLE * min(h, w):
+                    _dashed_circle(img, cx, cy, radius, colour, max(1, lw // 2 + 1))
                 pending.append((text, x, y, y + bh, colour))
             else:
                 pending.append((text, *self._draw_offscreen(img, cx, cy, colour, lw, keep_out=hud), colour))
