@@ -432,3 +432,18 @@ def test_an_uncertainty_circle_wider_than_the_frame_is_not_drawn(tmp_path, monke
 
     assert not np.array_equal(drawn(0.3, 0.35), drawn(0.3, 0.0))  # a small circle is drawn
     assert np.array_equal(drawn(50.0, 0.35), drawn(50.0, 0.0))  # a huge one is not
+
+
+def test_report_scores_as_eval_does(tmp_path):
+    """A ground truth that ends before the run (Santiago's at 98 of 100 frames): the report
+    counted the tracks of the unannotated frames as false positives, eval did not."""
+    from aerotrack.evaluation import evaluate
+    from aerotrack.io.mot import read_mot, write_mot
+    from aerotrack.viz.report import _evaluation
+
+    run = make_run(tmp_path, n_frames=60)
+    tracks = read_mot(run / "tracks.csv")
+    write_mot(tmp_path / "gt.txt", tracks[tracks[:, 0] <= 50])
+    metrics, note = _evaluation(RunResults.load(run), tmp_path / "gt.txt")
+    assert metrics == evaluate(read_mot(tmp_path / "gt.txt"), tracks)
+    assert metrics["FP"] == 0 and "frames 1-50" in note

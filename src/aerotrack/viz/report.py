@@ -110,10 +110,15 @@ def _evaluation(results: RunResults, gt_path: str | Path | None, *, zero_based: 
         from ..evaluation import fix_ground_truth
 
         gt, _ = fix_ground_truth(gt, f"--gt {gt_path}")
-    window = (results.first_frame, results.last_frame or int(gt[:, 0].max()))
-    return (evaluate(gt, results.tracks, frames=window),
+    # the run's frames up to the ground truth's last, as `aerotrack eval` scores by default
+    # (frames the annotators never reached are not false positives: Santiago's 99-100 were)
+    gt_last = int(gt[:, 0].max())
+    first = results.first_frame
+    last = max(first, min(results.last_frame or gt_last, gt_last))
+    return (evaluate(gt, results.tracks, frames=(first, last)),
             f"tracks.csv against {Path(gt_path).name}"
-            + (" (corrected)" if fix_gt else "") + f", frames {window[0]}-{window[1]} (the run's)")
+            + (" (corrected)" if fix_gt else "")
+            + f", frames {first}-{last} (the run's, to the ground truth's last, as eval)")
 
 
 def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions) -> list[tuple[int, str]]:
