@@ -447,3 +447,21 @@ def test_report_scores_as_eval_does(tmp_path):
     metrics, note = _evaluation(RunResults.load(run), tmp_path / "gt.txt")
     assert metrics == evaluate(read_mot(tmp_path / "gt.txt"), tracks)
     assert metrics["FP"] == 0 and "frames 1-50" in note
+
+
+def test_an_interrupted_report_leaves_no_pictures(tmp_path, monkeypatch):
+    from aerotrack.viz import report
+
+    run = make_run(tmp_path, with_map=False, n_frames=20)
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report, "_evaluation", ctrl_c)  # after the pictures, before the page
+    with pytest.raises(KeyboardInterrupt):
+        report.build_report(run)
+    assert not [p.name for p in run.glob("*.png")] and not (run / "report.html").exists()
+    monkeypatch.undo()
+    report.build_report(run)
+    assert sorted(p.name for p in run.glob("*.png")) == ["map.png", "registration.png",
+                                                          "spacetime.png"]

@@ -210,12 +210,10 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         if fig is None:
             return None
         png = figure_png(fig)
-        try:  # keep the picture beside the results too (map.png, spacetime.png, ...)
-            atomic_write_bytes(p, png)
-            p.chmod(0o644)
-        except OSError as exc:
-            log.warning("%s not written: %s", p, exc)
+        fresh.append((p, png))  # written with report.html: an interrupted report leaves neither
         return png
+
+    fresh: list[tuple[Path, bytes]] = []
 
     pictures: dict[str, str] = {}
     for name, make in (("map", lambda: plot_map(results, geomap, background=first_image())),
@@ -243,6 +241,12 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
     out = Path(out_path) if out_path is not None else run_dir / "report.html"
     atomic_write_text(out, page)
     out.chmod(0o644)
+    for p, png in fresh:
+        try:  # keep the pictures beside the results too (map.png, spacetime.png, ...)
+            atomic_write_bytes(p, png)
+            p.chmod(0o644)
+        except OSError as exc:
+            log.warning("%s not written: %s", p, exc)
     return out
 
 
