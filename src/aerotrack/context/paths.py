@@ -138,7 +138,10 @@ def flow_velocity(index: PathIndex, p0: np.ndarray, v0: np.ndarray, Pv: np.ndarr
     dv = vel - vf
     Sf = (w[:, None, None] * dv[:, :, None] * dv[:, None, :]).sum(axis=0) / total
     Sf = Sf + floor_std * floor_std * np.eye(2)
-    A = np.linalg.inv(Pv + 1e-12 * np.eye(2))
+    # a floor relative to the covariance itself: an absolute 1e-12 swamped it in lon/lat degrees
+    # (velocities of 1e-6 a frame), so that the same tracks predicted worse in degrees than in
+    # metres (SDD nexus4, 2 s ahead: MPE 0.503 m against 0.384 m)
+    A = np.linalg.inv(Pv + (1e-9 * float(np.trace(Pv)) + 1e-300) * np.eye(2))
     B = np.linalg.inv(Sf)
     return np.linalg.solve(A + B, A @ v0 + B @ vf)
 

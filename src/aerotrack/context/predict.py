@@ -105,6 +105,19 @@ def tracks_table(rows: np.ndarray, space: str = "image", name: str = "TRACKS") -
     return TrackTable.from_arrays(rows[:, 1], rows[:, 0], xy)
 
 
+#: Metres in a degree of latitude (and of longitude at the equator).
+METRES_PER_DEGREE = 111_320.0
+
+
+def _looks_geographic(rows: np.ndarray) -> bool:
+    """x, y map columns within +-180 / +-90 spanning under a degree: lon/lat (see
+    :func:`scale_of`)."""
+    xy = rows[:, 7:9]
+    xy = xy[~np.all(xy == -1, axis=1)]
+    return bool(len(xy) and np.all(np.abs(xy[:, 0]) <= 180) and np.all(np.abs(xy[:, 1]) <= 90)
+                and np.ptp(xy, axis=0).max() < 1.0)
+
+
 def scale_of(rows: np.ndarray, space: str, config: ContextConfig) -> float:
     """Metres per coordinate unit when none is given.
 
@@ -114,10 +127,10 @@ def scale_of(rows: np.ndarray, space: str, config: ContextConfig) -> float:
     a guess that keeps the metre-based settings in proportion to the objects.
     """
     if space == "map":
-        xy = rows[:, 7:9]
-        if (np.all(np.abs(xy[:, 0]) <= 180) and np.all(np.abs(xy[:, 1]) <= 90)
-                and np.ptp(xy, axis=0).max() < 1.0):
-            return 111_320.0 * math.cos(math.radians(float(np.median(xy[:, 1]))))
+        if _looks_geographic(rows):
+            xy = rows[:, 7:9]
+            lat = float(np.median(xy[~np.all(xy == -1, axis=1), 1]))
+            return METRES_PER_DEGREE * math.cos(math.radians(lat))
         return 1.0
     side = np.maximum(rows[:, 4], rows[:, 5])
     side = side[side > 0]
@@ -185,9 +198,21 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
     if roads is not None and space != "map":
         raise InputError(f"--roads {roads}: needs --space map (the roads are in map coordinates)")
     rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True)
+    # lon/lat degrees are not square (a degree of longitude is cos(latitude) of one of latitude):
+    # longitudes are scaled to the latitude's length for the prediction and back afterwards, so
+    # that distances, radii and gates mean the same in every direction (and in any unit)
+    squash = 1.0
+    if space == "map" and metres_per_unit is None and _looks_geographic(rows):
+        squash = scale_of(rows, "map", config) / METRES_PER_DEGREE
+        placed = ~np.all(rows[:, 7:9] == -1, axis=1)
+        rows = rows.copy()
+        rows[placed, 7] *= squash
+        log.info("%s: x, y taken as lon/lat degrees (longitudes scaled by cos(latitude) = %.4f "
+                 "for the prediction); give --gsd if they are not", tracks, squash)
     table = tracks_table(rows, space, name=str(tracks))
     qs = read_queries(queries)
-    mpu = metres_per_unit or scale_of(rows, space, config)
+    mpu = metres_per_unit or (METRES_PER_DEGREE if squash != 1.0 else
+                              scale_of(rows, space, config))
     network = None
     if roads is not None:
         from .roads import RoadNetwork, read_roads
@@ -205,10 +230,10 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
             except CRSError:
                 raise InputError(f"--crs {crs}: not a CRS pyproj knows (e.g. EPSG:32611)") from None
         network = read_roads(roads, crs=crs, snap_m=config.roads_snap_m)
-        if not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks' scale rules
-            try:
-                network = RoadNetwork(network.lines, mpu, config.roads_snap_m,
-                                      y_down=network.y_down)
+        if squash != 1.0 or not math.isclose(network.mpu, mpu, rel_tol=1e-9):  # the tracks'
+            lines = [np.column_stack([ln[:, 0] * squash, ln[:, 1:]]) for ln in network.lines]
+            try:  # scale rules, and their longitudes are scaled as theirs
+                network = RoadNetwork(lines, mpu, config.roads_snap_m, y_down=network.y_down)
             except InputError as exc:
                 raise InputError(f"--roads {roads}: {exc} (--crs {crs} is taken as the tracks' "
                                  "CRS)") from None
@@ -216,6 +241,8 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
     unplaced = rows[np.all(rows[:, 7:9] == -1, axis=1)] if space == "map" else None
     preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,
                             label=f"--queries {queries}", unplaced=unplaced)
+    if squash != 1.0:
+        preds = [np.column_stack([p[:, 0] / squash, p[:, 1]]) for p in preds]
     atomic_write_text(out, format_predictions(qs, preds, 7 if space == "map" else 6))
     return sum(q.horizon for q in qs)
 
