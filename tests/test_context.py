@@ -350,3 +350,33 @@ def test_follow_flow_turns_with_the_road_and_keeps_straight_without_support():
     alone = PathIndex(_table({1: tracks[1]}), fps, 1.0, cfg)
     out = follow_flow(alone, p0, v0, 1000, 90, 1, 3.0, gate, 0.01, 1.0, 6)
     np.testing.assert_allclose(out, p0 + np.arange(1, 91)[:, None] * v0)
+
+
+def test_lce_of_a_section_ending_where_the_target_s_ends_is_finite():
+    """It was minus infinity (with a RuntimeWarning) and ranked first whatever it did between."""
+    import warnings
+
+    from aerotrack.context.paper import _lce_batch
+
+    t = np.arange(31.0)
+    Z = np.column_stack([t, np.zeros(31)])
+    swing = Z.copy()
+    swing[:, 1] = 100 * np.sin(np.pi * t / 30)  # away by 100 units and back to the same end
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        g = _lce_batch(Z, swing[None])
+    assert np.isfinite(g).all() and np.isfinite(lce(Z, swing))
+    straight = np.column_stack([t * 1.01, np.zeros(31)])
+    # ranked like a close follower's at worst, not below everything
+    assert g[0] > -1.0 and lce(Z, straight) > 0
+
+
+def test_predict_says_when_the_paper_method_fell_back(tmp_path, capsys):
+    from conftest import run_cli
+
+    rows = "".join(f"{f},1,{f}.0,0,4,2,1,-1,-1,-1\n" for f in range(1, 60))
+    (tmp_path / "t.csv").write_text(rows)
+    (tmp_path / "q.csv").write_text("id,last_seen,horizon\n1,50,5\n")
+    code, _, err = run_cli(capsys, "predict", tmp_path / "t.csv", "--queries", tmp_path / "q.csv",
+                           "--out", tmp_path / "p.csv", "--method", "paper")
+    assert code == 0 and "1 of 1 queries had fewer than 3 predictors" in err

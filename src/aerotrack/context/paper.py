@@ -22,7 +22,15 @@ def lce(Z: np.ndarray, Zcn: np.ndarray) -> float:
     ``d_1 = 0`` and the first term is infinite. The sum telescopes to ``ln(d_F / d_1) / F``; we start
     it at the first non-zero distance, ``gamma = ln(d_F / d_k) / F`` with ``d_k`` the first distance
     above 1e-9 of the section's extent, which is the paper's growth-rate idea without the division by
-    zero. Two identical sections give 0.
+    zero. Two identical sections give 0. A section that ends where the predictand's ends (``d_F =
+    0``) would give minus infinity and rank first whatever it did in between; ``d_F`` is floored
+    at the same 1e-9 of the extent.
+
+    Limits of eq. 1 itself, kept (this is the paper as written, for comparison): it compares the
+    end distance with the first, not the way there, and it is blind to scale, so any two straight
+    sections at constant speeds give the same ``ln(F - 1) / F`` whatever their speeds and directions
+    (a parallel follower and an oncoming vehicle score alike). The ``context`` method does not use
+    it.
 
     Parameters
     ----------
@@ -35,7 +43,7 @@ def lce(Z: np.ndarray, Zcn: np.ndarray) -> float:
     nz = np.flatnonzero(d > 1e-9 * scale)
     if len(nz) == 0 or nz[0] == F - 1:
         return 0.0
-    return float(np.log(d[-1] / d[nz[0]]) / F)
+    return float(np.log(max(d[-1], 1e-9 * scale) / d[nz[0]]) / F)
 
 
 def _lce_batch(Z: np.ndarray, sections: np.ndarray) -> np.ndarray:
@@ -47,7 +55,7 @@ def _lce_batch(Z: np.ndarray, sections: np.ndarray) -> np.ndarray:
     first = np.where(pos.any(axis=1), pos.argmax(axis=1), F - 1)
     d0 = d[np.arange(len(d)), first]
     with np.errstate(divide="ignore", invalid="ignore"):
-        g = np.log(d[:, -1] / d0) / F
+        g = np.log(np.maximum(d[:, -1], 1e-9 * scale) / d0) / F
     g[first >= F - 1] = 0.0
     return g
 
@@ -154,10 +162,15 @@ class PaperPredictor(MotionPredictor):
                 chosen[j] = int(jf[ends[k]])
         return chosen
 
+    #: Queries predicted by the Kalman fallback (fewer than ``min_predictors`` predictors), for
+    #: ``aerotrack predict`` to say so.
+    fallbacks = 0
+
     def _predict(self, table, track_id, fr, xy, T, h):
         fallback = _fallback_predict(fr, xy, h, self)
         chosen = sorted(self.select(table, track_id, T).items())
         if len(chosen) < self.config.min_predictors:
+            self.fallbacks += 1
             return fallback
         tracks = {j: table.track(j) for j, _ in chosen}
         start = np.array([tracks[j][1][np.searchsorted(tracks[j][0], te)] for j, te in chosen])

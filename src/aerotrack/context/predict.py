@@ -171,6 +171,10 @@ def predict_queries(table: TrackTable, queries: list[Query], method: str, config
         if not np.any(fr == q.last_seen):
             raise InputError(f"{where}: track {q.id} has no row at last_seen {q.last_seen}")
         out.append(pred.predict(table, q.id, q.last_seen, q.horizon))
+    if getattr(pred, "fallbacks", 0):
+        log.warning("--method %s: %d of %d queries had fewer than %d predictors with a Lyapunov "
+                    "exponent under lce_alpha (%g) and were predicted by the Kalman filter", method,
+                    pred.fallbacks, len(queries), config.min_predictors, config.lce_alpha)
     return out
 
 
