@@ -231,3 +231,55 @@ def test_the_same_tracks_predict_the_same_in_metres_and_in_lon_lat(tmp_path, met
         out[name] = np.loadtxt(tmp_path / f"p{name}.csv", delimiter=",", skiprows=1)
     back = np.column_stack([(out["deg"][:, 3] - lon0) * k, (out["deg"][:, 4] - lat0) * 111_320.0])
     assert np.abs(back - out["m"][:, 3:5]).max() < 0.02  # metres, over a 400 m roundabout
+
+
+@pytest.mark.parametrize("method", ["context", "paper"])
+def test_tracks_annotated_every_nth_frame(tmp_path, method):
+    """ETH/UCY annotate every 6th or 10th frame, on grids that shift between recordings: every
+    prediction was the last position (a history window of fewer than two rows), or context lost
+    its neighbours between the annotated frames. Rows are now predicted on their grid and carried
+    on between; still causal (a row later than f changes nothing at f)."""
+    rows = _roundabout_rows()
+    grid = rows[(rows[:, 0] - np.where(rows[:, 1] % 2, 1, 4)) % 6 == 0]  # two grids: 1 and 4 mod 6
+    _write_tracks(tmp_path / "t.csv", grid)
+    q = tmp_path / "q.csv"
+    q.write_text("id,last_seen,horizon\n5,229,60\n6,304,45\n")
+    _run(["-q", "predict", str(tmp_path / "t.csv"), "--queries", str(q), "--out",
+          str(tmp_path / "p.csv"), "--method", method])
+    p = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
+    assert len(p) == 105 and (p[:60, 2] == np.arange(230, 290)).all()
+    # the circle goes on: at the last frame the prediction is far closer to the truth than the
+    # last position is (a stationary prediction)
+    truth = {(int(r[1]), int(r[0])): r[2:4] + r[4:6] / 2 for r in rows}
+    for k, (tid, last) in ((59, (5, 229)), (104, (6, 304))):
+        t = truth[(tid, int(p[k, 2]))]
+        assert np.hypot(*(p[k, 3:5] - t)) < 0.5 * np.hypot(*(truth[(tid, last)] - t)), k
+    for cut in (250, 275):  # query 0: rows after `cut` deleted -> frames <= cut identical
+        keep = ~((grid[:, 1] == 5) & (grid[:, 0] > 229)) & (grid[:, 0] <= cut)
+        _write_tracks(tmp_path / "cut.csv", grid[keep])
+        (tmp_path / "q1.csv").write_text("id,last_seen,horizon\n5,229,60\n")
+        _run(["-q", "predict", str(tmp_path / "cut.csv"), "--queries", str(tmp_path / "q1.csv"),
+              "--out", str(tmp_path / "o.csv"), "--method", method])
+        got = (tmp_path / "o.csv").read_text().splitlines()[1:cut - 229 + 1]
+        want = (tmp_path / "p.csv").read_text().splitlines()[1:cut - 229 + 1]
+        assert got == want, cut
+
+
+def test_every_nth_frame_predicts_as_the_renumbered_tracks_do(tmp_path):
+    """On one grid, the predictions at the annotated frames are those of the same tracks
+    numbered 1, 2, 3... at a sixth of the rate (what benchmarks/prediction.py did by hand)."""
+    rows = _roundabout_rows()
+    grid = rows[(rows[:, 0] - 1) % 6 == 0]
+    renum = grid.copy()
+    renum[:, 0] = (grid[:, 0] - 1) // 6 + 1
+    _write_tracks(tmp_path / "t.csv", grid)
+    _write_tracks(tmp_path / "r.csv", renum)
+    (tmp_path / "q.csv").write_text("id,last_seen,horizon\n5,229,60\n")
+    (tmp_path / "qr.csv").write_text("id,last_seen,horizon\n5,39,10\n")
+    _run(["-q", "predict", str(tmp_path / "t.csv"), "--queries", str(tmp_path / "q.csv"),
+          "--out", str(tmp_path / "p.csv")])
+    _run(["-q", "predict", str(tmp_path / "r.csv"), "--queries", str(tmp_path / "qr.csv"),
+          "--out", str(tmp_path / "pr.csv"), "--fps", "5"])
+    p = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
+    pr = np.loadtxt(tmp_path / "pr.csv", delimiter=",", skiprows=1)
+    assert np.array_equal(p[5::6, 3:5], pr[:, 3:5])

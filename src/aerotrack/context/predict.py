@@ -188,6 +188,46 @@ def format_predictions(queries: list[Query], preds: list[np.ndarray], decimals: 
     return "\n".join(lines) + "\n"
 
 
+def frame_step(rows: np.ndarray) -> int:
+    """The step of tracks whose rows come every ``step`` > 1 frames (ETH/UCY annotate every 6th
+    or 10th frame), else 1: the greatest common divisor of the tracks' frame differences. The
+    tracks need not share one grid (ETH's shift between recordings)."""
+    if len(rows) < 2:
+        return 1
+    order = np.lexsort((rows[:, 0], rows[:, 1]))
+    f, i = rows[order, 0].astype(np.int64), rows[order, 1]
+    d = np.diff(f)[np.diff(i) == 0]
+    d = d[d > 0]
+    return max(1, int(np.gcd.reduce(d))) if len(d) else 1
+
+
+def _on_grid(rows: np.ndarray, queries: list[Query], step: int, offset: int
+             ) -> tuple[np.ndarray, list[Query]]:
+    """Rows and queries on the grid of frames ``offset + k * step`` (numbered ``k + 1``): a row
+    between two grid frames goes to the later one, so that the prediction at a grid frame still
+    uses no row after it (tracks on another grid keep their causality); a query's horizon is
+    rounded up to whole steps."""
+    g = rows.copy()
+    g[:, 0] = -((offset - rows[:, 0]) // step) + 1  # ceil((f - offset) / step) + 1
+    qs = [Query(q.id, (q.last_seen - offset) // step + 1, -(-q.horizon // step), q.line)
+          for q in queries]
+    return g, qs
+
+
+def _between_steps(grid_pred: np.ndarray, last: np.ndarray, before: np.ndarray, step: int,
+                   horizon: int) -> np.ndarray:
+    """(horizon, 2) positions at every frame from the positions at the grid's frames: a frame
+    between two grid frames goes on from the grid frame before it at the velocity of the step
+    that ended there (the one before the first predicted grid frame is the target's own last
+    step, ``before`` -> ``last``), so that the position at frame f still uses nothing after f."""
+    anchors = np.vstack([before[None], last[None], grid_pred])  # grid frames -1, 0, 1, ...
+    j = np.arange(1, horizon + 1)
+    k, r = j // step, j % step  # grid frames passed, frames since the last one
+    base = anchors[k + 1]
+    vel = (anchors[k + 1] - anchors[k]) / step
+    return base + r[:, None] * vel
+
+
 def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, method: str = "context",
                 fps: float = 30.0, space: str = "image", config: ContextConfig | None = None,
                 metres_per_unit: float | None = None, roads: str | Path | None = None,
@@ -213,8 +253,19 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
         rows[placed, 7] *= squash
         log.info("%s: x, y taken as lon/lat degrees (longitudes scaled by cos(latitude) = %.4f "
                  "for the prediction); give --gsd if they are not", tracks, squash)
-    table = tracks_table(rows, space, name=str(tracks))
     qs = read_queries(queries)
+    step = frame_step(rows)
+    if step > 1:
+        have = {(int(i), int(f)) for f, i in rows[:, :2]}
+        for n, q in enumerate(qs):  # named in the file's own frame numbers
+            if (q.id, q.last_seen) not in have:
+                known = any(i == q.id for i, _ in have)
+                raise InputError(f"--queries {queries} line {q.line or n + 2} (query {n}): "
+                                 + (f"track {q.id} has no row at last_seen {q.last_seen}" if known
+                                    else f"unknown id {q.id}"))
+        log.info("%s: rows every %d frames: predicted on those frames (%g frames/s) and carried "
+                 "on between them", tracks, step, fps / step)
+    table = tracks_table(rows, space, name=str(tracks))
     mpu = metres_per_unit or (METRES_PER_DEGREE if squash != 1.0 else
                               scale_of(rows, space, config))
     network = None
@@ -243,8 +294,24 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
                                  "CRS)") from None
         _check_roads_near(network, table, roads, crs, mpu)
     unplaced = rows[np.all(rows[:, 7:9] == -1, axis=1)] if space == "map" else None
-    preds = predict_queries(table, qs, method, config, fps, mpu, roads=network,
-                            label=f"--queries {queries}", unplaced=unplaced)
+    label = f"--queries {queries}"
+    if step == 1:
+        preds = predict_queries(table, qs, method, config, fps, mpu, roads=network, label=label,
+                                unplaced=unplaced)
+    else:  # on each query's grid (tracks may lie on several), then every frame between
+        preds = [None] * len(qs)
+        for offset in sorted({q.last_seen % step for q in qs}):
+            pick = [n for n, q in enumerate(qs) if q.last_seen % step == offset]
+            grows, gqs = _on_grid(rows, [qs[n] for n in pick], step, offset)
+            gtable = tracks_table(grows, space, name=str(tracks))
+            gp = predict_queries(gtable, gqs, method, config, fps / step, mpu, roads=network,
+                                 label=label, unplaced=unplaced if unplaced is None else
+                                 grows[np.all(grows[:, 7:9] == -1, axis=1)])
+            for n, g, p in zip(pick, gqs, gp):
+                fr, xy = gtable.track(g.id)
+                k = int(np.searchsorted(fr, g.last_seen))
+                before = xy[k - 1] if k > 0 and fr[k - 1] == g.last_seen - 1 else xy[k]
+                preds[n] = _between_steps(p, xy[k], before, step, qs[n].horizon)
     if squash != 1.0:
         preds = [np.column_stack([p[:, 0] / squash, p[:, 1]]) for p in preds]
     atomic_write_text(out, format_predictions(qs, preds, 7 if space == "map" else 6))
