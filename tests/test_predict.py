@@ -283,3 +283,24 @@ def test_every_nth_frame_predicts_as_the_renumbered_tracks_do(tmp_path):
     p = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
     pr = np.loadtxt(tmp_path / "pr.csv", delimiter=",", skiprows=1)
     assert np.array_equal(p[5::6, 3:5], pr[:, 3:5])
+
+
+def test_score_gives_mpe_n_against_the_tracks_own_rows(scene, capsys):
+    from conftest import run_cli
+
+    from aerotrack.evaluation.prediction import mpe_n
+
+    tmp, rows, tracks, q = scene
+    code, out, err = run_cli(capsys, "predict", tracks, "--queries", q, "--out", tmp / "p.csv",
+                             "--score", "--method", "constant-velocity")
+    assert code == 0, err
+    table = {int(ln.split()[0]): [float(v) for v in ln.split()[1:]] for ln in out.splitlines()[1:]}
+    assert sorted(table) == [1, 10, 30, 60] and "(px)" in out.splitlines()[0]
+    p = np.loadtxt(tmp / "p.csv", delimiter=",", skiprows=1)
+    truth = {(int(r[1]), int(r[0])): r[2:4] + r[4:6] / 2 for r in rows}
+    err30 = [np.hypot(*(p[p[:, 0] == k][:30, 3:5]
+                        - [truth[(int(i), int(f))] for _, i, f, _, _ in p[p[:, 0] == k][:30]]).T)
+             for k in range(3)]
+    want = np.mean([mpe_n(e, 30) for e in err30])
+    assert table[30][1] == 3 and table[30][2] == pytest.approx(want, abs=1e-4)
+    assert table[60][1] == 1  # only the first query looks 60 frames ahead

@@ -36,10 +36,15 @@ log = logging.getLogger(__name__)
 @click.option("--crs", "crs", default=None,
               help="With --roads: CRS of the tracks' x,y columns (default EPSG:4326 when they "
                    "look like lon/lat degrees).")
+@click.option("--score", is_flag=True,
+              help="Also score the predictions against TRACKS's own rows of each target after "
+                   "last_seen (where it has them): MPE_n and Variance_n (Ali et al. section 5) "
+                   "at n = 1, 10, 30, 60 frames and the horizon, in metres when the scale is "
+                   "known.")
 @config_option
 @set_option
 def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, overrides,
-                    roads=None, crs=None):
+                    roads=None, crs=None, score=False):
     """Predict the positions of targets after they were last seen (motion context).
 
     The prediction at frame f uses only the target's rows up to last_seen and the other tracks'
@@ -50,6 +55,7 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
       aerotrack predict run/tracks.csv --queries q.csv --out p.csv
       aerotrack predict tracks.csv --queries q.csv --out p.csv --method paper --fps 25
       aerotrack predict run/tracks.csv --queries q.csv --out p.csv --space map
+      aerotrack predict gt.csv --queries q.csv --out p.csv --score   # MPE_n against gt's rows
     """
     from pathlib import Path
 
@@ -71,3 +77,11 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
     except OutputError as exc:
         raise OutputError(f"--out {exc}") from None
     log.info("wrote %d predicted positions to %s", n, out)
+    if score:
+        from ..context.predict import score_predictions
+
+        rows, unit = score_predictions(tracks, out, space=space, fps=fps, metres_per_unit=gsd)
+        click.echo(f"{'n':>6}{'s':>8}{'queries':>9}{'MPE_n':>12}{'Variance_n':>13}  ({unit})")
+        for r in rows:
+            click.echo(f"{r['n']:>6}{r['seconds']:>8.2f}{r['queries']:>9}{r['MPE']:>12.4f}"
+                       f"{r['Variance']:>13.4f}")

@@ -25,7 +25,7 @@ from .motion import TrackTable, get_predictor
 log = logging.getLogger(__name__)
 
 __all__ = ["Query", "read_queries", "tracks_table", "scale_of", "predict_queries", "format_predictions",
-           "run_predict"]
+           "run_predict", "score_predictions"]
 
 QUERY_HEADER = ("id", "last_seen", "horizon")
 OUTPUT_HEADER = "query,id,frame,x,y"
@@ -333,3 +333,60 @@ def _check_roads_near(network, table: TrackTable, roads, crs, mpu: float,
         log.warning("--roads %s: no road within %.0f m of the tracks in %s; the roads change no "
                     "prediction (is --crs the CRS of the tracks' x,y columns?)", roads, within_m, crs)
 
+
+
+def score_predictions(tracks: str | Path, predictions: str | Path, *, space: str = "image",
+                      fps: float = 30.0, metres_per_unit: float | None = None
+                      ) -> tuple[list[dict], str]:
+    """MPE_n and Variance_n (Ali et al. section 5) of a predictions file against the tracks'
+    own rows of each target after its ``last_seen``: ``aerotrack predict --score``.
+
+    A query counts at ``n`` when its horizon reaches ``n``; its errors are those of the frames
+    among its first ``n`` where the target has a row (all of them for tracks with a row every
+    frame; the annotated ones for ETH/UCY). Distances are in metres when the scale is known
+    (``--space map`` in metres or lon/lat, or ``metres_per_unit``), else in the tracks' units.
+
+    Returns
+    -------
+    (rows, unit)
+        One dict per n (``n``, ``seconds``, ``queries``, ``MPE``, ``Variance``) and the unit.
+    """
+    from ..evaluation.prediction import prediction_errors
+
+    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True)
+    xy = rows[:, 2:4] + rows[:, 4:6] / 2.0 if space == "image" else rows[:, 7:9].copy()
+    unit = "px" if space == "image" else "units"
+    kx = ky = 1.0
+    if metres_per_unit:
+        kx = ky = float(metres_per_unit)
+        unit = "m"
+    elif space == "map":
+        if _looks_geographic(rows):
+            ky = METRES_PER_DEGREE
+            kx = scale_of(rows, "map", ContextConfig())
+        unit = "m"
+    truth = {(int(i), int(f)): p for f, i, p in zip(rows[:, 0], rows[:, 1], xy)}
+    try:
+        P = np.loadtxt(predictions, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{predictions}: cannot read the predictions ({exc})") from None
+    errors = []
+    for q in np.unique(P[:, 0]).astype(int):
+        r = P[P[:, 0] == q]
+        t = np.array([truth.get((int(i), int(f)), (np.nan, np.nan)) for _, i, f, _, _ in r])
+        d = np.column_stack([(r[:, 3] - t[:, 0]) * kx, (r[:, 4] - t[:, 1]) * ky])
+        errors.append(prediction_errors(d, np.zeros_like(d)))
+    h = max((len(e) for e in errors), default=0)
+    out = []
+    for n in sorted({1, 10, 30, 60, h} & set(range(1, h + 1))):
+        mpe, var = [], []
+        for e in errors:
+            if len(e) < n or not np.isfinite(e[:n]).any():
+                continue
+            first = e[:n][np.isfinite(e[:n])]
+            mpe.append(first.mean())
+            var.append(((first - first.mean()) ** 2).mean())
+        out.append({"n": n, "seconds": n / fps, "queries": len(mpe),
+                    "MPE": float(np.mean(mpe)) if mpe else math.nan,
+                    "Variance": float(np.mean(var)) if var else math.nan})
+    return out, unit
