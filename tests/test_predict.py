@@ -304,3 +304,17 @@ def test_score_gives_mpe_n_against_the_tracks_own_rows(scene, capsys):
     want = np.mean([mpe_n(e, 30) for e in err30])
     assert table[30][1] == 3 and table[30][2] == pytest.approx(want, abs=1e-4)
     assert table[60][1] == 1  # only the first query looks 60 frames ahead
+
+
+def test_zero_based_tracks_queries_and_answer(scene, tmp_path):
+    tmp, rows, tracks, q = scene
+    _run(["-q", "predict", str(tracks), "--queries", str(q), "--out", str(tmp / "p1.csv")])
+    zero = rows.copy()
+    zero[:, 0] -= 1
+    _write_tracks(tmp / "t0.csv", zero)
+    (tmp / "q0.csv").write_text("id,last_seen,horizon\n5,229,60\n6,299,45\n3,149,30\n")
+    _run(["-q", "predict", str(tmp / "t0.csv"), "--queries", str(tmp / "q0.csv"), "--out",
+          str(tmp / "p0.csv"), "--zero-based"])
+    p1 = np.loadtxt(tmp / "p1.csv", delimiter=",", skiprows=1)
+    p0 = np.loadtxt(tmp / "p0.csv", delimiter=",", skiprows=1)
+    assert np.array_equal(p0[:, 2] + 1, p1[:, 2]) and np.array_equal(p0[:, 3:], p1[:, 3:])

@@ -36,6 +36,9 @@ log = logging.getLogger(__name__)
 @click.option("--crs", "crs", default=None,
               help="With --roads: CRS of the tracks' x,y columns (default EPSG:4326 when they "
                    "look like lon/lat degrees).")
+@click.option("--zero-based", "zero_based", is_flag=True,
+              help="TRACKS and the queries number frames from 0 (Santiago's ground truth, SDD); "
+                   "the answer does too.")
 @click.option("--score", is_flag=True,
               help="Also score the predictions against TRACKS's own rows of each target after "
                    "last_seen (where it has them): MPE_n and Variance_n (Ali et al. section 5) "
@@ -44,7 +47,7 @@ log = logging.getLogger(__name__)
 @config_option
 @set_option
 def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, overrides,
-                    roads=None, crs=None, score=False):
+                    roads=None, crs=None, score=False, zero_based=False):
     """Predict the positions of targets after they were last seen (motion context).
 
     The prediction at frame f uses only the target's rows up to last_seen and the other tracks'
@@ -73,14 +76,16 @@ def predict_command(tracks, queries, out, method, fps, space, gsd, config_path, 
     check_writable(out, "--out")
     try:
         n = run_predict(tracks, queries, out, method=method or config.method, fps=fps,
-                        space=space, config=config, metres_per_unit=gsd, roads=roads, crs=crs)
+                        space=space, config=config, metres_per_unit=gsd, roads=roads, crs=crs,
+                        zero_based=zero_based)
     except OutputError as exc:
         raise OutputError(f"--out {exc}") from None
     log.info("wrote %d predicted positions to %s", n, out)
     if score:
         from ..context.predict import score_predictions
 
-        rows, unit = score_predictions(tracks, out, space=space, fps=fps, metres_per_unit=gsd)
+        rows, unit = score_predictions(tracks, out, space=space, fps=fps, metres_per_unit=gsd,
+                                       zero_based=zero_based)
         click.echo(f"{'n':>6}{'s':>8}{'queries':>9}{'MPE_n':>12}{'Variance_n':>13}  ({unit})")
         for r in rows:
             click.echo(f"{r['n']:>6}{r['seconds']:>8.2f}{r['queries']:>9}{r['MPE']:>12.4f}"

@@ -231,17 +231,19 @@ def _between_steps(grid_pred: np.ndarray, last: np.ndarray, before: np.ndarray, 
 def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, method: str = "context",
                 fps: float = 30.0, space: str = "image", config: ContextConfig | None = None,
                 metres_per_unit: float | None = None, roads: str | Path | None = None,
-                crs: str | None = None) -> int:
+                crs: str | None = None, zero_based: bool = False) -> int:
     """Read the inputs, predict every query, write ``out`` atomically; returns the row count.
 
     ``roads``: a GeoJSON of road centre-lines (``--space map`` only), reprojected to ``crs``, the
     CRS of the tracks' x, y columns (default: lon/lat when they look like degrees).
+    ``zero_based``: the tracks, the queries and the answer number frames from 0.
     """
     config = config or ContextConfig()
     get_predictor(method, config, fps)  # fail on a bad method before reading anything
     if roads is not None and space != "map":
         raise InputError(f"--roads {roads}: needs --space map (the roads are in map coordinates)")
-    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True)
+    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True,
+                    zero_based=zero_based)
     # lon/lat degrees are not square (a degree of longitude is cos(latitude) of one of latitude):
     # longitudes are scaled to the latitude's length for the prediction and back afterwards, so
     # that distances, radii and gates mean the same in every direction (and in any unit)
@@ -254,6 +256,8 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
         log.info("%s: x, y taken as lon/lat degrees (longitudes scaled by cos(latitude) = %.4f "
                  "for the prediction); give --gsd if they are not", tracks, squash)
     qs = read_queries(queries)
+    if zero_based:
+        qs = [Query(q.id, q.last_seen + 1, q.horizon, q.line) for q in qs]
     step = frame_step(rows)
     if step > 1:
         have = {(int(i), int(f)) for f, i in rows[:, :2]}
@@ -314,6 +318,8 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
                 preds[n] = _between_steps(p, xy[k], before, step, qs[n].horizon)
     if squash != 1.0:
         preds = [np.column_stack([p[:, 0] / squash, p[:, 1]]) for p in preds]
+    if zero_based:
+        qs = [Query(q.id, q.last_seen - 1, q.horizon, q.line) for q in qs]
     atomic_write_text(out, format_predictions(qs, preds, 7 if space == "map" else 6))
     return sum(q.horizon for q in qs)
 
@@ -336,8 +342,8 @@ def _check_roads_near(network, table: TrackTable, roads, crs, mpu: float,
 
 
 def score_predictions(tracks: str | Path, predictions: str | Path, *, space: str = "image",
-                      fps: float = 30.0, metres_per_unit: float | None = None
-                      ) -> tuple[list[dict], str]:
+                      fps: float = 30.0, metres_per_unit: float | None = None,
+                      zero_based: bool = False) -> tuple[list[dict], str]:
     """MPE_n and Variance_n (Ali et al. section 5) of a predictions file against the tracks'
     own rows of each target after its ``last_seen``: ``aerotrack predict --score``.
 
@@ -353,7 +359,8 @@ def score_predictions(tracks: str | Path, predictions: str | Path, *, space: str
     """
     from ..evaluation.prediction import prediction_errors
 
-    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True)
+    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True,
+                    zero_based=zero_based)
     xy = rows[:, 2:4] + rows[:, 4:6] / 2.0 if space == "image" else rows[:, 7:9].copy()
     unit = "px" if space == "image" else "units"
     kx = ky = 1.0
@@ -370,6 +377,8 @@ def score_predictions(tracks: str | Path, predictions: str | Path, *, space: str
         P = np.loadtxt(predictions, delimiter=",", skiprows=1, ndmin=2)
     except (OSError, ValueError) as exc:
         raise InputError(f"{predictions}: cannot read the predictions ({exc})") from None
+    if zero_based:
+        P[:, 2] += 1
     errors = []
     for q in np.unique(P[:, 0]).astype(int):
         r = P[P[:, 0] == q]

@@ -89,7 +89,7 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
             kind = "a non-negative integer (0-based)" if zero_based else \
                 "a positive integer (1-based)"
             hint = ("; a 0-based file? (track: --detections-zero-based; eval: --zero-based / "
-                    "--gt-zero-based; report: --gt-zero-based)"
+                    "--gt-zero-based; report: --gt-zero-based; predict: --zero-based)"
                     if not zero_based and vals[0] == 0 else "")
             raise FormatError(f"{name} line {lineno}: frame must be {kind}, got {parts[0]}{hint}")
         if zero_based:
