@@ -371,3 +371,16 @@ def test_a_variable_frame_rate_video_is_recognised(tmp_path):
     cfr = tmp_path / "cfr.mp4"
     subprocess.run([*head, *tail, str(cfr)], input=frames, check=True)
     assert open_source(cfr).timing_irregularity() is None
+
+
+def test_a_header_naming_the_columns_in_another_order_is_refused(tmp_path):
+    """Trajectory files often start id,frame,...: the header was skipped and the rows read in MOT
+    order (ids as frames), and the error then was about a missing row."""
+    p = tmp_path / "t.csv"
+    p.write_text("id,frame,x,y,w,h,conf,wx,wy,z\n1,40,0,0,4,2,1,-1,-1,-1\n")
+    with pytest.raises(FormatError, match=r"'frame' in column 2 and 'id' in column 1"):
+        read_mot(p)
+    p.write_text("frame,id,bb_left,bb_top,bb_width,bb_height,conf,x,y,z\n40,1,0,0,4,2,1,-1,-1,-1\n")
+    assert read_mot(p)[0, :2].tolist() == [40, 1]
+    p.write_text("frame id x y w h\n40 1 0 0 4 2\n")
+    assert read_mot(p)[0, :2].tolist() == [40, 1]

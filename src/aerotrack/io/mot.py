@@ -39,6 +39,22 @@ def parse_mot_text(text: str, name: str = "<text>", *, min_columns: int = 6,
     return _parse(text, name, min_columns=min_columns, zero_based=zero_based)[0]
 
 
+def _check_header_order(names: list[str], name: str, lineno: int) -> None:
+    """A header row is skipped, not used: one that names the frame and id columns elsewhere than
+    first and second (``id,frame,...``, as trajectory files often are) is refused rather than read
+    in MOT order (ids taken for frames, the message then about a missing row)."""
+    low = [n.strip().lower().split(" ")[0] for n in names]
+    frame = next((k for k, n in enumerate(low) if n in ("frame", "frame_id", "frameid")),
+                 None)
+    ident = next((k for k, n in enumerate(low) if n in ("id", "track_id", "trackid", "track",
+                                                          "object_id", "ped_id")), None)
+    if frame is None or ident is None or (frame, ident) == (0, 1):
+        return
+    raise FormatError(f"{name} line {lineno}: its header puts {names[frame]!r} in column "
+                      f"{frame + 1} and {names[ident]!r} in column {ident + 1}; the rows must be "
+                      "in MOTChallenge's order frame,id,x,y,w,h,conf,x,y,z (reorder the columns)")
+
+
 def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = False
            ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, 1-based line number of each row) of :func:`parse_mot_text`."""
@@ -53,6 +69,7 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
         if "," in s:
             cells = [p.strip() for p in s.split(",")]
             if first and all(_HEADER_CELL.match(c) for c in cells if c):  # "w [px]" too
+                _check_header_order(cells, name, lineno)
                 first = False
                 continue
             if len(cells) > 7 and cells[-1] == "" and "" not in cells[:-1]:
@@ -67,6 +84,7 @@ def _parse(text: str, name: str, *, min_columns: int = 6, zero_based: bool = Fal
         else:
             parts = s.split()
         if first and all(_HEADER_FIELD.match(p) for p in parts):
+            _check_header_order(parts, name, lineno)
             first = False
             continue
         first = False
