@@ -191,6 +191,14 @@ def test_geojson_known_answer_and_pyogrio(tmp_path):
     speed = 3.7 * FPS * _east_metres_per_px(gm)
     assert np.median(p["speeds_mps"]) == pytest.approx(speed, rel=0.02)
     assert p["length_m"] == pytest.approx(speed * 59 / FPS, rel=0.02)
+    # the kinds of observations.csv: the 15 predicted frames are not in-view length
+    assert p["kind"].count("predicted") == p["n_predicted"] == 15
+    assert p["n_observed"] == 45 and p["n_bridged"] == p["n_stationary"] == 0
+    assert p["in_view_length_m"] == pytest.approx(speed * (59 - 16) / FPS, rel=0.02)
+    kinds = {(f, 2): "bridged" for f in range(10, 13)}
+    fc2 = tracks_feature_collection(res.tracks, res.predicted, gm, FPS, kinds=kinds)
+    p2 = next(f for f in fc2["features"] if f["id"] == 2)["properties"]
+    assert (p2["n_observed"], p2["n_bridged"], p2["kind"][9]) == (42, 3, "bridged")
     pyogrio = pytest.importorskip("pyogrio")
     info = pyogrio.read_info(path)
     assert info["features"] == 3 and "4326" in info["crs"]

@@ -120,20 +120,20 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
     used = registration_rows(result)
     write_registration_csv(out.file("registration.csv"), used)
     if geomap is not None:
+        kinds = {(p.frame, t.id): p.kind for t in result.tracks for p in t.points
+                 if p.kind in IN_VIEW}
         try:
             from .io.geojson import write_tracks_geojson
         except ImportError:
             log.warning("GeoJSON writer unavailable; tracks.geojson not written")
         else:
             write_tracks_geojson(out.file("tracks.geojson"), tracks, predicted, geomap, result.fps,
-                                 start_time)
+                                 start_time, kinds)
         # written with no track too (a header, an empty layer): scripts and GIS projects
         # expect the files of a run with a map
         from .io.geotable import write_observation_table
 
         homs = {i: r.H for i, r in result.registrations.items()}
-        kinds = {(p.frame, t.id): p.kind for t in result.tracks for p in t.points
-                 if p.kind in IN_VIEW}
         write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
                                 out_crs, predicted=predicted, homographies=homs, kinds=kinds,
                                 start_time=start_time)

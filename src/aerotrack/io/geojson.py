@@ -153,7 +153,8 @@ def line_geometry(coords: list[list[float]]) -> dict[str, Any]:
 
 
 def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarray | None, geomap,
-                              fps: float, start_time=None) -> dict[str, Any]:
+                              fps: float, start_time=None,
+                              kinds: dict[tuple[int, int], str] | None = None) -> dict[str, Any]:
     """Build the GeoJSON FeatureCollection (a dict) of a run's tracks.
 
     Parameters
@@ -170,8 +171,15 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
         Wall-clock time of frame 1 (timezone-aware): each feature also gets ``start_time_utc``
         and ``end_time_utc`` (ISO 8601; GDAL reads them as date-times, for QGIS's temporal
         controller).
+    kinds : dict (frame, id) -> str, optional
+        Kind of each in-view row (``observed``, ``bridged``: filled between sightings,
+        ``stationary``: held standing still), as ``observations.csv``'s ``kind``; rows not in it
+        are ``observed``, predicted rows ``predicted``. Per vertex in ``kind``, counted in
+        ``n_observed``, ``n_bridged``, ``n_stationary`` and ``n_predicted``.
 
-    Rows whose ``x, y`` are both -1 (no map position) are left out.
+    Rows whose ``x, y`` are both -1 (no map position) are left out. ``length_m`` is the whole
+    line's (predictions after the last sighting included); ``in_view_length_m`` sums the steps
+    between consecutive in-view vertices only (the report's distance also smooths positions).
     """
     if geomap is None:
         raise GeoreferenceError("tracks.geojson needs a map (--map): rows have no map coordinates")
@@ -193,7 +201,14 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
                 coords = coords * 2
             from pyproj import Geod
 
-            length = float(Geod(ellps="WGS84").line_length(ll[:, 0], ll[:, 1])) if len(ll) > 1 else 0.0
+            geod = Geod(ellps="WGS84")
+            length = float(geod.line_length(ll[:, 0], ll[:, 1])) if len(ll) > 1 else 0.0
+            step_in_view = observed[1:] & observed[:-1] & (np.diff(frames) == 1)
+            in_view_length = float(np.sum(np.asarray(geod.inv(
+                ll[:-1, 0], ll[:-1, 1], ll[1:, 0], ll[1:, 1])[2])[step_in_view])) \
+                if len(ll) > 1 else 0.0
+            kind = [("predicted" if not o else (kinds or {}).get((int(f), int(tid)), "observed"))
+                    for f, o in zip(frames, observed)]
             features.append({
                 "type": "Feature",
                 "id": int(tid),
@@ -205,15 +220,19 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
                     "start_time_s": round(float(times[0]), 4),
                     "end_time_s": round(float(times[-1]), 4),
                     "n_vertices": int(len(frames)),
-                    "n_observed": int(observed.sum()),
-                    "n_predicted": int((~observed).sum()),
+                    "n_observed": kind.count("observed"),
+                    "n_bridged": kind.count("bridged"),
+                    "n_stationary": kind.count("stationary"),
+                    "n_predicted": kind.count("predicted"),
                     "length_m": round(length, 3),
+                    "in_view_length_m": round(in_view_length, 3),
                     "mean_speed_mps": round(float(np.mean(speeds)), 3) if len(speeds) else 0.0,
                     "frames": frames.tolist(),
                     "times_s": np.round(times, 4).tolist(),
                     # 0/1, not JSON booleans: GDAL reads a list of booleans as a boolean
                     # integer list that pyogrio and geopandas could not read (the whole file failed)
                     "observed": observed.astype(int).tolist(),
+                    "kind": kind,
                     "speeds_mps": np.round(speeds, 3).tolist(),
                     "conf": np.round(r[:, 6], 4).tolist(),
                 },
@@ -227,9 +246,10 @@ def tracks_feature_collection(tracks_rows: np.ndarray, predicted_rows: np.ndarra
 
 
 def write_tracks_geojson(path: str | Path, tracks_rows: np.ndarray, predicted_rows: np.ndarray | None,
-                         geomap, fps: float, start_time=None) -> Path:
+                         geomap, fps: float, start_time=None,
+                         kinds: dict[tuple[int, int], str] | None = None) -> Path:
     """Write ``tracks.geojson`` atomically (see :func:`tracks_feature_collection`)."""
-    fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps, start_time)
+    fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps, start_time, kinds)
     atomic_write_text(path, json.dumps(fc, separators=(",", ":")) + "\n")
     return Path(path)
 
@@ -282,8 +302,9 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
                       else _wkb_linestring(f["geometry"]["coordinates"]) for f in feats],
                      dtype=object)
     scalar = ["id", "first_frame", "last_frame", "start_time_s", "end_time_s", "n_observed",
-              "n_predicted", "length_m", "mean_speed_mps"]
-    lists = ["frames", "times_s", "observed", "speeds_mps"]
+              "n_bridged", "n_stationary", "n_predicted", "length_m", "in_view_length_m",
+              "mean_speed_mps"]
+    lists = ["frames", "times_s", "observed", "kind", "speeds_mps"]
     data = [np.array([f["properties"][k] for f in feats]) for k in scalar]
     data += [np.array([json.dumps(f["properties"][k]) for f in feats], dtype=object) for k in lists]
     from .geotable import gpkg_date
