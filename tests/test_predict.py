@@ -318,3 +318,17 @@ def test_zero_based_tracks_queries_and_answer(scene, tmp_path):
     p1 = np.loadtxt(tmp / "p1.csv", delimiter=",", skiprows=1)
     p0 = np.loadtxt(tmp / "p0.csv", delimiter=",", skiprows=1)
     assert np.array_equal(p0[:, 2] + 1, p1[:, 2]) and np.array_equal(p0[:, 3:], p1[:, 3:])
+
+
+def test_map_columns_that_are_not_positions_are_named(tmp_path, capsys):
+    """UAVDT's gt_whole has occlusion and category where x, y are: every prediction was the
+    constant (1, -1), exit 0 and no word."""
+    from conftest import run_cli
+
+    rows = "".join(f"{f},{i},{10 * i + f},5,4,2,1,{1 + i % 2},-1,-1\n" for i in range(1, 20)
+                   for f in range(1, 40))
+    (tmp_path / "t.csv").write_text(rows)
+    (tmp_path / "q.csv").write_text("id,last_seen,horizon\n3,30,5\n")
+    code, _, err = run_cli(capsys, "predict", tmp_path / "t.csv", "--queries", tmp_path / "q.csv",
+                           "--out", tmp_path / "p.csv", "--space", "map")
+    assert code == 0 and "hold 2 distinct values over 19 tracks" in err

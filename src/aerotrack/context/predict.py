@@ -102,6 +102,12 @@ def tracks_table(rows: np.ndarray, space: str = "image", name: str = "TRACKS") -
             log.info("%s: %d rows without a map position (x, y = -1) left out", name,
                      int((~placed).sum()))
             rows, xy = rows[placed], xy[placed]
+        distinct = len(np.unique(xy, axis=0))
+        if distinct <= 10 and len(np.unique(rows[:, 1])) > distinct:
+            log.warning("%s: the x,y map columns hold %d distinct values over %d tracks: are they "
+                        "positions? (UAVDT's *_gt_whole.txt keeps occlusion and category there; "
+                        "--space image predicts the boxes)", name, distinct,
+                        len(np.unique(rows[:, 1])))
     return TrackTable.from_arrays(rows[:, 1], rows[:, 0], xy)
 
 
