@@ -473,3 +473,14 @@ def test_an_interrupted_report_leaves_no_pictures(tmp_path, monkeypatch):
     report.build_report(run)
     assert sorted(p.name for p in run.glob("*.png")) == ["map.png", "registration.png",
                                                           "spacetime.png"]
+
+
+def test_registration_picture_names_its_unit(tmp_path):
+    from aerotrack.viz.mapplot import plot_registration
+
+    res = RunResults.load(make_run(tmp_path, with_map=False))
+    assert plot_registration(res).axes[-1].get_ylabel() == "motion (frame-1 px / frame)"
+    res.summary["metres_per_unit"] = 0.25  # the camera drifts 2 px a frame: 0.5 m
+    fig = plot_registration(res)
+    assert fig.axes[-1].get_ylabel() == "motion (m / frame)"
+    assert np.nanmedian(fig.axes[-1].lines[0].get_ydata()) == pytest.approx(0.5)

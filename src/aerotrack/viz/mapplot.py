@@ -370,7 +370,8 @@ def plot_registration(results: RunResults):
 
     Panels: inliers, inlier ratio and median reprojection error (frame pixels) when those columns
     exist, and always the motion of the frame centre in world units per frame (from the
-    homographies); frames whose status is not ``ok``/``refined`` are shaded and counted.
+    homographies; metres with a scale, else map or frame-1 pixels); frames whose status is not
+    ``ok``/``refined`` are shaded and counted.
 
     Returns None when the run has no ``registration.csv``.
     """
@@ -388,6 +389,11 @@ def plot_registration(results: RunResults):
     motion = np.r_[np.nan, np.hypot(*np.diff(cw, axis=0).T)]
     gaps = np.r_[False, np.diff(reg.frames) > 1]
     motion[gaps] = np.nan
+    mpu = results.metres_per_unit
+    if mpu:
+        motion, unit = motion * mpu, "m"
+    else:
+        unit = "map px" if results.summary.get("registration_mode") == "map" else "frame-1 px"
     n = len(panels) + 1
     fig = _figure(12.0, 1.3 * n + 1.2, layout="constrained")
     fs = max(_font_pt(fig, 0.015), 11.0)
@@ -401,7 +407,7 @@ def plot_registration(results: RunResults):
         ax.plot(t, reg.extra[k], lw=1.2, color="#1f5fa8")
         ax.set_ylabel(lbl, fontsize=fs * 0.9)
     axes[-1].plot(t, motion, lw=1.2, color="#7a3fa0")
-    axes[-1].set_ylabel("motion / frame", fontsize=fs * 0.9)
+    axes[-1].set_ylabel(f"motion ({unit} / frame)", fontsize=fs * 0.9)
     axes[-1].set_xlabel("time (s)", fontsize=fs)
     for ax in axes:
         ax.grid(alpha=0.3)
@@ -409,9 +415,10 @@ def plot_registration(results: RunResults):
         for i in np.flatnonzero(bad):
             ax.axvspan(t[i] - 0.5 / results.fps, t[i] + 0.5 / results.fps, color="#e8553f", alpha=0.25, lw=0)
     missing = int(results.last_frame - len(reg)) if results.last_frame else 0
+    what = "on the ground" if mpu else f"in {unit}"
     axes[0].set_title(f"registration: {len(reg)} frames, {int(bad.sum())} not ok (shaded), "
-                      f"{max(missing, 0)} without a homography; motion = frame centre in world units",
-                      fontsize=fs)
+                      f"{max(missing, 0)} without a homography; motion = the frame centre's, "
+                      f"{what}", fontsize=fs)
     fig.align_ylabels(axes)
     return fig
 
