@@ -476,8 +476,6 @@ def test_an_interrupted_report_leaves_no_pictures(tmp_path, monkeypatch):
 
 
 def test_registration_picture_names_its_unit(tmp_path):
-    from aerotrack.viz.mapplot import plot_registration
-
     res = RunResults.load(make_run(tmp_path, with_map=False))
     assert plot_registration(res).axes[-1].get_ylabel() == "motion (frame-1 px / frame)"
     res.summary["metres_per_unit"] = 0.25  # the camera drifts 2 px a frame: 0.5 m
