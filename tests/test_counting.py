@@ -142,7 +142,7 @@ def test_count_command_on_a_run_folder(tmp_path, capsys):
 
     # the input is not at hand: drawn on the map around the line and the paths (1 map px = 1 px)
     img = cv2.imread(str(run / "count_lines.png"))
-    yellow = np.all(img == (0, 255, 255), axis=2)
+    yellow = np.all(img == (0, 255, 255), axis=2)[: img.shape[0] // 2]  # (the key is below)
     xs = np.flatnonzero(yellow.any(axis=0))
     assert img.shape[:2] != (240, 320) and len(xs) and np.ptp(xs) < 30  # the vertical line
     # a line the predicted stretch of target 2 crosses (map x 440 + 3.7 f = 520 at f ~ 21.6)

@@ -304,8 +304,30 @@ def _picture(image: np.ndarray, to_frame, lines, views, crossings) -> bytes | No
         if np.all(np.isfinite(q)):
             cv2.circle(img, _ipt(q), 3 * lw, (0, 200, 0) if c.direction == "+" else (0, 0, 230),
                        -1, cv2.LINE_AA)
+    _legend(img, lw)
     ok, buf = cv2.imencode(".png", img)
     return buf.tobytes() if ok else None
+
+
+def _legend(img: np.ndarray, lw: int) -> None:
+    """A key in the lower left: what the dots, the grey lines and the arrows mean."""
+    import cv2
+
+    scale = 0.4 * lw + 0.2
+    items = [((0, 200, 0), "crossing +"), ((0, 0, 230), "crossing -"),
+             ((170, 170, 170), "track paths"), ((0, 255, 255), "line, arrow to its + side")]
+    th = cv2.getTextSize("Ag", cv2.FONT_HERSHEY_SIMPLEX, scale, lw)[0][1]
+    row = int(th * 1.9)
+    w = max(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, scale, lw)[0][0] for _, t in items)
+    x0, y0 = 6, img.shape[0] - 6 - row * len(items) - 6
+    if y0 < 0 or x0 + w + 3 * th + 12 > img.shape[1]:
+        return  # too small a picture for a key
+    img[y0:img.shape[0] - 6, x0:x0 + w + 3 * th + 12] //= 3
+    for k, (colour, text) in enumerate(items):
+        cy = y0 + 6 + row * k + row // 2
+        cv2.circle(img, (x0 + 6 + th // 2, cy), max(2, th // 2), colour, -1, cv2.LINE_AA)
+        cv2.putText(img, text, (x0 + 12 + th, cy + th // 2), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                    (235, 235, 235), lw, cv2.LINE_AA)
 
 
 def _world_to_first_frame(results, first: int):
