@@ -313,15 +313,15 @@ def _legend(img: np.ndarray, lw: int) -> None:
     """A key in the lower left: what the dots, the grey lines and the arrows mean."""
     import cv2
 
-    scale = 0.4 * lw + 0.2
+    scale = 0.35 * lw + 0.1
     items = [((0, 200, 0), "crossing +"), ((0, 0, 230), "crossing -"),
              ((170, 170, 170), "track paths"), ((0, 255, 255), "line, arrow to its + side")]
     th = cv2.getTextSize("Ag", cv2.FONT_HERSHEY_SIMPLEX, scale, lw)[0][1]
     row = int(th * 1.9)
     w = max(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, scale, lw)[0][0] for _, t in items)
     x0, y0 = 6, img.shape[0] - 6 - row * len(items) - 6
-    if y0 < 0 or x0 + w + 3 * th + 12 > img.shape[1]:
-        return  # too small a picture for a key
+    if img.shape[0] - y0 > 0.35 * img.shape[0] or x0 + w + 3 * th + 12 > 0.35 * img.shape[1]:
+        return  # a small picture: the key would cover what it explains
     img[y0:img.shape[0] - 6, x0:x0 + w + 3 * th + 12] //= 3
     for k, (colour, text) in enumerate(items):
         cy = y0 + 6 + row * k + row // 2
