@@ -482,3 +482,8 @@ def test_registration_picture_names_its_unit(tmp_path):
     fig = plot_registration(res)
     assert fig.axes[-1].get_ylabel() == "motion (m / frame)"
     assert np.nanmedian(fig.axes[-1].lines[0].get_ydata()) == pytest.approx(0.5)
+
+
+def test_space_time_names_each_track(tmp_path):
+    fig = plot_space_time(RunResults.load(make_run(tmp_path)), GeoMap(VEGAS))
+    assert sorted(t.get_text().strip() for t in fig.axes[0].texts) == ["1", "2", "3"]

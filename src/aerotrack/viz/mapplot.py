@@ -304,7 +304,8 @@ def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float 
     """Tracks in (x, y, time), coloured by ID (Yu & Medioni 2007, fig. 6).
 
     x, y are metres east/north in a local frame with a map (or with ``metres_per_unit``), the run's
-    first frame's pixels otherwise (y pointing down, as in the image). In-view parts solid, predicted parts dashed.
+    first frame's pixels otherwise (y pointing down, as in the image). In-view parts solid, predicted parts dashed;
+    each track's ID at its last in-view point.
     """
     tracks = results.track_views(geomap)
     metres_per_unit = metres_per_unit or results.metres_per_unit
@@ -352,6 +353,11 @@ def plot_space_time(results: RunResults, geomap=None, *, metres_per_unit: float 
             if np.all(np.isfinite(xy[r])):
                 ax.scatter([xy[r, 0]], [xy[r, 1]], [t[r]], marker="*", s=90, color=c,
                            edgecolors="black", linewidths=0.6, depthshade=False)
+        seen = np.flatnonzero(tv.observed & np.all(np.isfinite(xy), axis=1))
+        if len(seen):  # the ID at the track's last in-view point, as on map.png
+            k = seen[-1]
+            ax.text(xy[k, 0], xy[k, 1], t[k], f" {tv.id}", color=c, fontsize=fs * 0.75,
+                    fontweight="bold")
     if unit == "m":
         ax.set_xlabel("east (m)", fontsize=fs, labelpad=10)
         ax.set_ylabel("north (m)", fontsize=fs, labelpad=10)
