@@ -332,3 +332,27 @@ def test_map_columns_that_are_not_positions_are_named(tmp_path, capsys):
     code, _, err = run_cli(capsys, "predict", tmp_path / "t.csv", "--queries", tmp_path / "q.csv",
                            "--out", tmp_path / "p.csv", "--space", "map")
     assert code == 0 and "hold 2 distinct values over 19 tracks" in err
+
+
+def test_a_positions_file_frame_id_x_y(scene, tmp_path, capsys):
+    """Trajectory data (ETH/UCY, SDD centres) is frame,id,x,y: it was refused (6 to 10 columns)."""
+    from conftest import run_cli
+
+    tmp, rows, tracks, q = scene
+    centres = rows[:, 2:4] + rows[:, 4:6] / 2
+    (tmp / "pos.csv").write_text("frame,id,x,y\n" + "".join(
+        f"{int(r[0])},{int(r[1])},{c[0]:.3f},{c[1]:.3f}\n" for r, c in zip(rows, centres)))
+    code, out, err = run_cli(capsys, "predict", tmp / "pos.csv", "--queries", q, "--out",
+                             tmp / "pp.csv", "--method", "constant-velocity", "--gsd", "0.05",
+                             "--score")
+    assert code == 0, err
+    _run(["-q", "predict", str(tracks), "--queries", str(q), "--out", str(tmp / "pb.csv"),
+          "--method", "constant-velocity", "--gsd", "0.05"])
+    a = np.loadtxt(tmp / "pp.csv", delimiter=",", skiprows=1)
+    b = np.loadtxt(tmp / "pb.csv", delimiter=",", skiprows=1)
+    assert np.abs(a[:, 3:] - b[:, 3:]).max() < 2e-3  # the box centres, to the file's decimals
+    assert "(m)" in out.splitlines()[0]
+    (tmp / "mixed.csv").write_text("1,1,0,0\n2,1,1,1,4,2\n")
+    code, _, err = run_cli(capsys, "predict", tmp / "mixed.csv", "--queries", q, "--out",
+                           tmp / "pm.csv")
+    assert code == 2 and "every row must be frame,id,x,y" in err

@@ -234,6 +234,59 @@ def _between_steps(grid_pred: np.ndarray, last: np.ndarray, before: np.ndarray, 
     return base + r[:, None] * vel
 
 
+def _first_row_fields(path: str | Path) -> int:
+    """Number of fields of the first data row of a text file (0 when unreadable or empty)."""
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:
+            for line in fh:
+                t = line.strip()
+                if not t or t.startswith("#"):
+                    continue
+                fields = [f for f in t.replace(",", " ").replace("\t", " ").split(" ") if f]
+                try:
+                    [float(f) for f in fields]
+                except ValueError:
+                    continue  # a header
+                return len(fields)
+    except OSError:
+        return 0
+    return 0
+
+
+def read_positions(path: str | Path, zero_based: bool = False) -> np.ndarray:
+    """A trajectories file of rows ``frame,id,x,y`` (positions, no boxes: ETH/UCY, SDD
+    centres, a GIS export) as (N, 10) MOT rows whose box is 1 unit wide about ``x, y`` and
+    whose map columns are ``x, y``: both ``--space`` values then predict the positions.
+
+    Raises
+    ------
+    FormatError
+        A row with another number of fields, a repeated (frame, id), a negative id.
+    """
+    from ..io.mot import _decode, parse_mot_text
+
+    label = f"TRACKS {path}"
+    try:
+        data = parse_mot_text(_decode(Path(path).read_bytes(), label), label, min_columns=4,
+                              zero_based=zero_based)
+    except ValueError as exc:  # rows of different lengths
+        if isinstance(exc, FormatError):
+            raise
+        data = np.zeros((0, 0))
+    if data.ndim != 2 or data.shape[1] != 6 or len(data) == 0 or not np.all(data[:, 4:6] == -1):
+        raise FormatError(f"{label}: every row must be frame,id,x,y (a positions file: its first "
+                          "row has 4 fields), or every row a MOT row of 6 to 10")
+    if np.any(data[:, 1] < 0) or not np.all(data[:, 1] == np.round(data[:, 1])):
+        raise FormatError(f"{label}: ids must be non-negative integers")
+    key = data[:, 0] * (data[:, 1].max() + 1) + data[:, 1]
+    if len(np.unique(key)) != len(key):
+        raise FormatError(f"{label}: a (frame, id) pair appears twice")
+    x, y = data[:, 2], data[:, 3]
+    rows = np.column_stack([data[:, 0], data[:, 1], x - 0.5, y - 0.5, np.ones(len(data)),
+                            np.ones(len(data)), np.ones(len(data)), x, y, -np.ones(len(data))])
+    return rows[np.lexsort((rows[:, 1], rows[:, 0]))]
+
+
 def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, method: str = "context",
                 fps: float = 30.0, space: str = "image", config: ContextConfig | None = None,
                 metres_per_unit: float | None = None, roads: str | Path | None = None,
@@ -248,8 +301,14 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
     get_predictor(method, config, fps)  # fail on a bad method before reading anything
     if roads is not None and space != "map":
         raise InputError(f"--roads {roads}: needs --space map (the roads are in map coordinates)")
-    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True,
-                    zero_based=zero_based)
+    positions = Path(tracks).is_file() and _first_row_fields(tracks) == 4
+    if positions:  # frame,id,x,y: the same positions whichever space; their scale is a map's
+        rows = read_positions(tracks, zero_based)
+        log.info("%s: rows of frame,id,x,y (positions without boxes)", tracks)
+        space = "map"
+    else:
+        rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True,
+                        zero_based=zero_based)
     # lon/lat degrees are not square (a degree of longitude is cos(latitude) of one of latitude):
     # longitudes are scaled to the latitude's length for the prediction and back afterwards, so
     # that distances, radii and gates mean the same in every direction (and in any unit)
@@ -365,8 +424,11 @@ def score_predictions(tracks: str | Path, predictions: str | Path, *, space: str
     """
     from ..evaluation.prediction import prediction_errors
 
-    rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True,
-                    zero_based=zero_based)
+    if Path(tracks).is_file() and _first_row_fields(tracks) == 4:
+        rows, space = read_positions(tracks, zero_based), "map"
+    else:
+        rows = read_mot(tracks, option="TRACKS", strict=True, allow_empty=False, tracks=True,
+                        zero_based=zero_based)
     xy = rows[:, 2:4] + rows[:, 4:6] / 2.0 if space == "image" else rows[:, 7:9].copy()
     unit = "px" if space == "image" else "units"
     kx = ky = 1.0
