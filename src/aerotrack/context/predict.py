@@ -196,15 +196,23 @@ def format_predictions(queries: list[Query], preds: list[np.ndarray], decimals: 
 
 def frame_step(rows: np.ndarray) -> int:
     """The step of tracks whose rows come every ``step`` > 1 frames (ETH/UCY annotate every 6th
-    or 10th frame), else 1: the greatest common divisor of the tracks' frame differences. The
-    tracks need not share one grid (ETH's shift between recordings)."""
+    or 10th frame), else 1: the greatest common divisor of the tracks' frame differences, when
+    it is also their most common difference, at least half of them, and tracks have three rows
+    or more (a median): two sightings 199 frames apart are a gap, not a rate. The tracks need
+    not share one grid (ETH's shift between recordings)."""
     if len(rows) < 2:
         return 1
     order = np.lexsort((rows[:, 0], rows[:, 1]))
     f, i = rows[order, 0].astype(np.int64), rows[order, 1]
     d = np.diff(f)[np.diff(i) == 0]
     d = d[d > 0]
-    return max(1, int(np.gcd.reduce(d))) if len(d) else 1
+    if not len(d) or np.median(np.unique(i, return_counts=True)[1]) < 3:
+        return 1
+    step = int(np.gcd.reduce(d))
+    values, counts = np.unique(d, return_counts=True)
+    if step <= 1 or values[np.argmax(counts)] != step or counts.max() < 0.5 * len(d):
+        return 1
+    return step
 
 
 def _on_grid(rows: np.ndarray, queries: list[Query], step: int, offset: int
