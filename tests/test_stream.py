@@ -101,3 +101,63 @@ def test_detect_on_a_stream(tmp_path, capsys, clip):
         assert code == 2 and "it starts at its first" in err
     rows = (tmp_path / "d" / "detections.csv").read_text().splitlines()
     assert rows and max(int(r.split(",")[0]) for r in rows) <= 60
+
+
+def test_a_run_says_when_it_falls_behind_the_feed(clip, monkeypatch):
+    import logging
+    import time
+
+    from aerotrack.io import frames as frames_mod
+
+    monkeypatch.setattr(frames_mod, "STREAM_LAG_WARN_S", 0.2)
+    seen: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            seen.append(record.getMessage())
+
+    log = logging.getLogger("aerotrack.io.frames")
+    handler = Keep(level=logging.WARNING)
+    log.addHandler(handler)
+    try:
+        with served(clip) as base:
+            for f in open_source(f"{base}/clip.ts").frames(stop=20):
+                time.sleep(0.05)  # 20 frames/s of work on a 30 frames/s feed
+    finally:
+        log.removeHandler(handler)
+    assert any("behind real time" in m for m in seen), seen
+
+
+def test_a_stream_finishes_on_interrupt_by_default(tmp_path, capsys):
+    with served(tmp_path) as base:
+        code, _, err = run_cli(capsys, "track", f"{base}/x.ts", "--out", tmp_path / "o",
+                               "--on-interrupt", "keep")
+    assert code == 2 and "--on-interrupt keep: not with a live stream" in err
+
+
+def test_ctrl_c_on_a_stream_writes_the_results_so_far(tmp_path, capsys, clip, monkeypatch):
+    """A stream cannot be resumed: Ctrl-C finishes the run by default (it kept a .partial/ that
+    --resume then refused)."""
+    import json
+    import os
+    import signal
+
+    from aerotrack.cli import track_cmd
+
+    made = track_cmd.make_progress
+
+    def ctrl_c_at_40(*args, **kwargs):
+        progress, close = made(*args, **kwargs)
+
+        def wrapped(done):
+            progress(done)
+            if done == 40:
+                os.kill(os.getpid(), signal.SIGINT)
+        return wrapped, close
+
+    monkeypatch.setattr(track_cmd, "make_progress", ctrl_c_at_40)
+    with served(clip) as base:
+        code, _, err = run_cli(capsys, "track", f"{base}/clip.ts", "--out", tmp_path / "o")
+    assert code == 0, err
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["interrupted_at_frame"] == 40
+    assert (tmp_path / "o" / "tracks.csv").is_file() and not (tmp_path / "o" / ".partial").exists()

@@ -496,10 +496,11 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Continue an interrupted run in --out from its .partial/ (give the same "
                    "inputs and options).")
 @click.option("--on-interrupt", "on_interrupt", type=click.Choice(["keep", "finish"]),
-              default="keep", show_default=True,
+              default=None,
               help="What Ctrl-C (or SIGTERM) does: keep the finished work in .partial/ for "
                    "--resume, or finish: end the run there as if the video ended, and write "
-                   "every result for the frames read (a live feed, a flight cut short).")
+                   "every result for the frames read (a live feed, a flight cut short). "
+                   "Default: keep, finish for a stream (which cannot be resumed).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Split the video into overlapping segments processed by N local worker "
                    "processes (Dask; pip install '.[dask]' in the aerotrack checkout). Default: one process.")
@@ -511,7 +512,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                   intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
                   overwrite, resume, workers, scheduler, from_dir=None, roads_path=None,
                   stabilised=False, detections_zero_based=False, min_conf=None,
-                  start_time=None, on_interrupt="keep"):
+                  start_time=None, on_interrupt=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -575,6 +576,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                          "are associated in image coordinates already)")
     check_stream_options(input_path, frame_range, telemetry_path, resume=resume, workers=workers,
                          scheduler=scheduler)
+    from ..io.frames import is_stream_url
+
+    stream = is_stream_url(input_path)
+    if stream and on_interrupt == "keep":
+        raise InputError(f"--on-interrupt keep: not with a live stream as INPUT ({input_path}): "
+                         "what it keeps is for --resume, which a stream cannot take")
+    on_interrupt = on_interrupt or ("finish" if stream else "keep")
     if on_interrupt == "finish" and (workers is not None or scheduler is not None):
         raise InputError("--on-interrupt finish: one process only (with --workers or "
                          "--scheduler an interruption keeps the finished segments for --resume)")
@@ -598,8 +606,6 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
         check_scheduler(scheduler)
-
-    from ..io.frames import is_stream_url
 
     def where(path):
         if is_stream_url(path):
@@ -666,7 +672,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                     or not getattr(exc, "between_frames", False):
                 raise
             close()
-            result = _finish_interrupted(exc.pipeline, stopper)
+            result = _finish_interrupted(exc.pipeline, stopper, stream)
             notes = {**notes, "interrupted_at_frame": result.last_frame}
         finally:
             close()
@@ -725,13 +731,21 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             f"them: aerotrack report {out.path}", err=True)
 
 
-def _finish_interrupted(pipe, stopper: GracefulStop):
+def _finish_interrupted(pipe, stopper: GracefulStop, stream: bool = False):
     """``--on-interrupt finish``: end an interrupted run as if its video ended at the last frame
     read (the detector's last half window is decided with the frames it has, as at the end of
     any video), link, and hand back the result. A further signal stops this at once, keeping
-    ``.partial/`` for ``--resume`` as an interruption does by default."""
-    log.warning("interrupt: finishing the run at frame %d (Ctrl-C again to stop at once and keep "
-                ".partial/ for --resume)", pipe.last_frame)
+    ``.partial/`` for ``--resume`` as an interruption does by default; with a live stream, which
+    cannot be resumed, further signals wait until the results are written (a second Ctrl-C
+    threw the whole run away)."""
+    if stream:
+        log.warning("interrupt: finishing the run at frame %d; the results follow in a few "
+                    "seconds (a stream cannot be read again, so further Ctrl-C wait for them)",
+                    pipe.last_frame)
+        stopper.phase = "writing"
+    else:
+        log.warning("interrupt: finishing the run at frame %d (Ctrl-C again to stop at once and "
+                    "keep .partial/ for --resume)", pipe.last_frame)
     stopper.note = GracefulStop.NOTE
     return pipe.finish()
 

@@ -21,6 +21,7 @@ import queue
 import re
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -498,6 +499,9 @@ STREAM_SCHEMES = ("rtsp", "rtsps", "rtmp", "rtmps", "http", "https", "udp", "tcp
 #: two; FFmpeg reconnects inside its own timeouts).
 STREAM_MAX_FAILS = 5
 
+#: Seconds behind a live feed at which a run says so (then again at each doubling).
+STREAM_LAG_WARN_S = 10.0
+
 #: Longest believable frame rate a stream announces (FFmpeg reports 90000 for some RTP streams).
 STREAM_MAX_FPS = 240.0
 
@@ -560,6 +564,8 @@ class StreamSource(FrameSource):
             if not ok:
                 cap.release()
                 return
+        log = logging.getLogger(__name__)
+        t0, behind = time.monotonic(), STREAM_LAG_WARN_S
         try:
             index, fails = 1, 0
             while True:
@@ -578,10 +584,20 @@ class StreamSource(FrameSource):
                         break
                     fails += 1
                     if fails >= STREAM_MAX_FAILS:
-                        logging.getLogger(__name__).info("%s: the stream ended after frame %d",
-                                                         self.path, index)
+                        log.warning("%s: the stream ended (or was lost) after frame %d",
+                                    self.path, index)
                         return
                 index += 1
+                # behind live: the feed's time against the time spent reading it (a sender
+                # throttled by the network's back-pressure lets the delay grow unseen)
+                lag = (time.monotonic() - t0) - (index - 1) / self.fps
+                if lag > behind:
+                    log.warning("%s: %.0f s behind real time at frame %d (processing at %.1f "
+                                "of its %g frames/s; if the feed is live, --stride N or smaller "
+                                "frames keep up)",
+                                self.path, lag, index, (index - 1) / (time.monotonic() - t0),
+                                self.fps)
+                    behind = 2 * lag
         finally:
             cap.release()
 
