@@ -1310,3 +1310,22 @@ def test_a_file_browser_s_clutter_is_not_a_user_s_file(tmp_path, capsys, dets):
     (tmp_path / "b" / "clip" / ".DS_Store").write_bytes(b"\0")
     code, _, err = run_cli(capsys, "batch", inputs, "--out", tmp_path / "b")
     assert code == 0 and (tmp_path / "b" / "clip" / "tracks.csv").is_file(), err
+
+
+def test_ctrl_c_while_the_cli_loads_is_quiet(monkeypatch, capsys):
+    """A Ctrl-C in the first second landed in an import and printed its traceback."""
+    import sys
+    import types
+
+    from aerotrack.__main__ import run
+
+    loading = types.ModuleType("aerotrack.cli.main")
+
+    def interrupted(name):
+        raise KeyboardInterrupt
+
+    loading.__getattr__ = interrupted
+    monkeypatch.setitem(sys.modules, "aerotrack.cli.main", loading)
+    with pytest.raises(SystemExit) as exc:
+        run()
+    assert exc.value.code == 130 and capsys.readouterr().err == "aerotrack: interrupted\n"
