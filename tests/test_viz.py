@@ -487,3 +487,14 @@ def test_registration_picture_names_its_unit(tmp_path):
 def test_space_time_names_each_track(tmp_path):
     fig = plot_space_time(RunResults.load(make_run(tmp_path)), GeoMap(VEGAS))
     assert sorted(t.get_text().strip() for t in fig.axes[0].texts) == ["1", "2", "3"]
+
+
+def test_report_names_a_stream_input_and_an_interrupted_run(tmp_path):
+    from aerotrack.viz.report import build_report
+
+    run = make_run(tmp_path, with_map=False, n_frames=20)
+    summary = json.loads((run / "summary.json").read_text())
+    summary.update(input="rtsp://10.0.0.2:8554/live", interrupted_at_frame=20)
+    (run / "summary.json").write_text(json.dumps(summary))
+    text = build_report(run).read_text()
+    assert "input rtsp://10.0.0.2:8554/live" in text and "interrupted: frames 1-20 only" in text

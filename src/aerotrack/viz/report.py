@@ -189,6 +189,13 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         except AerotrackError as exc:
             log.warning("map %s not used: %s", results.map_path, exc)
     input_path = Path(input_path) if input_path is not None else results.input_path
+    if input_path is None and isinstance(results.summary.get("input"), str):
+        from ..io.frames import is_stream_url
+
+        named = results.summary["input"]
+        log.info("report: no video player: the run's input %s %s; give --input (a recording "
+                 "of it) for one", named, "was a live stream, which cannot be read again"
+                 if is_stream_url(named) else "is not at hand")
 
     if input_path is not None:  # the input the run tracked, before any work
         from ..io.frames import open_source
@@ -504,8 +511,12 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
     name = html.escape("/".join(full.parts[-2:]) if len(full.parts) > 2 else full.name)
     when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     what = []
-    if input_path is not None:
-        what.append(f"input {html.escape(str(input_path))}")
+    named = results.summary.get("input")
+    if input_path is not None or isinstance(named, str):
+        what.append(f"input {html.escape(str(input_path if input_path is not None else named))}")
+    cut = results.summary.get("interrupted_at_frame")
+    if isinstance(cut, int):
+        what.append(f"interrupted: frames {results.first_frame}-{cut} only")
     if geomap is not None:
         what.append(f"map {html.escape(str(geomap.path))} ({html.escape(str(geomap.crs))}, "
                     f"{geomap.metres_per_pixel:.2f} m/px)")
