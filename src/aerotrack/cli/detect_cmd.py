@@ -173,9 +173,10 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
     if interrupted is not None:
         done = max((d.frame for d in result.detections), default=None)
         kept = f"frames up to {done}" if done is not None else "no frame finished"
+        why = "" if config.detection.causal or done == result.last_frame else \
+            ": the last half background window was not final yet"
         raise Interrupted(interrupted.signum,
-                          f"; {out.path}/detections.csv holds the finished frames ({kept}: the "
-                          "last half background window was not final yet)")
+                          f"; {out.path}/detections.csv holds the finished frames ({kept}{why})")
     dt = time.perf_counter() - t0
     log.info("detect: %d frame%s, %d detections, %.1f frames/s -> %s", result.frames,
              "s" * (result.frames != 1), len(rows),
