@@ -19,6 +19,28 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+def ctrl_c_track_at(monkeypatch, frame: int) -> None:
+    """Make the next ``aerotrack track`` in this process get a SIGINT once ``frame`` frames are
+    done (as a user's Ctrl-C, through the signal handler), via its progress callback."""
+    import os
+    import signal
+
+    from aerotrack.cli import track_cmd
+
+    made = track_cmd.make_progress
+
+    def with_ctrl_c(*args, **kwargs):
+        progress, close = made(*args, **kwargs)
+
+        def wrapped(done):
+            progress(done)
+            if done == frame:
+                os.kill(os.getpid(), signal.SIGINT)
+        return wrapped, close
+
+    monkeypatch.setattr(track_cmd, "make_progress", with_ctrl_c)
+
+
 def run_cli(capsys, *argv) -> tuple[int, str, str]:
     """Run the ``aerotrack`` CLI in-process: (exit code, stdout, stderr). Arguments may be paths."""
     from aerotrack.cli.main import main

@@ -769,24 +769,9 @@ def test_on_interrupt_finish_writes_the_results_of_the_frames_read(tmp_path, cap
                                                                   monkeypatch):
     """A live feed or a flight cut short: Ctrl-C with --on-interrupt finish ends the run at the
     last frame read and writes every result; they equal a run told to stop there (--frames)."""
-    import os
+    from conftest import ctrl_c_track_at, run_cli
 
-    from conftest import run_cli
-
-    from aerotrack.cli import track_cmd
-
-    made = track_cmd.make_progress
-
-    def ctrl_c_at_60(*args, **kwargs):
-        progress, close = made(*args, **kwargs)
-
-        def wrapped(done):
-            progress(done)
-            if done == 60:
-                os.kill(os.getpid(), signal.SIGINT)
-        return wrapped, close
-
-    monkeypatch.setattr(track_cmd, "make_progress", ctrl_c_at_60)
+    ctrl_c_track_at(monkeypatch, 60)
     code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "cut", "--fps", "30",
                            "--on-interrupt", "finish")
     assert code == 0, err
@@ -794,7 +779,7 @@ def test_on_interrupt_finish_writes_the_results_of_the_frames_read(tmp_path, cap
     summary = json.loads((tmp_path / "cut" / "summary.json").read_text())
     assert summary["interrupted_at_frame"] == 60 and summary["frames"] == 60
     assert not (tmp_path / "cut" / ".partial").exists()
-    monkeypatch.setattr(track_cmd, "make_progress", made)
+    monkeypatch.undo()
     code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "to60", "--fps",
                            "30", "--frames", "1:60")
     assert code == 0, err

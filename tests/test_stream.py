@@ -139,23 +139,10 @@ def test_ctrl_c_on_a_stream_writes_the_results_so_far(tmp_path, capsys, clip, mo
     """A stream cannot be resumed: Ctrl-C finishes the run by default (it kept a .partial/ that
     --resume then refused)."""
     import json
-    import os
-    import signal
 
-    from aerotrack.cli import track_cmd
+    from conftest import ctrl_c_track_at
 
-    made = track_cmd.make_progress
-
-    def ctrl_c_at_40(*args, **kwargs):
-        progress, close = made(*args, **kwargs)
-
-        def wrapped(done):
-            progress(done)
-            if done == 40:
-                os.kill(os.getpid(), signal.SIGINT)
-        return wrapped, close
-
-    monkeypatch.setattr(track_cmd, "make_progress", ctrl_c_at_40)
+    ctrl_c_track_at(monkeypatch, 40)
     with served(clip) as base:
         code, _, err = run_cli(capsys, "track", f"{base}/clip.ts", "--out", tmp_path / "o")
     assert code == 0, err
