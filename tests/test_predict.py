@@ -356,3 +356,15 @@ def test_a_positions_file_frame_id_x_y(scene, tmp_path, capsys):
     code, _, err = run_cli(capsys, "predict", tmp / "mixed.csv", "--queries", q, "--out",
                            tmp / "pm.csv")
     assert code == 2 and "every row must be frame,id,x,y" in err
+
+
+def test_every_nth_frame_errors_name_the_file_s_own_frames(tmp_path, capsys):
+    from conftest import run_cli
+
+    rows = "".join(f"{f},1,{f}.0,0,4,2,1,{'-1,-1' if f == 31 else f'{f}.0,0'},-1\n"
+                   for f in range(1, 62, 6))
+    (tmp_path / "t.csv").write_text(rows)
+    (tmp_path / "q.csv").write_text("id,last_seen,horizon\n1,31,6\n")
+    code, _, err = run_cli(capsys, "predict", tmp_path / "t.csv", "--queries", tmp_path / "q.csv",
+                           "--out", tmp_path / "p.csv", "--space", "map")
+    assert code == 2 and "no map position (x, y = -1) at last_seen 31" in err, err

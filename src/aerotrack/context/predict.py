@@ -340,6 +340,13 @@ def run_predict(tracks: str | Path, queries: str | Path, out: str | Path, *, met
                 raise InputError(f"--queries {queries} line {q.line or n + 2} (query {n}): "
                                  + (f"track {q.id} has no row at last_seen {q.last_seen}" if known
                                     else f"unknown id {q.id}"))
+        if space == "map":
+            blank = {(int(i), int(f)) for f, i in rows[np.all(rows[:, 7:9] == -1, axis=1), :2]}
+            for n, q in enumerate(qs):
+                if (q.id, q.last_seen) in blank:
+                    raise InputError(f"--queries {queries} line {q.line or n + 2} (query {n}): "
+                                     f"track {q.id} has no map position (x, y = -1) at "
+                                     f"last_seen {q.last_seen}")
         log.info("%s: rows every %d frames: predicted on those frames (%g frames/s) and carried "
                  "on between them", tracks, step, fps / step)
     table = tracks_table(rows, space, name=str(tracks))
