@@ -91,6 +91,24 @@ def test_a_stream_nobody_sends_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_why_a_stream_does_not_open_is_named(tmp_path, capsys):
+    """Refused, unknown host, an HTTP error and a server without video were one message."""
+    (tmp_path / "notes.txt").write_text("not a video\n" * 50)
+    (tmp_path / "junk.bin").write_bytes(bytes(range(256)) * 64)
+    with served(tmp_path) as base:
+        port = base.rsplit(":", 1)[1]
+        for url, needle in [(f"{base}/missing.ts", "answers HTTP 404"),
+                            (f"{base}/junk.bin", "answers, but with no video FFmpeg can read"),
+                            (f"{base}/notes.txt", "is text (a web page?), not a video stream"),
+                            (f"rtsp://127.0.0.1:{port}/live", f"127.0.0.1:{port} answers, but"),
+                            ("rtsp://127.0.0.1:9/live", "127.0.0.1:9 refuses the connection"),
+                            ("rtmp://no-such-host.invalid/app", "no-such-host.invalid is not known"),
+                            ("tcp://127.0.0.1", "names no port")]:
+            code, _, err = run_cli(capsys, "track", url, "--out", tmp_path / "o")
+            assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, (url, err)
+    assert not (tmp_path / "o").exists()
+
+
 def test_detect_on_a_stream(tmp_path, capsys, clip):
     with served(clip) as base:
         code, _, err = run_cli(capsys, "detect", f"{base}/clip.ts", "--out", tmp_path / "d",

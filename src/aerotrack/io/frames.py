@@ -532,8 +532,10 @@ class StreamSource(FrameSource):
         cap = cv2.VideoCapture(url, cv2.CAP_FFMPEG)
         if not cap.isOpened():
             cap.release()
-            raise InputError(f"{url}: cannot open the stream (nothing answers there, or FFmpeg "
-                             "cannot read its format)")
+            raise InputError(f"{url}: cannot open the stream ({why_stream_fails(url)})")
+        if _fourcc(cap) == TEXT_CODEC:  # FFmpeg's tty demuxer draws text (a web page) as frames
+            cap.release()
+            raise InputError(f"{url}: is text (a web page?), not a video stream")
         ok, img = cap.read()
         if not ok or img is None:
             cap.release()
@@ -606,6 +608,81 @@ class StreamSource(FrameSource):
         if self._cap is not None:
             self._cap.release()
             self._cap = self._first = None
+
+
+#: The codec FFmpeg reports for text it renders as frames (its tty demuxer).
+TEXT_CODEC = "ansi"
+
+
+def _fourcc(cap) -> str:
+    """The four-character code of an open capture's codec ('' when it names none)."""
+    code = int(cap.get(cv2.CAP_PROP_FOURCC))
+    return code.to_bytes(4, "little").decode("latin-1").strip("\0 ") if code > 0 else ""
+
+
+#: Default ports of the stream schemes that run over TCP (what a URL without a port reaches).
+TCP_STREAM_PORTS = {"rtsp": 554, "rtsps": 322, "rtmp": 1935, "rtmps": 443, "http": 80,
+                    "https": 443, "tcp": None}
+
+#: How long :func:`why_stream_fails` waits for a host to answer.
+STREAM_PROBE_TIMEOUT_S = 3.0
+
+
+def why_stream_fails(url: str) -> str:
+    """Why FFmpeg could not open ``url``, as far as one connection attempt can tell: the host is
+    unknown, refuses or does not answer; an HTTP server answers with an error status; or
+    something answers but FFmpeg found no video there. UDP, SRT and RTP have no connection to
+    test (a sender that has not started looks like one that does not exist)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    scheme = parts.scheme.lower()
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:  # a port that is not a number
+        return "its port is not a number"
+    if scheme not in TCP_STREAM_PORTS:
+        return (f"nothing arrived: is the sender running and sending to this address? "
+                f"{scheme.upper()} has no connection to test")
+    port = port or TCP_STREAM_PORTS[scheme]
+    if not host:
+        return "the URL names no host"
+    if port is None:
+        return f"the URL names no port ({scheme}:// needs one)"
+    if scheme in ("http", "https"):
+        import urllib.error
+        import urllib.request
+
+        request = urllib.request.Request(url, headers={"Range": "bytes=0-0"})
+        try:
+            with urllib.request.urlopen(request, timeout=STREAM_PROBE_TIMEOUT_S) as reply:
+                kind = reply.headers.get_content_type()
+        except urllib.error.HTTPError as exc:
+            return f"the server answers HTTP {exc.code} {exc.reason}"
+        except (urllib.error.URLError, OSError) as exc:
+            return _socket_trouble(getattr(exc, "reason", exc), host, port)
+        return f"the server answers, but with no video FFmpeg can read: it sends {kind}"
+    try:
+        with socket.create_connection((host, port), timeout=STREAM_PROBE_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        return _socket_trouble(exc, host, port)
+    return (f"{host}:{port} answers, but FFmpeg could not read a stream there (a wrong path or "
+            "stream name, credentials, or a format it cannot read)")
+
+
+def _socket_trouble(exc, host: str, port: int) -> str:
+    """One socket error as words."""
+    import socket
+
+    if isinstance(exc, socket.gaierror):
+        return f"the host {host} is not known"
+    if isinstance(exc, ConnectionRefusedError):
+        return f"{host}:{port} refuses the connection: nothing listens there"
+    if isinstance(exc, TimeoutError | socket.timeout):
+        return f"{host}:{port} does not answer within {STREAM_PROBE_TIMEOUT_S:g} s"
+    return f"{host}:{port}: {getattr(exc, 'strerror', None) or exc}"
 
 
 def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
