@@ -121,6 +121,20 @@ def test_track_truncated_video(tmp_path, capsys, video):
     expect_error(capsys, ["truncated.avi"], "track", p, "--out", tmp_path / "o")
 
 
+def test_a_run_of_blank_frames_says_so(tmp_path, capsys):
+    """A 16-bit video read at 8 bits is a few grey levels: the run found nothing and said only
+    "0 tracks"."""
+    rng = np.random.default_rng(0)
+    (tmp_path / "f").mkdir()
+    for i in range(12):
+        cv2.imwrite(str(tmp_path / "f" / f"{i:03d}.png"),
+                    (30 + rng.integers(0, 2, (120, 160))).astype(np.uint8))
+    code, _, err = run_cli(capsys, "track", tmp_path / "f", "--out", tmp_path / "o")
+    assert code == 0 and re.search(r"1[12] of 12 frames are blank", err), err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["counts"]["tracks"] == 0
+
+
 def test_track_single_image_as_input(tmp_path, capsys):
     p = tmp_path / "one.png"
     cv2.imwrite(str(p), textured())

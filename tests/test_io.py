@@ -98,6 +98,25 @@ def test_sixteen_bit_frames_keep_their_contrast_under_one_map(tmp_path, suffix):
     assert int(frames[3][33, 45, 2]) == 255
 
 
+def test_sixteen_bit_frames_with_alpha_a_corrupt_file_and_a_jump_keep_their_map(tmp_path):
+    """An opaque alpha channel (65535) set the top of the map, and every frame read blank; a
+    corrupt file among the sampled ones stopped the run; one frame brighter by a flat-field
+    correction's jump moved the map of all the others."""
+    rng = np.random.default_rng(0)
+    for i in range(9):
+        grey = rng.integers(7000, 8000, (40, 60)).astype(np.uint16)
+        if i == 2:
+            grey = grey - 600  # the camera's correction jump: one frame darker by 600 counts
+        img = np.dstack([grey, grey, grey, np.full((40, 60), 65535, np.uint16)])
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), img)
+    (tmp_path / "004.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)  # corrupt, sampled
+    src = open_source(tmp_path)
+    lo, hi = src.depth_range
+    assert 6990 <= lo <= 7010 and 7990 <= hi <= 8010
+    frames = [f for f in src]
+    assert len(frames) == 8 and all(f.image.std() > 50 for f in frames if f.index != 3)
+
+
 def test_float_frames_are_mapped_and_nan_is_not_an_error(tmp_path):
     img = np.linspace(20.0, 35.0, 40 * 60, dtype=np.float32).reshape(40, 60)  # degrees Celsius
     img[0, 0] = np.nan

@@ -503,7 +503,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
                    "Default: keep, finish for a stream (which cannot be resumed).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Split the video into overlapping segments processed by N local worker "
-                   "processes (Dask; pip install '.[dask]' in the aerotrack checkout). Default: one process.")
+                   "processes (Dask; pip install 'aerotrack[dask]'). Default: one process.")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run the segments on an existing Dask cluster (tcp://host:8786).")
 @click.pass_context
@@ -721,6 +721,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                 write_mask(out.partial / OVERLAY_FILE, result.overlay_mask)
         out.finish(keep_as="stages")
     c = summary["counts"]
+    warn_blank_frames(summary, input_path)
     if not quiet:
         cut = (f" (interrupted: frames {result.first_frame}-{result.last_frame})"
                if "interrupted_at_frame" in notes else "")
@@ -729,6 +730,23 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             f"{c['tracks']} tracks "
             f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s); to look at "
             f"them: aerotrack report {out.path}", err=True)
+
+
+#: Share of a run's frames that may be blank (no contrast) before the run warns.
+BLANK_SHARE_WARN = 0.5
+
+
+def warn_blank_frames(summary: dict, input_path) -> None:
+    """Warn when most frames were blank to registration: a run of blank frames finds nothing, and
+    its few INFO lines and "0 tracks" did not say why (a 16-bit video read as its top 8 bits)."""
+    blank = sum(1 for f in summary.get("registration_failures") or []
+                if str(f.get("reason", "")).startswith("blank frame"))
+    frames = summary.get("frames") or 0
+    if frames and blank > BLANK_SHARE_WARN * frames:
+        log.warning("%s: %d of %d frames are blank (almost no contrast), so little or nothing can "
+                    "be found there; is the input dark, over-exposed, or of more than 8 bits per "
+                    "pixel (a video is read at 8 bits; give 16-bit frames as a folder of PNG or "
+                    "TIFF images)?", input_path, blank, frames)
 
 
 def _finish_interrupted(pipe, stopper: GracefulStop, stream: bool = False):

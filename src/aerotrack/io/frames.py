@@ -289,8 +289,9 @@ class ImageFolderSource(FrameSource):
     first one; a different size is an error naming the file. Grey and colour images of 8 bits
     are read as BGR. Frames of more bits (16-bit TIFF or PNG, as radiometric thermal cameras
     write them, often over a narrow band of a 14-bit range) or floating point are mapped to 8
-    bits by one linear map for the whole folder (:attr:`depth_range`): the 0.1 and 99.9
-    percentiles of ``DEPTH_SAMPLE_FILES`` images spread over the folder go to 0 and 255.
+    bits by one linear map for the whole folder (:attr:`depth_range`): the median over
+    ``DEPTH_SAMPLE_FILES`` images spread across the folder of each image's 0.1 and 99.9
+    percentiles go to 0 and 255 (an alpha channel is left out).
     Reading them as OpenCV does by default (the top 8 bits) leaves a 14-bit sensor a few grey
     levels, a blank frame; a per-frame stretch would change every pixel's value whenever a hot
     object enters, which the background would take for motion.
@@ -349,15 +350,25 @@ class ImageFolderSource(FrameSource):
         n = len(self.files)
         picks = sorted({round(k * (n - 1) / max(DEPTH_SAMPLE_FILES - 1, 1))
                         for k in range(DEPTH_SAMPLE_FILES)})
-        values = []
+        ranges = []
         for k in picks:
-            img = first if k == 0 else self._decode(self.files[k])
+            try:
+                img = first if k == 0 else self._decode(self.files[k])
+            except UnreadableImage:  # skipped when read as a frame too; the others decide
+                continue
+            if img.dtype == np.uint8:  # an 8-bit file among deeper ones says nothing of them
+                continue
+            if img.ndim == 3 and img.shape[2] == 4:  # alpha is opacity, not a sensor value
+                img = img[:, :, :3]
             v = np.asarray(img, np.float64)[::4, ::4].ravel()
-            values.append(v[np.isfinite(v)])
-        v = np.concatenate(values)
-        if not len(v):
+            v = v[np.isfinite(v)]
+            if len(v):
+                ranges.append(np.percentile(v, DEPTH_PERCENTILES))
+        if not ranges:
             raise InputError(f"{self.files[0]}: image holds no finite values")
-        lo, hi = (float(x) for x in np.percentile(v, DEPTH_PERCENTILES))
+        # the median image's percentiles: one odd frame (a thermal camera's flat-field
+        # correction jump) among the samples does not move the map of every other frame
+        lo, hi = (float(x) for x in np.median(np.array(ranges), axis=0))
         return lo, (hi if hi > lo else lo + 1.0)
 
     def _read(self, p: Path) -> np.ndarray:
