@@ -37,3 +37,8 @@ class OutputError(AerotrackError, OSError):
 
 class StageError(AerotrackError, RuntimeError):
     """A pipeline stage could not continue (not raised for a single failed estimate: see ``Failure``)."""
+
+
+def install_extra(extra: str) -> str:
+    """How to install one of aerotrack's optional extras (``dask``, ``gis``), for messages."""
+    return f"pip install 'aerotrack[{extra}]' (from a checkout: pip install '.[{extra}]')"

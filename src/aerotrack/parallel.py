@@ -99,7 +99,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config
-from .errors import ConfigError, InputError, OutputError
+from .errors import ConfigError, InputError, OutputError, install_extra
 from .pipeline import Pipeline, Result, _group_rows, link
 from .types import Detections, Registration, Track, TrackPoint, apply_homography, local_scales
 
@@ -764,7 +764,7 @@ def _distributed():
     try:
         import distributed
     except ImportError:
-        raise InputError("--workers/--scheduler need Dask: pip install '.[dask]' in the aerotrack checkout") from None
+        raise InputError(f"--workers/--scheduler need Dask: {install_extra('dask')}") from None
     return distributed
 
 

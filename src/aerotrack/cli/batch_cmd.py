@@ -34,7 +34,7 @@ log = logging.getLogger("aerotrack")
 @click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
               help="Use every N-th frame.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Run on N local worker processes (Dask; pip install '.[dask]' in the aerotrack checkout): the "
+              help="Run on N local worker processes (Dask; pip install 'aerotrack[dask]'): the "
                    "segments of all videos share the workers. Default: one process.")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run on an existing Dask cluster (tcp://host:8786); its workers must see the "

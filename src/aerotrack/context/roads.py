@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import ContextConfig
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, install_extra
 from ..io.geojson import document_crs
 
 log = logging.getLogger(__name__)
@@ -60,7 +60,7 @@ def _ogr_document(path: Path, label: str) -> dict:
         from pyogrio.raw import read
     except ImportError:
         raise InputError(f"{label}: not GeoJSON; reading other formats (GeoPackage, Shapefile) "
-                         "needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
+                         f"needs pyogrio: {install_extra('gis')}") from None
     try:
         meta, _, wkbs, _ = read(str(path), read_geometry=True, columns=[])
     except (DataSourceError, OSError, RuntimeError, ValueError) as exc:

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import GeoreferenceError, InputError
+from ..errors import GeoreferenceError, InputError, install_extra
 from .output import atomic_write_text
 
 DECIMALS = 8  # ~1 mm at the equator; the contract asks for at least 7
@@ -283,12 +283,12 @@ def write_tracks_gpkg(path: str | Path, tracks_rows: np.ndarray, predicted_rows:
     """Write a GeoPackage with layers ``tracks`` (LineString per track) and ``track_points``
     (Point per vertex: id, frame, time_s, observed, speed_mps), EPSG:4326.
 
-    Needs ``pyogrio`` (``pip install ".[gis]"`` in the checkout).
+    Needs ``pyogrio`` (``pip install 'aerotrack[gis]'``).
     """
     try:
         import pyogrio.raw
     except ImportError:
-        raise InputError("GeoPackage output needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
+        raise InputError(f"GeoPackage output needs pyogrio: {install_extra('gis')}") from None
     fc = tracks_feature_collection(tracks_rows, predicted_rows, geomap, fps)
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.partial{path.suffix}")

@@ -36,6 +36,7 @@ plus a WKB point ``geometry`` in the output CRS (``geo`` metadata with the CRS a
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import struct
@@ -44,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FormatError, InputError, OutputError
+from ..errors import FormatError, InputError, OutputError, install_extra
 from .output import atomic_write
 
 COLUMNS = ("frame", "time_s", "id", "lon", "lat", "x", "y", "crs", "speed_mps", "heading_deg",
@@ -501,7 +502,7 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
     try:
         from pyogrio.raw import write
     except ImportError:
-        raise InputError("GeoPackage output needs pyogrio: pip install '.[gis]' in the aerotrack checkout") from None
+        raise InputError(f"GeoPackage output needs pyogrio: {install_extra('gis')}") from None
     geom = np.array(_point_wkbs(cols), dtype=object)
     names = [c for c in _names(cols) if c != "crs"]
     data = []
@@ -582,11 +583,15 @@ def write_observation_table(path: str | Path, rows: Any, geomap: Any, fps: float
     if formats is None:
         formats = ("csv",) + tuple(f for f, mod in (("gpkg", "pyogrio"), ("parquet", "pyarrow"))
                                    if _importable(mod))
+        missing = [f"{p.stem}.{f}" for f in ("gpkg", "parquet") if f not in formats]
+        if missing:
+            logging.getLogger(__name__).info("%s not written: it needs the gis extra, %s",
+                                             " and ".join(missing), install_extra("gis"))
+    if "parquet" in formats and not _importable("pyarrow"):
+        raise InputError(f"Parquet output needs pyarrow: {install_extra('gis')}")
     unknown = set(formats) - {"csv", "gpkg", "parquet"}
     if unknown:
         raise InputError(f"table formats {sorted(unknown)}: valid are csv, gpkg, parquet")
-    if "parquet" in formats and not _importable("pyarrow"):
-        raise InputError("Parquet output needs pyarrow: pip install pyarrow")
     cols, crs_name = observation_table(rows, geomap, fps, out_crs, predicted=predicted,
                                        homographies=homographies, **kwargs)
     out: dict[str, Path] = {}
