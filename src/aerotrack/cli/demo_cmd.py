@@ -59,9 +59,12 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
     ctx.invoke(synth_command, out_dir=scene, seed=seed, frames=frames, scenario="default")
     say("tracking it: registration to the map, detection, local and global association "
         "(unobserved vehicles predicted along the roads)")
+    # the scene's frame rate (image files hold none; without it track says to give --fps,
+    # which demo does not have)
+    fps = float(json.loads((scene / "scenario.json").read_text())["fps"])
     ctx.invoke(track_command, input_path=scene / "frames", out_dir=run_dir,
                map_path=scene / "map.tif", map_init_path=scene / "map_init.txt", seed=seed,
-               roads_path=scene / "roads.geojson")
+               roads_path=scene / "roads.geojson", fps=fps)
     gt = read_mot(scene / "gt.txt", strict=False)
     pred = read_mot(run_dir / "tracks.csv")
     scores = evaluate(gt, pred)
