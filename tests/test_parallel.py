@@ -356,7 +356,7 @@ def test_missing_dask_names_the_extra(monkeypatch):
     from aerotrack.parallel import dask_client
 
     monkeypatch.setitem(sys.modules, "distributed", None)  # import now fails
-    with pytest.raises(InputError, match=r"pip install '\.\[dask\]'"), dask_client(workers=1):
+    with pytest.raises(InputError, match=r"pip install 'aerotrack\[dask\]'"), dask_client(workers=1):
         pass
 
 
