@@ -725,3 +725,21 @@ def test_follow_on_keeps_a_piece_where_an_ended_tracklet_was_going():
     off = LocalAssociator(AssociationConfig(), 30.0, 1.0)  # the default: off
     off._remember_end(pts(range(1, 31), 0.0, 1.0))
     assert not off._follows_ended(pts(range(33, 38), 32.0, 1.0))
+
+
+@pytest.mark.parametrize("fps", [1.0, 2.0, 3.0])
+def test_vehicles_filmed_at_wide_area_rates_become_tracklets(fps):
+    """Frames 1/3 to 1 s apart (wide-area imagery): an exact link scored near 0 against a
+    prediction that wide, no track earned its birth cost and a run wrote 0 tracks."""
+    rng = np.random.default_rng(3)
+    n = 16
+    tracks = {}
+    for i, (x0, y0, vx, vy) in enumerate([(0, 0, 12, 0), (0, 20, 9, 2), (80, 40, -10, 0)], 1):
+        tracks[i] = {f: (x0 + vx * (f - 1) / fps + rng.normal(0, 0.3),
+                         y0 + vy * (f - 1) / fps + rng.normal(0, 0.3)) for f in range(1, n + 1)}
+    frames, truth = _frames(tracks, n)
+    out = associate(frames, AssociationConfig(), fps, metres_per_unit=1.0, seed=0)
+    ids = sorted(sorted(set(v)) for v in _identities(out, truth).values())
+    assert ids == [[1], [2], [3]]
+    assert sum(len(t.points) for t in out) >= 3 * (n - 2)
+    assert LocalAssociator(AssociationConfig(), 10.0).gate2 == AssociationConfig().gate_chi2

@@ -135,6 +135,19 @@ def test_a_run_of_blank_frames_says_so(tmp_path, capsys):
     assert summary["counts"]["tracks"] == 0
 
 
+def test_detections_that_never_form_a_track_are_named(tmp_path, capsys):
+    """Boxes jumping about at random: the run wrote 0 tracks and said nothing of the detections."""
+    rng = np.random.default_rng(1)
+    rows = [f"{f},-1,{x:.1f},{y:.1f},20,10,0.9,-1,-1,-1"
+            for f in range(1, 61) for x, y in rng.uniform(0, 1000, (3, 2))]
+    (tmp_path / "d.txt").write_text("\n".join(rows) + "\n")
+    code, _, err = run_cli(capsys, "track", "--detections", tmp_path / "d.txt", "--out",
+                           tmp_path / "o")
+    assert code == 0 and "180 detections but no track" in err, err
+    assert "180 detections but no track" in " ".join(
+        json.loads((tmp_path / "o" / "summary.json").read_text())["hints"])
+
+
 def test_track_single_image_as_input(tmp_path, capsys):
     p = tmp_path / "one.png"
     cv2.imwrite(str(p), textured())

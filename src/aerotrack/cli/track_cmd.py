@@ -267,6 +267,11 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
                      f"shorter than the background window detection.window_s "
                      f"({config.detection.window_s:g} s), so the background has few samples: is "
                      f"--fps right?")
+    n_dets = sum(len(d) for d in (result.detections or []))
+    if result.frames and not result.tracks and n_dets >= 10 and not hints:
+        hints.append(f"{n_dets} detections but no track: none was seen consistently enough to be "
+                     f"one (too few frames a second, {fps:g}; detections that jump; or the "
+                     f"gates, see association.gate_chi2 and birth_cost)")
     for x, y, w, h in getattr(result, "overlay_held", None) or []:
         hints.append(f"a mark stays put in the middle of the screen while the camera moves (frame "
                      f"pixels x {x}-{x + w}, y {y}-{y + h}) and was left in: a crosshair? "
