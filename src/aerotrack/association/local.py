@@ -32,7 +32,6 @@ from .graph import HIST_EPS
 from .moves import Prior, SamplerParams, WindowSampler, WTrack
 from .posterior import iou_pairs, link_step, partial_candidates, score_matrix
 
-
 #: Below this frame rate the link gate ``association.gate_chi2`` grows as ``LOW_RATE_FPS / fps``.
 #: A link's score is ``0.5 (gate - d^2 - log det S/R)``, and between frames a second or half a
 #: second apart the prediction's spread S (constant velocity with ``accel_std_mps2``) is so
