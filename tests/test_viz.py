@@ -498,3 +498,19 @@ def test_report_names_a_stream_input_and_an_interrupted_run(tmp_path):
     (run / "summary.json").write_text(json.dumps(summary))
     text = build_report(run).read_text()
     assert "input rtsp://10.0.0.2:8554/live" in text and "interrupted: frames 1-20 only" in text
+
+
+def test_an_mp4_overlay_beyond_common_decoders_is_warned(caplog, tmp_path):
+    """A 4000x3000 overlay was written as H.264 level 6 with no word (most players show nothing)."""
+    import logging
+
+    from aerotrack.cli.render_cmd import warn_large_h264
+
+    with caplog.at_level(logging.WARNING, logger="aerotrack"):
+        warn_large_h264(tmp_path / "o.mp4", (4000, 3000), None)
+        assert "4000x3000 H.264" in caplog.text
+        caplog.clear()
+        warn_large_h264(tmp_path / "o.mp4", (4000, 3000), 1920)
+        warn_large_h264(tmp_path / "o.webm", (4000, 3000), None)
+        warn_large_h264(tmp_path / "o.mp4", (1920, 1080), None)
+        assert caplog.text == ""

@@ -101,6 +101,7 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     if pictures:
         check_writable(results.path / "map.png", "DIR")
     quiet, verbose = root_flags(ctx)
+    warn_large_h264(out, source.size, max_width)
     n = source.count
     if n and start > n:
         raise InputError(f"--start {start}: after the last frame of {input_path} ({n})")
@@ -117,3 +118,20 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     if not quiet:
         for p in written:
             click.echo(f"wrote {p}")
+
+
+#: Largest frame most H.264 decoders play (level 5.2: 4096x2304; browsers and phones alike).
+H264_MAX_SIZE = (4096, 2304)
+
+
+def warn_large_h264(out: Path, size: tuple[int, int], max_width: int | None) -> None:
+    """Warn when an .mp4 overlay will be larger than most H.264 decoders play (a wide-area frame
+    was written at level 6 with no word, and many players show nothing)."""
+    w, h = size
+    if max_width is not None and w > max_width:
+        w, h = max_width, round(h * max_width / w)
+    big, small = max(w, h), min(w, h)
+    if out.suffix.lower() == ".mp4" and (big > H264_MAX_SIZE[0] or small > H264_MAX_SIZE[1]):
+        logging.getLogger("aerotrack").warning(
+            "%s: a %dx%d H.264 video is larger than most players and browsers decode (%dx%d); "
+            "--max-width 1920 or a .webm plays more widely", out, w, h, *H264_MAX_SIZE)

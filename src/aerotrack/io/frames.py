@@ -300,11 +300,6 @@ class ImageFolderSource(FrameSource):
     def __init__(self, path: str | Path, fps: float | None = None) -> None:
         self.path = Path(path)
         self.fps = _check_fps(fps, str(self.path)) or DEFAULT_FOLDER_FPS
-        if fps is None and self.path.resolve() not in _ASSUMED_RATE:
-            _ASSUMED_RATE.add(self.path.resolve())
-            logging.getLogger(__name__).info(
-                "%s: image files hold no frame rate; timed at %g frames/s (give --fps if it is "
-                "another: speeds and every time-based setting follow it)", self.path, self.fps)
         self.files = sorted(
             (p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
              and not p.name.startswith(".")),
@@ -312,6 +307,11 @@ class ImageFolderSource(FrameSource):
         )
         if not self.files:
             raise InputError(f"{self.path}: folder holds no image files")
+        if fps is None and self.path.resolve() not in _ASSUMED_RATE:
+            _ASSUMED_RATE.add(self.path.resolve())
+            logging.getLogger(__name__).info(
+                "%s: image files hold no frame rate; timed at %g frames/s (give --fps if it is "
+                "another: speeds and every time-based setting follow it)", self.path, self.fps)
         stems: dict[tuple, Path] = {}
         for f in self.files:  # one name, two kinds (0001.jpg, 0001.png), or img3 beside img03
             key = tuple(t[:2] for t in natural_key(f.with_suffix("")))
