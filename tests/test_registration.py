@@ -580,3 +580,13 @@ def test_frames_range_with_a_map_starts_where_frame_1_puts_it(tmp_path):
     regs = read_registration_csv(tmp_path / "d" / "registration.csv")
     assert min(regs) == 100
     assert corner_error(regs[100], truth[100], 320, 240) < 1.0
+
+
+def test_share_of_the_frames_off_the_map():
+    """mosaic --map paints only the map's extent; what lies beyond it is measured for a warning."""
+    from aerotrack.registration.mosaic import share_off_map
+
+    shift = np.array([[1, 0, 150], [0, 1, 0], [0, 0, 1]], float)
+    assert share_off_map([np.eye(3)], 100, 100, (200, 200)) == pytest.approx(0.0, abs=0.02)
+    assert share_off_map([shift], 100, 100, (200, 200)) == pytest.approx(0.5, abs=0.02)
+    assert share_off_map([np.eye(3), shift], 100, 100, (200, 200)) == pytest.approx(0.25, abs=0.02)

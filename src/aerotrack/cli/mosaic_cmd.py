@@ -11,6 +11,9 @@ from .common import config_option, fps_option, make_progress, root_flags, set_op
 
 log = logging.getLogger("aerotrack")
 
+#: Share of the frames' ground outside the map above which ``mosaic --map`` warns.
+OFF_MAP_WARN = 0.05
+
 
 @click.command("mosaic")
 @click.argument("input_path", metavar="INPUT", type=click.Path())
@@ -54,7 +57,7 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     from ..io import open_source
     from ..io.output import atomic_write_bytes, check_writable
     from ..registration import FrameRegistrar, write_registration_csv
-    from ..registration.mosaic import paint_mosaic, picture_geotransform, world_file_text
+    from ..registration.mosaic import paint_mosaic, picture_geotransform, share_off_map, world_file_text
 
     out = Path(out_path)
     if out.suffix.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff"):
@@ -88,6 +91,12 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     log.info("mosaic: registration %s", registrar.summary()["status_counts"])
     Hs = {r.index: r.H for r in regs}
     base = geomap.read_image() if geomap is not None else None
+    if base is not None:
+        off = share_off_map(Hs.values(), *source.size, (base.shape[1], base.shape[0]))
+        if off > OFF_MAP_WARN:
+            log.warning("mosaic: %.0f%% of the frames' ground lies outside the map and is not in "
+                        "the picture, which covers the map (without --map the frames are "
+                        "painted whole, on frame 1's plane)", 100 * off)
     n_painted = (len(regs) + stride - 1) // stride
     img, S = paint_mosaic(source.frames(stride=stride), Hs, source.size, base=base,
                           max_side=max_side, outline_every=max(1, n_painted // 12),

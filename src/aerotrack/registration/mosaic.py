@@ -44,6 +44,26 @@ def mosaic_bounds(Hs: Iterable[np.ndarray], width: int, height: int,
     return float(x0), float(y0), float(x1), float(y1)
 
 
+def share_off_map(Hs: Iterable[np.ndarray], width: int, height: int,
+                  map_size: tuple[int, int]) -> float:
+    """Mean share of the frames' footprints (frame -> map pixels through each H) lying outside
+    the ``map_size`` (width, height) raster: what a mosaic on the map cannot show."""
+    c = frame_corners(width, height)
+    rect = np.array([[0, 0], [map_size[0], 0], [map_size[0], map_size[1]], [0, map_size[1]]],
+                    np.float32)
+    shares = []
+    for H in Hs:
+        if not in_front(H, width, height):
+            continue
+        q = apply_homography(H, c).astype(np.float32)
+        area = abs(float(cv2.contourArea(q)))
+        if not np.all(np.isfinite(q)) or area <= 0:
+            continue
+        inside, _ = cv2.intersectConvexConvex(q, rect)
+        shares.append(1.0 - min(1.0, max(0.0, float(inside)) / area))
+    return float(np.mean(shares)) if shares else 0.0
+
+
 def paint_mosaic(frames: Iterable[Frame], Hs: Mapping[int, np.ndarray], frame_size: tuple[int, int], *,
                  base: np.ndarray | None = None, max_side: int = 4000, margin: float = 50.0,
                  alpha: float = 0.75, outline_every: int = 1,
