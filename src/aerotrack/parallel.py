@@ -101,6 +101,7 @@ import numpy as np
 from .config import Config
 from .errors import ConfigError, InputError, OutputError, install_extra
 from .pipeline import Pipeline, Result, _group_rows, link
+from .registration.chain import normalize
 from .types import Detections, Registration, Track, TrackPoint, apply_homography, local_scales
 
 log = logging.getLogger(__name__)
@@ -710,7 +711,7 @@ def join_segments(results: Sequence[SegmentResult], *, geomap=None,
             else:
                 A, rms = chain_worlds(moved_regs[k - 1], r.registrations, overlap, frame_size)
             report.world_rms.append(rms)
-        regs = {f: (reg if k == 0 else replace(reg, H=_normalise(A @ reg.H)))
+        regs = {f: (reg if k == 0 else replace(reg, H=normalize(A @ reg.H)))
                 for f, reg in r.registrations.items()}
         moved_regs.append(regs)
         moved_tracks.append(
@@ -753,10 +754,6 @@ def join_segments(results: Sequence[SegmentResult], *, geomap=None,
             if points:
                 tracklets.append(Track(len(tracklets) + 1, points))
     return registrations, detections, tracklets, report
-
-
-def _normalise(H: np.ndarray) -> np.ndarray:
-    return H / H[2, 2]
 
 
 # -- the engine -----------------------------------------------------------------------------------

@@ -367,9 +367,6 @@ class WindowSampler:
         for t in new:
             self._set(t)
 
-    def add_track(self, t: WTrack) -> None:
-        self._set(t)
-
     def overlap_gain(self, g: int) -> float:
         """Rise of the eq. 10 term when assigned node ``g`` becomes a false alarm."""
         ov = self.store.overlaps.get(g)

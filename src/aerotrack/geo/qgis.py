@@ -234,13 +234,6 @@ def read_crs_gcps(path: str | Path, *, option: str = "--map-init") -> ControlPoi
     return ControlPoints(a[:, :2], a[:, 2:], crs, label)
 
 
-def read_control_points(path: str | Path, *, option: str = "--map-init") -> ControlPoints:
-    """A ``.points`` file or a ``crs_x,crs_y`` CSV, chosen by the suffix."""
-    if Path(path).suffix.lower() == ".points":
-        return read_qgis_points(path, option=option)
-    return read_crs_gcps(path, option=option)
-
-
 def write_qgis_points(path: str | Path, frame_xy: np.ndarray, map_xy: np.ndarray,
                       crs: Any = None) -> None:
     """Write a QGIS georeferencer ``.points`` file (frame pixels -> map CRS coordinates)."""

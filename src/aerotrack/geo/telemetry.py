@@ -55,7 +55,7 @@ import numpy as np
 
 from ..errors import FormatError, InputError
 from ..io.textfile import read_text
-from ..types import Failure
+from ..types import Failure, apply_homography
 
 #: Width of the 35-mm film frame, mm: ``hfov = 2 atan(36 / (2 f_35mm))``.
 FILM_WIDTH_MM = 36.0
@@ -684,8 +684,8 @@ def coarse_align(frame_img: np.ndarray, H_start: np.ndarray, map_img: np.ndarray
     mg = map_img if map_img.ndim == 2 else cv2.cvtColor(map_img, cv2.COLOR_BGR2GRAY)
     h, w = fg.shape
     H0 = np.asarray(H_start, np.float64) / H_start[2, 2]
-    quad = _apply_h(H0, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
-    c = _apply_h(H0, np.array([[w / 2, h / 2]]))[0]
+    quad = apply_homography(H0, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
+    c = apply_homography(H0, np.array([[w / 2, h / 2]]))[0]
     if not (np.all(np.isfinite(quad)) and np.all(np.isfinite(c))):
         return Failure("coarse alignment: the start homography is not finite")
     r_in = _inradius(quad, c) / math.sqrt(2.0)  # half-side of a square inside at any rotation
@@ -776,12 +776,6 @@ def map_pixel_aspect(geomap: Any, at_px: np.ndarray | None = None) -> float:
     dx = g.inv(ll[0, 0], ll[0, 1], ll[1, 0], ll[1, 1])[2]
     dy = g.inv(ll[0, 0], ll[0, 1], ll[2, 0], ll[2, 1])[2]
     return float(dy / dx)
-
-
-def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    h = np.hstack([pts, np.ones((len(pts), 1))]) @ H.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return h[:, :2] / h[:, 2:3]
 
 
 def telemetry_map_init(telemetry: Telemetry, frame: Any, geomap: Any, fps: float, *,

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError, InputError, OutputError, install_extra
+from ..types import apply_homography
 from .output import atomic_write
 
 COLUMNS = ("frame", "time_s", "id", "lon", "lat", "x", "y", "crs", "speed_mps", "heading_deg",
@@ -127,12 +128,6 @@ def _rows(arr: Any, name: str) -> np.ndarray:
     return a[:, :10]
 
 
-def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    h = np.hstack([pts, np.ones((len(pts), 1))]) @ H.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return h[:, :2] / h[:, 2:3]
-
-
 def _ordered_rows(rows: Any, predicted: Any, kinds: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """``tracks.csv`` and ``predicted.csv`` rows together, sorted by (id, frame, predicted last),
     with each row's kind (``kinds`` of the in-view rows; ``observed`` where not given)."""
@@ -203,7 +198,7 @@ def local_observation_table(rows: Any, fps: float, metres_per_unit: float, *,
             continue
         H = np.asarray(H, np.float64)
         bx, by, bw, bh = boxes[i]
-        pts = _apply(H, np.array([[bx + bw / 2, by + bh / 2], [bx, by + bh / 2],
+        pts = apply_homography(H, np.array([[bx + bw / 2, by + bh / 2], [bx, by + bh / 2],
                                   [bx + bw, by + bh / 2], [bx + bw / 2, by],
                                   [bx + bw / 2, by + bh]]))
         if not np.isfinite(pts).all():
@@ -315,7 +310,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
     centre = boxes[:, :2] + boxes[:, 2:] / 2
     for i in np.flatnonzero(missing):
         H = homs.get(int(frame[i]))
-        mapxy[i] = geomap.pixel_to_crs(_apply(H, centre[i:i + 1]))[0] if H is not None else np.nan
+        mapxy[i] = geomap.pixel_to_crs(apply_homography(H, centre[i:i + 1]))[0] if H is not None else np.nan
     lonlat = np.full((n, 2), np.nan)
     good = np.isfinite(mapxy).all(axis=1)
     if good.any():
@@ -374,7 +369,7 @@ def observation_table(rows: Any, geomap: Any, fps: float, out_crs: Any = None, *
         if H is not None:
             mids = np.array([[bx, by + bh / 2], [bx + bw, by + bh / 2],
                              [bx + bw / 2, by], [bx + bw / 2, by + bh]])
-            m = geomap.pixel_to_lonlat(_apply(np.asarray(H, np.float64), mids))
+            m = geomap.pixel_to_lonlat(apply_homography(H, mids))
             if np.all(np.isfinite(m)):
                 _, _, d = geod.inv(m[[0, 2], 0], m[[0, 2], 1], m[[1, 3], 0], m[[1, 3], 1])
                 sw, sh = float(d[0]), float(d[1])
