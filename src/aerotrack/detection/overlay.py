@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ConfigError
+
 log = logging.getLogger(__name__)
 
 #: Longest side of the working image (pixels): the test is about edges a few pixels wide.
@@ -93,7 +95,7 @@ class OverlayFinder:
     def __init__(self, fps: float, min_s: float = 1.0, share: float = 0.5,
                  mode: str = "edges") -> None:
         if mode not in ("edges", "all"):
-            raise ValueError(f"overlay mode {mode!r}: expected 'edges' or 'all'")
+            raise ConfigError(f"config detection.overlay_mask {mode!r}: expected 'edges' or 'all'")
         self.mode = mode
         #: Boxes (x, y, w, h, frame pixels) of overlay-like marks away from the frame's edges,
         #: not masked in mode ``edges``.

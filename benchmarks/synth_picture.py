@@ -1,6 +1,6 @@
 """The README's picture of a generated frame with its ground truth.
 
-``python -m aerotrack.synth.picture [OUT.png] [--seed N] [--frame N] [--scenario NAME]`` renders the
+``python benchmarks/synth_picture.py [OUT.png] [--seed N] [--frame N] [--scenario NAME]`` renders the
 scene, stops at the requested frame and draws: visible targets' ground-truth boxes (green, with
 their ids), occluded targets' boxes (orange, thin: in gt.txt they are absent), and the outlines of
 the occluders (tree canopies, overpass) projected into the frame (cyan).
@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .scene import Scenario
+from aerotrack.synth.scene import Scenario
 
 
 def annotate(image: np.ndarray, H: np.ndarray, truth: list[dict], world) -> np.ndarray:
