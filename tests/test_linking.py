@@ -666,6 +666,29 @@ def test_gap_cost_counts_the_seconds_the_prediction_spends_in_view():
     assert cost(1.0, None, None) == pytest.approx(cost(0.0, None, None))
 
 
+@pytest.mark.parametrize("b_start_x", [12.0, 21.5])
+def test_gap_cost_counts_the_seconds_a_returning_target_drove_in_unseen(b_start_x):
+    """A target leaves the frame (x < 22) eastwards and one comes back westwards 1.5 s later:
+    the exit is free, but the second tracklet's start run back reaches the edge only after
+    (22 - x) / 10 m/s in view, which it must have driven unseen; starting at the edge, none."""
+    paths = {1: _line([0, 10], [10, 0], 60), 2: _line([b_start_x, 13.5], [-10, 0], 60)}
+    tl, _ = _tracklets(paths, {1: 1, 2: 106}, {}, {1: [0.4, 0.3, 0.2, 0.1], 2: [0.4, 0.3, 0.2, 0.1]})
+    regs = {f: Registration(index=f, H=np.eye(3)) for f in range(1, 200)}
+
+    def cost(rate, entry):
+        linker = GlobalLinker(LinkingConfig(gap_cost_per_s=rate, gap_cost_entry=entry),
+                              ContextConfig(method="kalman"), FPS, metres_per_unit=1.0)
+        linker.link([Track(0, list(t.points)) for t in tl], frame_size=(22, 100),
+                    registrations=regs)
+        return linker.last_costs[(0, 1)][0]
+
+    base = cost(0.0, True)
+    exit_s = cost(1.0, False) - base  # the exit is free once the prediction left the frame
+    assert exit_s < 0.25
+    unseen_s = (22 - b_start_x) / 10.0
+    assert cost(1.0, True) - base == pytest.approx(max(exit_s, unseen_s), abs=0.1)
+
+
 @pytest.mark.parametrize("split_gap_s", [0.0, 0.2])
 def test_a_track_split_where_its_speed_changed_is_joined_only_as_a_split(split_gap_s):
     """Local association splits a vehicle pulling away where its constant-velocity fit breaks;

@@ -224,6 +224,7 @@ class GlobalLinker:
         n = len(tl)
         self._pred = {}
         self._in_view_cache = {}
+        self._entry_cache: dict[int, int | None] = {}
         self._table = None  # built again for these tracklets by _forward when needed
         self._trimmed = None
         e = self._tracklet_ends(tl)
@@ -280,6 +281,8 @@ class GlobalLinker:
                 gap = int(e.first[b] - e.last[a])
                 if c.gap_cost_per_s > 0 and a in preds and gap > 0:
                     unseen = int(self._in_view(a, preds[a], e.last[a])[min(gap, len(preds[a])) - 1])
+                    if c.gap_cost_entry:
+                        unseen = max(unseen, self._entry_frames(e, b, gap))
                     cost += c.gap_cost_per_s * unseen / self.fps
                 self.last_costs[(a, b)] = (cost, cues)
                 log.debug("linking: %d (ends %d) -> %d (starts %d): cost %.2f, motion %.2f, "
@@ -452,6 +455,40 @@ class GlobalLinker:
             out = np.cumsum(inside)
         cache[(a, len(pred))] = out
         return out
+
+    def _entry_frames(self, e: _Ends, b: int, gap: int) -> int:
+        """Frames tracklet b would have been in view, unseen, on its way in: its start run back
+        at its start velocity until it leaves the frame. 0 when that takes longer than ``gap``
+        (b was in view all along, or its start velocity says little: a vehicle pulling away) or
+        without registrations and frame size.
+
+        A link whose first tracklet left the view and whose second starts inside it claims the
+        target came back in unseen: a candidate that ended at the other edge of the view 4 s
+        earlier beat the tracklet that went under a tree 1 s before b came out of it (generated
+        static:11, a U-turn outside the view against a straight drive under the tree)."""
+        regs, size = self._regs, self._frame_size
+        if not regs or size is None or gap <= 0:
+            return 0
+        cache = self._entry_cache
+        if b not in cache:  # frames back to the first one outside the view, over the longest gap
+            first = int(e.first[b])
+            p0, vb = np.asarray(e.pos[b][1][0], float), np.asarray(e.starts[b][1], float)
+            span = int(round(self.config.max_gap_s * self.fps))
+            ks = [k for k in range(1, span + 1) if first - k in regs]
+            exit_k = None
+            if ks:
+                Hs = np.array([regs[first - k].H for k in ks], dtype=np.float64)
+                w = np.column_stack([p0 - np.outer(ks, vb), np.ones(len(ks))])[:, :, None]
+                q = np.linalg.solve(Hs, w)[:, :, 0]  # world -> frame pixels
+                W, H = size
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+                inside = (q[:, 2] != 0) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
+                out = np.flatnonzero(~inside)
+                exit_k = int(ks[out[0]]) if out.size else None
+            cache[b] = exit_k
+        exit_k = cache[b]
+        return exit_k - 1 if exit_k is not None and exit_k <= gap else 0
 
     def fill_gaps(self, tl: list[Track], links: dict[int, int]) -> dict[int, int]:
         """Links with unlinked tracklets inserted into the gaps of the links they lie on.
