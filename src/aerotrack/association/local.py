@@ -41,7 +41,9 @@ from .posterior import iou_pairs, link_step, partial_candidates, score_matrix
 #: on a generated 1080p scene kept at every 10th / 15th / 30th frame (a probe, 2026-12-03),
 #: HOTA/IDF1 at the default gate 0/0 at 3, 2 and 1 frames/s; with this rule 0.797/0.940,
 #: 0.772/0.930 and 0.512/0.654 (30 frames/s: 0.824/0.948); a fixed 50 gave 2 and 3 frames/s
-#: as much but 1 frame/s nothing. At 10 frames/s and more nothing changes.
+#: as much but 1 frame/s nothing. Six held-out generated scenes (one per scenario) kept at 3 and
+#: 2 frames/s: HOTA/IDF1 0/0 -> 0.652/0.812 and 0.570/0.696 (a fixed 50: 0.636/0.777 and
+#: 0.580/0.738). At 10 frames/s and more nothing changes.
 LOW_RATE_FPS = 10.0
 
 
