@@ -524,17 +524,33 @@ def test_track_bad_input_in_existing_empty_folder_keeps_it_empty(tmp_path, capsy
 def test_track_implausible_detections(tmp_path, capsys, row, frag):
     """Rows no video can have are refused at once (a timestamp used as a frame number made the run
     step through every empty frame up to it)."""
-    from aerotrack.cli.track_cmd import check_detections
     from aerotrack.errors import InputError
-    from aerotrack.io.mot import read_mot
+    from aerotrack.io.mot import check_detections, read_mot
 
     p = tmp_path / "d.txt"
     p.write_text("1,-1,10,10,8,4,0.9\n" + row + "\n")
     with pytest.raises(InputError, match="row 2"):
-        check_detections(read_mot(p, strict=True), p)
+        check_detections(read_mot(p, strict=True), f"--detections {p}")
     if not row.startswith("100000000"):  # the CLI path (the frame case would hang before the fix)
         expect_error(capsys, ["--detections", "line 2", frag], "track", "--detections", p, "--out",
                      tmp_path / "o", out_dir=tmp_path / "o")
+
+
+def test_the_api_checks_detections_as_the_command_line_does(caplog):
+    """The Python API took a timestamp for a frame number and normalised boxes without a word,
+    where --detections refused or warned."""
+    import logging
+
+    from aerotrack.errors import InputError
+    from aerotrack.pipeline import run
+
+    with pytest.raises(InputError, match="detections: row 2 has frame .* beyond any video"):
+        run(detections=np.array([[1, -1, 10, 10, 8, 4, 0.9], [2e9, -1, 10, 10, 8, 4, 0.9]]),
+            fps=30)
+    rows = np.array([[f, -1, 0.1 * f / 40, 0.5, 0.02, 0.01, 0.9] for f in range(1, 41)])
+    with caplog.at_level(logging.WARNING, logger="aerotrack"):
+        run(detections=rows, fps=30)
+    assert "normalised to [0, 1]" in caplog.text
 
 
 def test_track_detections_messages_name_the_file_line(tmp_path, capsys):

@@ -1190,7 +1190,7 @@ def _api_inputs(source, detections, H_init, geomap, fps, min_conf: float = 0.0):
     """The Python API's inputs checked as the command line checks them: paths opened or read,
     arrays of the right shape (one-line :class:`InputError` instead of an error frames deep)."""
     from .io import open_source
-    from .io.mot import read_mot
+    from .io.mot import check_detections, read_mot
 
     if isinstance(source, (str, Path)):
         source = open_source(source, fps)
@@ -1219,10 +1219,9 @@ def _api_inputs(source, detections, H_init, geomap, fps, min_conf: float = 0.0):
         if d.shape[1] < 10:  # conf 1, x, y, z -1, as the file reader fills them
             d = np.hstack([d, np.array([1.0, -1.0, -1.0, -1.0])[d.shape[1] - 6:]
                            * np.ones((len(d), 1))])
-        if len(d) and not (d[:, 6] >= min_conf).any():
-            log.warning("detections: every confidence is below detection.min_conf %g (the "
-                        "highest is %g): nothing to track", min_conf, float(d[:, 6].max()))
         detections = d
+    if detections is not None:  # the command line's checks and warnings (a file's or an array's)
+        check_detections(detections, "detections", source, min_conf=min_conf)
     if H_init is not None:
         try:
             H = np.asarray(H_init, dtype=np.float64)

@@ -121,7 +121,7 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     from ..errors import InputError
     from ..geo import GeoMap, read_map_init
     from ..io import open_source
-    from ..io.mot import read_mot
+    from ..io.mot import check_detections, read_mot
 
     if input_path is None and detections_path is None:
         raise InputError("give INPUT (a video or image folder) or --detections FILE")
@@ -145,7 +145,7 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     if detections_path is not None:
         dets, lines = read_mot(detections_path, option="--detections", strict=True,
                                zero_based=detections_zero_based, detections=True, lines=True)
-        check_detections(dets, detections_path, source, lines=lines,
+        check_detections(dets, f"--detections {detections_path}", source, lines=lines,
                          min_conf=config.detection.min_conf if config is not None else None)
     undistort = None
     if intrinsics_path is not None:
@@ -239,12 +239,6 @@ def warn_memory(source, window_s: float, share: float = 0.5) -> None:
                     w, h, source.fps, window_s, need / 1e9, total / 1e9)
 
 
-#: Frame numbers and coordinates beyond these are not from a video: 10^7 frames is 46 hours at
-#: 60 frames/s (timestamps in milliseconds would pass for frame numbers and make the run step
-#: through billions of empty frames); 10^8 is beyond any image, and beyond the metres of any
-#: projected CRS (boxes in UTM metres are accepted).
-MAX_FRAME = 10_000_000
-MAX_COORD = 1e8
 
 
 def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
@@ -284,92 +278,6 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
                      f"(frame{'s' * (len(rep) != 1)} {shown}): a recorder that dropped frames? "
                      f"The tracker sees each as a stop and then a jump")
     return hints
-
-
-def check_detections(dets, path, source=None, *, lines=None, min_conf: float | None = None
-                     ) -> None:
-    """Refuse ``--detections`` rows no video can have; warn about what is likely a mistake.
-
-    ``dets`` is the (N, >= 7) array of :func:`~aerotrack.io.mot.read_mot` (1-based frames, frame
-    pixels), ``lines`` the file's line number of each row (messages name them; without it, the
-    row's place). Warned: an empty file, rows after the video's end, boxes mostly outside the
-    frame (made on another image size), confidences outside [0, 1] (clipped), the boxes below
-    ``min_conf`` (dropped by the pipeline, ``detection.min_conf``), many low-confidence boxes,
-    tiny normalised boxes, and frame numbers that step by more than 1.
-    """
-    import numpy as np
-
-    from ..errors import InputError
-
-    label = f"--detections {path}"
-    if not len(dets):
-        log.warning("%s: no detections in the file: nothing to track", label)
-        return
-
-    def line(k: int) -> str:
-        return f"line {int(lines[k])}" if lines is not None else f"row {k + 1}"
-
-    bad = (dets[:, 4] <= 0) | (dets[:, 5] <= 0)
-    if bad.any():
-        raise InputError(f"{label}: {line(int(bad.argmax()))} has a zero-size box")
-    bad = dets[:, 0] > MAX_FRAME
-    if bad.any():
-        r = int(bad.argmax())
-        raise InputError(f"{label}: {line(r)} has frame {dets[r, 0]:.0f}, beyond any video "
-                         f"(more than {MAX_FRAME}); frames must be 1-based frame numbers, not times")
-    bad = (np.abs(dets[:, 2:4]) > MAX_COORD).any(axis=1) | (dets[:, 4:6] > MAX_COORD).any(axis=1)
-    if bad.any():
-        r = int(bad.argmax())
-        raise InputError(f"{label}: {line(r)} has a box beyond any image (a coordinate or size "
-                         f"over {MAX_COORD:.0e})")
-    n = len(dets)
-    count = getattr(source, "count", None) if source is not None else None
-    if count:
-        late = dets[:, 0] > count
-        if late.any():
-            log.warning("%s: %d row(s) after the input's last frame %d are ignored "
-                        "(first: %s, frame %d)", label, int(late.sum()), count,
-                        line(int(late.argmax())), int(dets[late.argmax(), 0]))
-    size = getattr(source, "size", None) if source is not None else None
-    if size:
-        w, h = size
-        cx, cy = dets[:, 2] + dets[:, 4] / 2, dets[:, 3] + dets[:, 5] / 2
-        out = (cx < 0) | (cx > w) | (cy < 0) | (cy > h)
-        if out.mean() > 0.05:
-            log.warning("%s: %d of %d boxes (%.0f%%) have their centre outside the %dx%d frame "
-                        "(first: %s): made on another image size, or another video?", label,
-                        int(out.sum()), n, 100 * out.mean(), w, h, line(int(out.argmax())))
-    conf = dets[:, 6]
-    outside = (conf < 0) | (conf > 1)
-    if outside.any():
-        log.warning("%s: %d confidence(s) outside [0, 1] (from %g to %g; first: %s) are clipped "
-                    "to it", label, int(outside.sum()), float(conf.min()), float(conf.max()),
-                    line(int(outside.argmax())))
-    conf = np.clip(conf, 0.0, 1.0)
-    if min_conf is not None and min_conf > 0:
-        low = conf < min_conf
-        if low.all():
-            log.warning("%s: every box's confidence is below detection.min_conf %g (--min-conf): "
-                        "nothing is tracked", label, min_conf)
-        elif low.any():
-            log.info("%s: %d of %d boxes have a confidence below detection.min_conf %g "
-                     "(--min-conf) and are dropped", label, int(low.sum()), n, min_conf)
-        conf = conf[~low]
-    if len(conf) and np.mean(conf < 0.25) > 0.2:
-        log.warning("%s: %.0f%% of the boxes kept have a confidence below 0.25; each is tracked "
-                    "like any other (false alarms become tracks): --min-conf drops them",
-                    label, 100 * np.mean(conf < 0.25))
-    if np.median(np.maximum(dets[:, 4], dets[:, 5])) < 1.0:
-        log.warning("%s: the boxes are under a pixel (median longer side %.3g): coordinates "
-                    "normalised to [0, 1]? aerotrack needs frame pixels", label,
-                    float(np.median(np.maximum(dets[:, 4], dets[:, 5]))))
-    frames = np.unique(dets[:, 0].astype(np.int64))
-    if len(frames) >= 10:
-        step = int(np.gcd.reduce(np.diff(frames)))
-        if step > 1:
-            log.warning("%s: every frame number is %d apart from the next: detections on one "
-                        "frame in %d only, or times instead of frame numbers? (frames are 1-based "
-                        "frame numbers; frames between are bridged or missed)", label, step, step)
 
 
 def _check_overlap(size, H_init, geomap, init_label) -> None:
