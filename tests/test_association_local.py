@@ -743,3 +743,26 @@ def test_vehicles_filmed_at_wide_area_rates_become_tracklets(fps):
     assert ids == [[1], [2], [3]]
     assert sum(len(t.points) for t in out) >= 3 * (n - 2)
     assert LocalAssociator(AssociationConfig(), 10.0).gate2 == AssociationConfig().gate_chi2
+
+
+def test_every_fifteenth_frame_of_a_video_becomes_tracklets():
+    """--stride 15 on a 30 frames/s video: the gate follows the 2 frames/s processed (no track
+    was born: the gate was the one for 30)."""
+    rng = np.random.default_rng(4)
+    step, n = 15, 16
+    frames, truth = [], []
+    paths = [(0, 0, 12, 0), (0, 20, 9, 2), (80, 40, -10, 0)]
+    for k in range(n):
+        f = 1 + k * step
+        w = np.array([(x0 + vx * (f - 1) / 30 + rng.normal(0, 0.3),
+                       y0 + vy * (f - 1) / 30 + rng.normal(0, 0.3)) for x0, y0, vx, vy in paths])
+        sz = np.tile((4.5, 2.0), (3, 1))
+        frames.append(Detections(frame=f, boxes=np.column_stack([w - sz / 2, sz]),
+                                 conf=np.ones(3), world=w, size_world=sz))
+        truth.append(np.array([1, 2, 3]))
+    la = LocalAssociator(AssociationConfig(), 30.0, metres_per_unit=1.0, seed=0)
+    la.set_frame_step(step)
+    out = [t for d in frames for t in la.step(d)] + la.flush()
+    ids = sorted(sorted({int(truth[(p.frame - 1) // step][p.det_index]) for p in t.points
+                         if p.kind == "observed"}) for t in out)
+    assert ids == [[1], [2], [3]]

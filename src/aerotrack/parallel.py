@@ -465,6 +465,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
                     detections=per_frame,
                     metres_per_unit=None if geomap is not None else task.metres_per_unit,
                     undistort=task.undistort, regions=task.regions, stabilised=task.stabilised)
+    if task.stride > 1 and pipe.associator is not None:
+        pipe.associator.set_frame_step(task.stride)
     if pipe.follower is not None:
         pipe.follower.count_frames = (seg.own_start, seg.own_stop)
     if task.input_path is None:

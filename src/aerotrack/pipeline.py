@@ -991,6 +991,8 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                     metres_per_unit=metres_per_unit, checkpoint_dir=checkpoint_dir,
                     checkpoint_every=checkpoint_every, undistort=undistort, regions=regions,
                     min_speed_mps=min_speed_mps, roads=roads, stabilised=stabilised)
+    if stride > 1 and pipe.associator is not None:
+        pipe.associator.set_frame_step(stride)
     if resume and checkpoint_dir is not None:
         restart = pipe.restore(source)
         if restart > start:

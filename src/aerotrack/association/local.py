@@ -139,6 +139,14 @@ class LocalAssociator:
         self.next_id = 1
         self.stats = {"frames": 0, "mcmc_iters": 0}
 
+    def set_frame_step(self, step: int) -> None:
+        """Frames come every ``step``-th (``--stride``): the link gate follows the rate actually
+        processed, ``fps / step`` (:data:`LOW_RATE_FPS`; at ``--stride 15`` on a 30 frames/s
+        video no track was born). Call before the first detections."""
+        if self.sampler is not None:
+            raise RuntimeError("set_frame_step: association has already started")
+        self.gate2 = self.config.gate_chi2 * max(1.0, LOW_RATE_FPS * max(1, int(step)) / self.fps)
+
     # ------------------------------------------------------------------ setup
     def _start(self, det: Detections) -> None:
         if not len(det):
