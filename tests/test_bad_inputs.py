@@ -1111,6 +1111,8 @@ def test_an_unreadable_image_mid_folder_is_skipped(tmp_path, capsys):
     assert "0006.png: empty file (0 bytes); frame 6 skipped" in err
     regs = (tmp_path / "o" / "registration.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in regs] == [1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 12]
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["skipped_frames"] == [6]  # it was only in the log
 
 
 def test_frames_too_big_for_memory_are_named(tmp_path, capsys, monkeypatch):

@@ -606,6 +606,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             log.warning(hint)
         if hints:
             notes = {**notes, "hints": hints}
+        skipped = sorted(getattr(source, "skipped_frames", None) or ())
+        if skipped:  # unreadable images of a folder (in this process: not a --workers run's)
+            notes = {**notes, "skipped_frames": skipped}
         info = {
             # absolute, so that --from, render and report find them from any folder
             "input": where(input_path),

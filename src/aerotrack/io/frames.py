@@ -321,6 +321,8 @@ class ImageFolderSource(FrameSource):
             stems[key] = f
         #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
         self.depth_range: tuple[float, float] | None = None
+        #: Frames whose image could not be decoded (skipped with a warning), for summary.json.
+        self.skipped_frames: set[int] = set()
         self._warned: set[Path] = set()  # truncated JPEGs already reported
         raw = self._decode(self.files[0])
         #: whether images carry an alpha channel (transparent pixels read black)
@@ -417,6 +419,7 @@ class ImageFolderSource(FrameSource):
             try:
                 img = self._read(p)
             except UnreadableImage as exc:  # one bad file must not end a long run
+                self.skipped_frames.add(index)
                 if p not in _SKIPPED:  # once per file, however often the folder is read
                     _SKIPPED.add(p)
                     logging.getLogger(__name__).warning("%s; frame %d skipped", exc, index)
