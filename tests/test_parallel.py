@@ -569,7 +569,11 @@ def test_ctrl_c_stops_a_workers_batch_between_inputs(tmp_path):
     assert "once the input being joined is written" in rest and "Traceback" not in rest, rest
     assert "finished inputs are kept" in rest, rest
     finished = [d.name for d in sorted(out.iterdir()) if (d / "summary.json").is_file()]
-    assert 2 <= len(finished) < 5, (finished, err + rest)  # and the one being joined then
+    # the first input and the one being joined then, if any: on a loaded machine the next
+    # input's segments may still be on the workers when Ctrl-C comes (a flaky 2 <= ... here)
+    assert 1 <= len(finished) < 5, (finished, err + rest)
+    assert not any((d / "tracks.csv").exists() for d in out.iterdir()
+                   if d.is_dir() and d.name not in finished)  # nothing half-written
     again = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count("already finished, skipped") == len(finished), again.stderr
