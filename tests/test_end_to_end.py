@@ -277,3 +277,17 @@ def test_clips_too_short_or_with_repeated_frames_are_pointed_out(scene, tmp_path
     code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o4",
                            "--stride", "5")
     assert code == 0 and "the clip" not in err, err
+
+
+def test_track_from_a_stride_run_associates_on_its_grid(scene, tmp_path):
+    """``track --from`` of a ``--stride 6`` run (5 frames/s processed of 30) re-ran association
+    with the link gate of 30 frames/s, so the same stages gave other tracks (at ``--stride 15``
+    none at all): the cached frames' spacing now gives the stride back."""
+    first = tmp_path / "strided"
+    main(["-q", "track", str(scene / "frames"), "--out", str(first), "--map",
+          str(scene / "map.tif"), "--map-init", str(scene / "map_init.txt"), "--stride", "6"])
+    again = tmp_path / "again"
+    main(["-q", "track", "--from", str(first), "--out", str(again)])
+    rows = io.read_mot(first / "tracks.csv")
+    assert len(rows)
+    assert (again / "tracks.csv").read_text() == (first / "tracks.csv").read_text()

@@ -1170,6 +1170,11 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
     frames = sorted({*regs, *(d.frame for d in dets)})
     if frames:
         pipe.first_frame, pipe.last_frame, pipe.n_frames = frames[0], frames[-1], len(frames)
+    # a --stride run cached every stride-th frame: association runs on that grid again (it ran
+    # as if at every frame with the skipped ones missed, and --stride 15 gave no track at all)
+    stride = int(np.gcd.reduce(np.diff(frames))) if len(frames) > 1 else 1
+    if stride > 1 and pipe.associator is not None:
+        pipe.associator.set_frame_step(stride)
     pipe._associate(sorted(dets, key=lambda d: d.frame))
     return pipe.finish()
 
