@@ -1374,3 +1374,24 @@ def test_ctrl_c_while_the_cli_loads_is_quiet(monkeypatch, capsys):
     with pytest.raises(SystemExit) as exc:
         run()
     assert exc.value.code == 130 and capsys.readouterr().err == "aerotrack: interrupted\n"
+
+
+@pytest.mark.parametrize("setting, fragments", [
+    ("detection.model_scale=0", ["detection.model_scale", "must be in (0, 1]", "got 0.0"]),
+    ("detection.shadow_beta=1.5", ["detection.shadow_beta", "must be in [0, 1]", "got 1.5"]),
+    ("detection.sample_every_s=100", ["detection.sample_every_s", "at most detection.window_s"]),
+    ("detection.persist_conf=2", ["detection.persist_conf", "must be in [0, 1]"]),
+    ("linking.duplicate_overlap=7", ["linking.duplicate_overlap", "must be in [0, 1]"]),
+    ("linking.rounds=0", ["linking.rounds", "must be >= 1"]),
+])
+def test_out_of_range_settings_name_their_range_even_with_external_detections(
+        capsys, tmp_path, setting, fragments):
+    """An out-of-range setting said "out of range (0.0)" without the range; a bad shadow_beta was
+    reported as shadow_alpha; detection settings went unchecked with --detections (and with
+    persistence off), so the run's config.toml failed when given to a video run; an overlap
+    fraction of 7 and 0 linking rounds were taken."""
+    dets = tmp_path / "dets.txt"
+    dets.write_text("".join(f"{f},-1,{10 + 3 * f},20,12,6,0.9,-1,-1,-1\n" for f in range(1, 30)))
+    out = tmp_path / "out"
+    expect_error(capsys, fragments, "track", "--detections", dets, "--out", out,
+                 "--set", setting, out_dir=out)

@@ -741,7 +741,10 @@ class AssociationConfig:
         delays output and costs time.
     max_speed_mps : float
         Maximum target speed in metres per second: the graph's edges (eq. 3) join observations no
-        farther apart than this times their time gap. In image coordinates it must also cover the
+        farther apart than this times their time gap plus a quarter of the box's width + height
+        (``posterior.py``: the detector's box jitter, which at 30 frames/s is most of an edge's
+        reach, so a very low value does not stop a car). It is a reach, not a speed limit; the
+        Kalman gate (``gate_chi2``) decides a link. In image coordinates it must also cover the
         camera's apparent motion.
     max_gap_s : float
         Longest run of missed detections a tracklet may bridge (an edge's largest time gap). Longer
@@ -1401,8 +1404,10 @@ class ContextConfig:
         1.37 -> 1.27 m (0.63x -> 0.61x the Kalman filter); SDD, ETH/UCY, the identity benchmark
         (seeds 0-2), Santiago and UAVDT unchanged (to 0.001).
     image_object_size_m : float
-        ``aerotrack predict`` on image coordinates with no ``--gsd``: the median box's longer side
-        is taken to be this many metres (a car), which sets the scale of the metre-based settings.
+        With no map and no ``--gsd`` (``aerotrack track`` and ``aerotrack predict`` on image
+        coordinates): the median box's longer side is taken to be this many metres (a car), which
+        sets the scale of linking's and finishing's metre-based settings (a too-small value
+        makes every vehicle "too small" for ``finish.min_size_estimated_m``: no track).
     roads_snap_m : float
         ``context`` with a road network (``--roads``): centre-line ends and crossings closer than
         this become one junction (:class:`~aerotrack.context.roads.RoadNetwork`). Larger joins
@@ -1836,6 +1841,27 @@ def _coerce(section: str, key: str, value: Any, typ: Any) -> Any:
     return value
 
 
+def check_range(where: str, value: float, lo: float | None = None, hi: float | None = None,
+                lo_open: bool = False, hi_open: bool = False, hi_name: str | None = None) -> None:
+    """Raise :class:`ConfigError` ``config WHERE: must be ... , got VALUE`` unless ``value`` lies
+    between ``lo`` and ``hi`` (excluded when ``*_open``; None: no bound). ``hi_name``: the setting
+    ``hi`` comes from, named in the message."""
+    ok = ((lo is None or (value > lo if lo_open else value >= lo))
+          and (hi is None or (value < hi if hi_open else value <= hi)))
+    if ok:
+        return
+    if hi_name is not None:
+        want = (f"{'>' if lo_open else '>='} {lo:g} and " if lo is not None else "") + \
+            f"{'below' if hi_open else 'at most'} {hi_name} ({hi:g})"
+    elif hi is None:
+        want = f"{'>' if lo_open else '>='} {lo:g}"
+    elif lo is None:
+        want = f"{'<' if hi_open else '<='} {hi:g}"
+    else:
+        want = f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+    raise ConfigError(f"config {where}: must be {want}, got {value!r}")
+
+
 def config_from_dict(data: dict[str, Any]) -> Config:
     """Build a :class:`Config` from nested tables, rejecting unknown sections and keys."""
     sections = _section_types()
@@ -1952,6 +1978,62 @@ def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str
             value = raw.strip()
         data.setdefault(section, {})[name] = value
     return config_from_dict(data)
+
+
+def given_settings(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()
+                   ) -> set[str]:
+    """The ``section.key`` names ``--set`` overrides give, and those a config file sets to other
+    than the default (a run's own config.toml lists every setting), for :func:`unused_settings`.
+    Call after :func:`load_config` of the same arguments has accepted them."""
+    out = set()
+    if path is not None:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
+        defaults = config_to_dict(Config())
+        for section, table in data.items():
+            if isinstance(table, dict):
+                out |= {f"{section}.{k}" for k, v in table.items()
+                        if defaults.get(section, {}).get(k) != (
+                            tuple(v) if isinstance(v, list) else v)}
+    for item in overrides:
+        out.add(item.partition("=")[0].strip())
+    return out
+
+
+#: detection settings used only without a metric scale (a map or --gsd), and only with one
+PIXEL_ONLY = {"min_area_px": "min_area_m2", "max_length_px": "max_length_m",
+              "min_width_px": "min_width_m", "persist_max_speed_px_s": "persist_max_speed_mps",
+              "persist_max_length_px": "persist_max_length_m"}
+METRIC_ONLY = {**{m: p for p, m in PIXEL_ONLY.items()}, "close_m": "close_px",
+               "join_gap_m": "join_gap_px", "model_pixel_max_m": "model_scale"}
+
+
+def unused_settings(given: set[str], config: Config, *, metric_scale: bool,
+                    detector: bool = True) -> list[str]:
+    """Why settings the user gave (``given``, :func:`given_settings`) change nothing in this run:
+    a pixel gate with a map or ``--gsd`` (the metre one applies) and the reverse, detection
+    settings with external detections, ``association.max_gap_s`` beyond the window it is capped
+    by. A probe set ``detection.min_area_px=100000`` with a map and got the same detections,
+    without a word."""
+    out = []
+    scale = "with a map or --gsd" if metric_scale else "without a map or --gsd"
+    for name in sorted(given):
+        section, _, key = name.partition(".")
+        if section != "detection":
+            continue
+        if not detector and key not in ("min_conf",):
+            out.append(f"{name}: not used with --detections (only detection.min_conf applies to "
+                       "external detections)")
+        elif detector and metric_scale and key in PIXEL_ONLY:
+            out.append(f"{name}: not used {scale}: detection.{PIXEL_ONLY[key]} applies")
+        elif detector and not metric_scale and key in METRIC_ONLY:
+            out.append(f"{name}: not used {scale}: detection.{METRIC_ONLY[key]} applies")
+    a = config.association
+    if a.max_gap_s >= a.window_s and ("association.max_gap_s" in given
+                                      or "association.window_s" in given):
+        out.append(f"association.max_gap_s {a.max_gap_s:g}: capped at association.window_s "
+                   f"({a.window_s:g} s) less a frame; longer gaps are linking's "
+                   "(linking.max_gap_s)")
+    return out
 
 
 def _toml_value(v: Any) -> str:

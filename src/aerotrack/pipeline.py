@@ -769,17 +769,18 @@ class _Ended:
         raise StageError("Pipeline.step after finish_local/finish: the stream has ended")
 
 
-def check_config(config: Config, fps: float | None = None, *, detector: bool = True) -> None:
+def check_config(config: Config, fps: float | None = None) -> None:
     """Raise :class:`~aerotrack.errors.ConfigError` naming the first out-of-range setting of any
     stage. The command line calls it before it touches an output folder: the registrar and the
     detector are otherwise built at the first frame, and ``--overwrite`` had by then emptied the
-    folder of the results it was asked to replace. ``detector`` False: external detections."""
+    folder of the results it was asked to replace."""
     from .detection.detector import check_config as check_detection
     from .registration.registrar import check_config as check_registration
 
     check_registration(config.registration)
-    if detector:
-        check_detection(config.detection)
+    # external detections (``detector`` False) use detection.min_conf alone, but a config.toml
+    # written with out-of-range detection settings failed only when given to a video run
+    check_detection(config.detection)
     Pipeline(config, fps or 30.0, spill=False)  # association, following, linking, finishing
 
 

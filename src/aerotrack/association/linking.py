@@ -38,7 +38,7 @@ import logging
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ..config import ContextConfig, LinkingConfig
+from ..config import ContextConfig, LinkingConfig, check_range
 from ..context.appearance import (
     AppearanceContext,
     TrackletDescriptor,
@@ -114,8 +114,10 @@ class GlobalLinker:
         if not fps or fps <= 0:
             raise ConfigError(f"fps must be positive, got {fps}")
         if self.config.partial_model not in PARTIAL_MODELS:
-            raise ConfigError(f"linking.partial_model: unknown {self.config.partial_model!r}; "
-                              f"one of {', '.join(PARTIAL_MODELS)}")
+            raise ConfigError(f"config linking.partial_model: unknown "
+                              f"{self.config.partial_model!r}; one of {', '.join(PARTIAL_MODELS)}")
+        check_range("linking.duplicate_overlap", self.config.duplicate_overlap, 0, 1)
+        check_range("linking.rounds", self.config.rounds, 1)
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0

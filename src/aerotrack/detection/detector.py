@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..config import DetectionConfig
+from ..config import DetectionConfig, check_range
 from ..errors import ConfigError
 from ..types import Detections, Frame, Registration, apply_homography, local_scale, local_scales
 from .appearance import colour_histogram, ring_descriptor
@@ -768,41 +768,39 @@ class MovingObjectDetector:
 
 
 def check_config(c: DetectionConfig) -> None:
-    """Raise :class:`ConfigError` naming the first out-of-range detection parameter."""
-    checks = [
-        ("window_s", c.window_s > 0), ("sample_every_s", c.sample_every_s > 0),
-        ("update_every_s", c.update_every_s > 0), ("model_scale", 0 < c.model_scale <= 1),
-        ("min_valid_samples", c.min_valid_samples >= 1), ("threshold_sigma", c.threshold_sigma >= 0),
-        ("min_threshold", 0 <= c.min_threshold < 255), ("seed_ratio", c.seed_ratio >= 1),
-        ("seed_sigma", c.seed_sigma >= 0),
-        ("gain_block_px", c.gain_block_px >= 0), ("close_m", c.close_m >= 0),
-        ("exposure_tolerance", c.exposure_tolerance >= 0),
-        ("close_px", c.close_px >= 0), ("close_resolved_px", c.close_resolved_px >= 0),
-        ("min_area_m2", c.min_area_m2 >= 0),
-        ("min_area_px", c.min_area_px >= 0), ("max_length_m", c.max_length_m > 0),
-        ("max_length_px", c.max_length_px > 0), ("min_width_m", c.min_width_m >= 0),
-        ("min_width_px", c.min_width_px >= 0),
-        ("pixel_gates_reference_px", c.pixel_gates_reference_px >= 0),
-        ("shadow_alpha", 0 <= c.shadow_alpha <= c.shadow_beta <= 1),
-        ("shadow_trim_share", 0 < c.shadow_trim_share <= 1),
-        ("shadow_trim_pool_s", c.shadow_trim_pool_s >= 0),
-        ("structure_ncc", 0 <= c.structure_ncc <= 1),
-        ("shadow_chroma_px", c.shadow_chroma_px >= 0),
-        ("max_hold_s", c.max_hold_s >= 0), ("stationary_lag_s", c.stationary_lag_s > 0),
-        ("min_conf", 0 <= c.min_conf <= 1),
-        ("protect_changed", 0 <= c.protect_changed <= 1), ("ghost_part_ratio", c.ghost_part_ratio >= 0),
-        ("stopping_share", 0 <= c.stopping_share <= 1),
-        ("stopping_outline_ratio", c.stopping_outline_ratio >= 0),
-        ("stopping_halfway_share", 0 <= c.stopping_halfway_share <= 1),
-        ("drop_small_ratio", c.drop_small_ratio >= 0), ("drop_small_near", c.drop_small_near >= 0),
-        ("regrow_ratio", 0 <= c.regrow_ratio < 1), ("regrow_ghost_ratio", c.regrow_ghost_ratio >= 0),
-        ("join_cab_ratio", c.join_cab_ratio >= 0), ("split_full_ratio", c.split_full_ratio >= 0),
-        ("split_colour_dist", c.split_colour_dist >= 0),
-        ("box_edge_level", 0 <= c.box_edge_level < 1),
+    """Raise :class:`ConfigError` naming the first out-of-range detection parameter and its
+    valid range (it said only "out of range (0.0)", and a bad ``shadow_beta`` was reported as
+    ``shadow_alpha`` with the latter's value)."""
+    # name, low, high, low excluded, high excluded (None: no bound)
+    ranges = [
+        ("window_s", 0, None, True, False), ("sample_every_s", 0, c.window_s, True, False),
+        ("update_every_s", 0, None, True, False), ("model_scale", 0, 1, True, False),
+        ("min_valid_samples", 1, None, False, False), ("threshold_sigma", 0, None, False, False),
+        ("min_threshold", 0, 255, False, True), ("seed_ratio", 1, None, False, False),
+        ("seed_sigma", 0, None, False, False), ("gain_block_px", 0, None, False, False),
+        ("close_m", 0, None, False, False), ("exposure_tolerance", 0, None, False, False),
+        ("close_px", 0, None, False, False), ("close_resolved_px", 0, None, False, False),
+        ("min_area_m2", 0, None, False, False), ("min_area_px", 0, None, False, False),
+        ("max_length_m", 0, None, True, False), ("max_length_px", 0, None, True, False),
+        ("min_width_m", 0, None, False, False), ("min_width_px", 0, None, False, False),
+        ("pixel_gates_reference_px", 0, None, False, False),
+        ("shadow_beta", 0, 1, False, False), ("shadow_alpha", 0, c.shadow_beta, False, False),
+        ("shadow_trim_share", 0, 1, True, False), ("shadow_trim_pool_s", 0, None, False, False),
+        ("structure_ncc", 0, 1, False, False), ("shadow_chroma_px", 0, None, False, False),
+        ("max_hold_s", 0, None, False, False), ("stationary_lag_s", 0, None, True, False),
+        ("min_conf", 0, 1, False, False), ("protect_changed", 0, 1, False, False),
+        ("ghost_part_ratio", 0, None, False, False), ("stopping_share", 0, 1, False, False),
+        ("stopping_outline_ratio", 0, None, False, False),
+        ("stopping_halfway_share", 0, 1, False, False), ("drop_small_ratio", 0, None, False, False),
+        ("drop_small_near", 0, None, False, False), ("regrow_ratio", 0, 1, False, True),
+        ("regrow_ghost_ratio", 0, None, False, False), ("join_cab_ratio", 0, None, False, False),
+        ("split_full_ratio", 0, None, False, False), ("split_colour_dist", 0, None, False, False),
+        ("box_edge_level", 0, 1, False, True),
     ]
-    for name, ok in checks:
-        if not ok:
-            raise ConfigError(f"config detection.{name}: out of range ({getattr(c, name)!r})")
+    for name, lo, hi, lo_open, hi_open in ranges:
+        bound = {"sample_every_s": "window_s", "shadow_alpha": "shadow_beta"}.get(name)
+        check_range(f"detection.{name}", getattr(c, name), lo, hi, lo_open, hi_open,
+                    hi_name=f"detection.{bound}" if bound else None)
     if c.overlay_mask not in ("edges", "all", "off"):
         raise ConfigError(f"config detection.overlay_mask: expected edges, all or off, got "
                           f"{c.overlay_mask!r}")
@@ -810,5 +808,4 @@ def check_config(c: DetectionConfig) -> None:
                            ("overlay_share", 0 < c.overlay_share <= 1, "in (0, 1]")):
         if not ok:
             raise ConfigError(f"config detection.{name}: must be {want}, got {getattr(c, name)!r}")
-    if c.persist:
-        check_persistence(c)
+    check_persistence(c)  # off by default, but a file with bad values fails when turned on

@@ -116,8 +116,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..config import DetectionConfig
-from ..errors import ConfigError
+from ..config import DetectionConfig, check_range
 from ..types import apply_homography
 from .background import to_cv_homography, warp
 
@@ -502,27 +501,29 @@ def _world_per_px(H: np.ndarray, shape: tuple[int, int], scale: float) -> float:
 
 def validate(c: DetectionConfig) -> None:
     """Raise :class:`ConfigError` naming the first ``persist_*`` option out of range."""
-    checks = [
-        ("persist_tau_s", c.persist_tau_s > 0), ("persist_window_s", c.persist_window_s >= 0),
-        ("persist_min_support", 0 <= c.persist_min_support <= 1),
-        ("persist_max_speed_mps", c.persist_max_speed_mps >= 0),
-        ("persist_max_speed_px_s", c.persist_max_speed_px_s >= 0),
-        ("persist_max_length_m", c.persist_max_length_m > 0),
-        ("persist_max_length_px", c.persist_max_length_px > 0),
-        ("persist_threshold", c.persist_threshold > 0),
-        ("persist_min_evidence", c.persist_min_evidence >= 0),
-        ("persist_cap", c.persist_cap > 0), ("persist_blur_px", c.persist_blur_px >= 0),
-        ("persist_noise_block_px", c.persist_noise_block_px >= 0),
-        ("persist_box_ratio", 0 < c.persist_box_ratio <= 1),
-        ("persist_exclude_px", c.persist_exclude_px >= 0),
-        ("persist_exclude_length", c.persist_exclude_length >= 0),
-        ("persist_max_per_frame", c.persist_max_per_frame >= 0),
-        ("persist_conf", 0 <= c.persist_conf <= 1),
-        ("persist_noise_ratio", c.persist_noise_ratio >= 0),
-        ("persist_support_level", 0 < c.persist_support_level <= 1),
-        ("persist_min_area_ratio", c.persist_min_area_ratio >= 0),
-        ("persist_typical_s", c.persist_typical_s > 0), ("persist_edge_px", c.persist_edge_px >= 0),
+    ranges = [  # name, low, high, low excluded, high excluded (None: no bound)
+        ("persist_tau_s", 0, None, True, False),
+        ("persist_window_s", 0, None, False, False),
+        ("persist_min_support", 0, 1, False, False),
+        ("persist_max_speed_mps", 0, None, False, False),
+        ("persist_max_speed_px_s", 0, None, False, False),
+        ("persist_max_length_m", 0, None, True, False),
+        ("persist_max_length_px", 0, None, True, False),
+        ("persist_threshold", 0, None, True, False),
+        ("persist_min_evidence", 0, None, False, False),
+        ("persist_cap", 0, None, True, False),
+        ("persist_blur_px", 0, None, False, False),
+        ("persist_noise_block_px", 0, None, False, False),
+        ("persist_box_ratio", 0, 1, True, False),
+        ("persist_exclude_px", 0, None, False, False),
+        ("persist_exclude_length", 0, None, False, False),
+        ("persist_max_per_frame", 0, None, False, False),
+        ("persist_conf", 0, 1, False, False),
+        ("persist_noise_ratio", 0, None, False, False),
+        ("persist_support_level", 0, 1, True, False),
+        ("persist_min_area_ratio", 0, None, False, False),
+        ("persist_typical_s", 0, None, True, False),
+        ("persist_edge_px", 0, None, False, False),
     ]
-    for name, ok in checks:
-        if not ok:
-            raise ConfigError(f"config detection.{name}: out of range ({getattr(c, name)!r})")
+    for name, lo, hi, lo_open, hi_open in ranges:
+        check_range(f"detection.{name}", getattr(c, name), lo, hi, lo_open, hi_open)
