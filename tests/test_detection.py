@@ -898,3 +898,27 @@ def test_a_run_that_finds_almost_nothing_hints_at_the_scale():
     hint = small_vehicles_hint([], (160, 120), DetectionConfig(), n_frames=100)
     assert hint and "0 vehicles tracked in 100 frames" in hint and "--gsd" in hint
     assert small_vehicles_hint([], (160, 120), DetectionConfig(), n_frames=20) is None
+
+
+def test_an_oblique_view_is_named_from_the_detections_sizes():
+    """Near vehicles twice the size of far ones (a tilted camera) are not modelled: the run says
+    so; detections of one size across the frame (nadir) get no hint."""
+    from aerotrack.detection.moving import oblique_hint
+    from aerotrack.types import Detections
+
+    rng = np.random.default_rng(0)
+
+    def frames(grow: float, gsd=None):
+        out = []
+        for f in range(1, 41):
+            y = rng.uniform(0, 1000, 6)
+            side = 20 * (1 + (grow - 1) * y / 1000) * rng.uniform(0.8, 1.2, 6)
+            boxes = np.column_stack([rng.uniform(0, 1800, 6), y - side / 2, side * 1.6, side / 1.6])
+            out.append(Detections(frame=f, boxes=boxes, conf=np.ones(6), world=boxes[:, :2]))
+        return oblique_hint(out, gsd)
+
+    assert frames(1.0) is None
+    hint = frames(2.2)
+    assert hint and "bottom of the frame" in hint and "split_blobs=false" in hint
+    assert "--gsd" not in hint and "--gsd" in frames(2.2, gsd=0.1)
+    assert frames(1 / 2.2).startswith("vehicles near the top")

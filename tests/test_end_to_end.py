@@ -291,3 +291,41 @@ def test_track_from_a_stride_run_associates_on_its_grid(scene, tmp_path):
     rows = io.read_mot(first / "tracks.csv")
     assert len(rows)
     assert (again / "tracks.csv").read_text() == (first / "tracks.csv").read_text()
+
+
+def test_settings_that_change_nothing_are_named_and_the_files_record_what_ran(
+        scene, tmp_path, capsys):
+    """A config power user's probe: ``detection.min_area_px=100000`` with a map gave the same
+    detections without a word (the metre gate applies), ``association.max_gap_s=60`` the same
+    tracks (capped by the window), ``--min-conf`` silently beat ``detection.min_conf``;
+    ``track --from`` wrote into config.toml detection settings it had not used; and
+    ``--frames``/``--stride``/``--map-init`` were in no file a user reads."""
+    from conftest import run_cli
+
+    from aerotrack.config import Config, dumps_config, load_config
+
+    out = tmp_path / "run"
+    common = [scene / "frames", "--map", scene / "map.tif", "--map-init",
+              scene / "map_init.txt", "--frames", "1:40", "--stride", "2"]
+    code, _, err = run_cli(capsys, "track", *common, "--out", out,
+                           "--set", "detection.min_area_px=100000",
+                           "--set", "association.max_gap_s=60",
+                           "--min-conf", "0.3", "--set", "detection.min_conf=0.7")
+    assert code == 0, err
+    assert "detection.min_area_px: not used with a map or --gsd: detection.min_area_m2" in err
+    assert "association.max_gap_s 60: capped at association.window_s" in err
+    assert "--min-conf 0.3: used instead of detection.min_conf 0.7" in err
+    options = json.loads((out / "summary.json").read_text())["options"]
+    assert options["frames"] == [1, 40] and options["stride"] == 2
+    assert options["map_init"] == str((scene / "map_init.txt").resolve())
+    # a full config.toml (as every run writes) warns only of what it changes from the defaults
+    full = tmp_path / "full.toml"
+    full.write_text(dumps_config(Config()).replace("max_gap_s = 1.2\n", "max_gap_s = 9.0\n", 1))
+    code, _, err = run_cli(capsys, "track", *common, "--out", tmp_path / "again", "--config", full)
+    assert code == 0 and "not used" not in err and "max_gap_s 9: capped" in err, err
+    # --from records the detection settings that made its stages, not the ignored override
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "from",
+                           "--set", "detection.threshold_sigma=30")
+    assert code == 0 and "detection.threshold_sigma differs" in err, err
+    written = load_config(tmp_path / "from" / "config.toml")
+    assert written.detection == load_config(out / "config.toml").detection

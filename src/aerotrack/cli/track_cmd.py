@@ -451,15 +451,20 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     finish.static_extent_m, wander_extent_m, min_size_m and min_size_estimated_m set to 0
     keep pedestrians and objects that linger; detection.causal=true for live use.
     """
-    from ..config import dumps_config, load_config
+    from ..config import dumps_config, given_settings, load_config, unused_settings
     from ..errors import InputError
     from ..io.output import OutputDir
     from ..outputs import write_outputs
     from ..pipeline import check_config, run
 
+    given_config = load_config(config_path, overrides)
+    given = given_settings(config_path, overrides)
     if min_conf is not None:
         if not 0.0 <= min_conf <= 1.0:
             raise InputError(f"--min-conf {min_conf}: must be a confidence between 0 and 1")
+        if "detection.min_conf" in given and given_config.detection.min_conf != min_conf:
+            log.warning("--min-conf %g: used instead of detection.min_conf %g from --config/--set "
+                        "(an option beats the config)", min_conf, given_config.detection.min_conf)
         overrides = (*overrides, f"detection.min_conf={min_conf!r}")
     config = load_config(config_path, overrides)
     if resume and overwrite:
@@ -512,7 +517,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     start_time = parse_start_time(start_time, geomap)
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     check_frame_range(frame_range, start, last, stop)
-    check_config(config, fps, detector=dets is None)  # before --out is touched
+    check_config(config, fps)  # before --out is touched
+    for why in unused_settings(given, config, metric_scale=geomap is not None or gsd is not None,
+                               detector=dets is None):
+        log.warning("%s", why)
     if scheduler is not None:
         from ..parallel import check_scheduler
 
@@ -601,6 +609,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
 
             hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
                                              result.frames))
+        if dets is None:
+            from ..detection.moving import oblique_hint
+
+            hints.append(oblique_hint(result.detections, gsd if geomap is None else None))
         hints = [h for h in hints if h]
         for hint in hints:
             log.warning(hint)
@@ -620,6 +632,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             **({"stabilised": True} if stabilised else {}),
             **({"start_time": start_time} if start_time else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3),
+            # every option of the command (--frames, --stride, --roi, --map-init, ...), so that
+            # config.toml and this file repeat the run (they were only in stages/run.json)
+            "options": {k: v for k, v in manifest.items() if k != "config"},
             **notes,
         }
         summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
@@ -878,11 +893,12 @@ def load_roads(roads_path, geomap, config):
 FROM_APPLIED = {("detection", "min_conf")}
 
 
-def _warn_stage_settings(from_dir: Path, config) -> None:
-    """Name the registration and detection settings given (not at their defaults) that differ
-    from the --from run's: its cached registrations and detections are used as they are, so
-    those settings change nothing (a ``--set detection.window_s=2`` was accepted, gave the same
-    tracks, and was written into ``config.toml`` as if used)."""
+def _stage_settings(from_dir: Path, config):
+    """``config`` with the --from run's registration and detection settings, which made the
+    cached stages (``detection.min_conf`` applies again, at least the earlier run's): what this
+    run's ``config.toml`` records. The settings given (not at their defaults) that differ from
+    them are named in a warning, since they change nothing (a ``--set detection.window_s=2``
+    was accepted, gave the same tracks, and was written into ``config.toml`` as if used)."""
     import dataclasses
 
     from ..config import Config, load_config
@@ -890,11 +906,11 @@ def _warn_stage_settings(from_dir: Path, config) -> None:
 
     path = Path(from_dir) / "config.toml"
     if not path.is_file():
-        return
+        return config
     try:
         before = load_config(path)
     except (ConfigError, OSError, ValueError):
-        return
+        return config
     names = []
     for section in ("registration", "detection"):
         a, b = getattr(before, section), getattr(config, section)
@@ -909,6 +925,9 @@ def _warn_stage_settings(from_dir: Path, config) -> None:
                     + (f" and {len(names) - 4} more" if len(names) > 4 else ""),
                     "s" if len(names) == 1 else "", "it" if len(names) == 1 else "they",
                     "s" if len(names) == 1 else "")
+    min_conf = max(before.detection.min_conf, config.detection.min_conf)
+    return dataclasses.replace(config, registration=before.registration,
+                               detection=dataclasses.replace(before.detection, min_conf=min_conf))
 
 
 def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed, gsd, fps,
@@ -952,8 +971,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     check_out_crs(out_crs, geomap)
     # the earlier run's start time unless another is given
     start_time = parse_start_time(start_time, geomap) or prev.get("start_time")
-    check_config(config, fps, detector=False)  # before --out is touched
-    _warn_stage_settings(from_dir, config)
+    check_config(config, fps)  # before --out is touched
+    config = _stage_settings(from_dir, config)
     same = Path(out_dir).resolve() == Path(from_dir).resolve()
     if same and not overwrite:
         raise InputError(f"--out {out_dir}: is the --from folder; its results are replaced only "
