@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import logging
 import math
 
 import numpy as np
@@ -598,6 +599,21 @@ def test_an_estimated_scale_judges_small_tracks_by_its_own_threshold():
     estimated = finish_tracks([copy.deepcopy(t)], cfg, FPS, metres_per_unit=MPU,
                               registrations=identity, scale_estimated=True)
     assert len(known) == 1 and estimated == []
+
+
+def test_tracks_left_out_are_counted_with_their_reason_in_the_log(caplog):
+    """An oblique view's far vehicles, judged small on a scale estimated for the whole run,
+    vanished at the finish without a word, even with -vv."""
+    identity = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 200)}
+    t = _walker()
+    for p in t.points:
+        p.box = np.array([p.world[0] - 8, p.world[1] - 10, 16, 20])
+    cfg = FinishConfig(min_size_m=1.5, min_size_estimated_m=2.0)
+    with caplog.at_level(logging.INFO, logger="aerotrack"):
+        assert finish_tracks([t], cfg, FPS, metres_per_unit=MPU, registrations=identity,
+                             scale_estimated=True) == []
+    assert ("finish: 1 of 1 tracks left out: 1 smaller than 2 m (finish.min_size_estimated_m"
+            in caplog.text), caplog.text
 
 
 def test_merged_boxes_do_not_pull_the_vehicle_towards_its_neighbour():

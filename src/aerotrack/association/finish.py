@@ -406,6 +406,7 @@ class TrackFinisher:
                  metres_per_unit: float | None = None, object_size_m: float = 4.5,
                  scale_estimated: bool = False) -> None:
         self.config = config or FinishConfig()
+        self._dropped = ""  # why the track being finished is left out (``finish``'s log)
         if self.config.size_mode not in SIZE_MODES:
             raise ConfigError(f"config finish.size_mode: unknown {self.config.size_mode!r} "
                               f"(valid: {', '.join(SIZE_MODES)})")
@@ -461,7 +462,9 @@ class TrackFinisher:
             n = hold_stops(tracks, self.fps, mpu, registrations, frame_size, c)
             log.debug("finish: %d stationary points added", n)
         out = []
+        dropped: dict[str, int] = {}
         for t in tracks:
+            self._dropped = ""
             try:
                 keep = self._finish_track(t, registrations or None, frame_size, mpu, mode)
             except np.linalg.LinAlgError:  # a degenerate run: report it as linking made it
@@ -469,6 +472,11 @@ class TrackFinisher:
                 keep = True
             if keep:
                 out.append(t)
+            else:
+                dropped[self._dropped] = dropped.get(self._dropped, 0) + 1
+        if dropped:  # a probe's far vehicles of an oblique view vanished here without a word
+            log.info("finish: %d of %d tracks left out: %s", sum(dropped.values()), len(tracks),
+                     "; ".join(f"{n} {why}" for why, n in sorted(dropped.items())))
         if registrations and c.max_overlap < 1.0:  # (an oblique camera's image has overlaps)
             n = suppress_overlaps(out, c.max_overlap)
             log.debug("finish: %d points on another track's object removed", n)
@@ -508,23 +516,29 @@ class TrackFinisher:
         # only a registered world is the ground: in the image of a moving camera a vehicle
         # driving along with it stands still
         if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
+            self._dropped = "standing still (finish.static_extent_m)"
             return False
         if regs is not None and wanders(xs[measured, :2], times[measured], mpu, c.wander_extent_m,
                                         c.wander_path_ratio, c.wander_step_s):
             log.debug("finish: track of frames %d-%d dropped: back and forth within %.1f m",
                       frames[0], frames[-1],
                       float(np.hypot(*np.ptp(xs[measured, :2], axis=0))) * mpu)
+            self._dropped = "moving back and forth in place (finish.wander_extent_m)"
             return False
         # a held stop's box is a copy, a persistence box (``weak``) a faint blob's: the size
         # comes from the regular observations around them
         full = measured & ~edge & np.array([p.kind == "observed" and not p.weak for p in pts])
         min_size = c.min_size_estimated_m if self.scale_estimated else c.min_size_m
         if regs is not None and is_small(sizes[full], mpu, min_size):
+            self._dropped = (f"smaller than {min_size:g} m (finish.min_size_estimated_m, on a scale "
+                             f"estimated from the objects)" if self.scale_estimated
+                             else f"smaller than {min_size:g} m (finish.min_size_m)")
             return False
         if any(p.weak for p in pts) and not any(p.kind == "observed" and not p.weak for p in pts):
             # persistence boxes only: track-before-detect evidence extends a vehicle that the
             # regular detector saw at some point; alone it is a slow, small mover (on Santiago
             # mostly pedestrians)
+            self._dropped = "faint persistence boxes only"
             return False
         J = homography_jacobian(Hinv, xs[:, :2])
         # one size per run of consecutive in-view frames (a tracklet): a wrong link between two
