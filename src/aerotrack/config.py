@@ -2036,7 +2036,48 @@ def unused_settings(given: set[str], config: Config, *, metric_scale: bool,
     return out
 
 
-def _toml_value(v: Any) -> str:
+def describe_settings() -> dict[str, str]:
+    """``section.key`` -> the setting's description from its section's docstring (the
+    ``Attributes`` entries; an entry may name several settings, ``a, b : float``), for
+    ``aerotrack config``."""
+    import inspect
+
+    out = {}
+    for section, cls in _section_types().items():
+        doc = inspect.cleandoc(cls.__doc__ or "")
+        names = {f.name for f in fields(cls)}
+        keys: list[str] = []
+        lines: list[str] = []
+
+        def close() -> None:
+            text = " ".join(x.strip() for x in lines).strip()
+            for k in keys:
+                out[f"{section}.{k}"] = text
+
+        for line in doc.splitlines():
+            heads = [h.strip() for h in line.split(" : ", 1)[0].split(",")]
+            if not line.startswith(" ") and heads and all(h in names for h in heads):
+                close()
+                keys, lines = heads, []
+            elif keys and (line.startswith(" ") or not line.strip()):
+                lines.append(line)
+            elif keys:  # the next docstring section
+                close()
+                keys, lines = [], []
+        close()
+    return out
+
+
+def first_sentence(text: str, limit: int = 110) -> str:
+    """The first sentence of ``text``, cut at ``limit`` characters."""
+    import re
+
+    m = re.search(r"(?<!\.)(?<!e\.g)(?<!i\.e)(?<!eq)(?<!eqs)\.(\s|$)", text)
+    s = text[:m.start() + 1] if m else text
+    return s if len(s) <= limit else s[:limit - 3].rstrip() + "..."
+
+
+def toml_value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, (int, float)):
@@ -2044,7 +2085,7 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, str):
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
 
@@ -2054,5 +2095,5 @@ def dumps_config(config: Config) -> str:
     for section, table in config_to_dict(config).items():
         lines.append(f"\n[{section}]")
         for key, value in table.items():
-            lines.append(f"{key} = {_toml_value(value)}")
+            lines.append(f"{key} = {toml_value(value)}")
     return "\n".join(lines) + "\n"

@@ -31,6 +31,7 @@ COMMANDS = [
     ("report_cmd", "report_command"),
     ("batch_cmd", "batch_command"),
     ("count_cmd", "count_command"),
+    ("config_cmd", "config_command"),
 ]
 
 log = logging.getLogger("aerotrack")
