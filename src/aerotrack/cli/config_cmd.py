@@ -46,8 +46,8 @@ def config_command(name, config_path):
         raise ConfigError(f"config: no section [{name}]"
                           + (f"; did you mean [{close[0]}]?" if close else "")
                           + f" (sections: {', '.join(values)})")
-    lines = [f"# aerotrack settings ({'values of ' + config_path if config_path else 'defaults'}); "
-             "`aerotrack config SECTION.KEY` describes one in full"]
+    what = f"values of {config_path}" if config_path else "defaults"
+    lines = [f"# aerotrack settings ({what}); `aerotrack config SECTION.KEY` describes one in full"]
     for section, table in values.items():
         if name and section != name:
             continue
