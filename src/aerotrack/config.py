@@ -2046,25 +2046,20 @@ def describe_settings() -> dict[str, str]:
     for section, cls in _section_types().items():
         doc = inspect.cleandoc(cls.__doc__ or "")
         names = {f.name for f in fields(cls)}
-        keys: list[str] = []
-        lines: list[str] = []
-
-        def close() -> None:
-            text = " ".join(x.strip() for x in lines).strip()
-            for k in keys:
-                out[f"{section}.{k}"] = text
-
+        entries: list[tuple[list[str], list[str]]] = []  # (settings, description lines)
+        inside = False
         for line in doc.splitlines():
             heads = [h.strip() for h in line.split(" : ", 1)[0].split(",")]
             if not line.startswith(" ") and heads and all(h in names for h in heads):
-                close()
-                keys, lines = heads, []
-            elif keys and (line.startswith(" ") or not line.strip()):
-                lines.append(line)
-            elif keys:  # the next docstring section
-                close()
-                keys, lines = [], []
-        close()
+                entries.append((heads, []))
+                inside = True
+            elif inside and (line.startswith(" ") or not line.strip()):
+                entries[-1][1].append(line)
+            else:  # the next docstring section
+                inside = False
+        for keys, lines in entries:
+            text = " ".join(x.strip() for x in lines).strip()
+            out.update({f"{section}.{k}": text for k in keys})
     return out
 
 
