@@ -403,3 +403,24 @@ def test_a_header_naming_the_columns_in_another_order_is_refused(tmp_path):
     assert read_mot(p)[0, :2].tolist() == [40, 1]
     p.write_text("frame id x y w h\n40 1 0 0 4 2\n")
     assert read_mot(p)[0, :2].tolist() == [40, 1]
+
+
+def test_a_gap_in_numbered_frame_files_is_named(tmp_path, caplog):
+    """A folder without 000050.png was tracked with every later frame numbered one lower than
+    its name and no word (HOTA 0.780 -> 0.730 against the names' ground truth); a folder of
+    every 5th frame (one spacing) is a numbering, not a gap."""
+    import logging
+
+    img = np.zeros((16, 16, 3), np.uint8)
+    gap, fifth = tmp_path / "gap", tmp_path / "fifth"
+    gap.mkdir()
+    fifth.mkdir()
+    for i in [*range(45, 50), *range(51, 56)]:
+        cv2.imwrite(str(gap / f"{i:06d}.png"), img)
+    for i in range(0, 50, 5):
+        cv2.imwrite(str(fifth / f"{i:06d}.png"), img)
+    with caplog.at_level(logging.WARNING, logger="aerotrack"):
+        open_source(fifth)
+        assert "skip" not in caplog.text
+        assert open_source(gap).count == 10
+    assert "file numbers skip 1 time (between 49-51; about 1 file missing)" in caplog.text

@@ -788,3 +788,29 @@ def test_on_interrupt_finish_writes_the_results_of_the_frames_read(tmp_path, cap
     code, _, err = run_cli(capsys, "track", video_frames, "--out", tmp_path / "w", "--workers",
                            "2", "--on-interrupt", "finish")
     assert code == 2 and "--on-interrupt finish: one process only" in err
+
+
+def test_resume_refuses_changed_input_files_and_another_execution_mode(
+        tmp_path, capsys, video_frames, monkeypatch):
+    """A frame overwritten between Ctrl-C and --resume was silently not read again (the resumed
+    tracks matched the old input); resuming a one-process run with --workers started over as a
+    Dask run and left stale checkpoints that broke ``track --from``."""
+    import shutil
+
+    from conftest import ctrl_c_track_at, run_cli
+
+    frames = tmp_path / "frames"
+    shutil.copytree(video_frames, frames)
+    ctrl_c_track_at(monkeypatch, 40)
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30")
+    assert code == 130 and (out / ".partial").is_dir(), err
+    monkeypatch.undo()
+    code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30", "--resume",
+                           "--workers", "2")
+    assert code == 2 and "another --workers/--scheduler" in err, err
+    first = sorted(frames.iterdir())[10]
+    first.write_bytes(sorted(frames.iterdir())[11].read_bytes() + b"\0")
+    code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30", "--resume")
+    assert code == 2 and "another version of frames (size or" in err and "--overwrite" in err, err
+    assert (out / ".partial").is_dir()  # still resumable once the input is put back

@@ -543,7 +543,15 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "min_speed": min_speed, "config": dumps_config(config),
         **({"stabilised": True} if stabilised else {}),  # absent: run.json of earlier runs match
         **({"detections_zero_based": True} if detections_zero_based else {}),
+        # a run interrupted in one mode and resumed in the other started over silently and
+        # left stale checkpoints that broke `track --from`
+        **({"on_dask": True} if workers is not None or scheduler is not None else {}),
     }
+    # the input files as they were (size, modification time): a resume over a changed frame
+    # had silently kept the results of the old one
+    manifest["input_files"] = input_fingerprints(
+        [input_path, detections_path, map_path, map_init_path, telemetry_path, intrinsics_path,
+         *roi_paths, *ignore_paths, roads_path])
     check_overwrite(out_dir, overwrite)
     if resume and finished_run(out_dir, input_path, detections_path, seed, manifest):
         if not root_flags(ctx)[0]:
@@ -702,7 +710,31 @@ def _finish_interrupted(pipe, stopper: GracefulStop, stream: bool = False):
 MANIFEST = "run.json"
 #: Manifest entries written only when they differ from these values (so that the run.json of
 #: runs made before the option existed still match).
-_MANIFEST_DEFAULTS = {"stabilised": False}
+_MANIFEST_DEFAULTS = {"stabilised": False, "on_dask": False}
+
+
+def input_fingerprints(paths) -> dict[str, list[int]]:
+    """Resolved path -> (bytes, latest modification time in ns) of each input file given; a
+    folder counts its files and sums their sizes (``[files, bytes, latest time]``). Streams and
+    missing paths are left out."""
+    import os
+
+    out = {}
+    for p in paths:
+        if p is None or "://" in str(p):
+            continue
+        path = Path(p)
+        try:
+            if path.is_dir():
+                files = [e.stat() for e in os.scandir(path) if e.is_file()]
+                out[str(path.resolve())] = [len(files), sum(f.st_size for f in files),
+                                            max((f.st_mtime_ns for f in files), default=0)]
+            elif path.is_file():
+                st = path.stat()
+                out[str(path.resolve())] = [st.st_size, st.st_mtime_ns]
+        except OSError:
+            continue
+    return out
 
 
 def finished_run(out_dir, input_path, detections_path, seed, manifest: dict | None = None
@@ -763,8 +795,16 @@ def _changed_options(before: dict, manifest: dict) -> str:
     for key, default in _MANIFEST_DEFAULTS.items():  # written only when not the default
         before, now = {key: default, **before}, {key: default, **now}
     changed = [k for k in now if k in before and before[k] != now[k]]
-    label = {"input": "INPUT", "config": "config (--config, --set or defaults)"}
-    return ", ".join(label.get(k, "--" + k.replace("_", "-")) for k in changed)
+    label = {"input": "INPUT", "config": "config (--config, --set or defaults)",
+             "on_dask": "--workers/--scheduler (one process against Dask segments)"}
+    names = [label.get(k, "--" + k.replace("_", "-")) for k in changed if k != "input_files"]
+    if "input_files" in changed and not names:  # the same paths, other contents
+        files = [Path(f).name for f in {*before["input_files"], *now["input_files"]}
+                 if before["input_files"].get(f) != now["input_files"].get(f)]
+        names.append("version of " + ", ".join(sorted(files)[:3])
+                     + (" and more" if len(files) > 3 else "")
+                     + " (size or modification time)")
+    return ", ".join(names)
 
 
 def resume_manifest(partial: Path, manifest: dict, resume: bool) -> None:

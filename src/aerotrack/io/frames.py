@@ -319,6 +319,7 @@ class ImageFolderSource(FrameSource):
                 raise InputError(f"{self.path}: both {stems[key].name} and {f.name}: one "
                                  "image per frame expected (which comes first?)")
             stems[key] = f
+        _warn_numbering_gaps(self.path, self.files)
         #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
         self.depth_range: tuple[float, float] | None = None
         #: Frames whose image could not be decoded (skipped with a warning), for summary.json.
@@ -438,6 +439,40 @@ _SKIPPED: set[Path] = set()
 
 class UnreadableImage(InputError):
     """An image file of a folder that cannot be decoded (empty, corrupt)."""
+
+
+_GAPS_WARNED: set[Path] = set()
+
+
+def _warn_numbering_gaps(folder: Path, files: list[Path]) -> None:
+    """Warn when the files' numbers skip (``000049.png``, ``000051.png``): frame n is the n-th
+    file, so every frame after a missing file is numbered lower than its name, and ground truth
+    numbered by the names is off by one from there (a probe: HOTA 0.780 -> 0.730, silently)."""
+    import re
+
+    if folder.resolve() in _GAPS_WARNED:  # once per folder in a process (it is opened again)
+        return
+    _GAPS_WARNED.add(folder.resolve())
+    nums = []
+    for f in files:
+        m = re.search(r"(\d+)\D*$", f.stem)
+        if m is None:
+            return
+        nums.append(int(m.group(1)))
+    steps = np.diff(nums)
+    if len(steps) < 2 or len(set(steps.tolist())) == 1:  # one spacing (every 5th file kept) is a
+        return                                            # numbering, not a gap
+    usual = int(np.median(steps))
+    gaps = [(nums[i], nums[i + 1]) for i in np.flatnonzero(steps > usual)]
+    if not gaps or usual < 1:
+        return
+    shown = ", ".join(f"{a}-{b}" for a, b in gaps[:3]) + (", ..." if len(gaps) > 3 else "")
+    missing = sum((b - a) // usual - 1 for a, b in gaps)
+    logging.getLogger(__name__).warning(
+        "%s: the file numbers skip %d time%s (between %s; about %d file%s missing): frames are "
+        "numbered by the files' order (frame n is the n-th file), so after a gap frame numbers "
+        "are lower than the names', and ground truth numbered by the names no longer lines up",
+        folder, len(gaps), "s" * (len(gaps) != 1), shown, missing, "s" * (missing != 1))
 
 
 def natural_key(p: Path) -> tuple:
