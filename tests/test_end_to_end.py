@@ -329,3 +329,8 @@ def test_settings_that_change_nothing_are_named_and_the_files_record_what_ran(
     assert code == 0 and "detection.threshold_sigma differs" in err, err
     written = load_config(tmp_path / "from" / "config.toml")
     assert written.detection == load_config(out / "config.toml").detection
+    # a --from run that ends with no track says why, as a full run does
+    code, _, err = run_cli(capsys, "track", "--from", out, "--out", tmp_path / "none",
+                           "--set", "association.gate_chi2=0.01")
+    assert code == 0 and "detections but no track" in err, err
+    assert json.loads((tmp_path / "none" / "summary.json").read_text())["hints"]

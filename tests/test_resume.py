@@ -814,3 +814,9 @@ def test_resume_refuses_changed_input_files_and_another_execution_mode(
     code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30", "--resume")
     assert code == 2 and "another version of frames (size or" in err and "--overwrite" in err, err
     assert (out / ".partial").is_dir()  # still resumable once the input is put back
+    shutil.copy2(video_frames / first.name, first)
+    code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30", "--resume")
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["resumed"] == {"from_frame": 41, "exact": True}
+    assert summary["environment"]["numpy"] == np.__version__

@@ -68,6 +68,10 @@ class Result:
     repeated_frames : list of int
         Frames whose pixels repeat the frame before exactly (a recorder that dropped frames and
         re-emitted the last one): the tracker sees a stop, then a jump.
+    resumed : dict or None
+        A resumed run: ``from_frame`` (the first frame read after the restart) and ``exact``
+        (the stages' working state was restored: the results equal an uninterrupted run's;
+        False: from the last checkpoint, a few frames' decisions may differ). None otherwise.
     followed : int or None
         Detections the stop follower added (``association.follow_stopped``; None when it is
         off; a segment-parallel run counts each segment's own frames): associated like the
@@ -90,6 +94,7 @@ class Result:
     repeated_frames: list[int] = field(default_factory=list)
     overlay_mask: np.ndarray | None = None
     overlay_held: list[tuple[int, int, int, int]] = field(default_factory=list)
+    resumed: dict | None = None
 
     def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
         n_dets = sum(len(d) for d in self.detections)
@@ -994,6 +999,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
                     min_speed_mps=min_speed_mps, roads=roads, stabilised=stabilised)
     if stride > 1 and pipe.associator is not None:
         pipe.associator.set_frame_step(stride)
+    resumed = None
     if resume and checkpoint_dir is not None:
         restart = pipe.restore(source)
         if restart > start:
@@ -1002,6 +1008,7 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
             steps = -(-steps // stride) if pipe.exact_resume else steps // stride
             start = start + steps * stride
             log.info("resuming from frame %d", start)
+            resumed = {"from_frame": int(start), "exact": bool(pipe.exact_resume)}
     if not pipe.registrations:  # nothing restored: H_init places the first frame read
         pipe._H_init = carried_placement(source, H_init, H_init_frame, start, geomap, fps,
                                          config, undistort)
@@ -1035,7 +1042,9 @@ def run(source=None, *, config: Config | None = None, fps: float | None = None,
             exc.note += ("; the working state was not saved (stopped inside a frame), so --resume "
                          "restarts a little earlier and may decide a few frames differently")
         raise
-    return pipe.finish()
+    result = pipe.finish()
+    result.resumed = resumed
+    return result
 
 
 def carried_placement(source, H_init, H_init_frame: int, start: int, geomap, fps: float,

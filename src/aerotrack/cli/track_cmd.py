@@ -643,6 +643,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             # every option of the command (--frames, --stride, --roi, --map-init, ...), so that
             # config.toml and this file repeat the run (they were only in stages/run.json)
             "options": {k: v for k, v in manifest.items() if k != "config"},
+            # a resumed run's results may differ a little from an uninterrupted one's (not
+            # exact: continued from the last checkpoint after a hard kill)
+            **({"resumed": result.resumed} if getattr(result, "resumed", None) else {}),
+            "environment": environment(),
             **notes,
         }
         summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
@@ -705,6 +709,27 @@ def _finish_interrupted(pipe, stopper: GracefulStop, stream: bool = False):
                     "keep .partial/ for --resume)", pipe.last_frame)
     stopper.note = GracefulStop.NOTE
     return pipe.finish()
+
+
+def environment() -> dict[str, str]:
+    """The versions results depend on (an OpenCV or NumPy update moved one generated scene's
+    HOTA 0.629 -> 0.687), for ``summary.json``."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    from .. import __version__
+
+    out = {"aerotrack": __version__, "python": platform.python_version()}
+    for name, dist in (("numpy", "numpy"), ("scipy", "scipy"), ("opencv", "opencv-python-headless"),
+                       ("numba", "numba")):
+        try:
+            out[name] = version(dist)
+        except PackageNotFoundError:
+            if name == "opencv":
+                import cv2
+
+                out[name] = cv2.__version__
+    return out
 
 
 MANIFEST = "run.json"
@@ -1029,7 +1054,13 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
             "roads": str(Path(roads_path).resolve()) if roads_path else None,
             **({"stabilised": True} if prev.get("stabilised") else {}),  # the cached stages'
             **({"start_time": start_time} if start_time else {}),
-            "wall_time_s": round(time.perf_counter() - t0, 3)}
+            "wall_time_s": round(time.perf_counter() - t0, 3), "environment": environment()}
+    # "N detections but no track" (a --set that gated everything away said nothing here)
+    hints = [h for h in clip_hints(result, config, builtin_detector=False) if h]
+    for hint in hints:
+        log.warning(hint)
+    if hints:
+        info["hints"] = hints
     summary = write_outputs(result, out, config=config, geomap=geomap, run_info=info,
                             out_crs=out_crs)
     if not same:
