@@ -806,6 +806,8 @@ def test_resume_refuses_changed_input_files_and_another_execution_mode(
     code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30")
     assert code == 130 and (out / ".partial").is_dir(), err
     monkeypatch.undo()
+    code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30")
+    assert code == 2 and "holds an interrupted run (.partial/): --resume continues it" in err, err
     code, _, err = run_cli(capsys, "track", frames, "--out", out, "--fps", "30", "--resume",
                            "--workers", "2")
     assert code == 2 and "another --workers/--scheduler" in err, err

@@ -646,6 +646,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             # a resumed run's results may differ a little from an uninterrupted one's (not
             # exact: continued from the last checkpoint after a hard kill)
             **({"resumed": result.resumed} if getattr(result, "resumed", None) else {}),
+            **({"workers": workers} if workers is not None else {}),
+            **({"scheduler": scheduler} if scheduler is not None else {}),
             "environment": environment(),
             **notes,
         }

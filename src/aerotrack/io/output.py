@@ -143,6 +143,13 @@ class OutputDir:
                 if foreign:
                     raise OutputError(f"{option} {p}: folder holds files aerotrack did not write "
                                       f"(e.g. {foreign[0]!r}); give a new or empty folder")
+                if resumable and (p / PARTIAL).is_dir():
+                    raise OutputError(f"{option} {p}: holds an interrupted run ({PARTIAL}/): "
+                                      "--resume continues it, --overwrite starts again")
+                if resumable and not (p / "summary.json").exists():
+                    raise OutputError(f"{option} {p}: holds an unfinished run (its results are "
+                                      "not all written: no summary.json): --resume finishes it, "
+                                      "--overwrite starts again")
                 raise OutputError(f"{option} {p}: folder already holds results; use --overwrite"
                                   + (" or --resume" if resumable else ""))
             if overwrite:
