@@ -381,6 +381,30 @@ class MovingObjectDetector:
             return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
     # -- internals ------------------------------------------------------------------------
+    def _local_scale(self, H: np.ndarray, shape: tuple[int, int], mpp: float):
+        """How many times longer a metre is at a frame pixel than at the centre (metres per
+        pixel ``mpp``), as a callable for :class:`SizeGates`, and its range over the frame; (None,
+        (1, 1)) where the scale hardly changes across the frame (nadir footage: its gates stay
+        exactly as they were).
+
+        An oblique view on a map (a probe, 2026-12-03: Santiago warped so that near vehicles are
+        twice as large as far ones, with the warp's map placement) had one scale for the whole
+        frame, the centre's: far vehicles failed the area gate (their recall at IoU 0.3 0.909
+        without a map, 0.679 with one) and the map made tracking worse, not better."""
+        h, w = shape
+        pts = np.array([[x, y] for y in (0.0, h / 2, h) for x in (0.0, w / 2, w)], float)
+        f = mpp / np.maximum(self.metres_per_unit * local_scales(H, pts), 1e-12)
+        if not np.all(np.isfinite(f)) or float(f.max() / f.min()) < LOCAL_GATES_MIN_RATIO:
+            return None, (1.0, 1.0)
+        lo, hi = LOCAL_GATES_CLAMP
+        mpu = self.metres_per_unit
+
+        def local(x: float, y: float) -> float:
+            s = float(local_scales(H, np.array([[x, y]], float))[0]) * mpu
+            return min(max(mpp / s, lo), hi) if s > 0 and math.isfinite(s) else 1.0
+
+        return local, (max(float(f.min()), lo), min(float(f.max()), hi))
+
     def _gates(self, H: np.ndarray, shape: tuple[int, int]) -> SizeGates:
         c = self.config
         if self.metres_per_unit:
@@ -395,10 +419,11 @@ class MovingObjectDetector:
                              else c.close_px * c.model_scale) / self.scale
                 # likewise boxes are joined across at most the gap they are without a scale
                 join = min(c.join_gap_m / mpp, c.join_gap_px * c.model_scale / self.scale)
+                local, span = self._local_scale(H, shape, mpp)
                 return SizeGates(min_area_px=c.min_area_m2 / mpp ** 2,
                                  max_length_px=c.max_length_m / mpp,
                                  close_px=close, join_gap_px=join,
-                                 min_width_px=c.min_width_m / mpp)
+                                 min_width_px=c.min_width_m / mpp, local=local, local_range=span)
         k = pixel_gate_scale(shape, c.pixel_gates_reference_px)
         return SizeGates(c.min_area_px * k * k, c.max_length_px * k, c.close_px * k,
                          c.join_gap_px * k, c.min_width_px * k)
@@ -765,6 +790,13 @@ class MovingObjectDetector:
             keep_from = min(keep_from, self._newest - 2 * self.half)  # for flush's shifted window
         for i in [i for i in self._samples if i < keep_from]:
             del self._samples[i]
+
+
+#: Metric size gates follow the scale across the frame (:meth:`_local_scale`) only where it
+#: changes by more than this between the frame's corners and centre (oblique views, not nadir
+#: footage), within LOCAL_GATES_CLAMP of the centre's.
+LOCAL_GATES_MIN_RATIO = 1.25
+LOCAL_GATES_CLAMP = (0.25, 4.0)
 
 
 def check_config(c: DetectionConfig) -> None:

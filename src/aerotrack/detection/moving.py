@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -84,13 +85,29 @@ class FrameResult:
 @dataclass(frozen=True)
 class SizeGates:
     """Size limits of one frame in full-resolution frame pixels (from metres via the frame's
-    scale when known; see ``DetectionConfig``)."""
+    scale when known; see ``DetectionConfig``).
+
+    ``local`` (metric gates of a frame whose scale changes across it: an oblique view on a
+    map): full-resolution ``(x, y)`` -> how many times longer a metre is there than where the
+    gates were set (the frame's centre); :meth:`at` gives the gates at a blob's place, and
+    ``local_range`` is the smallest and largest factor over the frame."""
 
     min_area_px: float
     max_length_px: float
     close_px: float
     join_gap_px: float
     min_width_px: float = 0.0
+    local: Callable[[float, float], float] | None = None
+    local_range: tuple[float, float] = (1.0, 1.0)
+
+    def at(self, x: float, y: float) -> SizeGates:
+        """The area, length and width gates where a metre is ``local(x, y)`` times as long."""
+        if self.local is None:
+            return self
+        f = self.local(x, y)
+        return replace(self, min_area_px=self.min_area_px * f * f,
+                       max_length_px=self.max_length_px * f, min_width_px=self.min_width_px * f,
+                       local=None)
 
 
 #: Smallest factor :func:`pixel_gate_scale` gives (frames under 960 x 540: the rule was measured
@@ -157,10 +174,10 @@ OBLIQUE_RATIO = 1.5
 
 def oblique_hint(detections, gsd: float | None = None) -> str | None:
     """A warning when the detections' sizes grow from the top of the frame to the bottom (or the
-    reverse): an oblique view, which the detector does not model. Its blob rules compare each
-    blob with the frame's median blob and its gates use one scale per frame (the frame centre's,
-    with a map), ``--gsd`` is one scale for the whole frame, and the finish stage judges sizes on
-    one scale for the run.
+    reverse): an oblique view, which the detector models only with a map (its metric gates are
+    set at each blob's place, :meth:`SizeGates.at`). Otherwise its blob rules compare each blob
+    with the frame's median blob, its pixel gates are one per frame, ``--gsd`` is one scale for
+    the whole frame, and the finish stage judges sizes on one scale for the run.
 
     The ratio is the median box side of the detections in the bottom third of their rows over
     that of the top third. Measured: nadir Santiago 1.15, 19 nadir generated scenes 0.79-1.34;
@@ -192,8 +209,8 @@ def oblique_hint(detections, gsd: float | None = None) -> str | None:
         return None
     near = "bottom" if ratio > 1 else "top"
     return (f"vehicles near the {near} of the frame are {max(ratio, 1 / ratio):.1f}x the size of "
-            f"those at the other side: an oblique view, which the detector does not model (near "
-            f"vehicles may be cut into pieces: --set detection.split_blobs=false"
+            f"those at the other side: an oblique view, which the detector models only with a map "
+            f"(near vehicles may be cut into pieces: --set detection.split_blobs=false"
             + ("; --gsd is one scale for the whole frame, right only for a nadir view: leave it "
                "out" if gsd else "") + "; README, Oblique views)")
 
@@ -333,10 +350,11 @@ def model_blobs(res: np.ndarray, thr: float, sigma: float, config: DetectionConf
     # Seeds also stand out of the noise by seed_sigma: the low threshold can then sit close to
     # the noise (whole dark vehicles), while noise alone rarely reaches a seed.
     high = res > max(thr * config.seed_ratio, config.seed_sigma * sigma)
-    model_min_area = 0.5 * gates.min_area_px * scale * scale
+    lo_f, hi_f = gates.local_range  # (each blob meets the gates of its place in refine_blob)
+    model_min_area = 0.5 * gates.min_area_px * lo_f * lo_f * scale * scale
     blobs = hysteresis_blobs(low, high, close_radius=gates.close_px * scale,
                              min_area=model_min_area)
-    max_len_model = gates.max_length_px * scale
+    max_len_model = gates.max_length_px * hi_f * scale
     # Without a vehicle model, the frame's typical blob is the best guess of one vehicle's size.
     areas = np.array([b.area for b in blobs], np.float64)
     typical = float(np.median(areas)) if len(areas) >= 5 else 0.0
@@ -425,6 +443,7 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
     h, w = small.shape[:2]
     margin = 2
     bx, by, bw, bh = b.box
+    gates = gates.at((bx + 0.5 * bw) / scale, (by + 0.5 * bh) / scale)
     mx0, my0 = max(0, bx - margin), max(0, by - margin)
     mx1, my1 = min(w, bx + bw + margin), min(h, by + bh + margin)
     if config.ghost_ratio > 0 or (faint and config.regrow_ghost_ratio > 0):
