@@ -1395,3 +1395,23 @@ def test_out_of_range_settings_name_their_range_even_with_external_detections(
     out = tmp_path / "out"
     expect_error(capsys, fragments, "track", "--detections", dets, "--out", out,
                  "--set", setting, out_dir=out)
+
+
+@pytest.mark.parametrize("text, extra, fragments", [
+    ("frame_x,frame_y,ground_x,ground_y\n0,0,0,0\n10,0,1,0\n20,0,2,0\n30,0,3,0\n", [],
+     ["--ground", "collinear"]),
+    ("frame_x,frame_y,east,north\n0,0,0,0\n", [], ["--ground", "header must be"]),
+    # a homography whose horizon crosses the frame: its far rows would turn inside out
+    ("1 0 0\n0 1 0\n0 -0.05 1\n", [], ["--ground", "do not all land on the ground"]),
+    ("0.1 0 0\n0 -0.1 0\n0 0 1\n", ["--gsd", "0.1"], ["--ground", "not with --gsd"]),
+    ("0.1 0 0\n0 -0.1 0\n0 0 1\n", ["--workers", "2"], ["--ground", "not with --workers"]),
+])
+def test_a_bad_ground_plane_is_one_line_before_any_work(capsys, tmp_path, video, text, extra,
+                                                        fragments):
+    """``--ground`` (an oblique view's ground plane without a map) is checked before --out is
+    made: its format, collinear points, a horizon inside the frame, options it excludes."""
+    ground = tmp_path / "ground.csv"
+    ground.write_text(text)
+    out = tmp_path / "out"
+    expect_error(capsys, fragments, "track", video, "--out", out, "--ground", ground, *extra,
+                 out_dir=out)

@@ -147,13 +147,15 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
                  if p.kind in IN_VIEW}
         write_local_observation_table(out.file("observations.csv"), tracks, result.fps,
                                       result.metres_per_unit, predicted=predicted,
-                                      homographies=homs, kinds=kinds, start_time=start_time)
+                                      homographies=homs, kinds=kinds, start_time=start_time,
+                                      ground=bool((run_info or {}).get("ground")))
     # the run's options that are not configuration, so that `--config config.toml` is known to
     # need them (a run with --seed 3 --fps 10 --gsd 0.15 was not repeated by the file alone)
     info = run_info or {}
     opts = ([f"--seed {info['seed']}"] if info.get("seed") is not None else []) \
         + [f"--fps {result.fps:g}"] \
-        + ([f"--gsd {result.metres_per_unit:g}"]
+        + ([f"--ground {info['ground']}"] if info.get("ground") else
+           [f"--gsd {result.metres_per_unit:g}"]
            if geomap is None and result.metres_per_unit else [])
     out.write_text("config.toml", f"# run with: {' '.join(opts)} (inputs and the other options: "
                                   "summary.json); --config of this file with them repeats it\n"

@@ -111,7 +111,7 @@ class GracefulStop:
 
 def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
                 telemetry_path=None, intrinsics_path=None, start: int = 1, config=None,
-                telemetry_defaults=(), detections_zero_based: bool = False):
+                telemetry_defaults=(), detections_zero_based: bool = False, ground_path=None):
     """Open and validate every input before any work starts (so bad input fails fast).
 
     With ``start`` > 1 (``--frames A:B``) the map placement returned is frame A's: the
@@ -184,6 +184,20 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
                 log.info("--frames from %d: registering frames 1-%d to carry --map-init (frame "
                          "1's placement) to frame %d", start, start - 1, start)
                 H_init = carry_placement(source, H_init, start, geomap, source.fps,
+                                         (config or Config()).registration, undistort)
+    if ground_path is not None:
+        from ..geo.init import read_ground
+
+        H_init = read_ground(ground_path)
+        if source is not None:
+            _check_ground(source.size, H_init, f"--ground {ground_path}")
+            if start > 1:
+                from ..config import Config
+                from ..registration.registrar import carry_placement
+
+                log.info("--frames from %d: registering frames 1-%d to carry --ground (frame "
+                         "1's) to frame %d", start, start - 1, start)
+                H_init = carry_placement(source, H_init, start, None, source.fps,
                                          (config or Config()).registration, undistort)
     if source is not None and dets is None:
         warn_memory(source, (config.detection.window_s if config is not None else 3.0))
@@ -280,6 +294,27 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
     return hints
 
 
+def _check_ground(size, H, label: str) -> None:
+    """Frame 1 placed on a ground plane must stay in front of the camera: every corner finite,
+    on the same side of the horizon (a homography through the horizon turns the far rows
+    inside out), and a plausible size (0.5 m to 100 km across)."""
+    import numpy as np
+
+    from ..errors import GeoreferenceError
+
+    w, h = size
+    corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], float) @ np.asarray(H).T
+    if not (np.all(np.isfinite(corners)) and (np.all(corners[:, 2] > 0)
+                                              or np.all(corners[:, 2] < 0))):
+        raise GeoreferenceError(f"{label}: frame 1's corners do not all land on the ground (the "
+                                "horizon or the sky is in the frame, or the points are wrong)")
+    xy = corners[:, :2] / corners[:, 2:]
+    span = float(np.hypot(*np.ptp(xy, axis=0)))
+    if not 0.5 <= span <= 1e5:
+        raise GeoreferenceError(f"{label}: frame 1 spans {span:.3g} m of ground: are the ground "
+                                "coordinates in metres?")
+
+
 def _check_overlap(size, H_init, geomap, init_label) -> None:
     import numpy as np
 
@@ -373,6 +408,10 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
 @map_init_option
 @gsd_option
+@click.option("--ground", "ground_path", type=click.Path(path_type=Path), default=None,
+              help="Frame 1 -> a ground plane in metres, for an oblique view without a map (one "
+                   "--gsd is wrong there): a homography, or CSV frame_x,frame_y,ground_x,ground_y "
+                   "with 4+ measured points. Size gates and speeds follow the scale at each place.")
 @track_fps_option
 @seed_option
 @config_option
@@ -425,7 +464,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                   intrinsics_path, roi_paths, ignore_paths, min_speed, out_crs, frame_range, stride,
                   overwrite, resume, workers, scheduler, from_dir=None, roads_path=None,
                   stabilised=False, detections_zero_based=False, min_conf=None,
-                  start_time=None, on_interrupt=None):
+                  start_time=None, on_interrupt=None, ground_path=None):
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
@@ -478,7 +517,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             ("--intrinsics", intrinsics_path),
             ("--roi", roi_paths), ("--ignore-region", ignore_paths), ("--resume", resume),
             ("--workers", workers), ("--scheduler", scheduler), ("--stabilised", stabilised),
-            ("--detections-zero-based", detections_zero_based))
+            ("--detections-zero-based", detections_zero_based), ("--ground", ground_path))
             if value]
         if given:
             raise InputError(f"--from {from_dir}: re-runs association on that run's cached "
@@ -507,10 +546,19 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     start, stop = parse_frame_range(frame_range)
     if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
+    if ground_path is not None:
+        given_too = [n for n, v in (("--map", map_path), ("--gsd", gsd), ("--stabilised", stabilised),
+                                    ("--workers", workers), ("--scheduler", scheduler)) if v]
+        if given_too:
+            raise InputError(f"--ground {ground_path}: not with {', '.join(given_too)} (it is the "
+                             "ground plane and its scale; Dask segments do not take it yet)")
+        if input_path is None:
+            raise InputError(f"--ground {ground_path}: needs INPUT frames (it places frame 1)")
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
         intrinsics_path, start=start, config=config, telemetry_defaults=telemetry_defaults,
-        detections_zero_based=detections_zero_based)
+        detections_zero_based=detections_zero_based, ground_path=ground_path)
+    metres_per_unit = 1.0 if ground_path is not None else (None if geomap else gsd)
     roads = load_roads(roads_path, geomap, config)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_out_crs(out_crs, geomap)
@@ -518,7 +566,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
     check_frame_range(frame_range, start, last, stop)
     check_config(config, fps)  # before --out is touched
-    for why in unused_settings(given, config, metric_scale=geomap is not None or gsd is not None,
+    for why in unused_settings(given, config,
+                               metric_scale=geomap is not None or metres_per_unit is not None,
                                detector=dets is None):
         log.warning("%s", why)
     if scheduler is not None:
@@ -540,6 +589,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         "intrinsics": where(intrinsics_path), "roi": [where(r) for r in roi_paths],
         "ignore_region": [where(r) for r in ignore_paths], "roads": where(roads_path),
         "fps": fps, "gsd": gsd, "seed": seed, "frames": [start, stop], "stride": stride,
+        **({"ground": where(ground_path)} if ground_path is not None else {}),
         "min_speed": min_speed, "config": dumps_config(config),
         **({"stabilised": True} if stabilised else {}),  # absent: run.json of earlier runs match
         **({"detections_zero_based": True} if detections_zero_based else {}),
@@ -590,7 +640,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     with cleanup, GracefulStop(until=until, note=note) as stopper:
         try:
             result = run(source, config=config, fps=fps, geomap=geomap, H_init=H_init, seed=seed,
-                         detections=dets, metres_per_unit=None if geomap else gsd,
+                         detections=dets, metres_per_unit=metres_per_unit,
                          progress=stopper.wrap(progress), checkpoint_dir=out.partial,
                          resume=resume, start=start, stop=stop, stride=stride,
                          undistort=undistort, regions=regions, min_speed_mps=min_speed,
@@ -612,7 +662,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                               f"--telemetry {telemetry_path}" if telemetry_path is not None
                               else f"--map-init {map_init_path}" if map_init_path else None)
         hints = clip_hints(result, config, builtin_detector=dets is None)
-        if dets is None and geomap is None and gsd is None:
+        if dets is None and geomap is None and metres_per_unit is None:
             from ..detection.moving import small_vehicles_hint
 
             hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
@@ -635,6 +685,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             "detections": where(detections_path),
             "map": where(map_path),
             "roads": where(roads_path),
+            **({"ground": where(ground_path)} if ground_path is not None else {}),
             "min_speed": min_speed,
             "seed": seed,
             **({"stabilised": True} if stabilised else {}),
@@ -1055,6 +1106,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
             "from": str(from_dir), "min_speed": min_speed,
             "roads": str(Path(roads_path).resolve()) if roads_path else None,
             **({"stabilised": True} if prev.get("stabilised") else {}),  # the cached stages'
+            **({"ground": prev["ground"]} if prev.get("ground") else {}),  # (its metres)
             **({"start_time": start_time} if start_time else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3), "environment": environment()}
     # "N detections but no track" (a --set that gated everything away said nothing here)

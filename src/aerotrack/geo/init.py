@@ -113,3 +113,27 @@ def _from_gcps(lines: list[str], header: list[str], label: str, geomap: GeoMap |
     if H is None or not np.all(np.isfinite(H)):
         raise GeoreferenceError(f"{label}: cannot fit a homography to the control points")
     return H / H[2, 2]
+
+
+def read_ground(path: str | Path, option: str = "--ground") -> np.ndarray:
+    """Frame-1 pixels -> a ground plane in metres, for footage without a map whose scale
+    changes across the frame (an oblique view, where one ``--gsd`` is wrong): a 3x3 homography
+    (3 lines of 3 numbers), or at least 4 control points as CSV with the header
+    ``frame_x,frame_y,ground_x,ground_y`` (pixels of frame 1; metres on the ground, any origin,
+    x and y at right angles, y 90 degrees anticlockwise from x as east and north are (headings
+    are clockwise from y): measured lane widths and markings give them)."""
+    p = Path(path)
+    label = f"{option} {p}"
+    if not p.exists():
+        raise InputError(f"{label}: file not found")
+    text = read_text(p, label)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")]
+    if not lines:
+        raise FormatError(f"{label}: file is empty")
+    header = [h.strip().lower() for h in lines[0].split(",")]
+    if header[:2] != ["frame_x", "frame_y"]:
+        return _from_matrix(lines, label)
+    if header != ["frame_x", "frame_y", "ground_x", "ground_y"]:
+        raise FormatError(f"{label} line 1: header must be frame_x,frame_y,ground_x,ground_y "
+                          "(ground in metres)")
+    return _from_gcps(lines, ["frame_x", "frame_y", "map_x", "map_y"], label, None)

@@ -160,15 +160,20 @@ def _nearest_homography(homs: dict[int, np.ndarray], fps: float):
 
 #: The ``crs`` of a table without a map (``track --gsd``): metres in frame 1's ground plane.
 LOCAL_CRS = "LOCAL:frame1_metres"
+#: ... and with ``track --ground``: metres in the ground plane it gives, its axes as given.
+GROUND_CRS = "LOCAL:ground_metres"
 
 
 def local_observation_table(rows: Any, fps: float, metres_per_unit: float, *,
                             predicted: Any = None,
                             homographies: dict[int, np.ndarray] | None = None,
                             smooth_s: float = 0.5, min_heading_speed_mps: float = 0.5,
-                            kinds: dict[tuple[int, int], str] | None = None, start_time=None
-                            ) -> tuple[dict[str, np.ndarray], str]:
+                            kinds: dict[tuple[int, int], str] | None = None, start_time=None,
+                            ground: bool = False) -> tuple[dict[str, np.ndarray], str]:
     """The table's columns for a run without a map but with a ground resolution (``--gsd``).
+
+    With ``ground`` (``track --ground``: world units are metres of the ground plane the user
+    gave) x, y are that plane's coordinates as given and ``crs`` is :data:`GROUND_CRS`.
 
     x, y are metres on the ground plane of frame 1 (where the run's world coordinates are: frame
     1's pixels), x to the right and y up in frame 1's image, from its top-left corner; heading is
@@ -188,7 +193,9 @@ def local_observation_table(rows: Any, fps: float, metres_per_unit: float, *,
     frame, ids = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
     boxes = a[:, 2:6]
     near = _nearest_homography(homographies or {}, fps)
-    flip = np.array([metres_per_unit, -metres_per_unit])  # image rows grow down, y grows up
+    # image rows grow down, y grows up (a ground plane's axes are the user's)
+    flip = np.array([metres_per_unit, metres_per_unit if ground else -metres_per_unit])
+    crs = GROUND_CRS if ground else LOCAL_CRS
     xy = np.full((n, 2), np.nan)
     length = np.full(n, np.nan)
     width = np.full(n, np.nan)
@@ -231,11 +238,11 @@ def local_observation_table(rows: Any, fps: float, metres_per_unit: float, *,
                 speed[i], heading[i] = per_frame[int(frame[i])]
     cols = {"frame": frame, "time_s": t, "id": ids, "lon": np.full(n, np.nan),
             "lat": np.full(n, np.nan), "x": xy[:, 0], "y": xy[:, 1],
-            "crs": np.array([LOCAL_CRS] * n, dtype=object), "speed_mps": speed,
+            "crs": np.array([crs] * n, dtype=object), "speed_mps": speed,
             "heading_deg": heading, "length_m": length, "width_m": width, "kind": kind}
     if start_time is not None:
         cols["time_utc"] = frame_times(frame, fps, start_time)
-    return cols, LOCAL_CRS
+    return cols, crs
 
 
 def write_local_observation_table(path: str | Path, rows: Any, fps: float,

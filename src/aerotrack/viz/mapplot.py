@@ -236,13 +236,15 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     ax = fig.add_axes((0.09, 0.08, 0.88, 0.86))
     # the view fits the in-view positions; predictions running far off are clipped by the axes
     allpts = (np.vstack([tv.world[tv.observed] for tv in tracks]) if tracks else np.zeros((0, 2)))
+    # ``track --ground``: the world is a ground plane in metres, y north (not frame 1's pixels)
+    ground = geomap is None and bool(results.summary.get("ground"))
     if geomap is not None:
         img = geomap.read_image()[..., ::-1]
         ax.imshow(img, extent=(0, geomap.width, geomap.height, 0), interpolation="bilinear", zorder=0)
         bounds = (0.0, 0.0, float(geomap.width), float(geomap.height))
     else:
         bounds = None
-        if background is not None:
+        if background is not None and not ground:
             bg = background[..., ::-1]
             ax.imshow(bg, extent=(0, bg.shape[1], bg.shape[0], 0), zorder=0)
             bounds = (0.0, 0.0, float(bg.shape[1]), float(bg.shape[0]))
@@ -251,7 +253,12 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
         unit_per_m = 1.0 / metres_per_unit if metres_per_unit else None
     ext = _extent(allpts, bounds) or (0, 0, 100, 100)
     ax.set_xlim(ext[0], ext[2])
-    ax.set_ylim(ext[3], ext[1])
+    if ground:
+        ax.set_ylim(ext[1], ext[3])
+        if background is not None:
+            _ground_background(ax, results, background, ext)
+    else:
+        ax.set_ylim(ext[3], ext[1])
     if geomap is not None:  # equal ground distances, even for lon/lat pixels that are not square
         mx, my = _ground_px(geomap, ((ext[0] + ext[2]) / 2, (ext[1] + ext[3]) / 2))
         ax.set_aspect(my / mx)
@@ -263,6 +270,9 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     ax.tick_params(labelsize=fs * 0.85)
     if geomap is not None:
         _lonlat_axes(ax, geomap, fs)
+    elif ground:
+        ax.set_xlabel("ground x (m)", fontsize=fs)
+        ax.set_ylabel("ground y (m)", fontsize=fs)
     else:
         ax.set_xlabel(f"frame {results.first_frame} x (px)", fontsize=fs)
         ax.set_ylabel(f"frame {results.first_frame} y (px)", fontsize=fs)
@@ -273,6 +283,25 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
                f"{n_re} re-acquisition{'s' * (n_re != 1)}")
     ax.set_title(title or default, fontsize=fs * 1.1, pad=fs * 2.6)
     return fig
+
+
+def _ground_background(ax, results: RunResults, background: np.ndarray, ext) -> None:
+    """The run's first frame warped onto its ground plane (``track --ground``), under the
+    tracks drawn in that plane's metres (north up)."""
+    import cv2
+
+    reg = results.registration.get(results.first_frame) if results.registration else None
+    if reg is None:
+        return
+    x0, y0, x1, y1 = ext
+    res = max(x1 - x0, y1 - y0) / 1200.0
+    w, h = max(1, int(round((x1 - x0) / res))), max(1, int(round((y1 - y0) / res)))
+    to_raster = np.array([[1 / res, 0, -x0 / res], [0, -1 / res, y1 / res], [0, 0, 1.0]])
+    M = to_raster @ np.asarray(reg, np.float64).reshape(3, 3)
+    rgba = cv2.cvtColor(background, cv2.COLOR_BGR2RGBA)
+    img = cv2.warpPerspective(rgba, M, (w, h), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+    ax.imshow(img, extent=(x0, x1, y0, y1), origin="upper", zorder=0)
 
 
 def _lonlat_axes(ax, geomap, fs: float) -> None:
