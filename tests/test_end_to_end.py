@@ -371,7 +371,7 @@ def test_a_ground_plane_as_flat_as_a_gsd_tracks_exactly_as_the_gsd(scene, tmp_pa
     from aerotrack.viz.results import RunResults
 
     res = RunResults.load(tmp_path / "ground")
-    background = cv2.imread(str(sorted((scene / "frames").iterdir())[0]))
+    background = cv2.imread(str(min((scene / "frames").iterdir())))
     ax = plot_map(res, background=background).axes[0]
     assert ax.get_xlabel() == "ground x (m)" and ax.get_ylim()[0] < ax.get_ylim()[1]
     (image,) = ax.images
