@@ -353,6 +353,9 @@ def test_a_ground_plane_as_flat_as_a_gsd_tracks_exactly_as_the_gsd(scene, tmp_pa
     main(["-q", "track", *common, "--ground", str(ground), "--out", str(tmp_path / "ground")])
     assert (tmp_path / "ground" / "tracks.csv").read_text() == \
         (tmp_path / "gsd" / "tracks.csv").read_text()
+    main(["-q", "detect", *common, "--ground", str(ground), "--out", str(tmp_path / "det")])
+    assert (tmp_path / "det" / "detections.csv").read_text() == \
+        (tmp_path / "ground" / "detections.csv").read_text()
     def rows(name):
         with open(tmp_path / name / "observations.csv") as f:
             return list(csv.DictReader(f))

@@ -31,6 +31,11 @@ set_option = click.option("--set", "overrides", multiple=True, metavar="SECTION.
                           help="Override one config parameter (repeatable).")
 
 
+ground_option = click.option(
+    "--ground", "ground_path", type=click.Path(path_type=Path), default=None,
+    help="Frame 1 -> a ground plane in metres, for an oblique view without a map (one --gsd is "
+         "wrong there): a homography, or CSV frame_x,frame_y,ground_x,ground_y with 4+ measured "
+         "points. Size gates and speeds follow the scale at each place.")
 map_init_option = click.option(
     "--map-init", "map_init_path", type=click.Path(path_type=Path), default=None,
     help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")

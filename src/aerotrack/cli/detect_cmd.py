@@ -16,6 +16,7 @@ from .common import (
     config_option,
     fps_option,
     frames_option,
+    ground_option,
     ignore_option,
     intrinsics_option,
     make_progress,
@@ -43,6 +44,7 @@ log = logging.getLogger("aerotrack")
 @telemetry_default_option
 @click.option("--gsd", type=float, default=None,
               help="Metres per frame pixel when no map is given: the size gates become metric.")
+@ground_option
 @fps_option
 @config_option
 @set_option
@@ -61,7 +63,7 @@ log = logging.getLogger("aerotrack")
 def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_path,
                    telemetry_defaults, gsd, fps,
                    config_path, overrides, intrinsics_path, roi_paths, ignore_paths, frame_range,
-                   stride, stabilised, debug_video, overwrite):
+                   stride, stabilised, debug_video, overwrite, ground_path=None):
     """Detect moving vehicles (Yu & Medioni section 3) and write DIR/detections.csv.
 
     Frames are registered to each other (and to --map), a sliding-window background is built on
@@ -83,6 +85,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     from ..pipeline import check_config
     from .track_cmd import (
         check_frame_range,
+        check_ground,
         check_stream_options,
         load_inputs,
         load_regions,
@@ -93,10 +96,13 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     check_stream_options(input_path, frame_range, telemetry_path)
     if stabilised and map_path is not None:
         raise InputError("--stabilised: not with --map (frames are registered to the map)")
+    check_ground(ground_path, input_path, {"--map": map_path, "--gsd": gsd,
+                                           "--stabilised": stabilised})
     start, stop = parse_frame_range(frame_range)
     source, _, geomap, H_init, undistort, _ = load_inputs(
         input_path, None, map_path, map_init_path, fps, gsd, telemetry_path, intrinsics_path,
-        start=start, config=config, telemetry_defaults=telemetry_defaults)
+        start=start, config=config, telemetry_defaults=telemetry_defaults,
+        ground_path=ground_path)
     check_frame_range(frame_range, start, source.count, stop)
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_config(config, fps)  # before --out is touched
@@ -105,7 +111,8 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     out = OutputDir(out_dir, overwrite=overwrite)
     with cleanup:
         _detect(ctx, source, out, config, geomap=geomap, H_init=H_init,
-                gsd=None if geomap else gsd, undistort=undistort, regions=regions,
+                gsd=1.0 if ground_path is not None else None if geomap else gsd,
+                undistort=undistort, regions=regions,
                 start=start, stop=stop, stride=stride, stabilised=stabilised,
                 debug_video=debug_video,
                 placed_by=(f"--telemetry {telemetry_path}" if telemetry_path is not None

@@ -17,6 +17,7 @@ from .common import (
     check_positive,
     config_option,
     frames_option,
+    ground_option,
     gsd_option,
     ignore_option,
     intrinsics_option,
@@ -294,6 +295,21 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
     return hints
 
 
+def check_ground(ground_path, input_path, others: dict) -> None:
+    """``--ground`` refused with the options given in ``others`` (name -> value) and without
+    INPUT, before any work."""
+    from ..errors import InputError
+
+    if ground_path is None:
+        return
+    given = [n for n, v in others.items() if v]
+    if given:
+        raise InputError(f"--ground {ground_path}: not with {', '.join(given)} (it is the "
+                         "ground plane and its scale; Dask segments do not take it yet)")
+    if input_path is None:
+        raise InputError(f"--ground {ground_path}: needs INPUT frames (it places frame 1)")
+
+
 def _check_ground(size, H, label: str) -> None:
     """Frame 1 placed on a ground plane must stay in front of the camera: every corner finite,
     on the same side of the horizon (a homography through the horizon turns the far rows
@@ -408,10 +424,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
 @map_init_option
 @gsd_option
-@click.option("--ground", "ground_path", type=click.Path(path_type=Path), default=None,
-              help="Frame 1 -> a ground plane in metres, for an oblique view without a map (one "
-                   "--gsd is wrong there): a homography, or CSV frame_x,frame_y,ground_x,ground_y "
-                   "with 4+ measured points. Size gates and speeds follow the scale at each place.")
+@ground_option
 @track_fps_option
 @seed_option
 @config_option
@@ -546,14 +559,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     start, stop = parse_frame_range(frame_range)
     if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
-    if ground_path is not None:
-        given_too = [n for n, v in (("--map", map_path), ("--gsd", gsd), ("--stabilised", stabilised),
-                                    ("--workers", workers), ("--scheduler", scheduler)) if v]
-        if given_too:
-            raise InputError(f"--ground {ground_path}: not with {', '.join(given_too)} (it is the "
-                             "ground plane and its scale; Dask segments do not take it yet)")
-        if input_path is None:
-            raise InputError(f"--ground {ground_path}: needs INPUT frames (it places frame 1)")
+    check_ground(ground_path, input_path, {"--map": map_path, "--gsd": gsd,
+                                           "--stabilised": stabilised, "--workers": workers,
+                                           "--scheduler": scheduler})
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
         intrinsics_path, start=start, config=config, telemetry_defaults=telemetry_defaults,
