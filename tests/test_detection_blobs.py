@@ -375,3 +375,29 @@ def test_same_structure_tells_a_sharpened_wall_line_from_a_car_over_a_lane_line(
     assert same_structure(car, bg, mask) < 0.5
     # a car on plain road: nothing to correlate with
     assert same_structure(car, np.full_like(bg, 90), mask) == 0.0
+
+
+def test_blob_rules_judge_each_blob_at_its_own_scale_when_told():
+    """On an oblique view far vehicles are small and near ones large: with the frame's median as
+    the one vehicle size, far ones were dropped as fragments. Given the area a vehicle has at
+    each place (``norm``, from a map's or a ground plane's homography) they are kept, and a
+    fragment beside a near vehicle still goes."""
+    from aerotrack.detection.blobs import drop_small
+
+    def blob(y, side):
+        return Blob((10, y, side, side), np.ones((side, side), bool))
+
+    far = [blob(5, 4), blob(8, 4), blob(12, 4)]  # 16 px, where a vehicle is 16 px
+    near = [blob(200 + 5 * i, 12) for i in range(5)] + [blob(230, 3)]  # 144 px, and a fragment
+
+    def norm(b):  # a vehicle's area grows 9x from row 0 to row 240
+        return (1 + 2 * (b.box[1] + b.box[3] / 2) / 240) ** 2
+
+    def has(blobs, b):
+        return any(b is k for k in blobs)
+
+    blobs = far + near
+    plain = drop_small(blobs, area_ratio=0.4)
+    assert not any(has(plain, b) for b in far)
+    kept = drop_small(blobs, area_ratio=0.4, norm=norm)
+    assert all(has(kept, b) for b in far + near[:5]) and not has(kept, near[5])

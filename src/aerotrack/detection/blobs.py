@@ -9,6 +9,7 @@ a boolean mask cropped to the box.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -380,7 +381,7 @@ def join_cabs(blobs: list[Blob], *, gap: float, long_t: float, max_long: float,
 
 
 def drop_small(blobs: list[Blob], *, area_ratio: float, near: float = 0.0,
-               min_count: int = 5) -> list[Blob]:
+               min_count: int = 5, norm: Callable[[Blob], float] | None = None) -> list[Blob]:
     """Blobs without those much smaller than the frame's typical one.
 
     Run after splitting and joining: a blob under ``area_ratio`` x the median blob area that
@@ -403,6 +404,10 @@ def drop_small(blobs: list[Blob], *, area_ratio: float, near: float = 0.0,
         fragments go, isolated small movers stay. 0 drops small blobs anywhere.
     min_count : int
         Fewest blobs for a median to be trusted.
+    norm : callable, optional
+        Blob -> the area a vehicle has at its place relative to mid-frame (an oblique view with
+        a map or ``--ground``: :meth:`.moving.SizeGates.at`'s scale squared); areas are compared
+        divided by it.
 
     Returns
     -------
@@ -410,18 +415,27 @@ def drop_small(blobs: list[Blob], *, area_ratio: float, near: float = 0.0,
     """
     if area_ratio <= 0 or len(blobs) < min_count:
         return list(blobs)
-    limit = area_ratio * float(np.median([b.area for b in blobs]))
-    big = [b for b in blobs if b.area >= limit]
+    areas = _normed_areas(blobs, norm)
+    limit = area_ratio * float(np.median(areas))
+    big = [b for b, a in zip(blobs, areas) if a >= limit]
     if near <= 0:
         return big
     reach = near * typical_sides(blobs, min_count)[0]
-    return [b for b in blobs if b.area >= limit
+    return [b for b, a in zip(blobs, areas) if a >= limit
             or not any(box_gap(b.box, o.box) <= reach for o in big)]
+
+
+def _normed_areas(blobs: list[Blob], norm: Callable[[Blob], float] | None) -> np.ndarray:
+    areas = np.array([b.area for b in blobs], np.float64)
+    if norm is not None and len(blobs):
+        areas /= np.array([norm(b) for b in blobs], np.float64)
+    return areas
 
 
 def regrow_small(blobs: list[Blob], faint: np.ndarray, *, area_ratio: float,
                  close_radius: float, min_ratio: float = 0.0, max_ratio: float = 1.5,
-                 min_count: int = 5) -> tuple[list[Blob], list[bool]]:
+                 min_count: int = 5, norm: Callable[[Blob], float] | None = None
+                 ) -> tuple[list[Blob], list[bool]]:
     """Small blobs regrown through a lower threshold when they grow into one whole vehicle.
 
     A dark vehicle on dark asphalt differs from the road by little more than the threshold: its
@@ -450,6 +464,8 @@ def regrow_small(blobs: list[Blob], faint: np.ndarray, *, area_ratio: float,
         Largest grown size relative to the typical blob (sides and area).
     min_count : int
         Fewest blobs for a median to be trusted (nothing is regrown below it).
+    norm : callable, optional
+        As :func:`drop_small`'s: areas are compared divided by it.
 
     Returns
     -------
@@ -461,7 +477,8 @@ def regrow_small(blobs: list[Blob], faint: np.ndarray, *, area_ratio: float,
     grown = [False] * len(blobs)
     if area_ratio <= 0 or len(blobs) < min_count:
         return blobs, grown
-    median = float(np.median([b.area for b in blobs]))
+    areas = _normed_areas(blobs, norm)
+    median = float(np.median(areas))
     limit = area_ratio * median
     long_t, short_t = typical_sides(blobs, min_count)
     H, W = faint.shape
@@ -472,8 +489,9 @@ def regrow_small(blobs: list[Blob], faint: np.ndarray, *, area_ratio: float,
         taken[y:y + h, x:x + w] |= b.mask.astype(np.uint8)
     taken = cv2.dilate(taken, np.ones((3, 3), np.uint8))
     for i, b in enumerate(blobs):
-        if b.area >= limit:
+        if areas[i] >= limit:
             continue
+        k = norm(b) if norm is not None else 1.0
         x, y, w, h = b.box
         x0, y0 = max(0, x - reach), max(0, y - reach)
         x1, y1 = min(W, x + w + reach), min(H, y + h + reach)
@@ -491,14 +509,14 @@ def regrow_small(blobs: list[Blob], faint: np.ndarray, *, area_ratio: float,
             continue
         region = np.isin(labels, ids)
         area = int(region.sum())
-        if area < max(limit, min_ratio * median) or area > max_ratio * median:
+        if area < k * max(limit, min_ratio * median) or area > k * max_ratio * median:
             continue
         ys, xs = np.nonzero(region)
         cand = Blob((int(xs.min()) + x0, int(ys.min()) + y0,
                      int(xs.max() - xs.min()) + 1, int(ys.max() - ys.min()) + 1),
                     region[ys.min():ys.max() + 1, xs.min():xs.max() + 1].copy(), area)
         lo, sh = oriented_sides(cand)
-        if lo > max_ratio * long_t or sh > max_ratio * short_t:
+        if lo > max_ratio * long_t * math.sqrt(k) or sh > max_ratio * short_t * math.sqrt(k):
             continue
         blobs[i], grown[i] = cand, True
     return blobs, grown
