@@ -1404,7 +1404,7 @@ def test_out_of_range_settings_name_their_range_even_with_external_detections(
     # a homography whose horizon crosses the frame: its far rows would turn inside out
     ("1 0 0\n0 1 0\n0 -0.05 1\n", [], ["--ground", "do not all land on the ground"]),
     ("0.1 0 0\n0 -0.1 0\n0 0 1\n", ["--gsd", "0.1"], ["--ground", "not with --gsd"]),
-    ("0.1 0 0\n0 -0.1 0\n0 0 1\n", ["--workers", "2"], ["--ground", "not with --workers"]),
+    ("0.1 0 0\n0 -0.1 0\n0 0 1\n", ["--stabilised"], ["--ground", "not with --stabilised"]),
 ])
 def test_a_bad_ground_plane_is_one_line_before_any_work(capsys, tmp_path, video, text, extra,
                                                         fragments):

@@ -755,3 +755,32 @@ class _Said(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         self.lines.append(record.getMessage())
+
+
+def test_a_ground_plane_runs_on_dask_segments_like_one_process(tmp_path, scene, client):
+    """``track --ground`` on segments: every segment carries the plane to its first frame (as
+    with a map) instead of running in its own first frame's pixels, whose metres would then be
+    wrong; the result scores as the single process's."""
+    from aerotrack.cli.main import cli
+    from aerotrack.evaluation import evaluate
+    from aerotrack.io.mot import read_mot
+
+    folder, gt = scene
+    w, h = 240, 180
+    ground = tmp_path / "ground.csv"
+    ground.write_text("frame_x,frame_y,ground_x,ground_y\n0,0,0,0\n"
+                      f"{w},0,{0.3 * w},0\n{w},{h},{0.3 * w},{-0.3 * h}\n0,{h},0,{-0.3 * h}\n")
+    scores = {}
+    for name, extra in (("one", []), ("dask", ["--scheduler", client.scheduler.address])):
+        out = tmp_path / name
+        r = CliRunner().invoke(cli, ["-v", "track", str(folder), "--out", str(out), "--fps",
+                                     str(FPS), "--ground", str(ground), *extra],
+                               catch_exceptions=False)
+        assert r.exit_code == 0, r.output
+        if name == "dask":
+            assert "2 segments" in r.output or "3 segments" in r.output, r.output
+        scores[name] = evaluate(gt, read_mot(out / "tracks.csv"))
+        assert json.loads((out / "summary.json").read_text())["metres_per_unit"] == 1.0
+    assert scores["one"]["HOTA"] > 0.5
+    assert abs(scores["dask"]["HOTA"] - scores["one"]["HOTA"]) < 0.03, scores
+    assert abs(scores["dask"]["IDF1"] - scores["one"]["IDF1"]) < 0.05, scores

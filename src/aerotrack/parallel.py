@@ -365,6 +365,9 @@ class SegmentTask:
     #: With a map, for a segment after the first: the frame whose placement ``H_init`` is; the
     #: segment carries it to its own first frame and runs on the map (``map_every_segment``).
     carry_from: int | None = None
+    #: ``H_init`` places frames on a ground plane in metres (``track --ground``, no map): every
+    #: segment carries it and runs in that plane, as on a map.
+    ground: bool = False
 
 
 @dataclass
@@ -448,7 +451,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     config = task.config
     if hold_from is not None and hold_from > seg.start:
         config = replace(config, detection=replace(config.detection, hold_stopped=False))
-    H_init = task.H_init if geomap is not None else None
+    H_init = task.H_init if geomap is not None or task.ground else None
     carry_s = 0.0
     if H_init is not None and task.carry_from is not None and task.input_path is not None \
             and seg.start > task.carry_from:
@@ -488,7 +491,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
     return SegmentResult(segment=seg, registrations=dict(pipe.registrations),
                          detections=list(pipe.detections), tracklets=list(tracklets),
                          frame_size=pipe.frame_size, timings=timings, pid=os.getpid(),
-                         on_map=geomap is not None, overlay_mask=pipe.overlay_mask,
+                         on_map=geomap is not None or task.ground,
+                         overlay_mask=pipe.overlay_mask,
                          repeated_frames=[f for f in pipe.repeated_frames
                                           if seg.own_start <= f <= seg.own_stop],
                          followed=None if pipe.follower is None else pipe.follower.n_followed,
@@ -922,7 +926,8 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
                regions: Sequence | None = None,
                hold_after_s: float | None = None,
                frame_size: tuple[int, int] | None = None,
-               stabilised: bool = False, map_every_segment: bool = True) -> list[SegmentTask]:
+               stabilised: bool = False, map_every_segment: bool = True,
+               ground: bool = False) -> list[SegmentTask]:
     """One :class:`SegmentTask` per segment (external detections cut to each segment's frames).
 
     With a map, later segments get frame 1's metres per pixel at its centre (``frame_size``, as
@@ -957,6 +962,7 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
             rows = detections[(f >= seg.start) & (f <= seg.stop)]
         with_map = map_path is not None and (seg.index == 0 or (
             map_every_segment and input_path is not None))
+        placed = with_map or (ground and (seg.index == 0 or input_path is not None))
         hold_from = None
         if seg.start > segments[0].start:
             lead = (seg.own_start - seg.start) / 2 if hold_after_s is None else hold_after_s * fps
@@ -964,11 +970,12 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
         tasks.append(SegmentTask(
             segment=seg, input_path=None if input_path is None else str(input_path), fps=fps,
             config=config, stride=stride, seed=seed, metres_per_unit=mpu,
-            map_path=str(map_path) if with_map else None, H_init=H_init if with_map else None,
+            map_path=str(map_path) if with_map else None, H_init=H_init if placed else None,
             detections=rows, undistort=undistort, hold_from=hold_from,
             regions=[g for g in regions if seg.index == 0 or g.space == "frame"],
             stabilised=stabilised,
-            carry_from=segments[0].start if with_map and seg.index > 0 else None))
+            carry_from=segments[0].start if placed and seg.index > 0 else None,
+            ground=ground))
     return tasks
 
 
@@ -996,6 +1003,8 @@ def _segment_file(folder: Path, task: SegmentTask) -> Path:
         h.update(repr(part).encode())
     if task.carry_from is not None:
         h.update(f"carry{task.carry_from}".encode())
+    if task.ground:  # only then: digests of earlier runs stay valid
+        h.update(b"ground" + np.asarray(task.H_init, np.float64).tobytes())
     if task.stabilised:  # only then: digests of earlier runs stay valid
         h.update(b"stabilised")
     for arr in (task.H_init, task.detections):
@@ -1274,7 +1283,9 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                        detections=detections, undistort=undistort, regions=regions,
                        hold_after_s=parallel.hold_after_s,
                        map_every_segment=parallel.map_every_segment,
-                       frame_size=getattr(source, "size", None), stabilised=stabilised)
+                       frame_size=getattr(source, "size", None), stabilised=stabilised,
+                       # without a map, a placement is a ground plane's (track --ground)
+                       ground=geomap is None and H_init is not None)
     submitted, cpu0, received = time.time(), time.process_time(), {}
     results = gather_segments(client, tasks, retries=retries, checkpoint_dir=checkpoint_dir,
                               resume=resume, progress=progress, while_waiting=warm_up_linking,

@@ -305,7 +305,7 @@ def check_ground(ground_path, input_path, others: dict) -> None:
     given = [n for n, v in others.items() if v]
     if given:
         raise InputError(f"--ground {ground_path}: not with {', '.join(given)} (it is the "
-                         "ground plane and its scale; Dask segments do not take it yet)")
+                         "ground plane and its scale)")
     if input_path is None:
         raise InputError(f"--ground {ground_path}: needs INPUT frames (it places frame 1)")
 
@@ -560,8 +560,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
         raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
     check_ground(ground_path, input_path, {"--map": map_path, "--gsd": gsd,
-                                           "--stabilised": stabilised, "--workers": workers,
-                                           "--scheduler": scheduler})
+                                           "--stabilised": stabilised})
     source, dets, geomap, H_init, undistort, notes = load_inputs(
         input_path, detections_path, map_path, map_init_path, fps, gsd, telemetry_path,
         intrinsics_path, start=start, config=config, telemetry_defaults=telemetry_defaults,
