@@ -75,7 +75,8 @@ def _from_matrix(lines: list[str], label: str) -> np.ndarray:
     return H / H[2, 2]
 
 
-def _from_gcps(lines: list[str], header: list[str], label: str, geomap: GeoMap | None) -> np.ndarray:
+def _from_gcps(lines: list[str], header: list[str], label: str, geomap: GeoMap | None,
+               target: str = "map") -> np.ndarray:
     if header == ["frame_x", "frame_y", "map_x", "map_y"]:
         kind = "pixel"
     elif header == ["frame_x", "frame_y", "lon", "lat"]:
@@ -104,7 +105,7 @@ def _from_gcps(lines: list[str], header: list[str], label: str, geomap: GeoMap |
         if geomap is None:
             raise InputError(f"{label}: lon/lat control points need --map")
         dst = geomap.lonlat_to_pixel(dst)
-    for name, q in (("frame", src), ("map", dst)):
+    for name, q in (("frame", src), (target, dst)):
         c = q - q.mean(axis=0)
         sv = np.linalg.svd(c, compute_uv=False)
         if sv[1] < 1e-6 * max(sv[0], 1e-12) or sv[0] == 0:
@@ -136,4 +137,4 @@ def read_ground(path: str | Path, option: str = "--ground") -> np.ndarray:
     if header != ["frame_x", "frame_y", "ground_x", "ground_y"]:
         raise FormatError(f"{label} line 1: header must be frame_x,frame_y,ground_x,ground_y "
                           "(ground in metres)")
-    return _from_gcps(lines, ["frame_x", "frame_y", "map_x", "map_y"], label, None)
+    return _from_gcps(lines, ["frame_x", "frame_y", "map_x", "map_y"], label, None, "ground")
