@@ -1415,3 +1415,61 @@ def test_a_bad_ground_plane_is_one_line_before_any_work(capsys, tmp_path, video,
     out = tmp_path / "out"
     expect_error(capsys, fragments, "track", video, "--out", out, "--ground", ground, *extra,
                  out_dir=out)
+
+
+def test_a_ground_plane_is_checked_and_its_fit_reported(capsys, tmp_path, video):
+    """A probe's wrong ground files ran without a word: frame points read off a 4K still,
+    a mirrored plane (x and y swapped: headings off by 73 degrees), one point 3.4 m off the
+    others, four points bunched in the middle of the frame. Now: refused, or named in a warning,
+    and the fit is in summary.json."""
+    def ground(rows):
+        p = tmp_path / f"g{len(list(tmp_path.glob('g*.csv')))}.csv"
+        p.write_text("frame_x,frame_y,ground_x,ground_y\n"
+                     + "".join(f"{a},{b},{c},{d}\n" for a, b, c, d in rows))
+        return p
+
+    # 160x120 frames, 0.1 m per pixel, y north
+    good = [(0, 0, 0, 12), (160, 0, 16, 12), (160, 120, 16, 0), (0, 120, 0, 0), (80, 60, 8, 6)]
+    out = tmp_path / "o"
+    expect_error(capsys, ["frame points outside frame 1 (160x120)"], "track", video, "--out", out,
+                 "--ground", ground([(x * 4, y * 4, gx, gy) for x, y, gx, gy in good]),
+                 out_dir=out)
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "a", "--ground",
+                           ground(good))
+    assert code == 0 and not any(w in err for w in ("mirrored", "off the plane", "points cover"))
+    fit = json.loads((tmp_path / "a" / "summary.json").read_text())["ground_fit"]
+    assert fit["points"] == 5 and fit["rms_m"] < 0.01 and fit["frame_cover"] > 0.9
+    assert json.loads((tmp_path / "a" / "summary.json").read_text())["registration_mode"] == \
+        "ground"
+    mirrored = [(x, y, gy, gx) for x, y, gx, gy in good]
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "b", "--ground",
+                           ground(mirrored))
+    assert code == 0 and "the ground plane is mirrored" in err, err
+    blunder = [*good[:4], (80, 60, 11, 6)]
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "c", "--ground",
+                           ground(blunder))
+    assert code == 0 and "point 5 is" in err and "off the plane the others make" in err, err
+    bunched = [(70, 50, 7, 7), (90, 50, 9, 7), (90, 70, 9, 5), (70, 70, 7, 5)]
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "d", "--ground",
+                           ground(bunched))
+    assert code == 0 and "the points cover 2% of frame 1" in err, err
+
+
+def test_an_implausible_vehicle_length_questions_the_scale():
+    """A ground plane in orthophoto pixels made cars 15 m long and one given the wrong way round
+    24-54 m, silently; so would a --gsd off by as much."""
+    from types import SimpleNamespace
+
+    from aerotrack.cli.track_cmd import scale_hint
+    from aerotrack.types import Track, TrackPoint
+
+    def result(length_m):
+        pts = [TrackPoint(frame=f, box=np.zeros(4), world=np.zeros(2), conf=1.0,
+                          size_world=np.array([length_m, min(2.0, length_m / 2)]) / 0.5)
+               for f in range(60)]
+        return SimpleNamespace(metres_per_unit=0.5, tracks=[Track(1, pts)])
+
+    assert scale_hint(result(4.5), "--gsd") is None
+    assert "median 15.0 m long" in scale_hint(result(15.0), "--ground")
+    assert "median 0.8 m long" in scale_hint(result(0.8), "--gsd")
+    assert scale_hint(result(15.0), None) is None  # an estimated scale is not the user's

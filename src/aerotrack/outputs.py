@@ -179,7 +179,8 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         # anywhere but in the map file itself
         **({"map_crs": _crs_name(geomap)} if geomap is not None else {}),
         "registration_mode": (IDENTITY if not result.registrations and result.frame_size is None
-                              else "map" if geomap is not None else "frame1"),
+                              else "map" if geomap is not None
+                              else "ground" if info.get("ground") else "frame1"),
         "counts": {
             "detections": int(sum(len(d) for d in result.detections)),
             "tracks": n_ids,

@@ -192,6 +192,7 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
         H_init = read_ground(ground_path)
         if source is not None:
             _check_ground(source.size, H_init, f"--ground {ground_path}")
+            notes["ground_fit"] = ground_fit(ground_path, source.size, H_init)
             if start > 1:
                 from ..config import Config
                 from ..registration.registrar import carry_placement
@@ -310,6 +311,56 @@ def check_ground(ground_path, input_path, others: dict) -> None:
         raise InputError(f"--ground {ground_path}: needs INPUT frames (it places frame 1)")
 
 
+def ground_fit(path, size, H) -> dict:
+    """How well ``--ground``'s control points fit its plane, and how they cover frame 1, for
+    the log and ``summary.json``; refuses frame points outside frame 1 (points read off a
+    still of another size) and warns of a mirrored plane, of a point off by more than 1 m and
+    of points covering under a quarter of the frame (the scale away from them is a guess: one
+    lane rectangle in the middle of the frame gave 0.3x-7x across it and HOTA 0.33)."""
+    import cv2
+    import numpy as np
+
+    from ..errors import GeoreferenceError
+    from ..geo.init import ground_points
+    from ..types import apply_homography
+
+    w, h = size
+    A = np.asarray(H, np.float64)
+    out: dict = {"homography": [[round(float(v), 9) for v in row] for row in A]}
+    centre = np.array([w / 2, h / 2])
+    d = 1.0
+    p0, px, py = apply_homography(A, np.array([centre, centre + (d, 0), centre + (0, d)]))
+    (ax, ay), (bx, by) = px - p0, py - p0
+    if ax * by - ay * bx > 0:
+        log.warning("%s: the ground plane is mirrored (x and y swapped, or y pointing south): "
+                    "speeds are right, headings are not (ground y must be 90 degrees "
+                    "anticlockwise from x, as north from east)", path)
+        out["mirrored"] = True
+    pts = ground_points(path)
+    if pts is None:
+        return out
+    f = pts[:, :2]
+    if (f[:, 0] < -0.01 * w).any() or (f[:, 0] > 1.01 * w).any() or (f[:, 1] < -0.01 * h).any() \
+            or (f[:, 1] > 1.01 * h).any():
+        raise GeoreferenceError(f"--ground {path}: frame points outside frame 1 ({w}x{h}): "
+                                "frame_x, frame_y must be frame 1's pixels")
+    res = np.hypot(*(apply_homography(A, f) - pts[:, 2:]).T)
+    hull = cv2.convexHull(f.astype(np.float32))
+    cover = float(cv2.contourArea(hull)) / float(w * h)
+    out.update({"points": int(len(pts)), "rms_m": round(float(np.sqrt(np.mean(res ** 2))), 3),
+                "max_m": round(float(res.max()), 3), "frame_cover": round(cover, 3)})
+    log.info("%s: %d points, fit RMS %.2f m, largest %.2f m (point %d), covering %.0f%% of "
+             "frame 1", path, len(pts), out["rms_m"], out["max_m"], int(res.argmax()) + 1,
+             100 * cover)
+    if res.max() > 1.0:
+        log.warning("%s: point %d is %.1f m off the plane the others make: a mismeasured "
+                    "point?", path, int(res.argmax()) + 1, float(res.max()))
+    if cover < 0.25:
+        log.warning("%s: the points cover %.0f%% of frame 1: the scale away from them is "
+                    "extrapolated; spread them over the frame (near and far)", path, 100 * cover)
+    return out
+
+
 def _check_ground(size, H, label: str) -> None:
     """Frame 1 placed on a ground plane must stay in front of the camera: every corner finite,
     on the same side of the horizon (a homography through the horizon turns the far rows
@@ -329,6 +380,32 @@ def _check_ground(size, H, label: str) -> None:
     if not 0.5 <= span <= 1e5:
         raise GeoreferenceError(f"{label}: frame 1 spans {span:.3g} m of ground: are the ground "
                                 "coordinates in metres?")
+
+
+#: :func:`scale_hint` speaks when the tracked objects' median length in metres is outside this.
+PLAUSIBLE_LENGTH_M = (1.5, 12.0)
+
+
+def scale_hint(result, given: str | None) -> str | None:
+    """A warning when the scale the user gave (``given``: the option) makes the tracked objects'
+    median length implausible for vehicles: a ground plane given in orthophoto pixels made cars
+    13.6 m long, one given the wrong way round 54 m, and tracking fell to HOTA 0.03 without a
+    word (a probe, 2026-12-03). None without a given scale or 50 observed boxes."""
+    import numpy as np
+
+    mpu = result.metres_per_unit
+    if given is None or not mpu:
+        return None
+    lengths = [float(np.max(np.abs(p.size_world))) * mpu for t in result.tracks for p in t.points
+               if p.kind == "observed" and p.size_world is not None]
+    if len(lengths) < 50:
+        return None
+    median = float(np.median(lengths))
+    lo, hi = PLAUSIBLE_LENGTH_M
+    if lo <= median <= hi:
+        return None
+    return (f"the tracked objects are a median {median:.1f} m long: if they are vehicles, the "
+            f"scale of {given} is off (metres? the right way round?)")
 
 
 def _check_overlap(size, H_init, geomap, init_label) -> None:
@@ -608,7 +685,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     # had silently kept the results of the old one
     manifest["input_files"] = input_fingerprints(
         [input_path, detections_path, map_path, map_init_path, telemetry_path, intrinsics_path,
-         *roi_paths, *ignore_paths, roads_path])
+         *roi_paths, *ignore_paths, roads_path, ground_path])
     check_overwrite(out_dir, overwrite)
     if resume and finished_run(out_dir, input_path, detections_path, seed, manifest):
         if not root_flags(ctx)[0]:
@@ -677,7 +754,11 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         if dets is None:
             from ..detection.moving import oblique_hint
 
-            hints.append(oblique_hint(result.detections, gsd if geomap is None else None))
+            if geomap is None and ground_path is None:  # (with either, the detector models it)
+                hints.append(oblique_hint(result.detections, gsd))
+        hints.append(scale_hint(result, "--ground" if ground_path is not None else
+                                "--map/--map-init" if geomap is not None else
+                                "--gsd" if gsd is not None else None))
         hints = [h for h in hints if h]
         for hint in hints:
             log.warning(hint)
@@ -1082,6 +1163,9 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     if gsd is not None and geomap is not None:
         log.warning("--gsd %g: not used: the run of --from %s is on a map (the map gives the "
                     "scale)", gsd, from_dir)
+    if gsd is not None and prev.get("ground"):
+        raise InputError(f"--gsd {gsd}: the run of --from {from_dir} is on the ground plane of "
+                         f"--ground {prev['ground']} (its metres); --gsd cannot be given with it")
     fps = fps or prev.get("fps") or 30.0
     mpu = None if geomap else (gsd or prev.get("metres_per_unit"))
     if roads_path is None and prev.get("roads"):  # the earlier run's roads, as its other inputs

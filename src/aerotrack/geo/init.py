@@ -133,8 +133,22 @@ def read_ground(path: str | Path, option: str = "--ground") -> np.ndarray:
         raise FormatError(f"{label}: file is empty")
     header = [h.strip().lower() for h in lines[0].split(",")]
     if header[:2] != ["frame_x", "frame_y"]:
+        if any(c.isalpha() for c in lines[0].replace("e", "").replace("E", "")):
+            raise FormatError(f"{label} line 1: a header must be frame_x,frame_y,ground_x,ground_y "
+                              "(comma-separated; ground in metres), or give 3 lines of 3 numbers "
+                              "(a homography)")
         return _from_matrix(lines, label)
     if header != ["frame_x", "frame_y", "ground_x", "ground_y"]:
         raise FormatError(f"{label} line 1: header must be frame_x,frame_y,ground_x,ground_y "
                           "(ground in metres)")
     return _from_gcps(lines, ["frame_x", "frame_y", "map_x", "map_y"], label, None, "ground")
+
+
+def ground_points(path: str | Path) -> np.ndarray | None:
+    """The control points of a ``--ground`` CSV as (N, 4) ``frame_x, frame_y, ground_x,
+    ground_y``; None for a homography file (call after :func:`read_ground` accepted it)."""
+    lines = [ln.strip() for ln in read_text(Path(path), str(path)).splitlines()
+             if ln.strip() and not ln.strip().startswith("#")]
+    if [h.strip().lower() for h in lines[0].split(",")][:2] != ["frame_x", "frame_y"]:
+        return None
+    return np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], np.float64)
