@@ -180,6 +180,11 @@ def test_sigterm_during_detect_keeps_the_finished_frames(tmp_path):
     assert (out / "config.toml").exists() and (out / "registration.csv").exists()
     if len(rows):
         assert rows[:, 0].max() < 1500
+    import json
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted_at_frame"] < 1500
+    assert summary["counts"]["detections"] == len(rows)
 
 
 def test_detections_alone_write_identity_registrations(tmp_path, capsys):

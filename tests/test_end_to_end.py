@@ -97,6 +97,17 @@ def test_cli_detect_with_map_equals_the_detections_of_track(scene, tmp_path):
         assert (tmp_path / "d" / name).read_bytes() == (tmp_path / "t" / name).read_bytes(), name
     rows = io.read_mot(tmp_path / "d" / "detections.csv")
     assert len(rows) and set(rows[:, 0].astype(int)) <= set(range(20, 111, 2))
+    # its summary.json: what ran on what, as track's says it (detect wrote none)
+    import json
+
+    d = json.loads((tmp_path / "d" / "summary.json").read_text())
+    t = json.loads((tmp_path / "t" / "summary.json").read_text())
+    assert d["command"] == "detect" and d["registration_mode"] == t["registration_mode"] == "map"
+    assert d["counts"]["detections"] == t["counts"]["detections"] == len(rows)
+    assert "tracks" not in d["counts"] and d["frames"] == t["frames"] == 46
+    assert d["options"]["frames"] == [20, 110] and d["options"]["stride"] == 2
+    assert d["map"] == str((scene / "map.tif").resolve()) and d["map_crs"] == t["map_crs"]
+    assert not any("no track" in h for h in d.get("hints", []))
 
 
 def test_python_detect_equals_the_detections_of_run(scene):

@@ -160,15 +160,28 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
     out.write_text("config.toml", f"# run with: {' '.join(opts)} (inputs and the other options: "
                                   "summary.json); --config of this file with them repeats it\n"
                    + dumps_config(config))
+    n_ids = len(np.unique(tracks[:, 1])) if len(tracks) else 0
+    summary = run_summary(result, geomap, info, tracked={
+        "tracks": n_ids, "track_rows": int(len(tracks)), "predicted_rows": int(len(predicted))})
+    out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def run_summary(result: Result, geomap: GeoMap | None, run_info: dict | None,
+                tracked: dict | None = None) -> dict:
+    """``summary.json`` of a run: what ran on what, counts, timings and registration failures.
+
+    ``tracked``: the track counts (``tracks``, ``track_rows``, ``predicted_rows``) of a run that
+    tracked; ``aerotrack detect`` has none."""
+    info = run_info or {}
     failures = [
         {"frame": i, "status": r.status, "reason": r.reason}
         for i, r in sorted(result.registrations.items()) if r.status not in ("ok", "refined")
     ]
-    n_ids = len(np.unique(tracks[:, 1])) if len(tracks) else 0
     total = sum(result.timings.values())
-    summary = {
+    return {
         "aerotrack_version": __version__,
-        **(run_info or {}),
+        **info,
         "fps": result.fps,
         "frames": result.frames,
         "first_frame": result.first_frame,
@@ -183,9 +196,7 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
                               else "ground" if info.get("ground") else "frame1"),
         "counts": {
             "detections": int(sum(len(d) for d in result.detections)),
-            "tracks": n_ids,
-            "track_rows": int(len(tracks)),
-            "predicted_rows": int(len(predicted)),
+            **(tracked or {}),
             "registered_frames": len(result.registrations),
             "registration_failures": len(failures),
             # with association.follow_stopped (single process): what the stop follower added
@@ -197,8 +208,6 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
                               if total > 0 else None),
         "registration_failures": failures,
     }
-    out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
-    return summary
 
 
 def _crs_name(geomap) -> str | None:

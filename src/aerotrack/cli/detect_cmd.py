@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from pathlib import Path
@@ -70,8 +71,8 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     the registered frames and moving blobs become boxes: the same stages, with the same options,
     as in `aerotrack track`, whose detections.csv this equals (--debug-video is detect's own).
     detections.csv has MOTChallenge
-    rows ``frame,-1,x,y,w,h,conf,-1,-1,-1`` (1-based frames, frame pixels); registration.csv and
-    config.toml go beside it.
+    rows ``frame,-1,x,y,w,h,conf,-1,-1,-1`` (1-based frames, frame pixels); registration.csv,
+    config.toml and summary.json (as track's, without track counts) go beside it.
 
     \b
     Examples:
@@ -90,6 +91,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
         load_inputs,
         load_regions,
         parse_frame_range,
+        where,
     )
 
     config = load_config(config_path, overrides)
@@ -110,7 +112,19 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
     with cleanup:
-        _detect(ctx, source, out, config, geomap=geomap, H_init=H_init,
+        info = {"command": "detect", "input": where(input_path), "map": where(map_path),
+                **({"ground": where(ground_path)} if ground_path is not None else {}),
+                **({"stabilised": True} if stabilised else {}),
+                # every option of the command, as `track` records them, so that summary.json and
+                # config.toml repeat the run
+                "options": {
+                    "map_init": where(map_init_path), "telemetry": where(telemetry_path),
+                    "telemetry_defaults": sorted(telemetry_defaults),
+                    "intrinsics": where(intrinsics_path), "roi": [where(r) for r in roi_paths],
+                    "ignore_region": [where(r) for r in ignore_paths], "fps": fps, "gsd": gsd,
+                    "frames": [start, stop], "stride": stride,
+                    **({"debug_video": True} if debug_video else {})}}
+        _detect(ctx, source, out, config, info, geomap=geomap, H_init=H_init,
                 gsd=1.0 if ground_path is not None else None if geomap else gsd,
                 undistort=undistort, regions=regions,
                 start=start, stop=stop, stride=stride, stabilised=stabilised,
@@ -119,14 +133,15 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
                            else f"--map-init {map_init_path}" if map_init_path else None))
 
 
-def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions, start, stop,
+def _detect(ctx, source, out, config, info: dict, *, geomap, H_init, gsd, undistort, regions, start, stop,
             stride, stabilised: bool, debug_video: bool, placed_by: str | None = None) -> None:
     from ..config import dumps_config
+    from ..detection.moving import oblique_hint
     from ..io.mot import write_mot
-    from ..outputs import detection_rows, registration_rows
+    from ..outputs import detection_rows, registration_rows, run_summary
     from ..pipeline import detect
     from ..registration import write_registration_csv
-    from .track_cmd import GracefulStop
+    from .track_cmd import GracefulStop, clip_hints, environment
 
     writer = None
     debug_tmp = out.partial / "debug.mp4"
@@ -173,6 +188,17 @@ def _detect(ctx, source, out, config, *, geomap, H_init, gsd, undistort, regions
         # identity rows with --stabilised, as `track --stabilised` writes them
         write_registration_csv(out.file("registration.csv"), registration_rows(result))
         out.write_text("config.toml", dumps_config(config))
+        hints = clip_hints(result, config, tracked=False)
+        if geomap is None and "ground" not in info:  # (with either, the detector models it)
+            hints.append(oblique_hint(result.detections, gsd))
+        hints = [h for h in hints if h]
+        for hint in hints:
+            log.warning(hint)
+        notes = {"interrupted_at_frame": result.last_frame} if interrupted is not None else {}
+        info = {**info, "wall_time_s": round(time.perf_counter() - t0, 3),
+                "environment": environment(), **notes, **({"hints": hints} if hints else {})}
+        summary = run_summary(result, geomap, info)
+        out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
         if writer is not None:
             writer.release()
             debug_tmp.replace(out.file("debug.mp4"))

@@ -257,17 +257,30 @@ def warn_memory(source, window_s: float, share: float = 0.5) -> None:
 
 
 
-def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
+def where(path) -> str | None:
+    """An input's place for ``summary.json``: absolute, so that ``--from``, ``render`` and
+    ``report`` find it from any folder (a stream's URL as given)."""
+    from ..io.frames import is_stream_url
+
+    if path is not None and is_stream_url(path):
+        return path
+    return str(Path(path).resolve()) if path is not None else None
+
+
+def clip_hints(result, config, *, builtin_detector: bool = True,
+               tracked: bool = True) -> list[str]:
     """Warnings about the clip itself, each a line for the log and ``summary.json`` ``hints``:
     a clip shorter than the shortest track kept (``association.min_length_s``: 10 frames at 30 fps
     gave 0 tracks and no word), one shorter than the background window (a wrong frame-rate tag:
     Santiago tagged 59.94 fps lost 0.22 HOTA), and frames that repeat the one before (a recorder
-    that dropped frames: 6 repeated frames cost 0.04 HOTA and 4 ID switches)."""
+    that dropped frames: 6 repeated frames cost 0.04 HOTA and 4 ID switches). ``tracked`` False
+    (``aerotrack detect``): no hint about tracks."""
     hints = []
     fps = float(result.fps or 30.0)
     # the clip's length, not the frames processed (--stride k processes every k-th)
     seconds = (result.last_frame - result.first_frame + 1) / fps if result.frames else 0.0
-    if result.frames and not result.tracks and seconds < 2 * config.association.min_length_s:
+    if (tracked and result.frames and not result.tracks
+            and seconds < 2 * config.association.min_length_s):
         hints.append(f"the clip is {round(seconds * fps)} frames ({seconds:.2f} s at {fps:g} frames/s) "
                      f"and tracks shorter than association.min_length_s "
                      f"({config.association.min_length_s:g} s) are dropped: is --fps right?"
@@ -278,7 +291,7 @@ def clip_hints(result, config, *, builtin_detector: bool = True) -> list[str]:
                      f"({config.detection.window_s:g} s), so the background has few samples: is "
                      f"--fps right?")
     n_dets = sum(len(d) for d in (result.detections or []))
-    if result.frames and not result.tracks and n_dets >= 10 and not hints:
+    if tracked and result.frames and not result.tracks and n_dets >= 10 and not hints:
         hints.append(f"{n_dets} detections but no track: none was seen consistently enough to be "
                      f"one (too few frames a second, {fps:g}; detections that jump; or the "
                      f"gates, see association.gate_chi2 and birth_cost)")
@@ -660,11 +673,6 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
         check_scheduler(scheduler)
-
-    def where(path):
-        if is_stream_url(path):
-            return path
-        return str(Path(path).resolve()) if path is not None else None
 
     manifest = {
         "input": where(input_path), "detections": where(detections_path), "map": where(map_path),
