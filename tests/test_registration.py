@@ -590,3 +590,53 @@ def test_share_of_the_frames_off_the_map():
     assert share_off_map([np.eye(3)], 100, 100, (200, 200)) == pytest.approx(0.0, abs=0.02)
     assert share_off_map([shift], 100, 100, (200, 200)) == pytest.approx(0.5, abs=0.02)
     assert share_off_map([np.eye(3), shift], 100, 100, (200, 200)) == pytest.approx(0.25, abs=0.02)
+
+
+def _zoom_camera(s: float) -> np.ndarray:
+    """Frame -> map pixels of a camera over a fixed point, ``s`` map pixels per frame pixel."""
+    C = np.array([[1, 0, -W / 2], [0, 1, -H / 2], [0, 0, 1.0]])
+    M = np.array([[s, 0, 700.0], [0, s, 650.0], [0, 0, 1.0]])
+    return M @ C
+
+
+def test_registrar_follows_a_fast_zoom_out(map_img):
+    """Zooming out keeps every keyframe feature in view, so only the timer renewed the keyframe and
+    within its 0.5 s a fast zoom (1.8x in 1 s) passed ``max_scale_change``: frames failed as
+    degenerate, were taken for a scene change and reset (the probe's clip: 11 frames with no
+    detections after it, 9.6 px off). A keyframe once half the allowed change is used keeps up."""
+    fps, n = 30.0, 36
+    rng = np.random.default_rng(3)
+    reg = FrameRegistrar(RegistrationConfig(), fps)
+    H1 = None
+    for k in range(n):
+        Hm = _zoom_camera(0.5 * 1.8 ** min(k / fps, 1.0))
+        H1 = Hm if H1 is None else H1
+        r = reg.step(Frame(k + 1, render(map_img, Hm, rng), k / fps))
+        assert r.status == "ok", (k + 1, r.status, r.reason)
+        assert corner_error(r.H, np.linalg.inv(H1) @ Hm, W, H) < 2.0
+
+
+def test_a_blurred_frame_does_not_become_the_keyframe(map_img):
+    """Motion blur loses features, which called for a new keyframe: the blurred frame became it and
+    passed its registration error on to every later frame of a still camera (Santiago: 0.3 ->
+    2.3 px for the rest of the clip). It is registered, but the keyframe waits for a sharp one."""
+    fps = 30.0
+    rng = np.random.default_rng(4)
+    Hm = camera(0.0)
+    kernel = np.zeros((1, 25), np.float32)
+    kernel[0, :] = 1.0 / 25
+
+    def errors(cfg):
+        reg = FrameRegistrar(cfg, fps)
+        out = []
+        for k in range(30):
+            img = render(map_img, Hm, rng)
+            if k in (10, 11, 12):
+                img = cv2.filter2D(img, -1, kernel)
+            out.append(corner_error(reg.step(Frame(k + 1, img, k / fps)).H, np.eye(3), W, H))
+        return np.array(out)
+
+    kept = errors(RegistrationConfig())
+    assert kept[14:].max() < 0.5, kept.round(2)
+    before = errors(RegistrationConfig(keyframe_blur_ratio=0.0))  # the rule off: as it was
+    assert before[14:].max() > 2 * kept[14:].max(), (before.round(2), kept.round(2))

@@ -79,6 +79,13 @@ class RegistrationConfig:
         the risk of a queue of vehicles moving together pulling the estimate.
     keyframe_min_overlap : float
         A new keyframe is taken when fewer than this fraction of its features are still inliers.
+    keyframe_blur_ratio : float
+        A frame whose sharpness (mean absolute Laplacian at the tracking scale) is under this
+        fraction of the keyframe's is not made the keyframe when one falls due (for up to
+        ``keyframe_s`` more): a motion-blurred frame loses features, which called for a new
+        keyframe, and as one it passed its 2 px registration error on to every later frame (a
+        probe, 2026-12-03: Santiago with 3 motion-blurred frames, error 0.3 -> 2.3 px for the
+        rest of the clip; with this 0.3 px). 0 disables.
     ransac_threshold_px : float
         RANSAC inlier threshold, in full-resolution frame pixels.
     estimator : str
@@ -138,6 +145,7 @@ class RegistrationConfig:
     polish: bool = True
     keyframe_s: float = 0.5
     keyframe_min_overlap: float = 0.6
+    keyframe_blur_ratio: float = 0.5
     keyframe_grid: bool = False
     mask_detections: bool = True
     ransac_threshold_px: float = 2.0

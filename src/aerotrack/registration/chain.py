@@ -132,6 +132,18 @@ def check_homography(H: np.ndarray | None, width: int, height: int, *,
     return None
 
 
+def area_ratio(H: np.ndarray, width: int, height: int) -> float:
+    """Area of the frame's image under ``H`` over the frame's area (the scale change squared; the
+    quantity ``check_homography`` bounds by ``max_scale_change``); NaN when a corner maps to or
+    beyond the horizon."""
+    H = np.asarray(H, dtype=np.float64)
+    hom = frame_corners(width, height) @ H[:, :2].T + H[:, 2]
+    if np.any(hom[:, 2] <= 1e-6 * abs(H[2, 2])):
+        return float("nan")
+    q = hom[:, :2] / hom[:, 2:3]
+    return abs(_signed_area(q)) / float(width * height)
+
+
 def _jacobian(H: np.ndarray, p: np.ndarray) -> np.ndarray:
     """2x2 Jacobian of the projective map ``H`` at point ``p``."""
     x, y = p

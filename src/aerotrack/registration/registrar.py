@@ -23,7 +23,7 @@ from ..config import RegistrationConfig
 from ..errors import ConfigError, InputError
 from ..io.output import atomic_write_text
 from ..types import Failure, Frame, Registration
-from .chain import normalize, scale_homography
+from .chain import area_ratio, normalize, scale_homography
 from .frame2frame import (
     ESTIMATORS,
     METHODS,
@@ -63,6 +63,9 @@ def check_config(config: RegistrationConfig) -> None:
             raise ConfigError(f"config registration.{name}: must be positive")
     if not (0 < config.keyframe_min_overlap <= 1):
         raise ConfigError("config registration.keyframe_min_overlap: must be in (0, 1]")
+    if not (0 <= config.keyframe_blur_ratio <= 1):
+        raise ConfigError(f"config registration.keyframe_blur_ratio: "
+                          f"{config.keyframe_blur_ratio!r} must be in [0, 1]")
     for name in ("refine_every_s", "carry_s", "reset_after_s", "keyframe_s"):
         if getattr(config, name) < 0:
             raise ConfigError(f"config registration.{name}: must not be negative")
@@ -125,6 +128,7 @@ class FrameRegistrar:
         self._ref_H = self.H_init
         self._ref_index = 0
         self._ref_time = 0.0
+        self._ref_sharp = 0.0  # the keyframe's sharpness (:func:`sharpness`)
         self._points: np.ndarray | None = None  # keyframe features, tracking-scale pixels
         self._key_n = 1  # features the keyframe started with
         self._M_key_last = np.eye(3)  # keyframe -> last good frame, tracking-scale pixels
@@ -217,6 +221,23 @@ class FrameRegistrar:
         else:
             timed = frame.time - self._ref_time >= cfg.keyframe_s - 1e-9
         key_due = gap > 1 or timed or est[1].inliers < cfg.keyframe_min_overlap * self._key_n
+        if not key_due:
+            # Zooming out keeps every keyframe feature in view, so only the timer renewed the
+            # keyframe, and over its 0.5 s a fast zoom (1-2 % a frame) passed max_scale_change:
+            # the frames failed as degenerate, were taken for a scene change and reset, and
+            # detection restarted with 11 frames of no detections (a probe, 2026-12-03). A new
+            # keyframe once half the allowed scale change is used keeps the steps small.
+            ratio = area_ratio(est[0], gray.shape[1], gray.shape[0])
+            lim = math.sqrt(cfg.max_scale_change)
+            key_due = not (1.0 / lim <= ratio <= lim)
+        if (key_due and gap == 1 and cfg.keyframe_blur_ratio > 0
+                and frame.time - self._ref_time < 2 * cfg.keyframe_s - 1e-9
+                and sharpness(gray) < cfg.keyframe_blur_ratio * self._ref_sharp):
+            # a blurred frame loses features (which called for a keyframe) and registers worse:
+            # as the keyframe it would pass its error on to every later frame
+            log.debug("frame %d: blurred (sharpness %.2f of the keyframe's); not a keyframe",
+                      frame.index, sharpness(gray) / max(self._ref_sharp, 1e-9))
+            key_due = False
         if cfg.polish and lk and (key_due or refine_due):
             # Only a frame that becomes a keyframe (or starts a map refinement) is chained into
             # later frames: the polish, which removes the bias that chaining turns into drift, is
@@ -261,6 +282,7 @@ class FrameRegistrar:
         if cfg.keyframe_grid or len(pts) < cfg.keyframe_min_overlap * cfg.max_features:
             pts = detect_features(gray, cfg.max_features, mask).reshape(-1, 2)
         self._ref_gray, self._ref_H, self._points = gray, normalize(H), pts
+        self._ref_sharp = sharpness(gray) if cfg.keyframe_blur_ratio > 0 else 0.0
         self._ref_index, self._ref_time = frame.index, frame.time
         self._key_n = max(len(pts), 1)
         self._M_key_last = np.eye(3)
@@ -331,6 +353,12 @@ class FrameRegistrar:
                                 search_scale=3.0)
         log.info("frame %d: %s; carrying the last motion", frame.index, reason)
         return Registration(frame.index, H, "carried", 0, float("nan"), float("nan"), reason)
+
+
+def sharpness(gray: np.ndarray) -> float:
+    """Mean absolute Laplacian of a grey image: falls to a third or less on a motion-blurred
+    frame of the same view (Santiago at half size: 11.3 -> 3.9 for a 25-pixel streak)."""
+    return float(np.abs(cv2.Laplacian(gray, cv2.CV_16S)).mean())
 
 
 def register_frames(frames: Iterable[Frame], config: RegistrationConfig, fps: float, geomap=None,
