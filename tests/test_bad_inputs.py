@@ -1473,3 +1473,37 @@ def test_an_implausible_vehicle_length_questions_the_scale():
     assert "median 15.0 m long" in scale_hint(result(15.0), "--ground")
     assert "median 0.8 m long" in scale_hint(result(0.8), "--gsd")
     assert scale_hint(result(15.0), None) is None  # an estimated scale is not the user's
+
+
+def test_a_stretch_without_detections_is_named_with_its_cause():
+    """A registration reset restarts the background, and frames after it find nothing until it has
+    samples: the probe's zoom clip had 11 such frames and no word of them anywhere."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from aerotrack.cli.track_cmd import detection_gap_hint
+    from aerotrack.config import load_config
+    from aerotrack.types import Registration
+
+    class Dets:
+        def __init__(self, frame, n):
+            self.frame, self.n = frame, n
+
+        def __len__(self):
+            return self.n
+
+    def result(zero, resets=()):
+        dets = [Dets(f, 0 if f in zero else 5) for f in range(1, 91)]
+        regs = {f: Registration(f, np.eye(3), "reset" if f in resets else "ok", 50, 0.9, 0.1,
+                                "scene change; new reference" if f in resets else "")
+                for f in range(1, 91)}
+        return SimpleNamespace(detections=dets, registrations=regs, fps=30.0)
+
+    cfg = load_config()
+    hint = detection_gap_hint(result(range(40, 51), resets=(38, 47)), cfg)
+    assert hint.startswith("frames 40-50 (11 frames) have no detection")
+    assert "at frame 38 (scene change" in hint
+    assert "started over" not in detection_gap_hint(result(range(40, 51)), cfg)
+    assert detection_gap_hint(result(range(40, 45)), cfg) is None  # 5 frames: under 0.3 s
+    assert detection_gap_hint(result(range(1, 30)), cfg) is None  # the first half window

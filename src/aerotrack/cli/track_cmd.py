@@ -300,6 +300,9 @@ def clip_hints(result, config, *, builtin_detector: bool = True,
                      f"pixels x {x}-{x + w}, y {y}-{y + h}) and was left in: a crosshair? "
                      f"--set detection.overlay_mask=all (or an --ignore-region) leaves it out. A "
                      f"vehicle the camera keeps centred looks the same: then keep it")
+    gap = detection_gap_hint(result, config)
+    if gap:
+        hints.append(gap)
     rep = getattr(result, "repeated_frames", None) or []
     if rep:
         shown = ", ".join(str(f) for f in rep[:5]) + (", ..." if len(rep) > 5 else "")
@@ -307,6 +310,54 @@ def clip_hints(result, config, *, builtin_detector: bool = True,
                      f"(frame{'s' * (len(rep) != 1)} {shown}): a recorder that dropped frames? "
                      f"The tracker sees each as a stop and then a jump")
     return hints
+
+
+#: A stretch of frames without a detection is named when it lasts this long (seconds) in a clip
+#: whose other frames hold a median of at least GAP_MIN_MEDIAN detections.
+GAP_MIN_S = 0.3
+GAP_MIN_MEDIAN = 3
+
+
+def detection_gap_hint(result, config) -> str | None:
+    """A warning naming the longest stretch of frames with no detection in a clip whose other
+    frames have several each, with its likely cause when it follows a registration reset (the
+    background restarts there and needs frames before it finds anything): a zoom taken for a scene
+    change left 11 frames without detections and no word in the log or ``summary.json`` (a probe,
+    2026-12-03)."""
+    import numpy as np
+
+    dets = list(result.detections or [])
+    if len(dets) < 10:
+        return None
+    frames = np.array([d.frame for d in dets])
+    counts = np.array([len(d) for d in dets])
+    if not (counts > 0).any() or np.median(counts[counts > 0]) < GAP_MIN_MEDIAN:
+        return None
+    fps = float(result.fps or 30.0)
+    best, start = (0, 0, 0), None
+    for k, c in enumerate(np.append(counts, 1)):
+        if c == 0 and start is None:
+            start = k
+        elif c != 0 and start is not None:
+            if k - start > best[0]:
+                best = (k - start, start, k - 1)
+            start = None
+    n, a, b = best
+    if n == 0 or (frames[b] - frames[a] + 1) / fps < GAP_MIN_S:
+        return None
+    if a == 0 or b == len(frames) - 1:  # the clip's first (or last) half window: expected
+        return None
+    first, last = int(frames[a]), int(frames[b])
+    regs = result.registrations or {}
+    window = int(round(config.detection.window_s * fps))
+    resets = [i for i, r in sorted(regs.items())
+              if r.status in ("reset", "reanchored") and first - window <= i <= last]
+    before = [i for i in resets if i <= first]
+    at = before[-1] if before else resets[0] if resets else None
+    why = (f": registration started over at frame {at} ({regs[at].reason}), and the background "
+           f"with it" if at is not None else "")
+    return (f"frames {first}-{last} ({last - first + 1} frames) have no detection while the others "
+            f"have a median of {int(np.median(counts[counts > 0]))}{why}")
 
 
 def check_ground(ground_path, input_path, others: dict) -> None:
