@@ -77,11 +77,21 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 150 and summary["counts"]["tracks"] >= 1
     assert summary["map_crs"] == "EPSG:4326"  # what tracks.csv's x, y are in
+    # what the local sampler did: most proposals are rejected, some accepted
+    mcmc = summary["mcmc"]
+    assert 0 < mcmc["accepted"] < mcmc["proposed"]
+    assert sum(a for a, _ in mcmc["by_move"].values()) == mcmc["accepted"]
+    assert set(mcmc["by_move"]) >= {"birth", "death", "split", "merge", "switch"}
     # same input, config and seed: the same tracks
     again = tmp_path / "again"
     main(["-q", "track", str(scene / "frames"), "--out", str(again), "--map",
           str(scene / "map.tif"), "--map-init", str(scene / "map_init.txt"), "--seed", "1"])
     assert (again / "tracks.csv").read_text() == (out / "tracks.csv").read_text()
+    # the sampler off (the ablation of docs/DESIGN.md): no proposal, and other tracks
+    off = tmp_path / "off"
+    main(["-q", "track", "--from", str(out), "--out", str(off), "--set",
+          "association.min_iters=0", "--set", "association.iters_per_ambiguity=0"])
+    assert json.loads((off / "summary.json").read_text())["mcmc"]["proposed"] == 0
 
 
 

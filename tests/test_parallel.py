@@ -419,6 +419,7 @@ def test_track_command_runs_on_the_cluster(tmp_path, scene, client):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 45 and summary["counts"]["registered_frames"] == 45
     assert summary["scheduler"] == client.scheduler.address and summary["options"]["on_dask"]
+    assert summary["mcmc"]["proposed"] > 0  # the segments' samplers, added up
     assert not (out / ".partial").exists()
     # its stages/ serve `track --from` like a single process's: the same detections come back
     again = tmp_path / "again"

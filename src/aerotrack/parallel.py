@@ -132,6 +132,19 @@ WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
 GOOD_STATUS = ("ok", "refined")
 
 
+
+def sum_mcmc(counts: list[dict | None]) -> dict | None:
+    """The segments' MCMC counts added up per move (None when no segment associated)."""
+    given = [c for c in counts if c]
+    if not given:
+        return None
+    out: dict = {"proposed": {}, "accepted": {}}
+    for c in given:
+        for kind, total in out.items():
+            for move, n in c[kind].items():
+                total[move] = total.get(move, 0) + int(n)
+    return out
+
 @dataclass(frozen=True)
 class ParallelConfig:
     """How a video is cut into segments.
@@ -385,6 +398,8 @@ class SegmentResult:
     cpu_s: float = 0.0  # CPU seconds of the worker process meanwhile (all its threads)
     #: Detections the stop follower added in the frames the segment owns (None: it is off).
     followed: int | None = None
+    #: Local association's MCMC proposals and acceptances (``Result.mcmc``), or None.
+    mcmc: dict | None = None
     started: float = 0.0  # time.time() on the worker when the task started and ended (the
     ended: float = 0.0  # timeline of a run: dispatch, imbalance, return of results)
     #: The segment's world is the map's pixels (registered against it), not its first frame's.
@@ -496,6 +511,7 @@ def run_segment(task: SegmentTask) -> SegmentResult:
                          repeated_frames=[f for f in pipe.repeated_frames
                                           if seg.own_start <= f <= seg.own_stop],
                          followed=None if pipe.follower is None else pipe.follower.n_followed,
+                         mcmc=getattr(pipe, "mcmc", None),
                          wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
                          started=started, ended=time.time())
 
@@ -1191,7 +1207,7 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
                                 segs[-1].own_stop if segs else 0),
                     followed=(None if all(getattr(r, "followed", None) is None for r in results)
                               else sum(getattr(r, "followed", None) or 0 for r in results)),
-                    overlay_mask=overlay,
+                    overlay_mask=overlay, mcmc=sum_mcmc([getattr(r, "mcmc", None) for r in results]),
                     repeated_frames=sorted(f for r in results
                                            for f in getattr(r, "repeated_frames", [])))
     return result, report

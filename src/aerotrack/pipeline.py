@@ -76,6 +76,10 @@ class Result:
         Detections the stop follower added (``association.follow_stopped``; None when it is
         off; a segment-parallel run counts each segment's own frames): associated like the
         others, not in ``detections``.
+    mcmc : dict or None
+        Local association's MCMC moves (:meth:`LocalAssociator.mcmc_counts`): ``proposed`` and
+        ``accepted`` per move, summed over the segments with ``--workers`` (whose overlaps are
+        sampled twice); None without association.
     """
 
     tracks: list[Track]
@@ -95,6 +99,7 @@ class Result:
     overlay_mask: np.ndarray | None = None
     overlay_held: list[tuple[int, int, int, int]] = field(default_factory=list)
     resumed: dict | None = None
+    mcmc: dict | None = None
 
     def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
         n_dets = sum(len(d) for d in self.detections)
@@ -192,6 +197,8 @@ class Pipeline:
         self.tracklets: list[Track] | TrackletSpill = (
             TrackletSpill(None if checkpoint_dir is None else Path(checkpoint_dir) / "tracklets")
             if spill else [])
+        #: Local association's MCMC counts (``Result.mcmc``), set when association ends.
+        self.mcmc: dict | None = None
         self.timings = {"registration": 0.0, "detection": 0.0, "association": 0.0, "linking": 0.0}
         self.cpu_timings = dict(self.timings)
         self.frame_size: tuple[int, int] | None = None
@@ -694,6 +701,7 @@ class Pipeline:
         if self.associator is not None:
             with self._timed("association"):
                 self.tracklets.extend(_thin_appearance(t) for t in self.associator.flush())
+            self.mcmc = self.associator.mcmc_counts()
         self.detector = self.associator = None
         self.registrar = _Ended()
         if isinstance(self.tracklets, TrackletSpill):
@@ -733,7 +741,8 @@ class Pipeline:
                       followed=None if self.follower is None else self.follower.n_followed,
                       frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames),
                       overlay_mask=mask,
-                      overlay_held=[] if self.overlay is None else list(self.overlay.held))
+                      overlay_held=[] if self.overlay is None else list(self.overlay.held),
+                      mcmc=self.mcmc)
 
     @property
     def overlay_mask(self) -> np.ndarray | None:

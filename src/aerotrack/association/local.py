@@ -139,6 +139,13 @@ class LocalAssociator:
         self.next_id = 1
         self.stats = {"frames": 0, "mcmc_iters": 0}
 
+    def mcmc_counts(self) -> dict | None:
+        """The sampler's proposals and acceptances so far, per move (``{"proposed": {move: n},
+        "accepted": {move: n}}``), or None before it started."""
+        if self.sampler is None:
+            return None
+        return {"proposed": dict(self.sampler.proposed), "accepted": dict(self.sampler.accepted)}
+
     def set_frame_step(self, step: int) -> None:
         """Frames come every ``step``-th (``--stride``): the link gate follows the rate actually
         processed, ``fps / step`` (:data:`LOW_RATE_FPS`; at ``--stride 15`` on a 30 frames/s
