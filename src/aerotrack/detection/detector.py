@@ -209,6 +209,22 @@ def choose_hold(small: np.ndarray, a: np.ndarray, b: np.ndarray, blobs: list[Blo
     return out
 
 
+def uncovered_share(H: np.ndarray, shape: tuple[int, int]) -> float:
+    """Share of a frame's area that the frame ``H`` maps it into (frame pixels -> the other
+    frame's pixels, same size ``shape``) does not show: the new ground a pan brings."""
+    h, w = shape
+    rect = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float32)
+    q = np.c_[rect, np.ones(4)] @ np.asarray(H, np.float64).T
+    if np.any(q[:, 2] <= 1e-9):
+        return 1.0
+    q = (q[:, :2] / q[:, 2:]).astype(np.float32)
+    area = abs(cv2.contourArea(q))
+    if area <= 0:
+        return 1.0
+    inter, _ = cv2.intersectConvexConvex(rect, q)
+    return float(max(0.0, 1.0 - inter / area))
+
+
 def blob_polygons(blobs: list[Blob], grow: int = 1) -> list[np.ndarray]:
     """Convex hulls of blobs grown by ``grow`` pixels, as (P, 2) float polygons in the pixels
     the blobs were found in (the areas a frame's detections keep out of the background).
@@ -455,10 +471,13 @@ class MovingObjectDetector:
         h, w = p.small.shape[:2]
         prev = self._bg
         if prev is not None and 0 <= c - prev.index < self.update:
-            M = to_cv_homography(Hc_inv @ prev.H, self.scale)
-            bg = warp(prev.bg, M, (w, h), replicate=True)
-            testable = warp(prev.testable, M, (w, h), nearest=True)
-            return bg, testable
+            # new ground (a fast pan) has no value in the warped background: recompute
+            shape = p.frame.image.shape[:2]
+            if not (0 < self.config.refresh_uncovered
+                    <= uncovered_share(np.linalg.inv(prev.H) @ Hc, shape)):
+                M = to_cv_homography(Hc_inv @ prev.H, self.scale)
+                return (warp(prev.bg, M, (w, h), replicate=True),
+                        warp(prev.testable, M, (w, h), nearest=True))
 
         lo, hi = self._window(c)
         windows = [(lo, hi)]
@@ -807,6 +826,7 @@ def check_config(c: DetectionConfig) -> None:
     ranges = [
         ("window_s", 0, None, True, False), ("sample_every_s", 0, c.window_s, True, False),
         ("update_every_s", 0, None, True, False), ("model_scale", 0, 1, True, False),
+        ("refresh_uncovered", 0, 1, False, False),
         ("min_valid_samples", 1, None, False, False), ("threshold_sigma", 0, None, False, False),
         ("min_threshold", 0, 255, False, True), ("seed_ratio", 1, None, False, False),
         ("seed_sigma", 0, None, False, False), ("gain_block_px", 0, None, False, False),
