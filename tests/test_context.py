@@ -106,6 +106,38 @@ def test_paper_selects_alike_predictors_and_drops_a_diverging_one():
     assert later[2] == first[2] + 70
 
 
+def test_paper_takes_the_section_whose_lce_is_closest_to_0_not_the_lowest():
+    """"The closer the value of gamma is to 0, the more similar" (Ali et al. 4.2.2): a section
+    that converges on the predictand (gamma far below 0) is not preferred to one that moves
+    exactly alike (gamma 0); the lowest gamma had picked it."""
+    cfg = ContextConfig(history_s=1.0, lce_alpha=0.05)
+    f, xy = _straight_then(1, 200, 20.0)  # moves exactly alike, in parallel ...
+    xy = xy.copy()
+    xy[149, 1] += 3.0                      # ... but for one frame's glitch at frame 150
+    table = _table({1: _straight_then(1, 200, 0.0), 2: (f, xy)})
+    pred = PaperPredictor(cfg, fps=30.0)
+    te = pred.select(table, 1, 190)[2]
+    # the section starting at frame 149 has the glitch as its second point and ends on the
+    # predictand's path: distances 3 then 0, a gamma of about -0.7
+    assert te != 179
+    Z = np.column_stack([np.arange(te - 30, te + 1) - 1.0, np.zeros(31)])
+    sec = xy[te - 31:te] - xy[te - 31] + Z[0]
+    assert abs(lce(Z, sec)) <= cfg.lce_alpha
+
+
+def test_paper_keeps_its_predictors_frame_by_frame_and_drops_one_that_diverged():
+    """The set is kept as the paper keeps it: a track that moved alike until frame 71 and then
+    turned away is dropped by frame 80 (its advanced section diverges), though a fresh search at
+    80 would find its earlier, alike sections."""
+    cfg = ContextConfig(history_s=1.0, lce_alpha=0.02)
+    tracks = {1: _straight_then(1, 200, 0.0), 2: _straight_then(1, 200, 20.0),
+              3: _straight_then(1, 200, -15.0), 4: _straight_then(1, 200, 40.0, turn_at=70)}
+    table = _table(tracks)
+    pred = PaperPredictor(cfg, fps=30.0)
+    assert set(pred.select(table, 1, 80)) == {2, 3, 4}
+    assert set(pred.maintained(table, 1, 80)) == {2, 3}
+
+
 def test_context_uses_predictors_on_the_same_path_not_a_diverging_one():
     """Past objects drove a right turn; one went straight on. The target, arriving on the same road,
     follows the turn; a track heading the other way is never a predictor."""

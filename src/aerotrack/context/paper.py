@@ -102,7 +102,20 @@ class PaperPredictor(MotionPredictor):
     Choices where the paper is silent or degenerate (see :func:`lce`):
 
     * one predictor per other track: its section (ending at or before ``last_seen``, all F+1 frames
-      present) with the lowest LCE, kept when ``gamma <= config.lce_alpha``;
+      present) whose LCE is closest to 0, kept when ``|gamma| <= config.lce_alpha``. The paper
+      writes the test as ``gamma <= alpha`` and says "the closer the value of gamma is to 0, the
+      more similar" the motions; read literally, the test admits a section converging on the
+      predictand at any rate (gamma far below 0), which that sentence calls dissimilar, and the
+      lowest gamma picks it over an identical section (gamma 0). (Until 2026-12-03 the code took
+      the lowest gamma: on a convoy along one curved road it chose sections with gamma -0.11 to
+      -0.27 at the wrong places over the leaders' aligned ones at 0.03-0.18, a probe.) Of
+      sections equally close to 0 (a track that moved exactly alike for a while), the latest;
+    * the set is kept as the paper keeps it (4.2.2): selected one window (F frames) before
+      ``last_seen``, then advanced frame by frame with the predictand, each predictor dropped
+      when its advanced section's LCE leaves the threshold (the tracks diverged); tracks not in
+      the set are searched once more at ``last_seen``. The paper maintains the set from the
+      predictand's first window on; one window back bounds the cost (a search per frame over
+      every other track) and is what the drop test needs to see a divergence that is under way;
     * the regression runs on the predictors' raw positions: predictor j at step k is at
       ``r_j(t_e^j + k)``; a predictor whose track has no row there is dropped from then on;
     * during the prediction there is no observation of the target to test divergence against, so
@@ -120,15 +133,16 @@ class PaperPredictor(MotionPredictor):
         return _lce_batch(Z, sec - sec[:, :1] + Z[None, :1])
 
     def select(self, table: TrackTable, track_id: int, T: int,
-               previous: dict[int, int] | None = None, previous_T: int | None = None) -> dict[int, int]:
+               previous: dict[int, int] | None = None, previous_T: int | None = None,
+               search: bool = True) -> dict[int, int]:
         """PredictorSelection of Ali et al. 4.2.2: ``{predictor id: end frame t_e of its section}``.
 
         Without ``previous``, every other track's F-frame sections ending no later than ``T`` are
-        searched and the lowest-LCE section of each track is kept when ``gamma <= lce_alpha``.
-        With ``previous`` (the set selected at ``previous_T``), each kept predictor's section is
-        advanced by ``p = T - previous_T`` frames and dropped when its LCE against the predictand's
-        new section exceeds ``lce_alpha`` (the tracks diverged); tracks not in the set are searched
-        as above.
+        searched and the section of each track whose LCE is closest to 0 is kept when
+        ``|gamma| <= lce_alpha``. With ``previous`` (the set selected at ``previous_T``), each
+        kept predictor's section is advanced by ``p = T - previous_T`` frames and dropped when its
+        LCE against the predictand's new section leaves ``lce_alpha`` (the tracks diverged);
+        tracks not in the set are searched as above unless ``search`` is False.
         """
         F = self.window
         Z = _section(table, track_id, T, F)
@@ -150,17 +164,39 @@ class PaperPredictor(MotionPredictor):
                 te = previous[j] + shift
                 e = int(np.searchsorted(jf, te))
                 if (e < len(jf) and jf[e] == te and e >= F and jf[e - F] == te - F
-                        and self._gamma(Z, jf, jxy, np.array([e]))[0] <= self.config.lce_alpha):
+                        and abs(self._gamma(Z, jf, jxy, np.array([e]))[0])
+                        <= self.config.lce_alpha):
                     chosen[j] = te
                 continue  # a diverged predictor is dropped, not searched again at once
+            if not search:
+                continue
             ends = np.flatnonzero((jf[F:] - jf[:-F]) == F) + F  # sections of F+1 consecutive frames
             if len(ends) == 0:
                 continue
-            g = self._gamma(Z, jf, jxy, ends)
-            k = int(np.argmin(g))
+            g = np.abs(self._gamma(Z, jf, jxy, ends))  # the closer to 0, the more alike
+            k = len(g) - 1 - int(np.argmin(g[::-1]))  # of equals, the latest section
             if g[k] <= self.config.lce_alpha:
                 chosen[j] = int(jf[ends[k]])
         return chosen
+
+    def maintained(self, table: TrackTable, track_id: int, T: int) -> dict[int, int]:
+        """The predictor set at ``T`` as the paper keeps it: selected at ``T - F`` (or where the
+        predictand's first window ends, if later), advanced frame by frame to ``T`` with the
+        diverged ones dropped, then every track not in the set (nor dropped on the way) searched
+        at ``T``."""
+        F = self.window
+        t0 = T - F
+        while t0 < T and _section(table, track_id, t0, F) is None:
+            t0 += 1
+        chosen = self.select(table, track_id, t0)
+        seen = set(chosen)
+        for t in range(t0 + 1, T + 1):
+            if not chosen:
+                break
+            chosen = self.select(table, track_id, t, previous=chosen, previous_T=t - 1,
+                                 search=False)
+        fresh = self.select(table, track_id, T, previous=chosen, previous_T=T)
+        return {j: te for j, te in fresh.items() if j in chosen or j not in seen}
 
     #: Queries predicted by the Kalman fallback (fewer than ``min_predictors`` predictors), for
     #: ``aerotrack predict`` to say so.
@@ -168,7 +204,7 @@ class PaperPredictor(MotionPredictor):
 
     def _predict(self, table, track_id, fr, xy, T, h):
         fallback = _fallback_predict(fr, xy, h, self)
-        chosen = sorted(self.select(table, track_id, T).items())
+        chosen = sorted(self.maintained(table, track_id, T).items())
         if len(chosen) < self.config.min_predictors:
             self.fallbacks += 1
             return fallback
