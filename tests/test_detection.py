@@ -768,6 +768,11 @@ def test_small_vehicles_without_a_scale_get_a_hint():
     assert small_vehicles_hint(tracks(9.0, n=10), (1280, 720), c) is None
     off = dataclasses.replace(c, pixel_gates_reference_px=0.0)
     assert small_vehicles_hint(tracks(9.0), (1280, 720), off) is None
+    # larger than the gates assume (a 1024x540 crop of 1080p footage: 38 px against 19): they
+    # fall into pieces, and a scale sizes the gates for them
+    big = small_vehicles_hint(tracks(38.0), (1024, 540), c)
+    assert big and "large for a 1024x540 frame" in big and "38 px" in big and "--gsd" in big
+    assert small_vehicles_hint(tracks(30.0), (1024, 540), c) is None
 
 
 def test_model_resolution_is_raised_where_vehicles_are_small_on_the_map():
@@ -957,6 +962,23 @@ def test_an_oblique_view_is_named_from_the_detections_sizes():
     assert hint and "bottom of the frame" in hint and "split_blobs=false" in hint
     assert "--gsd" not in hint and "--gsd" in frames(2.2, gsd=0.1)
     assert frames(1 / 2.2).startswith("vehicles near the top")
+
+
+def test_the_oblique_hint_reads_vehicles_not_noise_blobs():
+    """Small noise blobs near the top of a nadir frame pulled the detections' median down there,
+    and nadir footage of small vehicles was called oblique (a probe: 1.5-2.0x against 1.1-1.25 in
+    the ground truth). ``track`` gives the hint its tracks' observed boxes instead."""
+    from aerotrack.detection.moving import oblique_hint
+
+    rng = np.random.default_rng(1)
+    n = 400
+    y = rng.uniform(0, 1000, n)
+    side = 12 * rng.uniform(0.8, 1.2, n)  # one size across the frame: nadir
+    vehicles = np.column_stack([rng.uniform(0, 1800, n), y - side / 2, side * 1.6, side / 1.6])
+    yn = rng.uniform(0, 300, 300)  # speckle in the top rows (texture, glare)
+    noise = np.column_stack([rng.uniform(0, 1800, 300), yn, np.full(300, 3.0), np.full(300, 3.0)])
+    assert oblique_hint(None, boxes=np.vstack([vehicles, noise])) is not None
+    assert oblique_hint(None, boxes=vehicles) is None
 
 
 def test_metric_gates_follow_the_scale_across_an_oblique_frame():

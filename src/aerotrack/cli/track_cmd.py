@@ -811,10 +811,14 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
                                              result.frames))
         if dets is None:
+            import numpy as np
+
             from ..detection.moving import oblique_hint
 
             if geomap is None and ground_path is None:  # (with either, the detector models it)
-                hints.append(oblique_hint(result.detections, gsd))
+                observed = [p.box for t in result.tracks for p in t.points
+                            if p.kind == "observed" and p.box is not None]
+                hints.append(oblique_hint(None, gsd, boxes=np.asarray(observed, float)))
         hints.append(scale_hint(result, "--ground" if ground_path is not None else
                                 "--map/--map-init" if geomap is not None else
                                 "--gsd" if gsd is not None else None))

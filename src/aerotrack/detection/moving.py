@@ -145,7 +145,20 @@ def small_vehicles_hint(tracks, frame_size: tuple[int, int], config: DetectionCo
 
     A run of at least ``n_frames`` 50 frames that tracked at most one vehicle gets a milder hint
     too (vehicles far below the gates leave too few tracks to measure: a 160x120 clip of 4 px
-    cars gave 1 track, HOTA 0.11, and 0.51 with ``--gsd``)."""
+    cars gave 1 track, HOTA 0.11, and 0.51 with ``--gsd``).
+
+    The gain of a scale for small vehicles is uneven (a probe, 2026-12-03): Santiago downscaled
+    to 480x270 (cars 9.6 px) 0.562 -> 0.559 HOTA with ``--gsd``, to 384x216 (7.8 px) 0.498 ->
+    0.537; generated scenes flown twice as high, seeds 5 / 7 / 11, 0.757 / 0.650 / 0.715 ->
+    0.744 / 0.681 / 0.668; so the hint says what a scale does, not that it will gain.
+
+    Vehicles over :data:`LARGE_RATIO` times the assumed length get the opposite hint: the
+    pixel gates (closing, join gap) are then too small for them and they fall into pieces. A
+    1024x540 crop of Santiago's 1080p frames (UAVDT's framing; cars 38 px against 19 assumed)
+    scored HOTA/IDF1 0.602/0.772 and 0.548/0.696 (MCMC seeds 0, 1) without a scale and
+    0.656/0.890, 0.660/0.892 with ``--gsd``; but generated scenes flown at a quarter of the
+    altitude (cars 70 px in 640x480) scored better without a scale (0.518 against 0.464 with
+    their map), hence the condition in its wording."""
     if config.pixel_gates_reference_px <= 0 or not frame_size:
         return None
     w, h = frame_size
@@ -160,19 +173,29 @@ def small_vehicles_hint(tracks, frame_size: tuple[int, int], config: DetectionCo
     if len(sides) < 20:
         return None
     median = float(np.median(sides))
+    if median > LARGE_RATIO * expected:
+        return (f"the tracked vehicles are large for a {w}x{h} frame (median box {median:.0f} px "
+                f"long; without a scale the detector is set for about {expected:.0f} px): if "
+                f"vehicles show as several boxes or tracks, give --gsd (metres per pixel) or --map, "
+                f"which size the gates for them")
     if median >= 0.5 * expected:
         return None
     return (f"the tracked vehicles are small for a {w}x{h} frame (median box {median:.0f} px "
             f"long; without a scale the detector is set for about {expected:.0f} px), so smaller "
-            f"ones are likely missed: give --gsd (metres per pixel) or --map")
+            f"ones may be missed: --gsd (metres per pixel) or --map sizes the gates for them "
+            f"(it helps most below about 8 px; README, Fitting it to your footage)")
 
+
+#: :func:`small_vehicles_hint` names vehicles this many times the length the pixel gates assume.
+LARGE_RATIO = 1.75
 
 #: :func:`oblique_hint` speaks when vehicles near one edge of the frame are this many times the
 #: size of those near the other.
 OBLIQUE_RATIO = 1.5
 
 
-def oblique_hint(detections, gsd: float | None = None) -> str | None:
+def oblique_hint(detections, gsd: float | None = None, *,
+                 boxes: np.ndarray | None = None) -> str | None:
     """A warning when the detections' sizes grow from the top of the frame to the bottom (or the
     reverse): an oblique view, which the detector models only with a map (its metric gates are
     set at each blob's place, :meth:`SizeGates.at`). Otherwise its blob rules compare each blob
@@ -187,11 +210,20 @@ def oblique_hint(detections, gsd: float | None = None) -> str | None:
     ``detection.split_blobs=false`` (near vehicles were cut into pieces, measured against the
     frame's median) 0.576/-/0.660 and 0.487/-/0.446 (nadir loses 0.017 HOTA); ``--gsd`` at the
     middle row's scale 0.495 instead of 0.555. None when there is nothing to say (fewer than 30
-    detections in either third)."""
+    detections in either third).
+
+    ``boxes`` ((N, 4) frame pixels) replaces the detections: ``track`` gives its tracks'
+    observed boxes, which hold no noise blob. On the raw detections, small noise blobs near the
+    top pulled its median down and nadir footage of small vehicles was called oblique (a probe,
+    2026-12-03: Santiago at 384x216 and 480x270 with tuned gates, a generated scene flown twice
+    as high with ``--gsd``: 1.5-2.0x against 1.1-1.25 in the ground truth); on tracked boxes 4
+    of those 5 runs are silent, and the oblique ones still speak (the warps 1.9 / 2.0, truck4
+    2.3)."""
     rows, sides = [], []
-    for d in detections or ():
-        if len(d):
-            b = np.asarray(d.boxes, float).reshape(-1, 4)
+    parts = ([np.asarray(boxes, float).reshape(-1, 4)] if boxes is not None else
+             [np.asarray(d.boxes, float).reshape(-1, 4) for d in detections or () if len(d)])
+    for b in parts:
+        if len(b):
             rows.append(b[:, 1] + b[:, 3] / 2)
             sides.append(np.sqrt(np.abs(b[:, 2] * b[:, 3])))
     if not rows:
