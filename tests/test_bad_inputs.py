@@ -1507,3 +1507,9 @@ def test_a_stretch_without_detections_is_named_with_its_cause():
     assert "started over" not in detection_gap_hint(result(range(40, 51)), cfg)
     assert detection_gap_hint(result(range(40, 45)), cfg) is None  # 5 frames: under 0.3 s
     assert detection_gap_hint(result(range(1, 30)), cfg) is None  # the first half window
+    # traffic thinning out to nothing and coming back is not a fault
+    quiet = result(range(40, 51))
+    for d in quiet.detections:
+        if d.frame in (36, 37, 38, 39, 51, 52, 53, 54):
+            d.n = 1
+    assert detection_gap_hint(quiet, cfg) is None

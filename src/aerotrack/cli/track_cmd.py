@@ -323,7 +323,8 @@ def detection_gap_hint(result, config) -> str | None:
     frames have several each, with its likely cause when it follows a registration reset (the
     background restarts there and needs frames before it finds anything): a zoom taken for a scene
     change left 11 frames without detections and no word in the log or ``summary.json`` (a probe,
-    2026-12-03)."""
+    2026-12-03). Without a reset it speaks only when the 5 frames on each side have a median of
+    :data:`GAP_MIN_MEDIAN` or more detections (an abrupt stop, not traffic thinning out)."""
     import numpy as np
 
     dets = list(result.detections or [])
@@ -354,6 +355,12 @@ def detection_gap_hint(result, config) -> str | None:
               if r.status in ("reset", "reanchored") and first - window <= i <= last]
     before = [i for i in resets if i <= first]
     at = before[-1] if before else resets[0] if resets else None
+    if at is None:
+        # without a restart, only an abrupt stop is named: traffic that thins out to nothing
+        # (a quiet road between platoons) is not a fault
+        around = [counts[max(0, a - 5):a], counts[b + 1:b + 6]]
+        if any(len(c) == 0 or np.median(c) < GAP_MIN_MEDIAN for c in around):
+            return None
     why = (f": registration started over at frame {at} ({regs[at].reason}), and the background "
            f"with it" if at is not None else "")
     return (f"frames {first}-{last} ({last - first + 1} frames) have no detection while the others "
