@@ -87,7 +87,7 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     main(["-q", "track", str(scene / "frames"), "--out", str(again), "--map",
           str(scene / "map.tif"), "--map-init", str(scene / "map_init.txt"), "--seed", "1"])
     assert (again / "tracks.csv").read_text() == (out / "tracks.csv").read_text()
-    # the sampler off (the ablation of docs/DESIGN.md): no proposal, and other tracks
+    # the sampler off (the ablation of docs/DESIGN.md): no proposal
     off = tmp_path / "off"
     main(["-q", "track", "--from", str(out), "--out", str(off), "--set",
           "association.min_iters=0", "--set", "association.iters_per_ambiguity=0"])
