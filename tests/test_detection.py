@@ -196,6 +196,40 @@ def test_new_ground_of_a_fast_pan_is_searched_before_the_next_update(monkeypatch
                                                                       before.round(2))
 
 
+def test_a_refresh_for_new_ground_keeps_the_update_schedule():
+    """A refresh between two updates does not move the schedule of the next ones: segments on
+    Dask are cut on that schedule's grid, so a refresh before a cut had put the segment out of
+    step with one process (a review: updates at 1-5, 10, 15, ... instead of 1, 6, 11, ...)."""
+    def cam(t):  # a fast pan for 0.4 s, then still
+        return np.array([[1.0, 0, 20 + 100 * min(t, 0.4)], [0, 1.0, 200], [0, 0, 1]])
+
+    frames, regs, _ = render([], 40, cam=cam)
+
+    def rebuilds(refresh):
+        det = MovingObjectDetector(DetectionConfig(window_s=2.0, update_every_s=0.5,
+                                                   refresh_uncovered=refresh), FPS)
+        built = []
+        background = det._background
+
+        def spy(p):
+            out = background(p)
+            if det._bg.index == p.frame.index:  # recomputed for this frame, not warped
+                built.append(p.frame.index)
+            return out
+
+        det._background = spy
+        for f, r in zip(frames, regs):
+            det.step(f, r)
+        det.flush()
+        return built
+
+    scheduled = rebuilds(0.0)
+    with_refresh = rebuilds(DetectionConfig().refresh_uncovered)
+    assert scheduled[:3] == [1, 6, 11]
+    assert set(scheduled) <= set(with_refresh) and len(with_refresh) > len(scheduled)
+    assert [f for f in with_refresh if f > 6] == [f for f in scheduled if f > 6]
+
+
 def test_causal_mode_has_no_delay():
     frames, regs, _ = render(MOVERS[:2], 12)
     det = MovingObjectDetector(DetectionConfig(window_s=2.0, causal=True), FPS)

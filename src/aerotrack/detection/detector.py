@@ -81,6 +81,10 @@ class _Background:
     held_since: np.ndarray  # (h, w) float32 time since which the pixel is held, +inf if not
     hold_bg: np.ndarray  # (h, w, 3) uint8: what a pixel that becomes held keeps (often ``bg``)
     cut: np.ndarray | None = None  # (h, w, 3) centred-window background when ``bg``'s was shifted
+    #: The frame of the last scheduled update (every ``update_every_s``); a refresh for new ground
+    #: (``refresh_uncovered``) keeps it, so the schedule stays on the run's grid (Dask segments
+    #: are cut on that grid, :func:`aerotrack.parallel.phase_period`). None: ``index``.
+    sched: int | None = None
 
 
 @contextmanager
@@ -210,11 +214,14 @@ def choose_hold(small: np.ndarray, a: np.ndarray, b: np.ndarray, blobs: list[Blo
 
 
 def uncovered_share(H: np.ndarray, shape: tuple[int, int]) -> float:
-    """Share of a frame's area that the frame ``H`` maps it into (frame pixels -> the other
-    frame's pixels, same size ``shape``) does not show: the new ground a pan brings."""
+    """Share of a frame's area that another frame of the same size ``shape`` did not show (the
+    new ground a pan brings); ``H`` maps this frame's pixels to the other's."""
     h, w = shape
+    H = np.asarray(H, np.float64)
+    if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+        return 1.0
     rect = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float32)
-    q = np.c_[rect, np.ones(4)] @ np.asarray(H, np.float64).T
+    q = np.c_[rect, np.ones(4)] @ (H / H[2, 2]).T
     if np.any(q[:, 2] <= 1e-9):
         return 1.0
     q = (q[:, :2] / q[:, 2:]).astype(np.float32)
@@ -470,14 +477,19 @@ class MovingObjectDetector:
         Hc_inv = np.linalg.inv(Hc)
         h, w = p.small.shape[:2]
         prev = self._bg
-        if prev is not None and 0 <= c - prev.index < self.update:
-            # new ground (a fast pan) has no value in the warped background: recompute
-            shape = p.frame.image.shape[:2]
-            if not (0 < self.config.refresh_uncovered
-                    <= uncovered_share(np.linalg.inv(prev.H) @ Hc, shape)):
-                M = to_cv_homography(Hc_inv @ prev.H, self.scale)
-                return (warp(prev.bg, M, (w, h), replicate=True),
-                        warp(prev.testable, M, (w, h), nearest=True))
+        sched = c  # a scheduled update, unless this is a refresh between two
+        if prev is not None:
+            last = getattr(prev, "sched", None)
+            last = prev.index if last is None else last
+            if 0 <= c - last < self.update:
+                # new ground (a fast pan) has no value in the warped background: recompute
+                shape = p.frame.image.shape[:2]
+                if not (0 < self.config.refresh_uncovered
+                        <= uncovered_share(np.linalg.inv(prev.H) @ Hc, shape)):
+                    M = to_cv_homography(Hc_inv @ prev.H, self.scale)
+                    return (warp(prev.bg, M, (w, h), replicate=True),
+                            warp(prev.testable, M, (w, h), nearest=True))
+                sched = last
 
         lo, hi = self._window(c)
         windows = [(lo, hi)]
@@ -508,7 +520,7 @@ class MovingObjectDetector:
                     cut[hold] = pbg[hold]
                 testable[hold] = 255
                 held_since[hold] = since[hold]
-        self._bg = _Background(c, Hc, bg, testable, held_since, bg, cut)
+        self._bg = _Background(c, Hc, bg, testable, held_since, bg, cut, sched)
         return bg, testable
 
     def _medians(self, windows: list[tuple[int, int]], Hc_inv: np.ndarray,
