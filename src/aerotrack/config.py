@@ -81,11 +81,16 @@ class RegistrationConfig:
         A new keyframe is taken when fewer than this fraction of its features are still inliers.
     keyframe_blur_ratio : float
         A frame whose sharpness (mean absolute Laplacian at the tracking scale) is under this
-        fraction of the keyframe's is not made the keyframe when one falls due (for up to
-        ``keyframe_s`` more): a motion-blurred frame loses features, which called for a new
-        keyframe, and as one it passed its 2 px registration error on to every later frame (a
-        probe, 2026-12-03: Santiago with 3 motion-blurred frames, error 0.3 -> 2.3 px for the
-        rest of the clip; with this 0.3 px). 0 disables.
+        fraction of the median of the last 9 registered frames' is not made the keyframe when
+        one falls due, until ``2 x keyframe_s`` after the last keyframe: a motion-blurred frame
+        loses features, which called for a new keyframe, and as one it passed its 2 px
+        registration error on to every later frame (a probe, 2026-12-03: Santiago with 3
+        motion-blurred frames, error 0.3 -> 2.3 px for the rest of the clip; with this 0.3 px).
+        Against the recent frames, not the keyframe: a pan blurred throughout is its own
+        baseline (against the keyframe's sharpness, such a pan was refused keyframes while its
+        features left the view, and a 12-16 px a frame pan failed and reset; a review). A
+        keyframe due for the scale change, or with ``keyframe_grid``, is never held back. 0
+        disables.
     ransac_threshold_px : float
         RANSAC inlier threshold, in full-resolution frame pixels.
     estimator : str

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..config import DetectionConfig, check_range
 from ..errors import ConfigError
+from ..registration.chain import uncovered_share
 from ..types import Detections, Frame, Registration, apply_homography, local_scale, local_scales
 from .appearance import colour_histogram, ring_descriptor
 from .background import (
@@ -211,25 +212,6 @@ def choose_hold(small: np.ndarray, a: np.ndarray, b: np.ndarray, blobs: list[Blo
     out = a.copy()
     cv2.copyTo(b, take_b, out)
     return out
-
-
-def uncovered_share(H: np.ndarray, shape: tuple[int, int]) -> float:
-    """Share of a frame's area that another frame of the same size ``shape`` did not show (the
-    new ground a pan brings); ``H`` maps this frame's pixels to the other's."""
-    h, w = shape
-    H = np.asarray(H, np.float64)
-    if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
-        return 1.0
-    rect = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float32)
-    q = np.c_[rect, np.ones(4)] @ (H / H[2, 2]).T
-    if np.any(q[:, 2] <= 1e-9):
-        return 1.0
-    q = (q[:, :2] / q[:, 2:]).astype(np.float32)
-    area = abs(cv2.contourArea(q))
-    if area <= 0:
-        return 1.0
-    inter, _ = cv2.intersectConvexConvex(rect, q)
-    return float(max(0.0, 1.0 - inter / area))
 
 
 def blob_polygons(blobs: list[Blob], grow: int = 1) -> list[np.ndarray]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 from ..types import Failure, apply_homography
@@ -142,6 +143,25 @@ def area_ratio(H: np.ndarray, width: int, height: int) -> float:
         return float("nan")
     q = hom[:, :2] / hom[:, 2:3]
     return abs(_signed_area(q)) / float(width * height)
+
+
+def uncovered_share(H: np.ndarray, shape: tuple[int, int]) -> float:
+    """Share of a frame's area that another frame of the same size ``shape`` did not show (the
+    new ground a pan brings); ``H`` maps this frame's pixels to the other's."""
+    h, w = shape
+    H = np.asarray(H, np.float64)
+    if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+        return 1.0
+    rect = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float32)
+    q = np.c_[rect, np.ones(4)] @ (H / H[2, 2]).T
+    if np.any(q[:, 2] <= 1e-9):
+        return 1.0
+    q = (q[:, :2] / q[:, 2:]).astype(np.float32)
+    area = abs(cv2.contourArea(q))
+    if area <= 0:
+        return 1.0
+    inter, _ = cv2.intersectConvexConvex(rect, q)
+    return float(max(0.0, 1.0 - inter / area))
 
 
 def _jacobian(H: np.ndarray, p: np.ndarray) -> np.ndarray:

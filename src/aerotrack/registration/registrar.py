@@ -12,7 +12,7 @@ import csv
 import io
 import logging
 import math
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -23,7 +23,7 @@ from ..config import RegistrationConfig
 from ..errors import ConfigError, InputError
 from ..io.output import atomic_write_text
 from ..types import Failure, Frame, Registration
-from .chain import area_ratio, normalize, scale_homography
+from .chain import area_ratio, normalize, scale_homography, uncovered_share
 from .frame2frame import (
     ESTIMATORS,
     METHODS,
@@ -128,7 +128,9 @@ class FrameRegistrar:
         self._ref_H = self.H_init
         self._ref_index = 0
         self._ref_time = 0.0
-        self._ref_sharp = 0.0  # the keyframe's sharpness (:func:`sharpness`)
+        #: Sharpness (:func:`sharpness`) of the last registered frames, the baseline a blurred
+        #: frame is told by (a pan blurred throughout is its own baseline).
+        self._recent_sharp: deque[float] = deque(maxlen=SHARPNESS_FRAMES)
         self._points: np.ndarray | None = None  # keyframe features, tracking-scale pixels
         self._key_n = 1  # features the keyframe started with
         self._M_key_last = np.eye(3)  # keyframe -> last good frame, tracking-scale pixels
@@ -221,23 +223,26 @@ class FrameRegistrar:
         else:
             timed = frame.time - self._ref_time >= cfg.keyframe_s - 1e-9
         key_due = gap > 1 or timed or est[1].inliers < cfg.keyframe_min_overlap * self._key_n
-        if not key_due:
-            # Zooming out keeps every keyframe feature in view, so only the timer renewed the
-            # keyframe, and over its 0.5 s a fast zoom (1-2 % a frame) passed max_scale_change:
-            # the frames failed as degenerate, were taken for a scene change and reset, and
-            # detection restarted with 11 frames of no detections (a probe, 2026-12-03). A new
-            # keyframe once half the allowed scale change is used keeps the steps small.
-            ratio = area_ratio(est[0], gray.shape[1], gray.shape[0])
-            lim = math.sqrt(cfg.max_scale_change)
-            key_due = not (1.0 / lim <= ratio <= lim)
-        if (key_due and gap == 1 and cfg.keyframe_blur_ratio > 0
-                and frame.time - self._ref_time < 2 * cfg.keyframe_s - 1e-9
-                and sharpness(gray) < cfg.keyframe_blur_ratio * self._ref_sharp):
-            # a blurred frame loses features (which called for a keyframe) and registers worse:
-            # as the keyframe it would pass its error on to every later frame
-            log.debug("frame %d: blurred (sharpness %.2f of the keyframe's); not a keyframe",
-                      frame.index, sharpness(gray) / max(self._ref_sharp, 1e-9))
+        # Zooming out keeps every keyframe feature in view, so only the timer renewed the
+        # keyframe, and over its 0.5 s a fast zoom (1-2 % a frame) passed max_scale_change: the
+        # frames failed as degenerate, were taken for a scene change and reset, and detection
+        # restarted with 11 frames of no detections (a probe, 2026-12-03). A new keyframe once
+        # half the allowed scale change is used keeps the steps small.
+        ratio = area_ratio(est[0], gray.shape[1], gray.shape[0])
+        lim = math.sqrt(cfg.max_scale_change)
+        scale_due = not (1.0 / lim <= ratio <= lim)
+        sharp = self._sharpness(gray)
+        if (key_due and not scale_due and gap == 1 and not cfg.keyframe_grid
+                and sharp is not None and frame.time - self._ref_time < 2 * cfg.keyframe_s - 1e-9
+                and uncovered_share(np.linalg.inv(est[0]), gray.shape[:2]) < BLUR_HOLD_UNCOVERED):
+            # A blurred frame among sharp ones loses features (which called for a keyframe) and
+            # registers worse: as the keyframe it would pass its error on to every later frame.
+            # Only while the keyframe still shows the view: in a fast pan features leave it, and
+            # holding the keyframe back there lost the frames (a review: 3.4 -> 13.7 px).
+            log.debug("frame %d: blurred (sharpness %.2f of the recent frames'); not a keyframe",
+                      frame.index, sharp)
             key_due = False
+        key_due = key_due or scale_due
         if cfg.polish and lk and (key_due or refine_due):
             # Only a frame that becomes a keyframe (or starts a map refinement) is chained into
             # later frames: the polish, which removes the bias that chaining turns into drift, is
@@ -264,6 +269,21 @@ class FrameRegistrar:
         return Registration(frame.index, H, status, stats.inliers, stats.inlier_ratio,
                             stats.error / scale, "")
 
+    def _sharpness(self, gray: np.ndarray) -> float | None:
+        """This frame's sharpness over the median of the last :data:`SHARPNESS_FRAMES` registered
+        frames' when it is under ``keyframe_blur_ratio`` (a blurred frame), else None; the frame
+        joins the recent ones either way."""
+        ratio = self.config.keyframe_blur_ratio
+        if ratio <= 0:
+            return None
+        s = sharpness(gray)
+        recent = self._recent_sharp
+        base = float(np.median(recent)) if len(recent) >= 3 else None
+        recent.append(s)
+        if base is None or base <= 0 or s >= ratio * base:
+            return None
+        return s / base
+
     def _set_keyframe(self, frame: Frame, gray: np.ndarray, H: np.ndarray,
                       points: np.ndarray | None, mask: np.ndarray | None) -> None:
         """Make ``frame`` the reference later frames are registered against.
@@ -282,7 +302,6 @@ class FrameRegistrar:
         if cfg.keyframe_grid or len(pts) < cfg.keyframe_min_overlap * cfg.max_features:
             pts = detect_features(gray, cfg.max_features, mask).reshape(-1, 2)
         self._ref_gray, self._ref_H, self._points = gray, normalize(H), pts
-        self._ref_sharp = sharpness(gray) if cfg.keyframe_blur_ratio > 0 else 0.0
         self._ref_index, self._ref_time = frame.index, frame.time
         self._key_n = max(len(pts), 1)
         self._M_key_last = np.eye(3)
@@ -353,6 +372,13 @@ class FrameRegistrar:
                                 search_scale=3.0)
         log.info("frame %d: %s; carrying the last motion", frame.index, reason)
         return Registration(frame.index, H, "carried", 0, float("nan"), float("nan"), reason)
+
+
+#: Registered frames whose median sharpness is the baseline of :meth:`FrameRegistrar._sharpness`.
+SHARPNESS_FRAMES = 9
+#: A blurred frame is held back from becoming the keyframe only while it shows less than this
+#: share of ground the keyframe did not.
+BLUR_HOLD_UNCOVERED = 0.1
 
 
 def sharpness(gray: np.ndarray) -> float:
