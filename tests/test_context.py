@@ -136,6 +136,13 @@ def test_paper_keeps_its_predictors_frame_by_frame_and_drops_one_that_diverged()
     pred = PaperPredictor(cfg, fps=30.0)
     assert set(pred.select(table, 1, 80)) == {2, 3, 4}
     assert set(pred.maintained(table, 1, 80)) == {2, 3}
+    # a frame the predictand missed (a detection miss) is stepped over, not the end of the set
+    f, xy = tracks[1]
+    tracks[1] = (f[f != 75], xy[f != 75])
+    assert set(pred.maintained(_table(tracks), 1, 80)) == {2, 3}
+    f, xy = _straight_then(1, 200, 0.0)
+    gap = _table({**tracks, 1: (f[f != 140], xy[f != 140])})
+    assert set(pred.maintained(gap, 1, 150)) == {2, 3}
 
 
 def test_context_uses_predictors_on_the_same_path_not_a_diverging_one():

@@ -182,20 +182,25 @@ class PaperPredictor(MotionPredictor):
     def maintained(self, table: TrackTable, track_id: int, T: int) -> dict[int, int]:
         """The predictor set at ``T`` as the paper keeps it: selected at ``T - F`` (or where the
         predictand's first window ends, if later), advanced frame by frame to ``T`` with the
-        diverged ones dropped, then every track not in the set (nor dropped on the way) searched
-        at ``T``."""
+        diverged ones dropped (over frames the predictand missed, at its next row: one missed
+        frame had emptied the set, a review), then every track not in the set (nor dropped on
+        the way) searched at ``T``."""
         F = self.window
         t0 = T - F
         while t0 < T and _section(table, track_id, t0, F) is None:
             t0 += 1
         chosen = self.select(table, track_id, t0)
         seen = set(chosen)
+        last = t0
         for t in range(t0 + 1, T + 1):
             if not chosen:
                 break
-            chosen = self.select(table, track_id, t, previous=chosen, previous_T=t - 1,
+            if _section(table, track_id, t, F) is None:
+                continue  # the predictand missed frame t: advance over it at its next row
+            chosen = self.select(table, track_id, t, previous=chosen, previous_T=last,
                                  search=False)
-        fresh = self.select(table, track_id, T, previous=chosen, previous_T=T)
+            last = t
+        fresh = self.select(table, track_id, T, previous=chosen, previous_T=last)
         return {j: te for j, te in fresh.items() if j in chosen or j not in seen}
 
     #: Queries predicted by the Kalman fallback (fewer than ``min_predictors`` predictors), for
