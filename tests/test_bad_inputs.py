@@ -1507,6 +1507,9 @@ def test_a_stretch_without_detections_is_named_with_its_cause():
     assert "started over" not in detection_gap_hint(result(range(40, 51)), cfg)
     assert detection_gap_hint(result(range(40, 45)), cfg) is None  # 5 frames: under 0.3 s
     assert detection_gap_hint(result(range(1, 30)), cfg) is None  # the first half window
+    # an empty start or end (longer) does not hide a stretch in the middle
+    both = detection_gap_hint(result([*range(1, 21), *range(40, 52), *range(71, 91)], (38,)), cfg)
+    assert both.startswith("frames 40-51 (12 frames)") and "frame 38" in both
     # traffic thinning out to nothing and coming back is not a fault
     quiet = result(range(40, 51))
     for d in quiet.detections:

@@ -340,13 +340,13 @@ def detection_gap_hint(result, config) -> str | None:
         if c == 0 and start is None:
             start = k
         elif c != 0 and start is not None:
-            if k - start > best[0]:
+            # a stretch at the clip's first or last frames (the first half window, an empty
+            # road at the start) is expected, and must not hide one in the middle
+            if k - start > best[0] and start > 0 and k < len(counts):
                 best = (k - start, start, k - 1)
             start = None
     n, a, b = best
     if n == 0 or (frames[b] - frames[a] + 1) / fps < GAP_MIN_S:
-        return None
-    if a == 0 or b == len(frames) - 1:  # the clip's first (or last) half window: expected
         return None
     first, last = int(frames[a]), int(frames[b])
     regs = result.registrations or {}
