@@ -1460,7 +1460,7 @@ def test_an_implausible_vehicle_length_questions_the_scale():
     24-54 m, silently; so would a --gsd off by as much."""
     from types import SimpleNamespace
 
-    from aerotrack.cli.track_cmd import scale_hint
+    from aerotrack.cli.hints import scale_hint
     from aerotrack.types import Track, TrackPoint
 
     def result(length_m):
@@ -1482,7 +1482,7 @@ def test_a_stretch_without_detections_is_named_with_its_cause():
 
     import numpy as np
 
-    from aerotrack.cli.track_cmd import detection_gap_hint
+    from aerotrack.cli.hints import detection_gap_hint
     from aerotrack.config import load_config
     from aerotrack.types import Registration
 

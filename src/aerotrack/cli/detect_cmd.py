@@ -141,7 +141,8 @@ def _detect(ctx, source, out, config, info: dict, *, geomap, H_init, gsd, undist
     from ..outputs import detection_rows, registration_rows, run_summary
     from ..pipeline import detect
     from ..registration import write_registration_csv
-    from .track_cmd import GracefulStop, clip_hints, environment
+    from .hints import clip_hints
+    from .track_cmd import GracefulStop, environment
 
     writer = None
     debug_tmp = out.partial / "debug.mp4"

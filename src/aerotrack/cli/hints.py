@@ -1,0 +1,130 @@
+"""What a run says about its clip: warnings for the log and ``summary.json`` ``hints``, from
+the run's result (``track`` and ``detect``)."""
+
+from __future__ import annotations
+
+
+def clip_hints(result, config, *, builtin_detector: bool = True,
+               tracked: bool = True) -> list[str]:
+    """Warnings about the clip itself, each a line for the log and ``summary.json`` ``hints``:
+    a clip shorter than the shortest track kept (``association.min_length_s``: 10 frames at 30 fps
+    gave 0 tracks and no word), one shorter than the background window (a wrong frame-rate tag:
+    Santiago tagged 59.94 fps lost 0.22 HOTA), and frames that repeat the one before (a recorder
+    that dropped frames: 6 repeated frames cost 0.04 HOTA and 4 ID switches). ``tracked`` False
+    (``aerotrack detect``): no hint about tracks."""
+    hints = []
+    fps = float(result.fps or 30.0)
+    # the clip's length, not the frames processed (--stride k processes every k-th)
+    seconds = (result.last_frame - result.first_frame + 1) / fps if result.frames else 0.0
+    if (tracked and result.frames and not result.tracks
+            and seconds < 2 * config.association.min_length_s):
+        hints.append(f"the clip is {round(seconds * fps)} frames ({seconds:.2f} s at {fps:g} frames/s) "
+                     f"and tracks shorter than association.min_length_s "
+                     f"({config.association.min_length_s:g} s) are dropped: is --fps right?"
+                     + (" (an image folder is read at 30 unless told)" if builtin_detector else ""))
+    elif builtin_detector and result.frames and seconds < config.detection.window_s:
+        hints.append(f"the clip ({round(seconds * fps)} frames, {seconds:.1f} s at {fps:g} frames/s) is "
+                     f"shorter than the background window detection.window_s "
+                     f"({config.detection.window_s:g} s), so the background has few samples: is "
+                     f"--fps right?")
+    n_dets = sum(len(d) for d in (result.detections or []))
+    if tracked and result.frames and not result.tracks and n_dets >= 10 and not hints:
+        hints.append(f"{n_dets} detections but no track: none was seen consistently enough to be "
+                     f"one (too few frames a second, {fps:g}; detections that jump; or the "
+                     f"gates, see association.gate_chi2 and birth_cost)")
+    for x, y, w, h in getattr(result, "overlay_held", None) or []:
+        hints.append(f"a mark stays put in the middle of the screen while the camera moves (frame "
+                     f"pixels x {x}-{x + w}, y {y}-{y + h}) and was left in: a crosshair? "
+                     f"--set detection.overlay_mask=all (or an --ignore-region) leaves it out. A "
+                     f"vehicle the camera keeps centred looks the same: then keep it")
+    gap = detection_gap_hint(result, config)
+    if gap:
+        hints.append(gap)
+    rep = getattr(result, "repeated_frames", None) or []
+    if rep:
+        shown = ", ".join(str(f) for f in rep[:5]) + (", ..." if len(rep) > 5 else "")
+        hints.append(f"{len(rep)} frame{'s' * (len(rep) != 1)} repeat the one before exactly "
+                     f"(frame{'s' * (len(rep) != 1)} {shown}): a recorder that dropped frames? "
+                     f"The tracker sees each as a stop and then a jump")
+    return hints
+
+
+#: A stretch of frames without a detection is named when it lasts this long (seconds) in a clip
+#: whose other frames hold a median of at least GAP_MIN_MEDIAN detections.
+GAP_MIN_S = 0.3
+GAP_MIN_MEDIAN = 3
+
+
+def detection_gap_hint(result, config) -> str | None:
+    """A warning naming the longest stretch of frames with no detection in a clip whose other
+    frames have several each, with its likely cause when it follows a registration reset (the
+    background restarts there and needs frames before it finds anything): a zoom taken for a scene
+    change left 11 frames without detections and no word in the log or ``summary.json`` (a probe,
+    2026-12-03). Without a reset it speaks only when the 5 frames on each side have a median of
+    :data:`GAP_MIN_MEDIAN` or more detections (an abrupt stop, not traffic thinning out)."""
+    import numpy as np
+
+    dets = list(result.detections or [])
+    if len(dets) < 10:
+        return None
+    frames = np.array([d.frame for d in dets])
+    counts = np.array([len(d) for d in dets])
+    if not (counts > 0).any() or np.median(counts[counts > 0]) < GAP_MIN_MEDIAN:
+        return None
+    fps = float(result.fps or 30.0)
+    best, start = (0, 0, 0), None
+    for k, c in enumerate(np.append(counts, 1)):
+        if c == 0 and start is None:
+            start = k
+        elif c != 0 and start is not None:
+            # a stretch at the clip's first or last frames (the first half window, an empty
+            # road at the start) is expected, and must not hide one in the middle
+            if k - start > best[0] and start > 0 and k < len(counts):
+                best = (k - start, start, k - 1)
+            start = None
+    n, a, b = best
+    if n == 0 or (frames[b] - frames[a] + 1) / fps < GAP_MIN_S:
+        return None
+    first, last = int(frames[a]), int(frames[b])
+    regs = result.registrations or {}
+    window = int(round(config.detection.window_s * fps))
+    resets = [i for i, r in sorted(regs.items())
+              if r.status in ("reset", "reanchored") and first - window <= i <= last]
+    before = [i for i in resets if i <= first]
+    at = before[-1] if before else resets[0] if resets else None
+    if at is None:
+        # without a restart, only an abrupt stop is named: traffic that thins out to nothing
+        # (a quiet road between platoons) is not a fault
+        around = [counts[max(0, a - 5):a], counts[b + 1:b + 6]]
+        if any(len(c) == 0 or np.median(c) < GAP_MIN_MEDIAN for c in around):
+            return None
+    why = (f": registration started over at frame {at} ({regs[at].reason}), and the background "
+           f"with it" if at is not None else "")
+    return (f"frames {first}-{last} ({last - first + 1} frames) have no detection while the others "
+            f"have a median of {int(np.median(counts[counts > 0]))}{why}")
+
+
+#: :func:`scale_hint` speaks when the tracked objects' median length in metres is outside this.
+PLAUSIBLE_LENGTH_M = (1.5, 12.0)
+
+
+def scale_hint(result, given: str | None) -> str | None:
+    """A warning when the scale the user gave (``given``: the option) makes the tracked objects'
+    median length implausible for vehicles: a ground plane given in orthophoto pixels made cars
+    13.6 m long, one given the wrong way round 54 m, and tracking fell to HOTA 0.03 without a
+    word (a probe, 2026-12-03). None without a given scale or 50 observed boxes."""
+    import numpy as np
+
+    mpu = result.metres_per_unit
+    if given is None or not mpu:
+        return None
+    lengths = [float(np.max(np.abs(p.size_world))) * mpu for t in result.tracks for p in t.points
+               if p.kind == "observed" and p.size_world is not None]
+    if len(lengths) < 50:
+        return None
+    median = float(np.median(lengths))
+    lo, hi = PLAUSIBLE_LENGTH_M
+    if lo <= median <= hi:
+        return None
+    return (f"the tracked objects are a median {median:.1f} m long: if they are vehicles, the "
+            f"scale of {given} is off (metres? the right way round?)")
