@@ -115,6 +115,7 @@ def test_cli_detect_with_map_equals_the_detections_of_track(scene, tmp_path):
     assert d["command"] == "detect" and d["registration_mode"] == t["registration_mode"] == "map"
     assert d["counts"]["detections"] == t["counts"]["detections"] == len(rows)
     assert "tracks" not in d["counts"] and d["frames"] == t["frames"] == 46
+    assert "mcmc" not in d and t["mcmc"]["proposed"] > 0  # detect associates nothing
     assert d["options"]["frames"] == [20, 110] and d["options"]["stride"] == 2
     assert d["map"] == str((scene / "map.tif").resolve()) and d["map_crs"] == t["map_crs"]
     assert not any("no track" in h for h in d.get("hints", []))

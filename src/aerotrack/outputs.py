@@ -204,7 +204,9 @@ def run_summary(result: Result, geomap: GeoMap | None, run_info: dict | None,
         },
         # how much the local sampler changed: most proposals are rejected, but the accepted
         # ones matter (Santiago with it off: HOTA/IDF1 0.670/0.891 -> 0.639/0.846)
-        **({"mcmc": mcmc_summary(result.mcmc)} if getattr(result, "mcmc", None) else {}),
+        # (null for a run whose association never started: no detection)
+        **({"mcmc": mcmc_summary(result.mcmc) if getattr(result, "mcmc", None) else None}
+           if tracked is not None else {}),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
         # of the frames this run's timings cover (a resumed run's said 17-22 for 6-10)
         "frames_per_second": (round((result.frames_timed or result.frames) / total, 2)
