@@ -20,7 +20,7 @@ from aerotrack.detection import (
 )
 from aerotrack.detection.appearance import median_u8
 from aerotrack.detection.blobs import Blob, join_vehicle_parts
-from aerotrack.detection.detector import _outline_ratio, protected_blobs
+from aerotrack.detection.detector import _outline_ratio, frames_for, protected_blobs
 from aerotrack.detection.moving import SizeGates, detect_moving
 from aerotrack.detection.residual import gain_normalise, pad0, robust_sigma
 from aerotrack.errors import ConfigError
@@ -1036,3 +1036,14 @@ def test_metric_gates_follow_the_scale_across_an_oblique_frame():
     assert top.max_length_px < gates.max_length_px < bottom.max_length_px
     nadir = det._gates(np.diag([1.0, 1.0, 1.0]), (h, w))
     assert nadir.local is None and nadir.at(0, 0) == nadir
+
+
+def test_window_in_frames_rounds_halves_up():
+    """The background window is as long at 15 frames/s as at 10 and 30: half of 3 s at 15
+    frames/s is 22.5 frames, which ``round`` made 22 (a shorter window with a sample fewer)."""
+    assert frames_for(1.5, 15) == 23 and frames_for(0.25, 10) == 3
+    for fps, half in ((10, 15), (15, 23), (25, 38), (30, 45)):
+        det = MovingObjectDetector(DetectionConfig(window_s=3.0), fps)
+        assert det.half == half
+        assert (2 * det.half + 1) / fps >= 3.0
+    assert MovingObjectDetector(DetectionConfig(), 30).every == 6
