@@ -279,7 +279,10 @@ class DetectionConfig:
         before thresholding: averages out per-pixel noise so low-contrast (dark on dark)
         vehicles pass a threshold that noise does not; 0 disables. Measured with the quantile
         noise threshold: 1.0 px changed Santiago P/R at IoU 0.5 from 0.673/0.835 to 0.660/0.832
-        and lowered generated-scene recall (0.67 -> 0.64, 0.77 -> 0.64), hence off.
+        and lowered generated-scene recall (0.67 -> 0.64, 0.77 -> 0.64), hence off. On noisy
+        footage 2 px helps where the noise is pixel-to-pixel (a probe, 2026-12-03, HOTA: Santiago
+        darkened to 0.35x with noise sigma 6, 0.418 -> 0.491; as JPEG quality 15, 0.580 -> 0.626)
+        and hurts where it is not (UAV123 truck4's best single ID 0.677 -> 0.439).
     gain_block_px : float
         Side (full-resolution pixels) of the blocks over which the frame's local gain against
         the background is estimated and divided out (illumination changes, auto-exposure).
