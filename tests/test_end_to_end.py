@@ -402,3 +402,25 @@ def test_a_ground_plane_as_flat_as_a_gsd_tracks_exactly_as_the_gsd(scene, tmp_pa
     (image,) = ax.images
     extent = image.get_extent()
     assert extent[2] < extent[3] and abs(extent[1] - extent[0]) < 300  # metres, not pixels
+
+
+def test_noisy_dark_footage_is_pointed_out(scene, tmp_path, capsys):
+    """A probe darkened Santiago (x 0.35, noise sigma 6): the noise set the threshold at 21
+    grey levels, detection recall fell from 0.89 to 0.38, and the run said nothing."""
+    from conftest import run_cli
+
+    rng = np.random.default_rng(0)
+    dark = tmp_path / "dark"
+    dark.mkdir()
+    frames = sorted((scene / "frames").iterdir())[:90]
+    for f in frames:
+        img = cv2.imread(str(f)).astype(np.float64)
+        img = img * 0.35 + rng.normal(0, 6, img.shape)
+        cv2.imwrite(str(dark / (f.stem + ".png")), np.clip(img, 0, 255).astype(np.uint8))
+    code, _, err = run_cli(capsys, "track", dark, "--out", tmp_path / "o1", "--fps", "30")
+    assert code == 0 and "noise set the detection threshold" in err, err
+    hints = json.loads((tmp_path / "o1" / "summary.json").read_text())["hints"]
+    assert any("noisy, dark or heavily compressed" in h for h in hints), hints
+    code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o2",
+                           "--frames", "1:90")
+    assert code == 0 and "noise set" not in err, err

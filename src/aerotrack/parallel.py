@@ -408,6 +408,8 @@ class SegmentResult:
     overlay_mask: np.ndarray | None = None
     #: Frames of the segment repeating the one before exactly (Pipeline.repeated_frames).
     repeated_frames: list[int] = field(default_factory=list)
+    #: Frame -> the detector's residual threshold, the segment's own frames (Pipeline.thresholds).
+    thresholds: dict = field(default_factory=dict)
 
 
 def limit_threads() -> None:
@@ -510,6 +512,8 @@ def run_segment(task: SegmentTask) -> SegmentResult:
                          overlay_mask=pipe.overlay_mask,
                          repeated_frames=[f for f in pipe.repeated_frames
                                           if seg.own_start <= f <= seg.own_stop],
+                         thresholds={f: v for f, v in pipe.thresholds.items()
+                                     if seg.own_start <= f <= seg.own_stop},
                          followed=None if pipe.follower is None else pipe.follower.n_followed,
                          mcmc=getattr(pipe, "mcmc", None),
                          wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
@@ -1209,7 +1213,9 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
                               else sum(getattr(r, "followed", None) or 0 for r in results)),
                     overlay_mask=overlay, mcmc=sum_mcmc([getattr(r, "mcmc", None) for r in results]),
                     repeated_frames=sorted(f for r in results
-                                           for f in getattr(r, "repeated_frames", [])))
+                                           for f in getattr(r, "repeated_frames", [])),
+                    thresholds={f: v for r in results
+                                for f, v in (getattr(r, "thresholds", None) or {}).items()})
     return result, report
 
 

@@ -68,6 +68,9 @@ class Result:
     repeated_frames : list of int
         Frames whose pixels repeat the frame before exactly (a recorder that dropped frames and
         re-emitted the last one): the tracker sees a stop, then a jump.
+    thresholds : dict
+        Frame -> the built-in detector's residual threshold there (grey levels): above
+        ``detection.min_threshold`` where the frame's noise set it (the noise hint).
     resumed : dict or None
         A resumed run: ``from_frame`` (the first frame read after the restart) and ``exact``
         (the stages' working state was restored: the results equal an uninterrupted run's;
@@ -96,6 +99,7 @@ class Result:
     followed: int | None = None
     frames_timed: int | None = None
     repeated_frames: list[int] = field(default_factory=list)
+    thresholds: dict[int, float] = field(default_factory=dict)
     overlay_mask: np.ndarray | None = None
     overlay_held: list[tuple[int, int, int, int]] = field(default_factory=list)
     resumed: dict | None = None
@@ -213,6 +217,7 @@ class Pipeline:
         self._region_mask: np.ndarray | None = None  # the detector's mask from the regions
         self._prev_sample: np.ndarray | None = None  # every 4th pixel of the last frame
         self.repeated_frames: list[int] = []
+        self.thresholds: dict[int, float] = {}  # frame -> detector threshold (Result)
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
         # checkpoints (DIR/.partial) for --resume
         self.checkpoint_dir = checkpoint_dir
@@ -386,6 +391,7 @@ class Pipeline:
                 final = []
             else:
                 final = self.detector.step(frame, reg)
+                self._take_thresholds()
         if frame.index > self.last_frame:
             self.n_frames += 1
             self.n_timed += 1
@@ -394,6 +400,11 @@ class Pipeline:
         self._since_checkpoint += 1
         if self.checkpoint_dir is not None and self._since_checkpoint >= self.checkpoint_every:
             self.checkpoint()
+
+    def _take_thresholds(self) -> None:
+        if self.detector is not None and self.detector.thresholds:
+            self.thresholds.update(self.detector.thresholds)
+            self.detector.thresholds.clear()
 
     def _external_detections(self, frame: Frame | None, reg: Registration | None) -> Detections:
         idx = frame.index
@@ -697,6 +708,7 @@ class Pipeline:
             self._wide_threads()
             with self._timed("detection"), cv_threads(self.opencv_threads):
                 rest = self.detector.flush()
+            self._take_thresholds()
             self._associate(rest)
         if self.associator is not None:
             with self._timed("association"):
@@ -740,6 +752,7 @@ class Pipeline:
                       last_frame=self.last_frame,
                       followed=None if self.follower is None else self.follower.n_followed,
                       frames_timed=self.n_timed, repeated_frames=list(self.repeated_frames),
+                      thresholds=dict(self.thresholds),
                       overlay_mask=mask,
                       overlay_held=[] if self.overlay is None else list(self.overlay.held),
                       mcmc=self.mcmc)
@@ -1136,7 +1149,8 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
                       metres_per_unit=pipe.metres_per_unit, timings=dict(pipe.timings),
                       cpu_timings=dict(pipe.cpu_timings), frames=pipe.n_frames,
                       first_frame=pipe.first_frame or 1, last_frame=pipe.last_frame,
-                      repeated_frames=list(pipe.repeated_frames), overlay_mask=mask)
+                      repeated_frames=list(pipe.repeated_frames),
+                      thresholds=dict(pipe.thresholds), overlay_mask=mask)
 
     done = 0
     try:

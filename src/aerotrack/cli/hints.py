@@ -40,6 +40,9 @@ def clip_hints(result, config, *, builtin_detector: bool = True,
     gap = detection_gap_hint(result, config)
     if gap:
         hints.append(gap)
+    noise = noise_hint(result, config) if builtin_detector else None
+    if noise:
+        hints.append(noise)
     rep = getattr(result, "repeated_frames", None) or []
     if rep:
         shown = ", ".join(str(f) for f in rep[:5]) + (", ..." if len(rep) > 5 else "")
@@ -47,6 +50,41 @@ def clip_hints(result, config, *, builtin_detector: bool = True,
                      f"(frame{'s' * (len(rep) != 1)} {shown}): a recorder that dropped frames? "
                      f"The tracker sees each as a stop and then a jump")
     return hints
+
+
+#: The noise hint: in at least NOISE_SHARE of the frames the threshold is NOISE_RATIO times
+#: ``detection.min_threshold`` or more.
+NOISE_RATIO = 1.5
+NOISE_SHARE = 0.5
+
+
+def threshold_summary(thresholds: dict, floor: float) -> dict | None:
+    """``summary.json`` ``detection_threshold``: the median residual threshold over the frames
+    (grey levels), the floor (``detection.min_threshold``) and the share of frames whose noise
+    set it at NOISE_RATIO x the floor or more; None without thresholds (detections given)."""
+    import numpy as np
+
+    if not thresholds:
+        return None
+    v = np.fromiter(thresholds.values(), float)
+    return {"median": round(float(np.median(v)), 2), "floor": float(floor),
+            "noise_set_share": round(float(np.mean(v >= NOISE_RATIO * floor)), 3)}
+
+
+def noise_hint(result, config) -> str | None:
+    """A warning when the frames' noise, not ``detection.min_threshold``, set the residual
+    threshold in most frames: noisy, dark or heavily compressed footage, where low-contrast
+    vehicles stay under it (a probe, 2026-12-03: Santiago darkened, threshold 21 grey levels,
+    detection recall 0.89 -> 0.38, and no word from the run). Clean Santiago's median is 10.1."""
+    floor = float(config.detection.min_threshold)
+    s = threshold_summary(getattr(result, "thresholds", None) or {}, floor)
+    if s is None or floor <= 0 or s["noise_set_share"] < NOISE_SHARE:
+        return None
+    return (f"the frames' noise set the detection threshold at a median of {s['median']:.0f} grey "
+            f"levels ({s['median'] / floor:.1f}x detection.min_threshold) in "
+            f"{100 * s['noise_set_share']:.0f}% of frames: noisy, dark or heavily compressed "
+            f"footage, where low-contrast vehicles are missed (README, Noisy, dark or heavily "
+            f"compressed footage)")
 
 
 #: A stretch of frames without a detection is named when it lasts this long (seconds) in a clip

@@ -308,6 +308,9 @@ class MovingObjectDetector:
         #: of every finalised frame (the caller drains it).
         self.keep_debug = False
         self.debug_frames: list = []
+        #: frame -> its residual threshold (grey levels), for the run's noise hint; the pipeline
+        #: empties it as frames become final
+        self.thresholds: dict[int, float] = {}
         #: OpenCV threads for the whole-frame work (the background's warps and medians, the
         #: model image); None: whatever the caller set. The pipeline runs the stages on one
         #: OpenCV thread (many small images, where the thread pool costs more than it brings)
@@ -581,6 +584,7 @@ class MovingObjectDetector:
         if self._persist is not None:
             r = self._add_persistent(p, r, bg, testable)
         self.last_result = r
+        self.thresholds[c] = float(r.threshold)
         blobs = r.model_blobs
         if r.persistent is not None:
             # Persistent detections are not kept out of the background: a target faint enough to
