@@ -438,6 +438,39 @@ def test_a_stop_between_two_tracklets_is_stationary_not_predicted():
                 np.tile([stop[0] - 22.5, stop[1] - 10, 45, 20], (40, 1))).min() > 0.8
 
 
+def test_a_stop_and_go_gap_is_stationary_though_neither_end_stood():
+    """A queue probe (2026-12-03): the detector loses a car while it brakes (still at 2-4 m/s)
+    and finds it again while it pulls away, so neither end of the linked gap stands still and
+    the stop was written to predicted.csv as out of view. A gap crossed at under
+    ``stop_gap_speed_mps`` on average, seen driving on both sides, is the stop."""
+    def stop_and_go() -> Track:
+        car = _stopping(n_drive=60, n_stand=0)
+        car.points = car.points[:48]  # lost at about 3 m/s, 1.3 m before it stands
+        last = car.points[-1].world.copy()
+        stop = last + [13.0, 0.0]
+        gap = [TrackPoint(frame=f, box=np.full(4, np.nan), world=last + [0.3 * (f - 48), 0],
+                          conf=0.0, kind="predicted") for f in range(49, 139)]
+        # pulls away from the stop at 2 m/s^2, first seen 1 m on
+        off = []
+        for f in range(139, 199):
+            x = stop[0] + 10.0 + 0.5 * (2.0 / MPU) * ((f - 139) / FPS + 1.0) ** 2 - 0.5 * (2.0 / MPU)
+            off.append(TrackPoint(frame=f, box=np.array([x - 22.5, stop[1] - 10, 45, 20]),
+                                  world=np.array([x, stop[1]]), conf=0.9))
+        car.points += gap + off
+        return car
+
+    stop = stop_and_go().points[47].world + [13.0, 0.0]
+    (out,) = finish_tracks([stop_and_go()], FinishConfig(), FPS, metres_per_unit=MPU,
+                           registrations=IDENT)
+    kinds = {p.frame: p.kind for p in out.points}
+    assert sum(kinds[f] == "stationary" for f in range(49, 139)) >= 80
+    still = np.array([out.points[f - 1].world for f in range(80, 110)])
+    assert np.abs(still[:, 0] - stop[0]).max() * MPU < 2.0  # standing near the true stop
+    (out,) = finish_tracks([stop_and_go()], FinishConfig(stop_gap_speed_mps=0.0), FPS,
+                           metres_per_unit=MPU, registrations=IDENT)
+    assert not any(p.kind == "stationary" for p in out.points)
+
+
 def test_no_hold_for_a_track_that_ends_moving_or_never_moved():
     moving = _stopping(n_stand=0)
     moving.points = moving.points[:40]  # lost while still at full speed

@@ -1733,6 +1733,14 @@ class FinishConfig:
         Observations at a track's end (start) that give its speed and its stop's position and
         box (``size_quantile`` of their sizes). Longer is steadier, shorter reacts to a stop
         that was short before the detector lost it.
+    stop_gap_speed_mps : float
+        A gap of at least one second between two observations of a track (a linked gap, or
+        one inside a tracklet) over which the vehicle moved on average no faster than this is
+        a stop: the detector lost the vehicle while it braked and found it again while it
+        pulled away, so neither end need stand still nor lie within ``stop_radius_m`` of the
+        other. The gap is reported ``stationary`` along a stop-and-go path between the two
+        observations (braking, standing, pulling away), until another track is seen there.
+        0 disables (then only the ``stop_radius_m`` rule fills gaps).
     stop_run_gap_s : float
         A track's end (start) is held only when the run of observations leading into its stop
         (away from it), consecutive ones at most this far apart, spread over at least
@@ -1798,6 +1806,7 @@ class FinishConfig:
     stop_radius_m: float = 2.0
     stop_window_s: float = 1.0
     stop_run_gap_s: float = 1.2
+    stop_gap_speed_mps: float = 1.0
     max_overlap: float = 0.6
     absorbed_ratio: float = 0.6
     absorbed_speed: float = 1.5

@@ -414,7 +414,7 @@ class TrackFinisher:
             raise ConfigError(f"config finish.size_quantile: {self.config.size_quantile} "
                               "must be in [0, 1]")
         for name in ("stop_hold_s", "stop_hold_back_s", "stop_speed_mps", "stop_decel_mps2",
-                     "stop_radius_m", "stop_window_s", "stop_run_gap_s"):
+                     "stop_radius_m", "stop_window_s", "stop_run_gap_s", "stop_gap_speed_mps"):
             if not getattr(self.config, name) >= 0:
                 raise ConfigError(f"config finish.{name}: must be >= 0")
         if not (0.0 <= self.config.absorbed_ratio < 1.0 and self.config.absorbed_speed > 0):
@@ -904,19 +904,63 @@ def _hold_track(t: Track, fps: float, mpu: float, registrations: dict[int, Regis
     # gaps between observations (after _fill_gaps: longer than fill_gaps_s)
     oi = {p.frame: k for k, p in enumerate(obs)}
     iv = [p for p in t.points if p.kind in IN_VIEW]
+    v_gap = c.stop_gap_speed_mps / mpu
     for a, b in itertools.pairwise(iv):
         if b.frame - a.frame < 2 or a.frame not in oi or b.frame not in oi:
             continue
-        if float(np.hypot(*(np.asarray(b.world) - np.asarray(a.world)))) > radius:
-            continue
         ka, kb = oi[a.frame], oi[b.frame]
-        if not (standing(ka, True) or standing(kb, False)):
+        d = float(np.hypot(*(np.asarray(b.world) - np.asarray(a.world))))
+        T = (b.frame - a.frame) / fps
+        if d <= radius and (standing(ka, True) or standing(kb, False)):
+            w, wh, ref = anchor(ka, True)
+            for f in range(a.frame + 1, b.frame):
+                q = by_frame.get(f)
+                if q is None or q.kind == "predicted":
+                    put(f, w, wh, ref)
             continue
-        w, wh, ref = anchor(ka, True)
+        if not (v_gap > 0 and T >= 1.0 and d <= v_gap * T and inside(a) and inside(b)):
+            continue  # (a gap at the frame's edge: the vehicle may have left the view)
+        # seen driving into the stop and off from it (a false alarm jittering in place, or a
+        # parallax blob, does not travel): the observations of the 3 s before the gap and of the
+        # 3 s after it spread over half ``static_extent_m`` each, one side over all of it
+        span3 = round(3.0 * fps)
+        ext_a = float(np.hypot(*np.ptp(ow[(of <= of[ka]) & (of >= of[ka] - span3)], axis=0))) * mpu
+        ext_b = float(np.hypot(*np.ptp(ow[(of >= of[kb]) & (of <= of[kb] + span3)], axis=0))) * mpu
+        if min(ext_a, ext_b) < c.static_extent_m / 2 or max(ext_a, ext_b) < c.static_extent_m:
+            continue
+        # stop and go: lost while braking, found again while pulling away. The stop lies
+        # between the two ends, split by their braking distances (v^2); braking into it and
+        # pulling away from it at ``stop_decel_mps2`` (the end speeds, fitted over a second of
+        # acceleration, understate the speed reached), at most 45% of the gap each.
+        sa, sb = state(ka, True), state(kb, False)
+        va = float(np.hypot(*sa[1])) if sa is not None else 0.0
+        vb = float(np.hypot(*sb[1])) if sb is not None else 0.0
+        pa, pb = np.asarray(a.world, float), np.asarray(b.world, float)
+        r = va * va / (va * va + vb * vb) if va + vb > 0 else 0.5
+        S = pa + r * (pb - pa)
+        d1, d2 = r * d, (1 - r) * d
+        t1 = min(math.sqrt(2 * d1 / decel), 0.45 * T) if decel > 0 else 0.0
+        t2 = min(math.sqrt(2 * d2 / decel), 0.45 * T) if decel > 0 else 0.0
+        _, wha, refa = anchor(ka, True)
+        _, whb, refb = anchor(kb, False)
+        wha = whb = np.maximum(wha, whb)  # a vehicle fading while it brakes leaves partial boxes
         for f in range(a.frame + 1, b.frame):
             q = by_frame.get(f)
-            if q is None or q.kind == "predicted":
-                put(f, w, wh, ref)
+            if q is not None and q.kind != "predicted":
+                continue
+            tau = (f - a.frame) / fps
+            if t1 > 0 and tau < t1:
+                w = pa + (S - pa) * (1 - (1 - tau / t1) ** 2)
+            elif t2 > 0 and tau > T - t2:
+                w = S + (pb - S) * ((tau - (T - t2)) / t2) ** 2
+            else:
+                w = S
+            if occ.taken(f, w, radius, t.id) or not _in_frame(registrations.get(f), w, frame_size):
+                continue
+            if tau <= T / 2:
+                put(f, w, wha, refa)
+            else:
+                put(f, w, whb, refb)
     # the ends of a track that drove into its stop (or off from it)
     run_gap = max(1, round(c.stop_run_gap_s * fps)) if c.stop_run_gap_s > 0 else int(of[-1] - of[0])
     if c.stop_hold_s > 0 and inside(obs[-1]) and standing(len(obs) - 1, True) \
@@ -930,6 +974,17 @@ def _hold_track(t: Track, fps: float, mpu: float, registrations: dict[int, Regis
         merged.update(new)
         t.points = [merged[f] for f in sorted(merged)]
     return len(new)
+
+
+def _in_frame(reg: Registration | None, world: np.ndarray, frame_size: tuple[int, int] | None
+              ) -> bool:
+    """Whether a world point falls inside a frame (True without a frame size)."""
+    if reg is None:
+        return False
+    if frame_size is None:
+        return True
+    q = apply_homography(np.linalg.inv(reg.H), np.asarray(world, float)[None])[0]
+    return bool(0 <= q[0] < frame_size[0] and 0 <= q[1] < frame_size[1])
 
 
 def _run_extent(frames: np.ndarray, world: np.ndarray, max_gap: int, last: bool) -> float:
