@@ -469,6 +469,10 @@ def test_a_stop_and_go_gap_is_stationary_though_neither_end_stood():
     (out,) = finish_tracks([stop_and_go()], FinishConfig(stop_gap_speed_mps=0.0), FPS,
                            metres_per_unit=MPU, registrations=IDENT)
     assert not any(p.kind == "stationary" for p in out.points)
+    # the radius rule off leaves this one on (the stage had run only for the radius rule)
+    (out,) = finish_tracks([stop_and_go()], FinishConfig(stop_radius_m=0.0), FPS,
+                           metres_per_unit=MPU, registrations=IDENT)
+    assert sum(p.kind == "stationary" for p in out.points) >= 80
 
 
 def test_no_hold_for_a_track_that_ends_moving_or_never_moved():

@@ -52,10 +52,15 @@ def _scene(x_of, n: int, detected, painted_at=None):
     return frames, dets
 
 
-def _track(frames, dets, follow: bool):
+def _track(frames, dets, follow: bool, stop_gap: bool = False):
+    """Tracked with or without following; the finish stage's stop-and-go fill
+    (``finish.stop_gap_speed_mps``), which also reports such a stop, off unless ``stop_gap``."""
     cfg = Config()
     cfg = dataclasses.replace(cfg, association=dataclasses.replace(
         cfg.association, follow_stopped=follow))
+    if not stop_gap:
+        cfg = dataclasses.replace(cfg, finish=dataclasses.replace(cfg.finish,
+                                                                  stop_gap_speed_mps=0.0))
     pipe = Pipeline(cfg, FPS, detections=dets, metres_per_unit=GSD, stabilised=True, seed=0)
     for fr in frames:
         pipe.step(fr)
@@ -120,6 +125,12 @@ def test_a_car_lost_while_stopping_is_followed_while_it_stands_and_not_after():
     assert len(ids) == 1
     # once the car has left its place (4 px by GO_F + 25), nothing is reported there
     assert not _rows_at_stop(res, range(GO_F + 30, GO_F + 80))
+    # without following, the finish stage's stop-and-go fill reports the stop too (lost while
+    # braking, found again while pulling away), under the same identity
+    filled, _ = _track(frames, dets, follow=False, stop_gap=True)
+    assert len(_rows_at_stop(filled, standing)) >= 0.9 * len(standing)
+    assert len({t.id for t in filled.tracks for p in t.points
+                if p.kind == "observed" and p.frame in (BRAKE, GO_F + 40)}) == 1
 
 
 def test_a_fixed_pattern_is_not_followed():

@@ -152,6 +152,14 @@ def test_phase_period_follows_the_detector_sampling():
     assert phase_period(slow_keys, 10.0) == 30  # and a keyframe every 5
     assert phase_period(config, 10.0, stride=2) == 2  # every grid frame; background every 4
     assert phase_period(config, 10.0, stride=3) == 2  # samples every 6 frames; background every 3
+    # on the detector's own grid at rates where a duration is a half frame (a review: at 12.5
+    # and 22.5 frames/s the detector rounds halves up and phase_period had rounded to even)
+    from aerotrack.detection.detector import MovingObjectDetector
+
+    for fps in (10.0, 12.5, 15.0, 22.5, 25.0, 30.0):
+        det = MovingObjectDetector(Config().detection, fps)
+        period = phase_period(Config(), fps)
+        assert period % det.every == 0 and period % det.update == 0, fps
 
 
 def test_later_segments_hold_stopped_vehicles_after_half_their_warm_up():

@@ -1739,8 +1739,12 @@ class FinishConfig:
         a stop: the detector lost the vehicle while it braked and found it again while it
         pulled away, so neither end need stand still nor lie within ``stop_radius_m`` of the
         other. The gap is reported ``stationary`` along a stop-and-go path between the two
-        observations (braking, standing, pulling away), until another track is seen there.
-        0 disables (then only the ``stop_radius_m`` rule fills gaps).
+        observations (braking, standing, pulling away), but not in frames where another track
+        is seen at that point or the point is out of the frame. Both ends must be inside the
+        frame and the track seen driving on both sides (the 3 s of observations before and after
+        spread over half ``static_extent_m``, one side over all of it). The filled boxes take
+        the ends' sizes: a vehicle that turned while it stood has them turned. 0 disables (then
+        only the ``stop_radius_m`` rule fills gaps).
     stop_run_gap_s : float
         A track's end (start) is held only when the run of observations leading into its stop
         (away from it), consecutive ones at most this far apart, spread over at least

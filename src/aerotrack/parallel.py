@@ -340,8 +340,10 @@ def phase_period(config: Config, fps: float, stride: int = 1) -> int:
     """
     s = max(1, int(stride))
     det = config.detection
-    every = max(1, int(round(det.sample_every_s * fps)))
-    update = max(1, int(round(det.update_every_s * fps)))
+    from .detection.detector import frames_for
+
+    every = frames_for(det.sample_every_s, fps)  # as the detector converts them
+    update = frames_for(det.update_every_s, fps)
     # the registrar takes a keyframe every ``registration.keyframe_s`` (also earlier when too few
     # features are left, which this cannot foresee); its frames are the ones polished
     key = max(1, math.ceil(config.registration.keyframe_s * fps - 1e-6))

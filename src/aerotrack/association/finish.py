@@ -458,7 +458,8 @@ class TrackFinisher:
         if c.fill_gaps_s > 0:
             for t in tracks:
                 _fill_gaps(t, round(c.fill_gaps_s * self.fps))
-        if registrations and (c.stop_hold_s > 0 or c.stop_hold_back_s > 0 or c.stop_radius_m > 0):
+        if registrations and (c.stop_hold_s > 0 or c.stop_hold_back_s > 0 or c.stop_radius_m > 0
+                              or c.stop_gap_speed_mps > 0):
             n = hold_stops(tracks, self.fps, mpu, registrations, frame_size, c)
             log.debug("finish: %d stationary points added", n)
         out = []
@@ -779,6 +780,10 @@ def hold_stops(tracks: list[Track], fps: float, mpu: float, registrations: dict[
     * **a gap** between two in-view points whose ground points lie within ``stop_radius_m`` of
       each other, where the track arrived at under ``stop_speed_mps`` (or left at under it),
       is filled with ``stationary`` points at the stop;
+    * **a stop-and-go gap** of at least 1 s crossed at under ``stop_gap_speed_mps`` on average
+      (the vehicle lost while braking and found again while pulling away, so neither end stands)
+      whose ends are inside the frame and which the track was seen driving into and off from,
+      is filled along braking, standing and pulling away at ``stop_decel_mps2``;
     * **the end**: a track seen driving into its stop (the run of observations before it,
       consecutive ones at most ``stop_run_gap_s`` apart, spreads over ``static_extent_m`` or
       more) and whose last ``stop_window_s`` of observations stand still (speed under

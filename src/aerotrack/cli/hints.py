@@ -59,9 +59,9 @@ NOISE_SHARE = 0.5
 
 
 def threshold_summary(thresholds: dict, floor: float) -> dict | None:
-    """``summary.json`` ``detection_threshold``: the median residual threshold over the frames
-    (grey levels), the floor (``detection.min_threshold``) and the share of frames whose noise
-    set it at NOISE_RATIO x the floor or more; None without thresholds (detections given)."""
+    """The median residual threshold over the frames (grey levels), the floor
+    (``detection.min_threshold``) and the share of frames whose noise set it at NOISE_RATIO x the
+    floor or more; None without thresholds (detections given, ``track --from``)."""
     import numpy as np
 
     if not thresholds:
@@ -75,16 +75,18 @@ def noise_hint(result, config) -> str | None:
     """A warning when the frames' noise, not ``detection.min_threshold``, set the residual
     threshold in most frames: noisy, dark or heavily compressed footage, where low-contrast
     vehicles stay under it (a probe, 2026-12-03: Santiago darkened, threshold 21 grey levels,
-    detection recall 0.89 -> 0.38, and no word from the run). Clean Santiago's median is 10.1."""
+    detection recall 0.89 -> 0.38, and no word from the run). Clean Santiago's median is 10.1
+    (1% of frames at 1.5x the floor); UAV123 truck4's JPEG frames 17 (62%), where it fires too. A
+    resumed run judges the frames after its restart (the checkpoints keep no thresholds)."""
     floor = float(config.detection.min_threshold)
     s = threshold_summary(getattr(result, "thresholds", None) or {}, floor)
     if s is None or floor <= 0 or s["noise_set_share"] < NOISE_SHARE:
         return None
-    return (f"the frames' noise set the detection threshold at a median of {s['median']:.0f} grey "
-            f"levels ({s['median'] / floor:.1f}x detection.min_threshold) in "
-            f"{100 * s['noise_set_share']:.0f}% of frames: noisy, dark or heavily compressed "
-            f"footage, where low-contrast vehicles are missed (README, Noisy, dark or heavily "
-            f"compressed footage)")
+    return (f"the frames' noise set the detection threshold at {NOISE_RATIO:g}x "
+            f"detection.min_threshold ({floor:g} grey levels) or more in "
+            f"{100 * s['noise_set_share']:.0f}% of frames (median over all frames "
+            f"{s['median']:.0f}): noisy, dark or heavily compressed footage, where low-contrast "
+            f"vehicles can stay under it (README, Noisy, dark or heavily compressed footage)")
 
 
 #: A stretch of frames without a detection is named when it lasts this long (seconds) in a clip

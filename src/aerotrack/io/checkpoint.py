@@ -11,7 +11,7 @@ save the stages' working state (:mod:`aerotrack.io.state`) so that ``--resume`` 
 
 What a hard kill leaves (SIGKILL, the out-of-memory killer, a power cut: nothing runs on the way
 out). Say the run was killed after frame ``k`` and its last chunk was written after frame ``m``
-(the last multiple of ``N`` frames taken, so ``k - m < N``); ``w = round(window_s * fps / 2)``
+(the last multiple of ``N`` frames taken, so ``k - m < N``); ``w = detection.detector.frames_for(window_s / 2, fps)``
 is the detector's half window (``detection.window_s``; 45 frames at 3 s and 30 frames/s):
 
 * ``.partial/`` holds the chunks up to ``m``, the run's manifest and perhaps tracklets spilled
