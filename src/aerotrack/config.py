@@ -1728,7 +1728,8 @@ class FinishConfig:
     stop_radius_m : float
         A gap between two observations of a track closer than this (ground, metres), entered or
         left standing, is a stop and is reported ``stationary``; another track seen this close to
-        a held stop ends the hold. 0 (with both holds 0) disables all of it.
+        a held stop ends the hold, and skips a stop-and-go point (``stop_gap_speed_mps``; with
+        0 none is skipped). 0 with both holds and ``stop_gap_speed_mps`` 0 disables all of it.
     stop_window_s : float
         Observations at a track's end (start) that give its speed and its stop's position and
         box (``size_quantile`` of their sizes). Longer is steadier, shorter reacts to a stop
