@@ -1635,7 +1635,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
 
                     save_chunk(folder.partial, 0, [result.registrations[k]
                                                    for k in sorted(result.registrations)],
-                               list(result.detections))
+                               list(result.detections), result.thresholds)
                 folder.finish(keep_as="stages")  # like `aerotrack track`: `track --from` reuses them
             except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
                 error = exc

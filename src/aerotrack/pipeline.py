@@ -218,6 +218,7 @@ class Pipeline:
         self._prev_sample: np.ndarray | None = None  # every 4th pixel of the last frame
         self.repeated_frames: list[int] = []
         self.thresholds: dict[int, float] = {}  # frame -> detector threshold (Result)
+        self._pending_thr: dict[int, float] = {}  # ... since the last checkpoint
         self._last_boxes_world: np.ndarray | None = None  # (N, 4) world centre + size, for masking
         # checkpoints (DIR/.partial) for --resume
         self.checkpoint_dir = checkpoint_dir
@@ -404,6 +405,8 @@ class Pipeline:
     def _take_thresholds(self) -> None:
         if self.detector is not None and self.detector.thresholds:
             self.thresholds.update(self.detector.thresholds)
+            if self.checkpoint_dir is not None:
+                self._pending_thr.update(self.detector.thresholds)
             self.detector.thresholds.clear()
 
     def _external_detections(self, frame: Frame | None, reg: Registration | None) -> Detections:
@@ -526,7 +529,9 @@ class Pipeline:
         from .io.checkpoint import save_chunk
         from .io.state import drop_state
 
-        save_chunk(self.checkpoint_dir, self._chunk_no, self._pending_regs, self._pending_dets)
+        save_chunk(self.checkpoint_dir, self._chunk_no, self._pending_regs, self._pending_dets,
+                   self._pending_thr)
+        self._pending_thr = {}
         drop_state(self.checkpoint_dir)  # an earlier interruption's stage state is stale now
         self._chunk_no += 1
         self._pending_regs, self._pending_dets = [], []
@@ -624,7 +629,7 @@ class Pipeline:
         after the restart can then be registered and detected slightly differently (another
         keyframe chain, a background window without the frames before the restart).
         """
-        from .io.checkpoint import TrackletSpill, load_chunks
+        from .io.checkpoint import TrackletSpill, load_chunks, load_thresholds
         from .io.state import (
             STATE_TRACKLETS,
             FramesChanged,
@@ -635,6 +640,7 @@ class Pipeline:
 
         regs, dets, n = load_chunks(self.checkpoint_dir)
         self._chunk_no = n
+        self.thresholds.update(load_thresholds(self.checkpoint_dir))  # the noise hint's
         if not regs and not dets:
             return 1
         self.registrations.update(regs)

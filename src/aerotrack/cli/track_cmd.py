@@ -743,7 +743,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
             from ..io.checkpoint import save_chunk
 
             save_chunk(out.partial, 0, [result.registrations[k] for k in sorted(result.registrations)],
-                       list(result.detections))
+                       list(result.detections), result.thresholds)
             if result.overlay_mask is not None:  # for --from, as a single process keeps it
                 from ..detection.overlay import OVERLAY_FILE, write_mask
 

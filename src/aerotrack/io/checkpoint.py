@@ -52,8 +52,9 @@ _OPTIONAL = ("mapxy", "lonlat", "hist", "size_world")
 
 
 def save_chunk(folder: Path, number: int, registrations: list[Registration],
-               detections: list[Detections]) -> Path:
-    """Write chunk ``number`` (registrations and detections since the last chunk)."""
+               detections: list[Detections], thresholds: dict | None = None) -> Path:
+    """Write chunk ``number`` (registrations and detections since the last chunk, and the
+    detector's residual thresholds of their frames: ``Result.thresholds``)."""
     arrays: dict[str, np.ndarray] = {
         "reg_index": np.array([r.index for r in registrations], dtype=np.int64),
         "reg_H": np.array([r.H for r in registrations], dtype=np.float64).reshape(-1, 3, 3),
@@ -65,6 +66,9 @@ def save_chunk(folder: Path, number: int, registrations: list[Registration],
         "det_frames": np.array([d.frame for d in detections], dtype=np.int64),
         "det_counts": np.array([len(d) for d in detections], dtype=np.int64),
     }
+    if thresholds:
+        arrays["thr_frame"] = np.array(sorted(thresholds), dtype=np.int64)
+        arrays["thr_value"] = np.array([thresholds[f] for f in sorted(thresholds)], np.float64)
     if detections:
         arrays["det_boxes"] = np.concatenate([np.asarray(d.boxes, float).reshape(-1, 4)
                                               for d in detections])
@@ -117,6 +121,21 @@ def load_chunks(folder: Path) -> tuple[dict[int, Registration], list[Detections]
             raise InputError(f"--resume: checkpoint {p} is unreadable "
                              f"({exc or type(exc).__name__})") from None
     return regs, dets, len(files)
+
+
+def load_thresholds(folder: Path) -> dict[int, float]:
+    """The detector's residual thresholds by frame saved in ``folder``'s chunks (empty for
+    chunks written before they were kept, or by runs on given detections)."""
+    out: dict[int, float] = {}
+    for p in sorted(p for p in Path(folder).glob("chunk_*.npz") if CHUNK_RE.match(p.name)):
+        try:
+            with open(p, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+                if "thr_frame" in z.files:
+                    out.update(zip(z["thr_frame"].tolist(), z["thr_value"].tolist()))
+        except UNREADABLE as exc:
+            raise InputError(f"--resume: checkpoint {p} is unreadable "
+                             f"({exc or type(exc).__name__})") from None
+    return out
 
 
 def _read_chunk(z: dict[str, np.ndarray], regs: dict[int, Registration],
