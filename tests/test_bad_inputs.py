@@ -1383,6 +1383,8 @@ def test_ctrl_c_while_the_cli_loads_is_quiet(monkeypatch, capsys):
     ("detection.persist_conf=2", ["detection.persist_conf", "must be in [0, 1]"]),
     ("linking.duplicate_overlap=7", ["linking.duplicate_overlap", "must be in [0, 1]"]),
     ("linking.rounds=0", ["linking.rounds", "must be >= 1"]),
+    ("linking.stop_decel_mps2=0", ["linking.stop_decel_mps2", "must be > 0"]),
+    ("linking.stop_max_turn_deg=200", ["linking.stop_max_turn_deg", "must be in [0, 180]"]),
 ])
 def test_out_of_range_settings_name_their_range_even_with_external_detections(
         capsys, tmp_path, setting, fragments):

@@ -299,6 +299,20 @@ def test_window_sizes_match_numpy_quantiles():
         assert np.allclose(out[i], ref)
 
 
+def test_window_sizes_far_from_any_valid_size_take_the_nearest_ones_window():
+    """A vehicle drives north (7 x 17 px) for 6 s, turns west (17 x 7) and stands 20 s where the
+    detector lost it, filled with held points that give no size, then drives on west. The held
+    points took the whole track's quantile, a box of neither heading (8 x 11 on generated
+    qstatic:72, IoU under 0.5 with the standing car); now the window of the nearest valid time."""
+    t = np.arange(0, 30, 1 / 30)
+    north, held = t < 6, (t >= 8) & (t < 28)
+    sizes = np.where(north[:, None], [7.0, 17.0], [17.0, 7.0])
+    valid = ~held
+    out = window_sizes(t, sizes, valid, 2.0, 0.5)
+    assert np.allclose(out[held], [17.0, 7.0])
+    assert np.allclose(out[t < 0.5], [7.0, 17.0])
+
+
 def test_window_sizes_pool_only_observations_facing_the_same_way():
     """A 45 x 20 px vehicle comes into view turning through 90 degrees in its first second: its
     box goes from 45 x 20 to 20 x 45 through squarer boxes. At the start of a track the window

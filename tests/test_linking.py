@@ -892,3 +892,47 @@ def test_same_frame_overlaps_equal_every_pair_of_a_frame():
         want = {k: v for k, v in want.items() if v > 0}
         assert got.keys() == want.keys()
         assert all(abs(got[k] - want[k]) < 1e-12 for k in got)
+
+
+def _stop_and_go(x_stop, t_stop, t_go, n, v0=8.0, acc=2.0):
+    """Positions (n, 2) along +x of a vehicle cruising at v0, braking at ``acc`` to stand at
+    ``x_stop`` from ``t_stop`` s, pulling away at ``t_go`` s; and its speed per frame."""
+    t = np.arange(n) / FPS
+    v = np.clip(np.maximum(v0 - acc * (t - (t_stop - v0 / acc)), 0.0)
+                + np.clip(acc * (t - t_go), 0.0, None), 0.0, v0)
+    v = np.where(t < t_stop, np.minimum(v0, acc * np.maximum(t_stop - t, 0.0)), v)
+    x = np.cumsum(v) / FPS
+    x += x_stop - x[int(round(t_stop * FPS))]
+    return np.column_stack([x, np.full(n, 10.0)]), v
+
+
+@pytest.mark.parametrize("stop_max_gap_s", [0.0, 300.0])
+def test_a_queue_that_stood_longer_than_max_gap_keeps_its_identities(stop_max_gap_s):
+    """Two look-alike vehicles queue at a red light 7 m apart and stand for 30 s; a motion
+    detector loses each below 2 m/s and finds it again pulling away. The stop links join each
+    vehicle's two tracklets, the front one's to the front one's (the rear vehicle's end lies a
+    car length behind where the front one pulls away from); without them (``stop_max_gap_s``
+    0, or the 12 s ``max_gap_s`` alone) all four stay apart."""
+    n = int(45 * FPS)
+    paths, gaps = {}, {}
+    for i, (x_stop, t_stop, t_go) in {1: (100.0, 8.0, 38.0), 2: (93.0, 9.5, 39.5)}.items():
+        xy, v = _stop_and_go(x_stop, t_stop, t_go, n)
+        paths[i] = xy
+        slow = np.flatnonzero(v < 2.0) + 1
+        gaps[i] = [(int(slow[0]), int(slow[-1]) + 1)]
+        assert (slow[-1] - slow[0]) / FPS > 30  # well beyond max_gap_s
+    tl, truth = _tracklets(paths, {1: 1, 2: 1}, gaps, {1: [0.25] * 4, 2: [0.25] * 4})
+    assert len(tl) == 4
+    regs = {f: Registration(index=f, H=np.eye(3)) for f in range(1, n + 1)}
+    linker = GlobalLinker(LinkingConfig(stop_max_gap_s=stop_max_gap_s), ContextConfig(), FPS,
+                          metres_per_unit=1.0)
+    tracks = linker.link(tl, frame_size=(1000, 1000), registrations=regs)
+    ids = sorted(tuple(sorted(_identity_of(t, tl, truth))) for t in tracks)
+    if stop_max_gap_s:
+        assert ids == [(1,), (2,)]
+    else:
+        assert ids == [(1,), (1,), (2,), (2,)]
+    # without registrations (image coordinates of a moving camera) no stop link
+    plain = GlobalLinker(LinkingConfig(stop_max_gap_s=stop_max_gap_s), ContextConfig(), FPS,
+                         metres_per_unit=1.0).link([Track(0, list(t.points)) for t in tl])
+    assert len(plain) == 4

@@ -1248,6 +1248,31 @@ class LinkingConfig:
     split_dist_m : float
         See ``split_gap_s``: less than a vehicle length, so that a neighbour in a queue starting
         right behind does not count as a split.
+    stop_max_gap_s : float
+        Longest gap a *stop link* may bridge (:meth:`~aerotrack.association.linking.GlobalLinker.
+        _stop_cost`): a vehicle that the detector loses as it brakes to a standstill (a motion
+        detector's background absorbs it) and finds again as it pulls away, a red light or a
+        queue later. Both ends must be slow (``stop_max_speed_mps``), the second start ahead of
+        the first end along the heading by about the distance covered braking and pulling away
+        (``stop_decel_mps2``; ``stop_sigma_m``), in the same lane and heading (within
+        ``stop_max_turn_deg``). Such a link is priced by that stop model alone: the gap's time
+        in view is not charged (``gap_cost_per_s``: a standing vehicle is not expected to be
+        detected) and ``max_gap_s`` does not apply; under ``max_gap_s`` the cheaper of the stop
+        model and the ordinary cost counts. Only on registered frames (the ground; with
+        ``--detections`` alone a standing vehicle and the camera's motion cannot be told
+        apart). 0 disables.
+    stop_max_speed_mps : float
+        Both ends of a stop link (the first tracklet's end velocity, the second's start
+        velocity, each fitted over ``context.history_s``) are at most this fast.
+    stop_decel_mps2 : float
+        Braking and pulling-away acceleration of the stop model: with end speeds ``v_a`` and
+        ``v_b`` the second tracklet is expected to start ``(v_a^2 + v_b^2) / (2 a)`` ahead.
+    stop_sigma_m : float
+        Spread of where the second tracklet starts, across the heading and along it (along it
+        also half the expected distance).
+    stop_max_turn_deg : float
+        Largest change of heading across a stop link (a vehicle waiting to turn pulls away at an
+        angle).
     split_max_appearance : float
         ... and a split's motion cost is only relaxed when the appearance context agrees (its
         cost at most this; unknown appearance counts as agreeing). A hand-over needs the same
@@ -1333,6 +1358,11 @@ class LinkingConfig:
     split_gap_s: float = 0.2
     split_dist_m: float = 1.5
     split_max_appearance: float = 1.0
+    stop_max_gap_s: float = 300.0
+    stop_max_speed_mps: float = 6.0
+    stop_decel_mps2: float = 2.0
+    stop_sigma_m: float = 1.0
+    stop_max_turn_deg: float = 60.0
 
 
 @dataclass(frozen=True)

@@ -292,7 +292,7 @@ def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window
                  quantile: float, headings: np.ndarray | None = None,
                  max_turn: float = 0.0) -> np.ndarray:
     """Per-point size (N, 2): the ``quantile`` of the valid ``sizes`` (N, 2) within
-    ``window_s / 2`` seconds of each point (the whole track's if none is that close).
+    ``window_s / 2`` seconds of each point (of the nearest valid point if none is that close).
 
     With ``headings`` (N,, radians, NaN where unknown) and ``max_turn`` > 0, only points whose
     heading is within ``max_turn`` of the point's own (modulo half a turn: a box is the same
@@ -304,6 +304,14 @@ def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window
         return out
     lo = np.searchsorted(tv, times - window_s / 2, side="left")
     hi = np.searchsorted(tv, times + window_s / 2, side="right")
+    if (far := hi == lo).any():
+        # no valid size that close (a long stop filled with held points): the window around the
+        # nearest valid one, not the whole track's (which mixes in the other legs of a turn)
+        j = np.searchsorted(tv, times[far])
+        before, after = tv[np.maximum(j - 1, 0)], tv[np.minimum(j, len(tv) - 1)]
+        t = np.where(np.abs(times[far] - before) <= np.abs(after - times[far]), before, after)
+        lo[far] = np.searchsorted(tv, t - window_s / 2, side="left")
+        hi[far] = np.searchsorted(tv, t + window_s / 2, side="right")
     m = hi - lo  # valid sizes in each window
     k = max(int(m.max()), 1)
     idx = lo[:, None] + np.arange(k)[None]
@@ -645,10 +653,9 @@ class TrackFinisher:
             # observations facing the same way
             head = None
             if registered and c.size_turn_deg > 0:
-                # where it moves too slowly for a heading, a point pools with every other
-                vel = xs[run, 4:6]
-                head = np.where(np.hypot(vel[:, 0], vel[:, 1]) >= c.min_heading_speed_mps / mpu,
-                                np.arctan2(vel[:, 1], vel[:, 0]), np.nan)
+                # where it moves too slowly for a heading, a point takes the nearest faster
+                # one's: a vehicle standing after a turn has the size it drove in with
+                head = _headings(xs[run, 4:6], c.min_heading_speed_mps / mpu)
             window = c.size_window_s if registered else c.size_window_image_s
             wh = window_sizes(times[run], norm, full[run], window, c.size_quantile, head,
                               math.radians(c.size_turn_deg))

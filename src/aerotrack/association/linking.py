@@ -56,6 +56,19 @@ __all__ = ["GlobalLinker", "link_tracklets", "estimate_scale"]
 log = logging.getLogger(__name__)
 
 _IN_VIEW = ("observed", "bridged", "stationary")
+#: An end of a stop link slower than this (m/s) gives no heading (:meth:`GlobalLinker._stop_cost`).
+STOP_HEADING_MPS = 0.5
+#: A stop link's end speeds are fitted over this many seconds at each end: a vehicle braking or
+#: pulling away changes speed by metres per second within the ``context.history_s`` of the end
+#: states, whose constant-velocity fit reports its mean (a vehicle found at 3.5 m/s pulling away
+#: started at 6 m/s by the end state, at 4 by this).
+STOP_FIT_S = 0.4
+#: Each side of a stop link travels at least this far (metres) within this many seconds of the
+#: stop, and its box there keeps this many pixels from the frame's border
+#: (:meth:`GlobalLinker._stop_end_ok`).
+STOP_TRAVEL_M = 2.0
+STOP_TRAVEL_S = 3.0
+STOP_EDGE_PX = 2.0
 #: Treatments of a tracklet's partly visible ends (``LinkingConfig.partial_model``).
 PARTIAL_MODELS = ("trim", "edge")
 
@@ -91,6 +104,15 @@ class _Ends:
     raw_last: np.ndarray
     epoch_first: np.ndarray  # registration epoch (resets before) of raw_first / raw_last
     epoch_last: np.ndarray
+    # speeds (m/s) and positions of the end and start states, for stop links (filled on demand)
+    end_speed: np.ndarray | None = None
+    start_speed: np.ndarray | None = None
+    end_xy: np.ndarray | None = None
+    start_xy: np.ndarray | None = None
+    end_v: np.ndarray | None = None  # (n, 2) world units per frame, over STOP_FIT_S
+    start_v: np.ndarray | None = None
+    end_ok: np.ndarray | None = None  # (n,) bool, GlobalLinker._stop_end_ok
+    start_ok: np.ndarray | None = None
 
 
 class GlobalLinker:
@@ -118,6 +140,10 @@ class GlobalLinker:
                               f"{self.config.partial_model!r}; one of {', '.join(PARTIAL_MODELS)}")
         check_range("linking.duplicate_overlap", self.config.duplicate_overlap, 0, 1)
         check_range("linking.rounds", self.config.rounds, 1)
+        check_range("linking.stop_max_gap_s", self.config.stop_max_gap_s, 0)
+        for name in ("stop_max_speed_mps", "stop_decel_mps2", "stop_sigma_m"):
+            check_range(f"linking.{name}", getattr(self.config, name), 0, lo_open=True)
+        check_range("linking.stop_max_turn_deg", self.config.stop_max_turn_deg, 0, 180)
         self.fps = float(fps)
         self.metres_per_unit = metres_per_unit
         self.mpu = float(metres_per_unit) if metres_per_unit else 1.0
@@ -203,7 +229,7 @@ class GlobalLinker:
                   for ch in chains]
         # solve's per-call state (indexed by tracklet) is the first round's again afterwards
         names = ("_pred", "_trimmed", "_table", "_table_key", "last_costs", "_noise",
-                 "_in_view_cache")
+                 "_in_view_cache", "_plain", "_stop_costs")
         saved = {k: getattr(self, k, None) for k in names}
         try:
             chain_links, _ = self.solve(merged)
@@ -230,6 +256,8 @@ class GlobalLinker:
         self._table = None  # built again for these tracklets by _forward when needed
         self._trimmed = None
         e = self._tracklet_ends(tl)
+        self._plain: set[tuple[int, int]] = set()  # pairs through _successors' ordinary gates
+        self._stop_costs: dict[tuple[int, int], float] = {}  # stop links' motion costs
         cand = {a: bs for a in range(n) if (bs := self._successors(e, a))}
         C = np.full((n, n), np.inf)
         self.last_costs = {}
@@ -247,8 +275,9 @@ class GlobalLinker:
         preds = {}
         if c.weight_motion > 0 or c.predict_gaps:
             for a, bs in cand.items():
-                h = int(max(e.first[b] - e.last[a] for b in bs))
-                preds[a] = self.predictor.predict(table, a, int(e.last[a]), h)
+                if plain := [b for b in bs if (a, b) in self._plain]:
+                    h = int(max(e.first[b] - e.last[a] for b in plain))
+                    preds[a] = self.predictor.predict(table, a, int(e.last[a]), h)
         desc = [TrackletDescriptor.from_track(t) for t in tl] if c.weight_descriptor > 0 else [None] * n
         preds_of: dict[int, list[int]] = {}
         for a, bs in cand.items():
@@ -274,22 +303,30 @@ class GlobalLinker:
                 if desc[a] is not None and desc[b] is not None:
                     de = descriptor_cost(kl_color(desc[a], desc[b]), kl_edge(desc[a], desc[b]),
                                          c.descriptor_max)
-                # a split needs the appearance's agreement too (a false fragment right after a
-                # vehicle's tracklet also starts where it ended)
-                m = self._motion_cue(e, a, b, preds.get(a),
-                                     allow_split=not ap > c.split_max_appearance)
-                cues = Cues(m, ap, de)
-                cost = link_cost(cues, c)
-                gap = int(e.first[b] - e.last[a])
-                if c.gap_cost_per_s > 0 and a in preds and gap > 0:
-                    unseen = int(self._in_view(a, preds[a], e.last[a])[min(gap, len(preds[a])) - 1])
-                    if c.gap_cost_entry:
-                        unseen = max(unseen, self._entry_frames(e, b, gap))
-                    cost += c.gap_cost_per_s * unseen / self.fps
+                cost, cues = np.inf, Cues(float("nan"), ap, de)
+                if (a, b) in self._plain:
+                    # a split needs the appearance's agreement too (a false fragment right after
+                    # a vehicle's tracklet also starts where it ended)
+                    m = self._motion_cue(e, a, b, preds.get(a),
+                                         allow_split=not ap > c.split_max_appearance)
+                    cues = Cues(m, ap, de)
+                    cost = link_cost(cues, c)
+                    gap = int(e.first[b] - e.last[a])
+                    if c.gap_cost_per_s > 0 and a in preds and gap > 0:
+                        unseen = int(self._in_view(a, preds[a], e.last[a])[
+                            min(gap, len(preds[a])) - 1])
+                        if c.gap_cost_entry:
+                            unseen = max(unseen, self._entry_frames(e, b, gap))
+                        cost += c.gap_cost_per_s * unseen / self.fps
+                if (a, b) in self._stop_costs:
+                    # a vehicle standing unseen: its time in view is not charged
+                    stop = Cues(self._stop_costs[(a, b)], ap, de)
+                    if link_cost(stop, c) < cost:
+                        cost, cues = link_cost(stop, c), stop
                 self.last_costs[(a, b)] = (cost, cues)
                 log.debug("linking: %d (ends %d) -> %d (starts %d): cost %.2f, motion %.2f, "
                           "appearance %.2f, descriptor %.2f", a, e.last[a], b, e.first[b], cost,
-                          m, ap, de)
+                          cues.motion, ap, de)
                 if cost <= c.max_cost:
                     C[a, b] = cost
         self._pred = preds
@@ -338,7 +375,7 @@ class GlobalLinker:
         gaps = e.first - e.last[a]
         order = e.raw_first - e.raw_last[a]
         same = e.epoch_first == e.epoch_last[a]
-        out = []
+        out = self._stop_successors(e, a, (order > 0) & same)
         for b in np.flatnonzero((order > 0) & (gaps <= max_gap) & same):
             gap_s = gaps[b] / self.fps
             d = float(np.hypot(*(starts[b][0] - ends[a][0]))) * self.mpu
@@ -357,8 +394,102 @@ class GlobalLinker:
                     continue
             if d <= c.v_max_mps * gap_s + c.gate_slack_m and \
                     dv <= c.a_max_mps2 * gap_s + c.speed_slack_mps:
+                self._plain.add((a, int(b)))
+                if int(b) not in out:
+                    out.append(int(b))
+        return sorted(out)
+
+    def _stop_successors(self, e: _Ends, a: int, allowed: np.ndarray) -> list[int]:
+        """The tracklets b (among ``allowed``) that may continue a as a stop, their motion costs
+        entered in ``_stop_costs`` (:meth:`_stop_cost`)."""
+        c = self.config
+        if c.stop_max_gap_s <= 0 or not self._regs:
+            return []
+        if e.end_speed is None:
+            n = round(STOP_FIT_S * self.fps)
+            e.end_v = np.array([_local_velocity(fr[-n - 1:], xy[-n - 1:]) for fr, xy in e.pos])
+            e.start_v = np.array([_local_velocity(fr[:n + 1], xy[:n + 1]) for fr, xy in e.pos])
+            e.end_speed = np.hypot(*e.end_v.T) * self.mpu * self.fps
+            e.start_speed = np.hypot(*e.start_v.T) * self.mpu * self.fps
+            e.end_xy = np.array([p for p, _ in e.ends], float).reshape(-1, 2)
+            e.start_xy = np.array([p for p, _ in e.starts], float).reshape(-1, 2)
+            k = round(STOP_TRAVEL_S * self.fps)
+            e.end_ok = np.array([self._stop_end_ok(t, fr, xy, k, True)
+                                 for t, (fr, xy) in zip(e.tracklets, e.raw)])
+            e.start_ok = np.array([self._stop_end_ok(t, fr, xy, k, False)
+                                   for t, (fr, xy) in zip(e.tracklets, e.raw)])
+        vmax = c.stop_max_speed_mps
+        if e.end_speed[a] > vmax or not e.end_ok[a]:
+            return []
+        reach = vmax * vmax / c.stop_decel_mps2 * 1.5 + 4.0 * c.stop_sigma_m  # metres
+        d = np.hypot(*(e.start_xy - e.end_xy[a]).T) * self.mpu
+        gaps = e.first - e.last[a]
+        out = []
+        for b in np.flatnonzero(allowed & (gaps <= round(c.stop_max_gap_s * self.fps))
+                                & (e.start_speed <= vmax) & e.start_ok & (d <= reach)):
+            m = self._stop_cost(e, a, int(b))
+            if m is not None:
+                self._stop_costs[(a, int(b))] = m
                 out.append(int(b))
         return out
+
+    def _stop_end_ok(self, t: Track, fr: np.ndarray, xy: np.ndarray, k: int, end: bool) -> bool:
+        """Whether a tracklet's end (``end``) or start may be a stop link's: its box there wholly
+        inside the frame (a box cut by the border moves slowly as the vehicle comes in; the
+        vehicle may have left the view) and its points over the ``k`` frames next to it spread
+        over at least ``STOP_TRAVEL_M`` (it was seen driving: two vehicles crossing in one
+        blob look slow and stand nowhere)."""
+        if not len(fr):
+            return False
+        sel = fr >= fr[-1] - k if end else fr <= fr[0] + k
+        if float(np.hypot(*np.ptp(xy[sel], axis=0))) * self.mpu < STOP_TRAVEL_M:
+            return False
+        if self._frame_size is None:
+            return True
+        obs = [p for p in t.points if p.kind == "observed" and p.box is not None]
+        if not obs:
+            return False
+        x, y, w, h = (float(v) for v in (obs[-1] if end else obs[0]).box)
+        W, H = self._frame_size
+        return x > STOP_EDGE_PX and y > STOP_EDGE_PX and x + w < W - STOP_EDGE_PX \
+            and y + h < H - STOP_EDGE_PX
+
+    def _stop_cost(self, e: _Ends, a: int, b: int) -> float | None:
+        """Motion cost of a -> b as a stop (``LinkingConfig.stop_max_gap_s``), or None when the
+        pair cannot be one.
+
+        A vehicle lost while braking at ``v_a`` and found pulling away at ``v_b`` needed at least
+        ``(v_a + v_b) / a`` seconds (``stop_decel_mps2``) and covered about ``s = (v_a^2 +
+        v_b^2) / (2 a)`` metres in them, along its heading (the mean of the two ends' headings;
+        neither end slower than 0.5 m/s has one). The cost is ``0.5 (along - s)^2 / (sigma +
+        s / 2)^2 + 0.5 lateral^2 / sigma^2`` (``stop_sigma_m``); starting behind the end (a
+        vehicle does not back up in a queue) or off the lane by over ``3 sigma``, turned by over
+        ``stop_max_turn_deg``, or costing over ``max_cost`` is no stop. aerotrack's own rule:
+        neither paper has one, and with a background model that absorbs a waiting vehicle (Yu &
+        Medioni's) a red light longer than ``max_gap_s`` split every vehicle that waited at it."""
+        c = self.config
+        va, vb = float(e.end_speed[a]), float(e.start_speed[b])
+        gap_s = (e.first[b] - e.last[a]) / self.fps
+        if gap_s < (va + vb) / c.stop_decel_mps2:
+            return None
+        heads = [v / np.hypot(*v) for sp, v in ((va, e.end_v[a]), (vb, e.start_v[b]))
+                 if sp >= STOP_HEADING_MPS]
+        D = (e.start_xy[b] - e.end_xy[a]) * self.mpu
+        sigma = c.stop_sigma_m
+        expect = (va * va + vb * vb) / (2.0 * c.stop_decel_mps2)
+        if not heads:
+            return 0.5 * (float(np.hypot(*D)) / (sigma + 0.5 * expect)) ** 2 \
+                if np.hypot(*D) <= 3.0 * (sigma + 0.5 * expect) else None
+        if len(heads) == 2 and float(heads[0] @ heads[1]) < np.cos(np.radians(c.stop_max_turn_deg)):
+            return None
+        u = heads[0] + heads[-1]
+        u = u / np.hypot(*u)
+        along = float(D @ u)
+        lateral = abs(float(D[0] * u[1] - D[1] * u[0]))
+        if along < -sigma or lateral > 3.0 * sigma:
+            return None
+        cost = 0.5 * ((along - expect) / (sigma + 0.5 * expect)) ** 2 + 0.5 * (lateral / sigma) ** 2
+        return cost if cost <= c.max_cost else None
 
     def _handover_costs(self, tl: list[Track], handovers: dict[tuple[int, int], float],
                         app: AppearanceContext | None, C: np.ndarray) -> None:
@@ -1200,6 +1331,15 @@ def _typical_length(t: Track) -> float:
     sides = [max(p.size_world) for p in t.points if p.kind == "observed"
              and p.size_world is not None and np.all(np.isfinite(p.size_world))]
     return float(np.percentile(np.abs(sides), 90)) if sides else 0.0
+
+
+def _local_velocity(fr: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Least-squares velocity (world units per frame) of points ``xy`` at frames ``fr``; zero
+    from fewer than two frames."""
+    if len(fr) < 2 or fr[-1] == fr[0]:
+        return np.zeros(2)
+    t = np.asarray(fr, float) - float(np.mean(fr))
+    return (t @ (np.asarray(xy, float) - np.mean(xy, axis=0))) / float(t @ t)
 
 
 def _speed(v) -> float:
