@@ -421,6 +421,9 @@ def test_noisy_dark_footage_is_pointed_out(scene, tmp_path, capsys):
     assert code == 0 and "noise set the detection threshold" in err, err
     hints = json.loads((tmp_path / "o1" / "summary.json").read_text())["hints"]
     assert any("noisy, dark or heavily compressed" in h for h in hints), hints
+    # association again on the cached stages says it too (it said nothing)
+    code, _, err = run_cli(capsys, "track", "--from", tmp_path / "o1", "--out", tmp_path / "o3")
+    assert code == 0 and "noise set the detection threshold" in err, err
     code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o2",
                            "--frames", "1:90")
     assert code == 0 and "noise set" not in err, err

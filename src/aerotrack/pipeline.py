@@ -1182,7 +1182,7 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
     """Association and linking alone, on the registrations and detections cached by an earlier
     run (its ``stages/`` folder): changing association parameters does not redo registration and
     detection."""
-    from .io.checkpoint import load_chunks
+    from .io.checkpoint import load_chunks, load_thresholds
 
     config = as_config(config)
     regs, dets, _ = load_chunks(stages)
@@ -1200,6 +1200,7 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                     metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps,
                     roads=roads)
     pipe.registrations.update(regs)
+    pipe.thresholds.update(load_thresholds(stages))  # the noise hint's (clip_hints)
     pipe.frame_size = frame_size
     from .detection.overlay import OVERLAY_FILE, read_mask
 

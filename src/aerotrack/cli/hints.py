@@ -61,7 +61,7 @@ NOISE_SHARE = 0.5
 def threshold_summary(thresholds: dict, floor: float) -> dict | None:
     """The median residual threshold over the frames (grey levels), the floor
     (``detection.min_threshold``) and the share of frames whose noise set it at NOISE_RATIO x the
-    floor or more; None without thresholds (detections given, ``track --from``)."""
+    floor or more; None without thresholds (detections given)."""
     import numpy as np
 
     if not thresholds:
@@ -77,7 +77,8 @@ def noise_hint(result, config) -> str | None:
     vehicles stay under it (a probe, 2026-12-03: Santiago darkened, threshold 21 grey levels,
     detection recall 0.89 -> 0.38, and no word from the run). Clean Santiago's median is 10.1
     (1% of frames at 1.5x the floor); UAV123 truck4's JPEG frames 17 (62%), where it fires too. A
-    resumed run has its earlier frames' thresholds from the checkpoints; ``track --from`` none."""
+    resumed run has its earlier frames' thresholds from the checkpoints, ``track --from`` the
+    cached run's."""
     floor = float(config.detection.min_threshold)
     s = threshold_summary(getattr(result, "thresholds", None) or {}, floor)
     if s is None or floor <= 0 or s["noise_set_share"] < NOISE_SHARE:

@@ -1146,7 +1146,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
             **({"start_time": start_time} if start_time else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3), "environment": environment()}
     # "N detections but no track" (a --set that gated everything away said nothing here)
-    hints = [h for h in clip_hints(result, config, builtin_detector=False) if h]
+    hints = [h for h in clip_hints(result, config, builtin_detector=not prev.get("detections"))
+             if h]
     for hint in hints:
         log.warning(hint)
     if hints:
