@@ -1249,10 +1249,10 @@ class LinkingConfig:
         See ``split_gap_s``: less than a vehicle length, so that a neighbour in a queue starting
         right behind does not count as a split.
     stop_max_gap_s : float
-        Longest gap a *stop link* may bridge (:meth:`~aerotrack.association.linking.GlobalLinker.
-        _stop_cost`): a vehicle that the detector loses as it brakes to a standstill (a motion
-        detector's background absorbs it) and finds again as it pulls away, a red light or a
-        queue later. Both ends must be slow (``stop_max_speed_mps``), the second start ahead of
+        Longest wait a *stop link* may bridge, seconds: a vehicle that the detector loses as it
+        brakes to a standstill (a motion detector's background absorbs it) and finds again as
+        it pulls away, a red light or a queue later (``GlobalLinker._stop_cost`` in
+        ``association/linking.py``). Both ends must be slow (``stop_max_speed_mps``), the second start ahead of
         the first end along the heading by about the distance covered braking and pulling away
         (``stop_decel_mps2``; ``stop_sigma_m``), in the same lane and heading (within
         ``stop_max_turn_deg``). Such a link is priced by that stop model alone: the gap's time
@@ -1262,8 +1262,8 @@ class LinkingConfig:
         ``--detections`` alone a standing vehicle and the camera's motion cannot be told
         apart). 0 disables.
     stop_max_speed_mps : float
-        Both ends of a stop link (the first tracklet's end velocity, the second's start
-        velocity, each fitted over ``context.history_s``) are at most this fast.
+        Both ends of a stop link are at most this fast (the first tracklet's end velocity and
+        the second's start velocity, each fitted over the 0.4 s next to the gap).
     stop_decel_mps2 : float
         Braking and pulling-away acceleration of the stop model: with end speeds ``v_a`` and
         ``v_b`` the second tracklet is expected to start ``(v_a^2 + v_b^2) / (2 a)`` ahead.
