@@ -427,3 +427,31 @@ def test_noisy_dark_footage_is_pointed_out(scene, tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", scene / "frames", "--out", tmp_path / "o2",
                            "--frames", "1:90")
     assert code == 0 and "noise set" not in err, err
+
+
+def test_noise_hint_speaks_for_a_still_camera_only():
+    """A moving camera's residual holds the warps' interpolation too: generated survey, hover
+    and pan scenes (0.5-0.9 px a frame) had thresholds of 17-20 grey levels from clean frames,
+    and the hint called every one of them noisy, dark or compressed footage."""
+    from types import SimpleNamespace
+
+    from aerotrack.cli.hints import camera_motion_px, noise_hint
+    from aerotrack.config import Config
+    from aerotrack.types import Registration
+
+    config = Config()
+    high = 2.0 * config.detection.min_threshold
+
+    def result(step_px):
+        regs = {f: Registration(f, np.array([[1.0, 0, step_px * f], [0, 1, 0], [0, 0, 1]]))
+                for f in range(1, 61)}
+        return SimpleNamespace(thresholds={f: high for f in regs}, registrations=regs,
+                               frame_size=(640, 480))
+
+    assert camera_motion_px(result(0.7)) == pytest.approx(0.7)
+    assert noise_hint(result(0.0), config) is not None
+    assert noise_hint(result(0.05), config) is not None  # a stabilised video's jitter
+    assert noise_hint(result(0.7), config) is None
+    # no registrations (given detections): no hint
+    assert noise_hint(SimpleNamespace(thresholds={1: high}, registrations={}, frame_size=None),
+                      config) is None

@@ -78,16 +78,57 @@ def noise_hint(result, config) -> str | None:
     detection recall 0.89 -> 0.38, and no word from the run). Clean Santiago's median is 10.1
     (1% of frames at 1.5x the floor); UAV123 truck4's JPEG frames 17 (62%), where it fires too. A
     resumed run has its earlier frames' thresholds from the checkpoints, ``track --from`` the
-    cached run's."""
+    cached run's.
+
+    Only for a still camera (:func:`camera_motion_px` under :data:`STILL_CAMERA_PX`): a moving
+    camera's residual also holds the warps' interpolation, which lifts the threshold of clean
+    footage as much (generated survey, hover and pan scenes: medians 17-20 grey levels, moving
+    0.5-0.9 px a frame; the hint fired on every one of them, a probe 2026-12-03). Santiago and
+    its degraded copies move 0.03-0.15 px a frame (a stabilised video), a still generated scene
+    0.005."""
     floor = float(config.detection.min_threshold)
     s = threshold_summary(getattr(result, "thresholds", None) or {}, floor)
     if s is None or floor <= 0 or s["noise_set_share"] < NOISE_SHARE:
+        return None
+    motion = camera_motion_px(result)
+    if motion is None or motion > STILL_CAMERA_PX:
         return None
     return (f"the frames' noise set the detection threshold at {NOISE_RATIO:g}x "
             f"detection.min_threshold ({floor:g} grey levels) or more in "
             f"{100 * s['noise_set_share']:.0f}% of frames (median over all frames "
             f"{s['median']:.0f}): noisy, dark or heavily compressed footage, where low-contrast "
             f"vehicles can stay under it (README, Noisy, dark or heavily compressed footage)")
+
+
+#: The noise hint speaks only when the camera moves less than this (pixels a frame, median).
+STILL_CAMERA_PX = 0.3
+
+
+def camera_motion_px(result) -> float | None:
+    """Median over consecutive registered frames of how far the frame's centre and corners move
+    from one frame to the next (pixels, through the two registrations); None with fewer than two
+    consecutive registered frames (``--detections`` alone)."""
+    import itertools
+
+    import numpy as np
+
+    regs = result.registrations or {}
+    size = getattr(result, "frame_size", None)
+    if len(regs) < 2 or not size:
+        return None
+    W, H = size
+    pts = np.array([[W / 2, 0, W, 0, W], [H / 2, 0, 0, H, H], [1, 1, 1, 1, 1]], float)
+    fr = sorted(regs)
+    pairs = [(a, b) for a, b in itertools.pairwise(fr) if b == a + 1]
+    if not pairs:
+        return None
+    moved = []
+    for a, b in pairs:
+        q = np.linalg.solve(regs[a].H, regs[b].H @ pts)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.hypot(q[0] / q[2] - pts[0], q[1] / q[2] - pts[1])
+        moved.append(float(np.mean(d)) if np.all(np.isfinite(d)) else np.inf)
+    return float(np.median(moved))
 
 
 #: A stretch of frames without a detection is named when it lasts this long (seconds) in a clip

@@ -32,7 +32,7 @@ from .common import (
     telemetry_option,
     track_fps_option,
 )
-from .hints import clip_hints, scale_hint
+from .hints import clip_hints, noise_hint, scale_hint
 
 log = logging.getLogger("aerotrack")
 
@@ -1146,8 +1146,9 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
             **({"start_time": start_time} if start_time else {}),
             "wall_time_s": round(time.perf_counter() - t0, 3), "environment": environment()}
     # "N detections but no track" (a --set that gated everything away said nothing here)
-    hints = [h for h in clip_hints(result, config, builtin_detector=not prev.get("detections"))
-             if h]
+    hints = [h for h in clip_hints(result, config, builtin_detector=False) if h]
+    if not prev.get("detections") and (noise := noise_hint(result, config)):
+        hints.append(noise)  # (the cached run's thresholds: its detector judged the frames)
     for hint in hints:
         log.warning(hint)
     if hints:
