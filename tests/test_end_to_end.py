@@ -40,10 +40,17 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     main(["-q", "track", str(scene / "frames"), "--out", str(out), "--map", str(scene / "map.tif"),
           "--map-init", str(scene / "map_init.txt"), "--seed", "1"])
     for name in ("tracks.csv", "predicted.csv", "detections.csv", "registration.csv",
-                 "tracks.geojson", "config.toml", "summary.json"):
+                 "tracks.geojson", "config.toml", "summary.json", "links.csv"):
         assert (out / name).is_file(), name
     assert not (out / ".partial").exists()
     tracks = io.read_mot(out / "tracks.csv")
+    # links.csv: one row per bridged gap, of tracks that are in tracks.csv, as summary.json counts
+    links = (out / "links.csv").read_text().splitlines()
+    assert links[0] == "id,lost_frame,found_frame,gap_s,kind,cost,motion,appearance,descriptor"
+    rows = [r.split(",") for r in links[1:]]
+    assert {int(r[0]) for r in rows} <= set(tracks[:, 1].astype(int))
+    assert all(r[4] in ("linked", "stop", "inserted", "handover") for r in rows)
+    assert json.loads((out / "summary.json").read_text())["counts"]["links"] == len(rows)
     gt = io.read_mot(scene / "gt.txt", strict=False)
     # A static camera, 7 vehicles: registration, detection and association must all work.
     # The vehicles are 15 x 6 px (0.3 m pixels). At IoU 0.5 such a box tolerates about 1 px of

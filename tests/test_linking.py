@@ -930,6 +930,12 @@ def test_a_queue_that_stood_longer_than_max_gap_keeps_its_identities(stop_max_ga
     ids = sorted(tuple(sorted(_identity_of(t, tl, truth))) for t in tracks)
     if stop_max_gap_s:
         assert ids == [(1,), (2,)]
+        # each track records its stop link (links.csv): last seen braking, found pulling away
+        for t in tracks:
+            ((hidden, shown),) = gaps[_identity_of(t, tl, truth).pop()]
+            (rec,) = t.links
+            assert rec["kind"] == "stop" and rec["motion"] < 1.0
+            assert (rec["lost"], rec["found"]) == (hidden - 1, shown)
     else:
         assert ids == [(1,), (1,), (2,), (2,)]
     # without registrations (image coordinates of a moving camera) no stop link

