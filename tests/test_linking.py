@@ -907,12 +907,12 @@ def _stop_and_go(x_stop, t_stop, t_go, n, v0=8.0, acc=2.0):
 
 
 @pytest.mark.parametrize("stop_max_gap_s", [0.0, 300.0])
-def test_a_queue_that_stood_longer_than_max_gap_keeps_its_identities(stop_max_gap_s):
+def test_a_queue_that_stood_30_s_at_a_light_keeps_its_identities(stop_max_gap_s):
     """Two look-alike vehicles queue at a red light 7 m apart and stand for 30 s; a motion
     detector loses each below 2 m/s and finds it again pulling away. The stop links join each
     vehicle's two tracklets, the front one's to the front one's (the rear vehicle's end lies a
     car length behind where the front one pulls away from); without them (``stop_max_gap_s``
-    0, or the 12 s ``max_gap_s`` alone) all four stay apart."""
+    0) all four stay apart: 30 s unseen in view cost ``gap_cost_per_s`` each."""
     n = int(45 * FPS)
     paths, gaps = {}, {}
     for i, (x_stop, t_stop, t_go) in {1: (100.0, 8.0, 38.0), 2: (93.0, 9.5, 39.5)}.items():
@@ -938,7 +938,9 @@ def test_a_queue_that_stood_longer_than_max_gap_keeps_its_identities(stop_max_ga
             assert (rec["lost"], rec["found"]) == (hidden - 1, shown)
     else:
         assert ids == [(1,), (1,), (2,), (2,)]
-    # without registrations (image coordinates of a moving camera) no stop link
-    plain = GlobalLinker(LinkingConfig(stop_max_gap_s=stop_max_gap_s), ContextConfig(), FPS,
-                         metres_per_unit=1.0).link([Track(0, list(t.points)) for t in tl])
+    # without registrations (image coordinates of a moving camera) no stop link: under a
+    # max_gap_s shorter than the wait nothing joins them
+    plain = GlobalLinker(LinkingConfig(stop_max_gap_s=stop_max_gap_s, max_gap_s=12.0),
+                         ContextConfig(), FPS, metres_per_unit=1.0
+                         ).link([Track(0, list(t.points)) for t in tl])
     assert len(plain) == 4
