@@ -193,7 +193,8 @@ class OutputDir:
 
 #: Top-level names any aerotrack command writes into an output folder.
 OUTPUT_NAMES = {
-    "tracks.csv", "predicted.csv", "detections.csv", "registration.csv", "tracks.geojson",
+    "tracks.csv", "predicted.csv", "links.csv", "detections.csv", "registration.csv",
+    "tracks.geojson",
     "config.toml", "summary.json", "observations.csv", "observations.gpkg",
     "observations.parquet", "stages", ".partial", "overlay.webm", "overlay.mp4", "map.png",
     "spacetime.png", "registration.png", "report.html", "debug.mp4",
