@@ -48,7 +48,11 @@ def test_cli_track_with_map_writes_the_contract(scene, tmp_path, capsys):
     links = (out / "links.csv").read_text().splitlines()
     assert links[0] == "id,lost_frame,found_frame,gap_s,kind,cost,motion,appearance,descriptor"
     rows = [r.split(",") for r in links[1:]]
-    assert {int(r[0]) for r in rows} <= set(tracks[:, 1].astype(int))
+    assert rows and {int(r[0]) for r in rows} <= set(tracks[:, 1].astype(int))
+    # every file is one aerotrack writes: --overwrite and batch take the folder as theirs
+    from aerotrack.io.output import is_aerotrack_output
+
+    assert all(is_aerotrack_output(p.name) for p in out.iterdir()), sorted(out.iterdir())
     assert all(r[4] in ("linked", "stop", "inserted", "handover") for r in rows)
     assert json.loads((out / "summary.json").read_text())["counts"]["links"] == len(rows)
     gt = io.read_mot(scene / "gt.txt", strict=False)
@@ -456,6 +460,10 @@ def test_noise_hint_speaks_for_a_still_camera_only():
                                frame_size=(640, 480))
 
     assert camera_motion_px(result(0.7)) == pytest.approx(0.7)
+    # --stride 2 registers every other frame: still a still camera
+    strided = result(0.0)
+    strided.registrations = {f: r for f, r in strided.registrations.items() if f % 2}
+    assert noise_hint(strided, config) is not None
     assert noise_hint(result(0.0), config) is not None
     assert noise_hint(result(0.05), config) is not None  # a stabilised video's jitter
     assert noise_hint(result(0.7), config) is None

@@ -618,6 +618,17 @@ def test_a_short_piece_inside_a_linked_gap_joins_the_track_and_a_neighbours_does
     whole = set(range(1, 151)) | set(range(240, 400))
     assert off == [whole]
     assert on == [whole | set(range(152, 164))]
+    # links.csv: the piece's two hops, each with the cost of the link they lie in (it decided
+    # the identity across the gap; they had none), the same as the direct link's
+    linker = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0)
+    (track,) = [t for t in linker.link([a, piece, other, b]) if t.first == 1]
+    assert [(r["lost"], r["found"], r["kind"]) for r in track.links] == [
+        (150, 152, "inserted"), (163, 240, "inserted")]
+    (direct,) = GlobalLinker(LinkingConfig(fill_sigma=0.0), ContextConfig(), FPS,
+                             metres_per_unit=1.0).link([a, piece, other, b])
+    (rec,) = direct.links
+    assert rec["kind"] == "linked" and rec["lost"] == 150 and rec["found"] == 240
+    assert track.links[0]["cost"] == track.links[1]["cost"] == pytest.approx(rec["cost"])
 
 
 def test_appearance_cost_is_truncated_so_a_mixed_tracklet_cannot_veto_its_own_vehicle():

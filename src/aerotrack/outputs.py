@@ -56,8 +56,8 @@ def links_csv(result: Result) -> str:
     """``links.csv``: one row per gap that global linking bridged inside a track (the target's
     identity carried from ``lost_frame``, its last observation before the gap, to
     ``found_frame``), with how the link was made and its cost (``linking.max_cost`` the most a
-    link may cost) and cues (NaN: the cue was not available; empty: an inserted piece, which
-    has none). A re-acquisition's cost says how sure it was: on generated exit scenes (a probe,
+    link may cost) and cues (NaN: the cue was not available; an inserted piece's rows carry the
+    link it was put in). A re-acquisition's cost says how sure it was: on generated exit scenes (a probe,
     2026-12-03) right links after more than 5 s had a median cost of 2.4 and wrong ones 4.3."""
     rows = [",".join(LINK_COLUMNS)]
     fps = float(result.fps or 30.0)

@@ -106,8 +106,8 @@ STILL_CAMERA_PX = 0.3
 
 def camera_motion_px(result) -> float | None:
     """Median over consecutive registered frames of how far the frame's centre and corners move
-    from one frame to the next (pixels, through the two registrations); None with fewer than two
-    consecutive registered frames (``--detections`` alone)."""
+    from one to the next, per frame between them (pixels, through the two registrations); None
+    with fewer than two registered frames (``--detections`` alone)."""
     import itertools
 
     import numpy as np
@@ -119,15 +119,12 @@ def camera_motion_px(result) -> float | None:
     W, H = size
     pts = np.array([[W / 2, 0, W, 0, W], [H / 2, 0, 0, H, H], [1, 1, 1, 1, 1]], float)
     fr = sorted(regs)
-    pairs = [(a, b) for a, b in itertools.pairwise(fr) if b == a + 1]
-    if not pairs:
-        return None
     moved = []
-    for a, b in pairs:
+    for a, b in itertools.pairwise(fr):  # (every k-th frame with --stride k: per frame)
         q = np.linalg.solve(regs[a].H, regs[b].H @ pts)
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.hypot(q[0] / q[2] - pts[0], q[1] / q[2] - pts[1])
-        moved.append(float(np.mean(d)) if np.all(np.isfinite(d)) else np.inf)
+        moved.append(float(np.mean(d)) / (b - a) if np.all(np.isfinite(d)) else np.inf)
     return float(np.median(moved))
 
 
