@@ -1277,6 +1277,18 @@ def test_track_from_names_stage_settings_it_cannot_apply(tmp_path, capsys):
     assert code == 0 and "differ" not in err, err
 
 
+def test_track_from_a_damaged_stage_names_from_not_resume(tmp_path, capsys):
+    """A truncated chunk in a run's stages/ stopped ``track --from`` with "--resume:
+    checkpoint ... is unreadable", naming an option the user did not give."""
+    frames = write_frames(tmp_path / "f", [textured(shift=(0, i)) for i in range(4)])
+    assert run_cli(capsys, "track", frames, "--out", tmp_path / "a")[0] == 0
+    (chunk,) = (tmp_path / "a" / "stages").glob("chunk_*.npz")
+    chunk.write_bytes(chunk.read_bytes()[:200])
+    expect_error(capsys, ["--from: cached stage", chunk.name, "unreadable"],
+                 "track", "--from", tmp_path / "a", "--out", tmp_path / "b",
+                 out_dir=tmp_path / "b")
+
+
 def test_batch_never_deletes_inputs_or_files_it_did_not_write(tmp_path, capsys):
     """``batch same --out same`` deleted every image folder's frames (its results replaced
     them) and reported success; and an item's output folder was emptied of a user's notes."""

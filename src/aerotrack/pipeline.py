@@ -1185,7 +1185,8 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
     from .io.checkpoint import load_chunks, load_thresholds
 
     config = as_config(config)
-    regs, dets, _ = load_chunks(stages)
+    what = "--from: cached stage"
+    regs, dets, _ = load_chunks(stages, what)
     # a higher detection.min_conf (--min-conf) applies to the cached boxes too (it was ignored,
     # while config.toml said it was used); the earlier run already dropped those below its own
     floor = config.detection.min_conf
@@ -1200,7 +1201,7 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                     metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps,
                     roads=roads)
     pipe.registrations.update(regs)
-    pipe.thresholds.update(load_thresholds(stages))  # the noise hint's (clip_hints)
+    pipe.thresholds.update(load_thresholds(stages, what))  # the noise hint's (clip_hints)
     pipe.frame_size = frame_size
     from .detection.overlay import OVERLAY_FILE, read_mask
 

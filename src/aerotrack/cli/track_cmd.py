@@ -1131,12 +1131,15 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     if same and not overwrite:
         raise InputError(f"--out {out_dir}: is the --from folder; its results are replaced only "
                          "with --overwrite (its stages/ are kept)")
+    # a damaged stage is found once the folder is made: leave none behind (never the --from one)
+    cleanup = CleanupOnBadInput(out_dir, resume=same)
     out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
     t0 = time.perf_counter()
-    result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
-                        metres_per_unit=mpu, frame_size=tuple(prev["frame_size"])
-                        if prev.get("frame_size") else None, min_speed_mps=min_speed,
-                        roads=roads)
+    with cleanup:
+        result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
+                            metres_per_unit=mpu, frame_size=tuple(prev["frame_size"])
+                            if prev.get("frame_size") else None, min_speed_mps=min_speed,
+                            roads=roads)
     info = {"input": prev.get("input"), "detections": prev.get("detections"),
             "map": str(Path(map_path).resolve()) if map_path else None, "seed": seed,
             "from": str(from_dir), "min_speed": min_speed,

@@ -105,8 +105,11 @@ def savez_deflated(fh, arrays: dict[str, np.ndarray]) -> None:
                 np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
 
 
-def load_chunks(folder: Path) -> tuple[dict[int, Registration], list[Detections], int]:
-    """Read every chunk in ``folder``: (registrations by frame, detections in order, next number)."""
+def load_chunks(folder: Path, what: str = "--resume: checkpoint"
+                ) -> tuple[dict[int, Registration], list[Detections], int]:
+    """Read every chunk in ``folder``: (registrations by frame, detections in order, next number).
+    ``what`` names a chunk in the error for an unreadable one (``track --from`` reads a run's
+    ``stages/``, not checkpoints of a run to resume)."""
     regs: dict[int, Registration] = {}
     dets: list[Detections] = []
     files = sorted(p for p in Path(folder).glob("chunk_*.npz") if CHUNK_RE.match(p.name))
@@ -118,14 +121,15 @@ def load_chunks(folder: Path) -> tuple[dict[int, Registration], list[Detections]
                 # 600 frames at 640x480 held 3.6 GB and spent most of its time there)
                 _read_chunk({k: z[k] for k in z.files}, regs, dets)
         except UNREADABLE as exc:
-            raise InputError(f"--resume: checkpoint {p} is unreadable "
+            raise InputError(f"{what} {p} is unreadable "
                              f"({exc or type(exc).__name__})") from None
     return regs, dets, len(files)
 
 
-def load_thresholds(folder: Path) -> dict[int, float]:
+def load_thresholds(folder: Path, what: str = "--resume: checkpoint") -> dict[int, float]:
     """The detector's residual thresholds by frame saved in ``folder``'s chunks (empty for
-    chunks written before they were kept, or by runs on given detections)."""
+    chunks written before they were kept, or by runs on given detections); ``what`` as
+    :func:`load_chunks`'s."""
     out: dict[int, float] = {}
     for p in sorted(p for p in Path(folder).glob("chunk_*.npz") if CHUNK_RE.match(p.name)):
         try:
@@ -133,7 +137,7 @@ def load_thresholds(folder: Path) -> dict[int, float]:
                 if "thr_frame" in z.files:
                     out.update(zip(z["thr_frame"].tolist(), z["thr_value"].tolist()))
         except UNREADABLE as exc:
-            raise InputError(f"--resume: checkpoint {p} is unreadable "
+            raise InputError(f"{what} {p} is unreadable "
                              f"({exc or type(exc).__name__})") from None
     return out
 
