@@ -145,15 +145,44 @@ def test_gates_refuse_impossible_links_and_ends_are_predicted():
 
 
 def test_joint_assignment_beats_greedy():
-    inf = np.inf
     # a -> x is cheapest (1.0), but b can only go to x: jointly a -> y, b -> x (1.5 + 1.2)
-    C = np.array([[inf, inf, 1.0, 1.5],
-                  [inf, inf, 1.2, inf],
-                  [inf, inf, inf, inf],
-                  [inf, inf, inf, inf]])
-    assert _assign(C, max_cost=4.0) == {0: 3, 1: 2}
+    C = {(0, 2): 1.0, (0, 3): 1.5, (1, 2): 1.2}
+    assert _assign(4, C, max_cost=4.0) == {0: 3, 1: 2}
     # a link dearer than leaving both ends unlinked is not made
-    assert _assign(np.array([[inf, 5.0], [inf, inf]]), max_cost=4.0) == {}
+    assert _assign(2, {(0, 1): 5.0}, max_cost=4.0) == {}
+    assert _assign(3, {}, max_cost=4.0) == {}
+
+
+def test_sparse_assignment_equals_the_dense_hungarian():
+    """The sparse augmented matrix (lower right block: C's transposed pattern only) reaches the
+    optimum of the dense one, negative costs included."""
+    from scipy.optimize import linear_sum_assignment
+
+    rng = np.random.default_rng(3)
+    for trial in range(30):
+        n = int(rng.integers(2, 60))
+        C = {}
+        for a in range(n):
+            for b in rng.integers(0, n, size=int(rng.integers(0, 6))):
+                if b != a:
+                    C[(a, int(b))] = float(rng.uniform(-2.0, 6.0))
+        max_cost = 4.0
+        M = np.full((2 * n, 2 * n), 1e6)
+        for (a, b), c in C.items():
+            M[a, b] = c
+        M[np.arange(n), n + np.arange(n)] = max_cost / 2
+        M[n + np.arange(n), np.arange(n)] = max_cost / 2
+        M[n:, n:] = 0.0
+        r, k = linear_sum_assignment(M)
+        dense = {int(a): int(b) for a, b in zip(r, k) if a < n and b < n and M[a, b] < 1e6}
+
+        def total(links, C=C, n=n, max_cost=max_cost):
+            return sum(C[(a, b)] for a, b in links.items()) + (n - len(links)) * max_cost
+
+        sparse = _assign(n, C, max_cost)
+        assert all((a, b) in C for a, b in sparse.items())
+        assert len(set(sparse.values())) == len(sparse)
+        assert total(sparse) == pytest.approx(total(dense), abs=1e-9)
 
 
 @pytest.mark.parametrize("method", ["paper", "kalman", "constant-velocity"])
@@ -955,3 +984,72 @@ def test_a_queue_that_stood_30_s_at_a_light_keeps_its_identities(stop_max_gap_s)
                          ContextConfig(), FPS, metres_per_unit=1.0
                          ).link([Track(0, list(t.points)) for t in tl])
     assert len(plain) == 4
+
+
+def _busy_road(n_vehicles=40, seed=5):
+    """Vehicles every 0.7 s along four headings through one place, each cut into 2-3 tracklets
+    by gaps of 0.3-8 s: many pairs within ``max_gap_s``, most of them far off each other's path."""
+    rng = np.random.default_rng(seed)
+    paths, start, gaps, colours = {}, {}, {}, {}
+    for i in range(n_vehicles):
+        ang = rng.choice([0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi])
+        d = np.array([np.cos(ang), np.sin(ang)])
+        n = int(rng.integers(240, 420))
+        paths[i] = _line(-d * 60 + rng.uniform(-4, 4) * d[::-1], d * rng.uniform(7, 13), n)
+        start[i] = int(i * 0.7 * FPS) + 1
+        cut = start[i] + int(rng.integers(60, 120))
+        gaps[i] = [(cut, cut + int(rng.uniform(0.3, 8.0) * FPS))]
+        colours[i] = list(rng.dirichlet(np.ones(8)))
+    return _tracklets(paths, start, gaps, colours, seed=seed)[0]
+
+
+def test_pairs_left_out_on_motion_could_not_have_been_linked(monkeypatch):
+    """``_hopeless_pairs`` is a lower bound of the motion cost: every pair it leaves out costs
+    more than ``max_cost`` when worked out in full, and leaving them out changes no link."""
+    tl = _busy_road()
+    cfg = LinkingConfig(max_gap_s=20.0)
+    linker = GlobalLinker(cfg, ContextConfig(), FPS, metres_per_unit=1.0)
+    bound = GlobalLinker._hopeless_pairs
+    judged = {}
+
+    def nothing_hopeless(self, e, a, bs):
+        out = bound(self, e, a, bs)
+        judged.update({(a, int(b)): bool(h) for b, h in zip(bs, out)})
+        return np.zeros(len(bs), dtype=bool)
+    monkeypatch.setattr(GlobalLinker, "_hopeless_pairs", nothing_hopeless)
+    full_links, _ = linker.solve(tl)
+    full_costs = dict(linker.last_costs)
+    monkeypatch.setattr(GlobalLinker, "_hopeless_pairs", bound)
+    links, _ = linker.solve(tl)
+    hopeless = [p for p, h in judged.items() if h]
+    assert len(hopeless) > 0.3 * len(judged) > 50  # the bound does leave pairs out here
+    for p in hopeless:
+        assert cfg.weight_motion * full_costs[p][1].motion > cfg.max_cost
+    assert links == full_links
+    assert linker._hopeless == len(hopeless)
+
+
+def test_motion_costs_of_many_pairs_equal_one_at_a_time():
+    """``_motions`` (all of a's candidates at once) gives ``_motion``'s cost for each pair, turns,
+    splits and prediction horizons shorter than the gap included."""
+    tl = _busy_road(n_vehicles=24, seed=8)
+    linker = GlobalLinker(LinkingConfig(max_gap_s=20.0), ContextConfig(), FPS, metres_per_unit=1.0)
+    linker.solve(tl)
+    e = linker._tracklet_ends(tl)
+    rng = np.random.default_rng(0)
+    checked = 0
+    for a, pred in linker._pred.items():
+        bs = np.flatnonzero((e.first > e.last[a]) & (e.first - e.last[a] <= 20 * FPS))
+        if not len(bs):
+            continue
+        pred = pred[: max(1, int(rng.integers(len(pred) // 2, len(pred) + 1)))]
+        allow = rng.random(len(bs)) < 0.7
+        many = linker._motions(e, a, bs, pred, allow)
+        for b, m, ok in zip(bs, many, allow):
+            gap = int(e.first[b] - e.last[a])
+            one = linker._motion(pred[:gap], e.pos[a][1][-1], e.pos[b][1][0], e.ends[a],
+                                 e.starts[b], gap, linker._noise[a][0], linker._noise[b][1],
+                                 allow_split=bool(ok))
+            assert m == pytest.approx(one, rel=1e-9, abs=1e-12)
+            checked += 1
+    assert checked > 200

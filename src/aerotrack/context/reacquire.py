@@ -30,9 +30,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..config import LinkingConfig
 
-__all__ = ["Cues", "motion_cost", "appearance_cost", "descriptor_cost", "link_cost"]
+__all__ = ["Cues", "motion_cost", "motion_costs", "appearance_cost", "descriptor_cost", "link_cost"]
 
 
 @dataclass(frozen=True)
@@ -105,6 +107,29 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
     manoeuvre = config.turn_cost + math.log(1.0 + reach / sp) + 0.5 * (excess / sp) ** 2 \
         + 0.5 * (dspeed / st) ** 2 + 0.5 * (too_fast / st) ** 2
     return min(straight, manoeuvre)
+
+
+def motion_costs(distance_m: np.ndarray, gap_s: np.ndarray, config: LinkingConfig,
+                 speed_change_mps: np.ndarray, lag_m: np.ndarray, turn: np.ndarray | None,
+                 noise_m: np.ndarray, noise_mps: np.ndarray, windows_s: np.ndarray) -> np.ndarray:
+    """:func:`motion_cost` of many candidate links at once (arrays of one length ``k``);
+    ``turn`` is (k, 4) with NaN rows where the manoeuvre hypothesis does not apply (gaps over
+    ``turn_max_gap_s``), or None for none."""
+    g = np.maximum(gap_s, 0.0)
+    sp = np.hypot(config.motion_sigma_m + config.motion_sigma_growth_mps * g, noise_m)
+    sv = np.hypot(config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * g, noise_mps)
+    sl = np.hypot(config.motion_sigma_m + config.lag_sigma_growth_mps * g, noise_m)
+    straight = 0.5 * (distance_m / sp) ** 2 + 0.5 * (speed_change_mps / sv) ** 2 \
+        + 0.5 * (lag_m / sl) ** 2
+    if turn is None:
+        return straight
+    excess, dspeed, reach, dvel = np.asarray(turn, dtype=np.float64).T
+    window = g + windows_s
+    st = sv + 0.5 * config.a_max_mps2 * window
+    too_fast = np.maximum(0.0, dvel - config.a_max_mps2 * window)
+    manoeuvre = config.turn_cost + np.log1p(reach / sp) + 0.5 * (excess / sp) ** 2 \
+        + 0.5 * (dspeed / st) ** 2 + 0.5 * (too_fast / st) ** 2
+    return np.where(np.isnan(excess), straight, np.minimum(straight, manoeuvre))
 
 
 def appearance_cost(z2: float, verified: bool, cap: float = math.inf) -> float:
