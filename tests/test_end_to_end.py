@@ -470,3 +470,43 @@ def test_noise_hint_speaks_for_a_still_camera_only():
     # no registrations (given detections): no hint
     assert noise_hint(SimpleNamespace(thresholds={1: high}, registrations={}, frame_size=None),
                       config) is None
+
+
+def test_detections_alone_on_a_map_are_placed_by_map_init(scene, tmp_path, capsys):
+    """``--detections`` with ``--map``/``--map-init`` and no frames: a still camera placed by
+    --map-init (the static scene's camera is), so positions and lon/lat are the map's, not the
+    detections' pixels taken as map pixels (which put them hundreds of metres off, silently);
+    ``track --from`` keeps the placement; ``--gsd`` alone writes the metric observations too."""
+    import pandas as pd
+    from conftest import run_cli
+
+    dets = tmp_path / "dets.txt"
+    rows = [ln for ln in (scene / "gt.txt").read_text().splitlines() if int(ln.split(",")[0]) <= 60]
+    dets.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "run"
+    code, _, err = run_cli(capsys, "-q", "track", "--detections", dets, "--map", scene / "map.tif",
+                           "--map-init", scene / "map_init.txt", "--out", out)
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["registration_mode"] == "map" and len(summary["still_placement"]) == 9
+    regs = list(csv.DictReader((out / "registration.csv").read_text().splitlines()))
+    assert regs and {r["status"] for r in regs} == {"still"}
+    obs = pd.read_csv(out / "observations.csv")
+    truth = pd.read_csv(scene / "states.csv")
+    truth = truth[truth.state == "visible"]
+    errs = []
+    for f, o in obs[obs.kind == "observed"].groupby("frame"):
+        t = truth[truth.frame == f]
+        dx = (t.lon.values[None] - o.lon.values[:, None]) * 111320 * np.cos(np.radians(o.lat.mean()))
+        dy = (t.lat.values[None] - o.lat.values[:, None]) * 110540
+        errs.extend(np.hypot(dx, dy).min(axis=1))
+    assert len(errs) > 50 and np.median(errs) < 1.0  # metres
+    code, _, err = run_cli(capsys, "-q", "track", "--from", out, "--out", tmp_path / "again")
+    assert code == 0, err
+    for name in ("tracks.csv", "observations.csv", "registration.csv"):
+        assert (tmp_path / "again" / name).read_bytes() == (out / name).read_bytes(), name
+    code, _, err = run_cli(capsys, "-q", "track", "--detections", dets, "--gsd", "0.3", "--out",
+                           tmp_path / "gsd")
+    assert code == 0, err
+    local = pd.read_csv(tmp_path / "gsd" / "observations.csv")
+    assert len(local) and local.crs.iloc[0].startswith("LOCAL") and local.speed_mps.notna().any()

@@ -17,7 +17,7 @@ from .config import Config, dumps_config
 from .geo import GeoMap
 from .io.mot import write_mot
 from .io.output import OutputDir
-from .pipeline import Result
+from .pipeline import STILL, STILL_REASON, Result
 from .types import Registration, apply_homography, local_scale
 
 log = logging.getLogger(__name__)
@@ -118,9 +118,20 @@ def registration_rows(result: Result) -> list[Registration]:
     if regs or result.frame_size is not None:
         return [regs[i] for i in sorted(regs)]
     frames = sorted({d.frame for d in result.detections})
+    if getattr(result, "still_H", None) is not None:  # on a map: its placement, every frame
+        return [Registration(f, np.asarray(result.still_H, dtype=np.float64), STILL, 0,
+                             float("nan"), float("nan"), STILL_REASON) for f in frames]
     why = "no frames (--detections alone): world = the detections' pixels"
     return [Registration(f, np.eye(3), IDENTITY, 0, float("nan"), float("nan"), why)
             for f in frames]
+
+
+def _homographies(result: Result) -> dict[int, np.ndarray]:
+    """Each frame's frame pixels -> world homography, for the observation tables: the
+    registrations, or with detections alone the rows :func:`registration_rows` reports."""
+    if result.registrations:
+        return {i: r.H for i, r in result.registrations.items()}
+    return {r.index: r.H for r in registration_rows(result)}
 
 
 def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: GeoMap | None,
@@ -157,16 +168,17 @@ def write_outputs(result: Result, out: OutputDir, *, config: Config, geomap: Geo
         # expect the files of a run with a map
         from .io.geotable import write_observation_table
 
-        homs = {i: r.H for i, r in result.registrations.items()}
+        homs = _homographies(result)
         write_observation_table(out.file("observations.csv"), tracks, geomap, result.fps,
                                 out_crs, predicted=predicted, homographies=homs, kinds=kinds,
                                 start_time=start_time)
-    elif result.metres_per_unit and result.registrations:
+    elif result.metres_per_unit and (result.registrations or result.frame_size is None):
         # --gsd without a map: the same table in metres on frame 1's ground plane (no lon/lat,
-        # CSV only); a traffic study needs speeds, which were nowhere in such a run's outputs
+        # CSV only); a traffic study needs speeds, which were nowhere in such a run's outputs.
+        # Detections alone (no frames): the detections' pixels at --gsd
         from .io.geotable import write_local_observation_table
 
-        homs = {i: r.H for i, r in result.registrations.items()}
+        homs = _homographies(result)
         kinds = {(p.frame, t.id): p.kind for t in result.tracks for p in t.points
                  if p.kind in IN_VIEW}
         write_local_observation_table(out.file("observations.csv"), tracks, result.fps,
@@ -216,10 +228,14 @@ def run_summary(result: Result, geomap: GeoMap | None, run_info: dict | None,
         "last_frame": result.last_frame,
         "frame_size": list(result.frame_size) if result.frame_size else None,
         "metres_per_unit": result.metres_per_unit,
+        # detections alone on a map: the placement every frame was given (track --from needs it)
+        **({"still_placement": np.asarray(result.still_H, dtype=np.float64).ravel().tolist()}
+           if getattr(result, "still_H", None) is not None else {}),
         # the CRS of tracks.csv's and predicted.csv's x, y (with a map): they were not named
         # anywhere but in the map file itself
         **({"map_crs": _crs_name(geomap)} if geomap is not None else {}),
         "registration_mode": (IDENTITY if not result.registrations and result.frame_size is None
+                              and getattr(result, "still_H", None) is None
                               else "map" if geomap is not None
                               else "ground" if info.get("ground") else "frame1"),
         "counts": {

@@ -30,6 +30,11 @@ from .geo import GeoMap
 from .io.frames import read_ahead
 from .types import Detections, Frame, Registration, Track, apply_homography, local_scales
 
+#: ``registration.csv``'s status of a frame placed by the map's placement of frame 1 when there
+#: are no frames to register (``--detections`` and ``--map``/``--map-init`` without INPUT).
+STILL = "still"
+STILL_REASON = "no frames (--detections alone): a still camera, placed by --map-init"
+
 log = logging.getLogger(__name__)
 
 
@@ -83,6 +88,9 @@ class Result:
         Local association's MCMC moves (:meth:`LocalAssociator.mcmc_counts`): ``proposed`` and
         ``accepted`` per move, summed over the segments with ``--workers`` (whose overlaps are
         sampled twice); None without association.
+    still_H : ndarray (3, 3) or None
+        Detections alone (no frames) on a map: the placement every frame was given (a still
+        camera, ``Pipeline.still_registration``); None otherwise.
     """
 
     tracks: list[Track]
@@ -104,6 +112,7 @@ class Result:
     overlay_held: list[tuple[int, int, int, int]] = field(default_factory=list)
     resumed: dict | None = None
     mcmc: dict | None = None
+    still_H: np.ndarray | None = None
 
     def __repr__(self) -> str:  # the generated one printed every array: 15 MB for a 100-frame run
         n_dets = sum(len(d) for d in self.detections)
@@ -510,16 +519,28 @@ class Pipeline:
         self.detector._mask_small = None  # made again at the model's resolution
 
     def step_detections_only(self, index: int) -> None:
-        """Association alone: feed frame ``index`` of the external detections (no image)."""
+        """Association alone: feed frame ``index`` of the external detections (no image). With a
+        map and its placement (``--map-init``) the camera is taken to be still there: every
+        frame's boxes go to the map through that placement (they were taken as map pixels)."""
         if self.first_frame is None:
             self.first_frame = index
         self.n_frames += 1
         self.n_timed += 1
         self.last_frame = index
-        self._associate([self._external_detections(Frame(index, None, (index - 1) / self.fps), None)])
+        still = self.still_registration(index)
+        self._associate([self._external_detections(Frame(index, None, (index - 1) / self.fps),
+                                                   still)])
         self._since_checkpoint += 1
         if self.checkpoint_dir is not None and self._since_checkpoint >= self.checkpoint_every:
             self.checkpoint()
+
+    def still_registration(self, index: int) -> Registration | None:
+        """Frame ``index``'s placement on the map when there are no frames to register: the
+        map's placement of frame 1 (``H_init``) for every frame, or None without a map."""
+        if self.geomap is None or self._H_init is None:
+            return None
+        return Registration(index, np.asarray(self._H_init, dtype=np.float64), STILL, 0,
+                            float("nan"), float("nan"), STILL_REASON)
 
     # -- checkpoints ------------------------------------------------------------------------------
     def checkpoint(self) -> None:
@@ -761,7 +782,9 @@ class Pipeline:
                       thresholds=dict(self.thresholds),
                       overlay_mask=mask,
                       overlay_held=[] if self.overlay is None else list(self.overlay.held),
-                      mcmc=self.mcmc)
+                      mcmc=self.mcmc,
+                      still_H=None if self.registrations or self.frame_size is not None
+                      or self.still_registration(1) is None else self.still_registration(1).H)
 
     @property
     def overlay_mask(self) -> np.ndarray | None:
@@ -1178,10 +1201,12 @@ def detect(source, *, config: Config | None = None, geomap: GeoMap | None = None
 def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                geomap: GeoMap | None = None, seed: int = 0, metres_per_unit: float | None = None,
                frame_size: tuple[int, int] | None = None, regions: list | None = None,
-               min_speed_mps: float | None = None, roads=None) -> Result:
+               min_speed_mps: float | None = None, roads=None,
+               still_H: np.ndarray | None = None) -> Result:
     """Association and linking alone, on the registrations and detections cached by an earlier
     run (its ``stages/`` folder): changing association parameters does not redo registration and
-    detection."""
+    detection. ``still_H``: that run's placement of detections without frames on its map
+    (``summary.json``'s ``still_placement``), for the outputs."""
     from .io.checkpoint import load_chunks, load_thresholds
 
     config = as_config(config)
@@ -1199,7 +1224,7 @@ def run_cached(stages: Path, *, config: Config | None = None, fps: float,
                     "them light): association compares motion only", stages)
     pipe = Pipeline(config, fps, geomap=geomap, seed=seed, detections={},
                     metres_per_unit=metres_per_unit, regions=regions, min_speed_mps=min_speed_mps,
-                    roads=roads)
+                    roads=roads, H_init=still_H if no_frames else None)
     pipe.registrations.update(regs)
     pipe.thresholds.update(load_thresholds(stages, what))  # the noise hint's (clip_hints)
     pipe.frame_size = frame_size

@@ -1086,6 +1086,8 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     """``track --from DIR``: association and linking on DIR/stages."""
     import json
 
+    import numpy as np
+
     from ..errors import InputError
     from ..geo import GeoMap
     from ..io.output import OutputDir
@@ -1136,10 +1138,12 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
     t0 = time.perf_counter()
     with cleanup:
+        still = prev.get("still_placement")
         result = run_cached(stages, config=config, fps=fps, geomap=geomap, seed=seed,
                             metres_per_unit=mpu, frame_size=tuple(prev["frame_size"])
                             if prev.get("frame_size") else None, min_speed_mps=min_speed,
-                            roads=roads)
+                            roads=roads, still_H=np.asarray(still, dtype=np.float64).reshape(3, 3)
+                            if still and geomap is not None else None)
     info = {"input": prev.get("input"), "detections": prev.get("detections"),
             "map": str(Path(map_path).resolve()) if map_path else None, "seed": seed,
             "from": str(from_dir), "min_speed": min_speed,
