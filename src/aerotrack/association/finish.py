@@ -484,8 +484,14 @@ class TrackFinisher:
             else:
                 dropped[self._dropped] = dropped.get(self._dropped, 0) + 1
         if dropped:  # a probe's far vehicles of an oblique view vanished here without a word
-            log.info("finish: %d of %d tracks left out: %s", sum(dropped.values()), len(tracks),
-                     "; ".join(f"{n} {why}" for why, n in sorted(dropped.items())))
+            still = any("static_extent_m" in why or "wander_extent_m" in why for why in dropped)
+            # with a trained detector's boxes those are often real vehicles that never moved in
+            # the clip (a queue at a red light, parked cars: issue 4 leaves the latter out)
+            log.info("finish: %d of %d tracks left out: %s%s", sum(dropped.values()), len(tracks),
+                     "; ".join(f"{n} {why}" for why, n in sorted(dropped.items())),
+                     " (vehicles never seen moving, parked or waiting all along; to keep them: "
+                     "--set finish.static_extent_m=0 --set finish.wander_extent_m=0)"
+                     if still else "")
         if registrations and c.max_overlap < 1.0:  # (an oblique camera's image has overlaps)
             n = suppress_overlaps(out, c.max_overlap)
             log.debug("finish: %d points on another track's object removed", n)
