@@ -501,6 +501,10 @@ def test_detections_alone_on_a_map_are_placed_by_map_init(scene, tmp_path, capsy
         dy = (t.lat.values[None] - o.lat.values[:, None]) * 110540
         errs.extend(np.hypot(dx, dy).min(axis=1))
     assert len(errs) > 50 and np.median(errs) < 1.0  # metres
+    # and the boxes of tracks.csv are in the frame's pixels (they were rebuilt in map pixels)
+    gt = io.read_mot(scene / "gt.txt", strict=False)
+    scores = evaluate(gt[gt[:, 0] <= 60], io.read_mot(out / "tracks.csv"))
+    assert scores["HOTA"] > 0.8, scores
     code, _, err = run_cli(capsys, "-q", "track", "--from", out, "--out", tmp_path / "again")
     assert code == 0, err
     for name in ("tracks.csv", "observations.csv", "registration.csv"):

@@ -28,6 +28,9 @@ IN_VIEW = ("observed", "bridged", "stationary")
 def track_rows(result: Result, geomap: GeoMap | None) -> tuple[np.ndarray, np.ndarray]:
     """(tracks rows, predicted rows) as (N, 10) MOT arrays sorted by frame and id."""
     regs = result.registrations
+    still = getattr(result, "still_H", None)
+    if not regs and still is not None:  # detections alone on a map: boxes through its placement
+        regs = _StillRegistrations(still)
     inview, predicted = [], []
     for t in result.tracks:
         last_size = None
@@ -124,6 +127,17 @@ def registration_rows(result: Result) -> list[Registration]:
     why = "no frames (--detections alone): world = the detections' pixels"
     return [Registration(f, np.eye(3), IDENTITY, 0, float("nan"), float("nan"), why)
             for f in frames]
+
+
+class _StillRegistrations(dict):
+    """Every frame's :class:`Registration` the still placement ``H`` (``registrations.get``)."""
+
+    def __init__(self, H: np.ndarray) -> None:
+        super().__init__()
+        self.H = np.asarray(H, dtype=np.float64)
+
+    def get(self, frame, default=None):
+        return Registration(int(frame), self.H, STILL, 0, float("nan"), float("nan"), STILL_REASON)
 
 
 def _homographies(result: Result) -> dict[int, np.ndarray]:

@@ -123,7 +123,16 @@ THREAD_ENV = {
 #: of 20 ms, the memory monitor every 1 s instead of 0.1 s, system statistics every 2 s instead of
 #: 0.5 s; no work stealing (each segment is one long task, placed once). Measured: an idle
 #: 2-worker cluster used 6.4-8.1% of a core with Dask's defaults, 1.2-1.5% with these.
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
+#: glibc's allocator as in a single process: Dask starts its workers with
+#: ``MALLOC_TRIM_THRESHOLD_=65536``, and setting any malloc threshold turns off glibc's sliding
+#: mmap threshold, so every array over 128 kB (each frame and its every temporary) was mapped and
+#: unmapped again, its pages zeroed by the kernel each time: a generated 1080p scene (300 frames,
+#: 2 workers) made 9.2 M page faults, 21 s of system time and ran 100 s; with the thresholds a
+#: single process reaches by itself (trim 128 MB, mmap 32 MB, glibc's largest) 0.27 M, 2.2 s and
+#: 44 s, tracks identical (a 4K survey probe: 62 M faults, 2.2x the single process's wall time).
+WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": str(2**27),
+                 "distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_": str(2**25),
+                 "distributed.worker.profile.enabled": False,
                  "distributed.admin.tick.interval": "1s",
                  "distributed.worker.memory.monitor-interval": "1s",
                  "distributed.admin.system-monitor.interval": "2s",
@@ -982,8 +991,11 @@ def make_tasks(input_path, *, config: Config, fps: float, segments: Sequence[Seg
         if detections is not None:
             f = detections[:, 0]
             rows = detections[(f >= seg.start) & (f <= seg.stop)]
+        # detections alone on a map: every segment's boxes go through the one still placement
+        # (a later one ran in its own pixels and was chained by the tracklets it shares)
         with_map = map_path is not None and (seg.index == 0 or (
-            map_every_segment and input_path is not None))
+            map_every_segment and input_path is not None) or (
+            input_path is None and H_init is not None))
         placed = with_map or (ground and (seg.index == 0 or input_path is not None))
         hold_from = None
         if seg.start > segments[0].start:
@@ -1149,12 +1161,14 @@ def gather_segments(client, tasks: Sequence[SegmentTask], *, retries: int = 2,
 def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, geomap=None,
              metres_per_unit: float | None = None, stride: int = 1,
              parallel: ParallelConfig | None = None, regions: Sequence | None = None,
-             min_speed_mps: float | None = None, roads=None) -> tuple[Result, JoinReport]:
+             min_speed_mps: float | None = None, roads=None,
+             still_H: np.ndarray | None = None) -> tuple[Result, JoinReport]:
     """Join segment results and link all tracklets once: the :class:`~aerotrack.pipeline.Result`
     a single process would return (``timings`` sum the segments' stage times, plus ``join``), and
     the join's :class:`JoinReport`. ``roads``: a road network for the motion context, as in
     :func:`aerotrack.pipeline.link` (linking runs here, in the client, so it is never shipped to
-    the workers)."""
+    the workers). ``still_H``: detections alone on a map, the placement every segment gave
+    their boxes (:meth:`aerotrack.pipeline.Pipeline.still_registration`)."""
     import time
 
     parallel = parallel or ParallelConfig()
@@ -1176,8 +1190,9 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     t1 = time.perf_counter()
     frame_size = next((r.frame_size for r in results if r.frame_size), None)
     mpu = geomap.metres_per_pixel if geomap is not None else metres_per_unit
+    still_H = still_H if geomap is not None and not regs and frame_size is None else None
     tracks = link(tracklets, config, fps, metres_per_unit=mpu, frame_size=frame_size,
-                  registrations=regs, roads=roads)
+                  registrations=regs, roads=roads, still_H=still_H)
     if min_speed_mps:
         from .geo.roi import filter_min_speed
         from .pipeline import _renumber
@@ -1217,7 +1232,8 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
                     repeated_frames=sorted(f for r in results
                                            for f in getattr(r, "repeated_frames", [])),
                     thresholds={f: v for r in results
-                                for f, v in (getattr(r, "thresholds", None) or {}).items()})
+                                for f, v in (getattr(r, "thresholds", None) or {}).items()},
+                    still_H=still_H)
     return result, report
 
 
@@ -1316,7 +1332,8 @@ def run_parallel(source=None, *, client, config: Config | None = None, fps: floa
                               received=received)
     result, report = assemble(results, config=config, fps=fps, geomap=geomap,
                               metres_per_unit=metres_per_unit, stride=stride, parallel=parallel,
-                              regions=regions, min_speed_mps=min_speed_mps, roads=roads)
+                              regions=regions, min_speed_mps=min_speed_mps, roads=roads,
+                              still_H=H_init if source is None else None)
     linked = time.time() - submitted
     ran = [r for r in results if r.ended]  # run now, not loaded from a checkpoint
     report.timeline = {

@@ -782,9 +782,7 @@ class Pipeline:
                       thresholds=dict(self.thresholds),
                       overlay_mask=mask,
                       overlay_held=[] if self.overlay is None else list(self.overlay.held),
-                      mcmc=self.mcmc,
-                      still_H=None if self.registrations or self.frame_size is not None
-                      or self.still_registration(1) is None else self.still_registration(1).H)
+                      mcmc=self.mcmc, still_H=self.still_H)
 
     @property
     def overlay_mask(self) -> np.ndarray | None:
@@ -806,7 +804,17 @@ class Pipeline:
 
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
-                    frame_size=self.frame_size, registrations=self.registrations, roads=self.roads)
+                    frame_size=self.frame_size, registrations=self.registrations, roads=self.roads,
+                    still_H=self.still_H)
+
+    @property
+    def still_H(self) -> np.ndarray | None:
+        """Detections alone (no frames) on a map: the placement every frame was given
+        (:meth:`still_registration`); None otherwise."""
+        if self.registrations or self.frame_size is not None:
+            return None
+        reg = self.still_registration(1)
+        return None if reg is None else reg.H
 
 
 class _Stabilised:
@@ -842,7 +850,8 @@ def check_config(config: Config, fps: float | None = None) -> None:
 
 def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit: float | None = None,
          frame_size: tuple[int, int] | None = None,
-         registrations: dict[int, Registration] | None = None, roads=None) -> list[Track]:
+         registrations: dict[int, Registration] | None = None, roads=None,
+         still_H: np.ndarray | None = None) -> list[Track]:
     """Global linking of tracklets (world coordinates) into tracks numbered 1..N.
 
     The step after local association, shared by :class:`Pipeline` and segment-parallel runs
@@ -850,6 +859,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     ``roads``: a :class:`~aerotrack.context.roads.RoadNetwork` in world units for the motion
     context. The linked tracks are then finished (:mod:`aerotrack.association.finish`, config
     section ``finish``): smoothed ground points, robust box sizes, static tracks dropped.
+    ``still_H``: detections alone on a map, the placement their boxes went through (boxes are
+    rebuilt in frame pixels through it).
     """
     try:
         from .association.linking import GlobalLinker
@@ -866,7 +877,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
 
     tracks = finish_tracks(tracks, config.finish, fps, metres_per_unit=metres_per_unit or linker.mpu,
                            registrations=registrations or None, frame_size=frame_size,
-                           scale_estimated=not metres_per_unit)
+                           scale_estimated=not metres_per_unit,
+                           still_H=None if registrations else still_H)
     return _renumber(tracks)
 
 

@@ -514,8 +514,11 @@ class TrackFinisher:
         measured = np.array([p.kind in MEASURED for p in pts]) & np.all(np.isfinite(boxes), axis=1)
         if measured.sum() < 2:
             return True
-        Hinv = np.tile(np.eye(3), (n, 1, 1)) if regs is None else \
-            np.linalg.inv(np.array([regs[p.frame].H for p in pts], dtype=np.float64))
+        if regs is not None:
+            Hinv = np.linalg.inv(np.array([regs[p.frame].H for p in pts], dtype=np.float64))
+        else:  # detections alone: the identity, or on a map the still placement
+            still = getattr(self, "still_H", None)
+            Hinv = np.tile(np.eye(3) if still is None else np.linalg.inv(still), (n, 1, 1))
         world = np.array([np.asarray(p.world, dtype=np.float64) for p in pts])
         edge = self._at_border(boxes, frame_size) & measured
         # kalman.process_noise holds the acceleration constant over each step (discrete white
@@ -1087,8 +1090,13 @@ def finish_tracks(tracks: list[Track], config: FinishConfig | None = None, fps: 
                   metres_per_unit: float | None = None,
                   registrations: dict[int, Registration] | None = None,
                   frame_size: tuple[int, int] | None = None,
-                  object_size_m: float = 4.5, scale_estimated: bool = False) -> list[Track]:
-    """:meth:`TrackFinisher.finish` in one call."""
-    return TrackFinisher(config, fps, metres_per_unit=metres_per_unit, object_size_m=object_size_m,
-                         scale_estimated=scale_estimated).finish(tracks, registrations, frame_size)
+                  object_size_m: float = 4.5, scale_estimated: bool = False,
+                  still_H: np.ndarray | None = None) -> list[Track]:
+    """:meth:`TrackFinisher.finish` in one call. ``still_H``: without registrations, the
+    placement every frame's boxes went to the world through (detections alone on a map); the
+    identity otherwise."""
+    finisher = TrackFinisher(config, fps, metres_per_unit=metres_per_unit,
+                             object_size_m=object_size_m, scale_estimated=scale_estimated)
+    finisher.still_H = still_H
+    return finisher.finish(tracks, registrations, frame_size)
 
