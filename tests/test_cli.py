@@ -344,3 +344,26 @@ def test_config_lists_every_setting_with_its_default_and_meaning(capsys, tmp_pat
     assert code == 0 and "\nrounds = 3\n" in out and "[detection]" not in out
     code, _, err = run_cli(capsys, "config", "detection.min_area")
     assert code == 2 and "did you mean detection.min_area_px" in err
+
+
+def test_memory_warning_counts_every_worker(caplog):
+    """Each --workers process holds its own detector window: the warning's estimate is per
+    worker times the workers (a 4K survey probe peaked at 6.3 GB with 2 workers, 3.4 GB in one
+    process, while the warning, told of neither, estimated 2.5 GB)."""
+    import logging
+    import os
+    from types import SimpleNamespace
+
+    from aerotrack.cli.track_cmd import warn_memory
+
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    src = SimpleNamespace(size=(3840, 2160), fps=30.0, path="survey.mp4")
+    one = 1.5 * 3840 * 2160 * 3 * 30.0 * 3.0  # bytes held at the peak by one process
+    share = 1.5 * one / total  # one process stays under, two go over
+    with caplog.at_level(logging.WARNING, logger="aerotrack"):
+        warn_memory(src, 3.0, share=share, workers=1)
+        assert not caplog.records
+        warn_memory(src, 3.0, share=share, workers=2)
+    assert len(caplog.records) == 1
+    msg = caplog.records[0].getMessage()
+    assert "in each of 2 workers" in msg and "fewer --workers" in msg and "survey.mp4" in msg
