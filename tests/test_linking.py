@@ -1053,3 +1053,25 @@ def test_motion_costs_of_many_pairs_equal_one_at_a_time():
             assert m == pytest.approx(one, rel=1e-9, abs=1e-12)
             checked += 1
     assert checked > 200
+
+
+def test_motions_of_a_split_follow_allow_split():
+    """A piece starting right where a tracklet ended, turned: the manoeuvre's velocity windows
+    are doubled for a split (allowed by appearance) and not otherwise, in ``_motions`` as in
+    ``_motion``."""
+    paths = {1: _line([0, 0], [10, 0], 60), 2: _line([10 * 62 / FPS, 0], [0, 10], 60)}
+    tl, _ = _tracklets(paths, {1: 1, 2: 63}, {}, {1: [1.0] * 8, 2: [1.0] * 8})
+    linker = GlobalLinker(LinkingConfig(), ContextConfig(), FPS, metres_per_unit=1.0)
+    linker.solve(tl)
+    e = linker._tracklet_ends(tl)
+    gap = int(e.first[1] - e.last[0])
+    assert gap / FPS <= LinkingConfig().split_gap_s
+    pred = e.last_xy[0] + np.arange(1, gap + 1)[:, None] * e.ends_v[0]
+    costs = {}
+    for allow in (True, False):
+        many = linker._motions(e, 0, np.array([1]), pred, np.array([allow]))[0]
+        one = linker._motion(pred, e.pos[0][1][-1], e.pos[1][1][0], e.ends[0], e.starts[1], gap,
+                             linker._noise[0][0], linker._noise[1][1], allow_split=allow)
+        assert many == pytest.approx(one, rel=1e-9)
+        costs[allow] = many
+    assert costs[True] < costs[False]
