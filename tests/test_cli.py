@@ -299,10 +299,17 @@ def test_verbose_progress_lines_say_the_time_left_and_come_at_least_every_30_s(m
         for n in range(1, 51):  # 50 frames, 1 s each
             clock[0] = float(n)
             update(n)
+        # then 3 s a frame: the time left follows the rate since the last line
+        for n in range(51, 111):
+            clock[0] = 50.0 + 3.0 * (n - 50)
+            update(n)
         close()
     finally:
         logging.getLogger("aerotrack").removeHandler(handler)
-    assert lines == ["track: 30/1000 frames (1.0 frames/s, about 16 min left)"]
+    assert lines[0] == "track: 30/1000 frames (1.0 frames/s, about 16 min left)"
+    # at frame 110 (230 s, 3 s a frame since the last line): 890 frames at 1/3 frame/s, not at
+    # the 0.5 frames/s of the whole run (30 min)
+    assert lines[-1] == "track: 110/1000 frames (0.5 frames/s, about 44 min left)"
 
 
 def test_config_toml_names_the_options_that_repeat_the_run(tmp_path):

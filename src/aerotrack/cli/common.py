@@ -126,18 +126,21 @@ def make_progress(total: int | None, label: str, quiet: bool, verbose: int = 0):
         return (lambda n: None), (lambda: None)
     step = max(1, (total or 1000) // 10)
     t0 = time.perf_counter()
-    state = {"logged": t0}
+    state = {"logged": t0, "n": 0}
 
     def log_line(n: int) -> None:
         now = time.perf_counter()
         if n % step and now - state["logged"] < LOG_EVERY_S:
             return
-        state["logged"] = now
         rate = n / max(now - t0, 1e-9)
+        # the time left at the rate since the last line: the first frames go fast (the
+        # detector's window is still filling) and a 4K run's first estimates were half the time
+        recent = (n - state["n"]) / max(now - state["logged"], 1e-9) if state["n"] else rate
+        state["logged"], state["n"] = now, n
         of = f"/{total}" if total else ""
         left = ""
-        if total and rate > 0 and n < total:
-            left = f", about {_duration((total - n) / rate)} left"
+        if total and recent > 0 and n < total:
+            left = f", about {_duration((total - n) / recent)} left"
         log.info("%s: %d%s frames (%.1f frames/s%s)", label, n, of, rate, left)
 
     return log_line, (lambda: None)
