@@ -1125,7 +1125,7 @@ def test_frames_too_big_for_memory_are_named(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(os, "sysconf", lambda name: 16384 if name == "SC_PHYS_PAGES"
                         else real(name))
     code, _, err = run_cli(capsys, "detect", frames, "--out", tmp_path / "o", "--fps", "1000")
-    assert code == 0 and "window holds about" in err and "--stride 2" in err, err
+    assert code == 0 and "window takes about" in err and "--stride 2" in err, err
 
 
 def test_batch_messages_name_their_input(tmp_path, capsys):
