@@ -477,8 +477,10 @@ def test_detections_alone_on_a_map_are_placed_by_map_init(scene, tmp_path, capsy
     --map-init (the static scene's camera is), so positions and lon/lat are the map's, not the
     detections' pixels taken as map pixels (which put them hundreds of metres off, silently);
     ``track --from`` keeps the placement; ``--gsd`` alone writes the metric observations too."""
-    import pandas as pd
     from conftest import run_cli
+
+    def table(path):
+        return list(csv.DictReader(path.read_text().splitlines()))
 
     dets = tmp_path / "dets.txt"
     rows = [ln for ln in (scene / "gt.txt").read_text().splitlines() if int(ln.split(",")[0]) <= 60]
@@ -491,15 +493,17 @@ def test_detections_alone_on_a_map_are_placed_by_map_init(scene, tmp_path, capsy
     assert summary["registration_mode"] == "map" and len(summary["still_placement"]) == 9
     regs = list(csv.DictReader((out / "registration.csv").read_text().splitlines()))
     assert regs and {r["status"] for r in regs} == {"still"}
-    obs = pd.read_csv(out / "observations.csv")
-    truth = pd.read_csv(scene / "states.csv")
-    truth = truth[truth.state == "visible"]
+    truth: dict[int, list[tuple[float, float]]] = {}
+    for r in table(scene / "states.csv"):
+        if r["state"] == "visible":
+            truth.setdefault(int(r["frame"]), []).append((float(r["lon"]), float(r["lat"])))
     errs = []
-    for f, o in obs[obs.kind == "observed"].groupby("frame"):
-        t = truth[truth.frame == f]
-        dx = (t.lon.values[None] - o.lon.values[:, None]) * 111320 * np.cos(np.radians(o.lat.mean()))
-        dy = (t.lat.values[None] - o.lat.values[:, None]) * 110540
-        errs.extend(np.hypot(dx, dy).min(axis=1))
+    for r in table(out / "observations.csv"):
+        if r["kind"] == "observed":
+            t = np.array(truth[int(r["frame"])])
+            lon, lat = float(r["lon"]), float(r["lat"])
+            dx = (t[:, 0] - lon) * 111320 * np.cos(np.radians(lat))
+            errs.append(float(np.hypot(dx, (t[:, 1] - lat) * 110540).min()))
     assert len(errs) > 50 and np.median(errs) < 1.0  # metres
     # and the boxes of tracks.csv are in the frame's pixels (they were rebuilt in map pixels)
     gt = io.read_mot(scene / "gt.txt", strict=False)
@@ -512,5 +516,5 @@ def test_detections_alone_on_a_map_are_placed_by_map_init(scene, tmp_path, capsy
     code, _, err = run_cli(capsys, "-q", "track", "--detections", dets, "--gsd", "0.3", "--out",
                            tmp_path / "gsd")
     assert code == 0, err
-    local = pd.read_csv(tmp_path / "gsd" / "observations.csv")
-    assert len(local) and local.crs.iloc[0].startswith("LOCAL") and local.speed_mps.notna().any()
+    local = table(tmp_path / "gsd" / "observations.csv")
+    assert local and local[0]["crs"].startswith("LOCAL") and any(r["speed_mps"] for r in local)
