@@ -68,6 +68,25 @@ def render_scene(folder: Path, n: int = 200, size=(240, 180), n_cars: int = 5, s
     return np.asarray(gt, dtype=np.float64)
 
 
+def straight_detections(seed: int, n_targets: int, n_frames: int, area, max_step: float,
+                        size) -> tuple[np.ndarray, np.ndarray]:
+    """Targets moving straight at constant velocity (at most ``max_step`` px a frame per axis)
+    from random places in ``area`` (x0, y0, x1, y1), boxes of ``size``: (ground truth, the same
+    rows as detections with id -1)."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    rows = []
+    for tid in range(1, n_targets + 1):
+        p, v = rng.uniform(area[:2], area[2:]), rng.uniform(-max_step, max_step, 2)
+        for f in range(1, n_frames + 1):
+            q = p + v * f
+            rows.append([f, tid, q[0] - w // 2, q[1] - h // 2, w, h, 0.9, -1, -1, -1])
+    gt = np.asarray(rows, dtype=np.float64)
+    dets = gt.copy()
+    dets[:, 1] = -1
+    return gt, dets
+
+
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> tuple[Path, np.ndarray]:
     folder = tmp_path_factory.mktemp("scene") / "frames"
@@ -448,16 +467,8 @@ def test_segments_of_known_detections_track_like_the_single_process():
     from aerotrack.parallel import assemble, gather_segments
     from aerotrack.pipeline import run
 
-    rng = np.random.default_rng(4)
-    n_frames, fps, rows = 300, 30.0, []
-    for tid in range(1, 7):
-        p, v = rng.uniform([100, 100], [1100, 600]), rng.uniform(-3, 3, 2)
-        for f in range(1, n_frames + 1):
-            q = p + v * f
-            rows.append([f, tid, q[0] - 15, q[1] - 8, 30, 16, 0.9, -1, -1, -1])
-    gt = np.asarray(rows)
-    dets = gt.copy()
-    dets[:, 1] = -1
+    n_frames, fps = 300, 30.0
+    gt, dets = straight_detections(4, 6, n_frames, (100, 100, 1100, 600), 3.0, (30, 16))
     single = run(None, detections=dets, fps=fps)
     segs = plan_segments(1, n_frames, fps=fps, segment_s=4.0, overlap_s=4.5, min_segments=2)
     assert len(segs) == 2
@@ -824,16 +835,8 @@ def test_segments_of_known_detections_on_a_map_keep_the_still_placement():
     from aerotrack.parallel import assemble, gather_segments
     from aerotrack.pipeline import run
 
-    rng = np.random.default_rng(5)
-    n_frames, fps, rows = 300, 30.0, []
-    for tid in range(1, 6):
-        p, v = rng.uniform([60, 60], [500, 400]), rng.uniform(-0.3, 0.3, 2)
-        for f in range(1, n_frames + 1):
-            q = p + v * f
-            rows.append([f, tid, q[0] - 7, q[1] - 4, 15, 9, 0.9, -1, -1, -1])
-    gt = np.asarray(rows)
-    dets = gt.copy()
-    dets[:, 1] = -1
+    n_frames, fps = 300, 30.0
+    gt, dets = straight_detections(5, 5, n_frames, (60, 60, 500, 400), 0.3, (15, 9))
     geomap = GeoMap(TILE)
     H = np.array([[1.0, 0.0, 300.0], [0.0, 1.0, 250.0], [0.0, 0.0, 1.0]])
     single = run(None, detections=dets, fps=fps, geomap=geomap, H_init=H)
