@@ -91,30 +91,21 @@ def motion_cost(distance_m: float, gap_s: float, config: LinkingConfig,
         velocity (1: half a second each side; a split of one accelerating track: both whole
         windows).
     """
-    g = max(gap_s, 0.0)
-    sp = math.hypot(config.motion_sigma_m + config.motion_sigma_growth_mps * g, noise_m)
-    sv = math.hypot(config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * g, noise_mps)
-    sl = math.hypot(config.motion_sigma_m + config.lag_sigma_growth_mps * g, noise_m)
-    straight = 0.5 * (distance_m / sp) ** 2 + 0.5 * (speed_change_mps / sv) ** 2 \
-        + 0.5 * (lag_m / sl) ** 2
-    if turn is None:
-        return straight
-    excess, dspeed, reach, dvel = (tuple(turn) + (0.0, 0.0))[:4]
-    # a turn slows the target; its speed is averaged over windows of up to history_s each side
-    window = g + windows_s
-    st = sv + 0.5 * config.a_max_mps2 * window
-    too_fast = max(0.0, dvel - config.a_max_mps2 * window)
-    manoeuvre = config.turn_cost + math.log(1.0 + reach / sp) + 0.5 * (excess / sp) ** 2 \
-        + 0.5 * (dspeed / st) ** 2 + 0.5 * (too_fast / st) ** 2
-    return min(straight, manoeuvre)
+    if turn is not None:
+        turn = np.array([(tuple(turn) + (0.0, 0.0))[:4]], dtype=np.float64)
+    return float(motion_costs(np.array([distance_m], dtype=np.float64), np.array([gap_s]), config,
+                              np.array([speed_change_mps]), np.array([lag_m]), turn,
+                              np.array([noise_m]), np.array([noise_mps]),
+                              np.array([windows_s]))[0])
 
 
 def motion_costs(distance_m: np.ndarray, gap_s: np.ndarray, config: LinkingConfig,
                  speed_change_mps: np.ndarray, lag_m: np.ndarray, turn: np.ndarray | None,
                  noise_m: np.ndarray, noise_mps: np.ndarray, windows_s: np.ndarray) -> np.ndarray:
-    """:func:`motion_cost` of many candidate links at once (arrays of one length ``k``);
-    ``turn`` is (k, 4) with NaN rows where the manoeuvre hypothesis does not apply (gaps over
-    ``turn_max_gap_s``), or None for none."""
+    """:func:`motion_cost` of many candidate links at once (arrays of one length ``k``; the one
+    implementation of the formula, :func:`motion_cost` calls it); ``turn`` is (k, 4) with NaN
+    rows where the manoeuvre hypothesis does not apply (gaps over ``turn_max_gap_s``), or None
+    for none."""
     g = np.maximum(gap_s, 0.0)
     sp = np.hypot(config.motion_sigma_m + config.motion_sigma_growth_mps * g, noise_m)
     sv = np.hypot(config.velocity_sigma_mps + config.velocity_sigma_growth_mps2 * g, noise_mps)
