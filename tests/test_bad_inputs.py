@@ -996,8 +996,8 @@ def test_map_init_accepts_a_frame_wider_than_the_map():
     'does not land on the map' with a centre in the middle of the map."""
     from types import SimpleNamespace
 
-    from aerotrack.cli.track_cmd import _check_overlap
     from aerotrack.errors import GeoreferenceError
+    from aerotrack.geo.init import check_overlap as _check_overlap
 
     geomap = SimpleNamespace(width=1300, height=1300)
     H = np.array([[1.2, 0, 650 - 1.2 * 2000], [0, 1.2, 650 - 1.2 * 150], [0, 0, 1]])

@@ -431,6 +431,61 @@ def test_batch_tracks_each_input_once_and_skips_finished(tmp_path, scene, client
         assert (again / "detections.csv").read_text() == (folder / "detections.csv").read_text()
 
 
+def test_batch_on_a_map_places_each_input_by_the_file_beside_it(tmp_path, scene, capsys):
+    """``batch --map``: each input is placed by its own ``NAME.map-init.txt`` (or flight log) and
+    tracked as ``track --map --map-init`` tracks it; one with no such file fails alone, named
+    with the files it needs; one with two is refused; a batch over the same inputs without the
+    map names the finished ones as tracked with another --map."""
+    from conftest import run_cli
+
+    from aerotrack.cli.main import cli
+
+    inp = tmp_path / "in"
+    for name in ("flight_a", "flight_b", "flight_c"):
+        (inp / name).mkdir(parents=True)
+        for p in sorted(scene[0].iterdir())[:40]:
+            (inp / name / p.name).write_bytes(p.read_bytes())
+    placement = "1 0 400\n0 1 420\n0 0 1\n"  # frame 1's top-left corner at map pixel 400,420
+    (inp / "flight_a.map-init.txt").write_text(placement)
+    (inp / "flight_c.map-init.txt").write_text(placement)
+    (inp / "flight_c.SRT").write_text("1\n")
+    out = tmp_path / "out"
+    args = ["batch", str(inp), "--out", str(out), "--map", str(TILE), "--fps", "10"]
+    code, _, err = run_cli(capsys, *args)
+    assert code == 2 and "Traceback" not in err
+    assert "flight_b: nothing places it on --map: put flight_b.map-init.txt" in err
+    assert "flight_c.map-init.txt and flight_c.SRT would each place it" in err
+    assert not (out / "flight_b").exists() and not (out / "flight_c").exists()
+    summary = json.loads((out / "flight_a" / "summary.json").read_text())
+    assert summary["registration_mode"] == "map" and summary["map"] == str(TILE.resolve())
+    assert summary["map_init"] == str((inp / "flight_a.map-init.txt").resolve())
+    assert (out / "flight_a" / "observations.csv").is_file()
+    single = tmp_path / "single"
+    r = CliRunner().invoke(cli, ["track", str(inp / "flight_a"), "--out", str(single), "--map",
+                                 str(TILE), "--map-init", str(inp / "flight_a.map-init.txt"),
+                                 "--fps", "10"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    for name in ("tracks.csv", "observations.csv", "registration.csv"):
+        assert (out / "flight_a" / name).read_text() == (single / name).read_text(), name
+    assert summary["counts"]["tracks"] > 0
+    code, _, err = run_cli(capsys, "batch", inp, "--out", out, "--fps", "10")
+    assert "flight_a: finished with other --map" in err
+
+
+def test_placement_sidecars_are_the_inputs_own(tmp_path):
+    """Sidecars match the input's name exactly (suffixes in any case); another input's whose name
+    starts the same, or differs in case, are not taken."""
+    from aerotrack.geo.init import placement_sidecars
+
+    for name in ("a.mp4", "a.SRT", "a.map-init.csv", "ab.mp4", "ab.map-init.txt",
+                 "A.telemetry.csv", "a.notes.txt"):
+        (tmp_path / name).write_text("x")
+    init, tel = placement_sidecars(tmp_path / "a.mp4")
+    assert [p.name for p in init] == ["a.map-init.csv"]
+    assert [p.name for p in tel] == ["a.SRT"]
+    assert placement_sidecars(tmp_path / "ab.mp4") == ([tmp_path / "ab.map-init.txt"], [])
+
+
 def test_track_command_runs_on_the_cluster(tmp_path, scene, client):
     from aerotrack.cli.main import cli
 

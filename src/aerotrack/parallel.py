@@ -1429,7 +1429,8 @@ def _messages_named(name: str) -> Iterator[None]:
 
 def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: int,
                   metres_per_unit: float | None, stride: int,
-                  stabilised: bool = False) -> list[str]:
+                  stabilised: bool = False, geomap=None,
+                  run_info: dict | None = None) -> list[str]:
     """What differs between the settings of this batch and those a finished item was tracked
     with (its ``summary.json`` and ``config.toml``): names of options, empty when alike or
     unknown (a folder from before these were recorded compares by its config alone)."""
@@ -1461,7 +1462,18 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
         changed.append("--fps")
     if bool(summary.get("stabilised", False)) != stabilised:
         changed.append("--stabilised")
+    before_map = summary.get("map")
+    now_map = str(Path(geomap.path).resolve()) if geomap is not None else None
+    if (before_map or None) != now_map:
+        changed.append("--map")
+    for key in BATCH_MAP_OPTIONS:  # --roads, --min-speed, --out-crs: absent when not given
+        if summary.get(key) != (run_info or {}).get(key):
+            changed.append("--" + key.replace("_", "-"))
     return changed
+
+
+#: ``summary.json`` keys of the batch options that change a finished item's results.
+BATCH_MAP_OPTIONS = ("roads", "min_speed", "out_crs")
 
 
 #: In an interrupted batch item's ``.partial/``: the settings it was tracked with (JSON text).
@@ -1469,14 +1481,16 @@ BATCH_SETTINGS = "batch.json"
 
 
 def _batch_settings(item: BatchItem, config: Config, fps, seed, metres_per_unit, stride,
-                    stabilised) -> str:
+                    stabilised, geomap=None, placement: dict | None = None) -> str:
     import json
 
     from .config import dumps_config
 
+    on_map = {"map": str(Path(geomap.path).resolve()), **(placement or {})} \
+        if geomap is not None else {}  # (absent without a map: earlier batches' files match)
     return json.dumps({"input": str(Path(item.input).resolve()), "fps": fps, "seed": seed,
                        "gsd": metres_per_unit, "stride": stride, "stabilised": stabilised,
-                       "config": dumps_config(config)}, indent=1) + "\n"
+                       **on_map, "config": dumps_config(config)}, indent=1) + "\n"
 
 
 def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bool:
@@ -1546,9 +1560,18 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
               seed: int = 0, metres_per_unit: float | None = None, stride: int = 1, client=None,
               parallel: ParallelConfig | None = None, stabilised: bool = False,
               progress: Callable[[int], None] | None = None, resume: bool = True,
-              on_done: Callable[[BatchItem, dict | None, BaseException | None], None] | None = None
-              ) -> dict[str, dict | BaseException]:
+              on_done: Callable[[BatchItem, dict | None, BaseException | None], None] | None = None,
+              geomap=None, roads=None, min_speed_mps: float | None = None,
+              out_crs: str | None = None, telemetry_defaults: Sequence[str] = (),
+              run_info: dict | None = None) -> dict[str, dict | BaseException]:
     """Track every unfinished item into its output folder.
+
+    With ``geomap`` every item is tracked on that map, its frame 1 placed by the file beside it
+    (:func:`aerotrack.geo.init.sidecar_placement`: ``NAME.map-init.txt`` or its flight log
+    ``NAME.srt``; ``telemetry_defaults`` as ``--telemetry-default``); an item without one fails
+    alone. ``roads``, ``min_speed_mps`` and ``out_crs`` are ``track``'s ``--roads``,
+    ``--min-speed`` and ``--out-crs``; ``run_info`` goes into every ``summary.json`` (the
+    command's options).
 
     Without ``client`` the videos run one after the other in this process. With a
     ``distributed.Client`` the segments of every video are submitted at once (so workers stay busy
@@ -1589,10 +1612,17 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
             on_done(it, None, exc)
 
     given = {it.name: item_fps(it.input, fps) for it in todo}
+    placed: dict[str, tuple[np.ndarray, dict, dict]] = {}  # name -> (H_init, notes, options)
     for it in todo:
         try:
             _check_item_folder(it)
-            sources[it.name] = open_source(it.input, given[it.name])
+            src = open_source(it.input, given[it.name])
+            if geomap is not None:
+                from .geo.init import sidecar_placement
+
+                placed[it.name] = sidecar_placement(it.input, src, geomap,
+                                                    telemetry_defaults=telemetry_defaults)
+            sources[it.name] = src
         except Exception as exc:  # noqa: BLE001  one bad input must not stop the batch
             fail(it, exc)
     if client is not None:
@@ -1606,7 +1636,11 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 segs = per.plan(first, last, config, src.fps, stride)
                 tasks = make_tasks(src.path, config=config, fps=src.fps, segments=segs,
                                    stride=stride, seed=seed, metres_per_unit=metres_per_unit,
-                                   hold_after_s=per.hold_after_s, stabilised=stabilised)
+                                   hold_after_s=per.hold_after_s, stabilised=stabilised,
+                                   map_path=geomap.path if geomap is not None else None,
+                                   H_init=placed[it.name][0] if geomap is not None else None,
+                                   map_every_segment=per.map_every_segment,
+                                   frame_size=getattr(src, "size", None))
                 futures[it.name] = (segs, submit_tasks(client, tasks, name=it.name))
             except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
                 fail(it, exc)
@@ -1618,9 +1652,10 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         with _messages_named(Path(it.input).name):  # whose run a message is about
             t0 = time.perf_counter()
             try:
+                H_init, notes, where = placed.get(it.name, (None, {}, {}))
                 if client is None:
-                    settings = _batch_settings(it, config, fps, seed,
-                                               metres_per_unit, stride, stabilised)
+                    settings = _batch_settings(it, config, fps, seed, metres_per_unit, stride,
+                                               stabilised, geomap=geomap, placement=where)
                     again = _interrupted_with(it, settings, resume)
                     folder = OutputDir(it.out, resume=True) if again else \
                         OutputDir(it.out, overwrite=True)
@@ -1635,18 +1670,24 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                     result = run(src, config=config, fps=src.fps, seed=seed,
                                  metres_per_unit=metres_per_unit, stride=stride,
                                  checkpoint_dir=folder.partial, stabilised=stabilised,
-                                 resume=again, progress=progress)
+                                 resume=again, progress=progress, geomap=geomap, H_init=H_init,
+                                 roads=roads, min_speed_mps=min_speed_mps)
                 else:
                     folder = OutputDir(it.out, overwrite=True)
                     results = client.gather(futures[it.name][1])
-                    result, _ = assemble(results, config=config, fps=src.fps,
+                    result, _ = assemble(results, config=config, fps=src.fps, geomap=geomap,
                                          metres_per_unit=metres_per_unit, stride=stride,
-                                         parallel=parallel)
+                                         parallel=parallel, roads=roads,
+                                         min_speed_mps=min_speed_mps)
                 info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
                         "gsd": metres_per_unit, "fps_given": fps,
                         **({"stabilised": True} if stabilised else {}),
-                        "wall_time_s": round(time.perf_counter() - t0, 3)}
-                summary = write_outputs(result, folder, config=config, geomap=None, run_info=info)
+                        **({"map": str(Path(geomap.path).resolve()), **where}
+                           if geomap is not None else {}),
+                        **(run_info or {}),
+                        "wall_time_s": round(time.perf_counter() - t0, 3), **notes}
+                summary = write_outputs(result, folder, config=config, geomap=geomap,
+                                        run_info=info, out_crs=out_crs)
                 if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them
                     from .io.checkpoint import save_chunk
 

@@ -25,6 +25,20 @@ log = logging.getLogger("aerotrack")
                    "`aerotrack track`.")
 @click.option("--gsd", type=float, default=None,
               help="Metres per frame pixel (gates become metric; observations.csv in metres).")
+@click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
+              help="Georeferenced raster (GeoTIFF) of the area: every input is tracked on it, "
+                   "its frame 1 placed by the file beside it: NAME.map-init.txt (or .csv, "
+                   ".points; as track's --map-init) or its flight log NAME.srt (or "
+                   "NAME.telemetry.csv; as --telemetry).")
+@click.option("--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
+              help="With --map: a value for a column the flight logs lack (repeatable), as "
+                   "track's --telemetry-default.")
+@click.option("--roads", "roads_path", type=click.Path(path_type=Path), default=None,
+              help="Road centre-lines (needs --map), as track's --roads.")
+@click.option("--min-speed", "min_speed", type=float, default=None,
+              help="Drop tracks never faster than this many m/s (parked vehicles).")
+@click.option("--out-crs", "out_crs", default=None,
+              help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
 @click.option("--fps", type=float, default=None,
               help="Frame rate of the image folders (default 30) and of videos that name none; a "
                    "video's own rate is kept.")
@@ -49,7 +63,8 @@ log = logging.getLogger("aerotrack")
                    "other settings is named).")
 @click.pass_context
 def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, overrides, stride, workers,
-                  scheduler, segment_s, overwrite, stabilised=False):
+                  scheduler, segment_s, overwrite, stabilised=False, map_path=None,
+                  telemetry_defaults=(), roads_path=None, min_speed=None, out_crs=None):
     """Track every video file and image-folder sub-folder of INPUT_DIR.
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
@@ -63,6 +78,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     Examples:
       aerotrack batch flights/ --out runs/ --gsd 0.3
       aerotrack batch flights/ --out runs/ --workers 2
+      aerotrack batch flights/ --out runs/ --map ortho.tif   # a.mp4 beside a.srt, b.mp4 ...
     """
     import contextlib
     from dataclasses import replace
@@ -87,6 +103,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         raise InputError(f"--segment-s {segment_s}: must be positive")
     config = load_config(config_path, overrides)
     check_config(config, fps)  # once, before any input is tracked
+    geomap, roads, run_info = map_options(map_path, telemetry_defaults, roads_path, min_speed,
+                                          out_crs, gsd, stabilised, config)
     if scheduler is not None:
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
@@ -126,7 +144,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         if not it.done:
             continue
         changed = batch_changes(it, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
-                                stride=stride, stabilised=stabilised)
+                                stride=stride, stabilised=stabilised, geomap=geomap,
+                                run_info=run_info)
         if changed:  # a warning: shown even with -q
             click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
                        f"{', '.join(changed)}; kept as it is (--overwrite tracks it again)",
@@ -152,7 +171,9 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
                             stride=stride, client=client,
                             parallel=ParallelConfig(segment_s=segment_s), on_done=report,
                             stabilised=stabilised, resume=not overwrite,
-                            progress=stopper.wrap(lambda n: None))
+                            progress=stopper.wrap(lambda n: None), geomap=geomap, roads=roads,
+                            min_speed_mps=min_speed, out_crs=out_crs,
+                            telemetry_defaults=telemetry_defaults, run_info=run_info)
     failed = [path.name for path, _ in unusable]
     names = {it.name: Path(it.input).name for it in items}
     failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]
@@ -164,6 +185,40 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     if failed:
         raise InputError(f"batch: {len(failed)} of {len(items) + len(unusable)} inputs failed: "
                          + ", ".join(failed))
+
+
+def map_options(map_path, telemetry_defaults, roads_path, min_speed, out_crs, gsd, stabilised,
+                config):
+    """The batch's ``--map``, ``--roads`` and the options that go with them, checked as ``track``
+    checks them (before any input is tracked): ``(geomap, roads, run_info)``, ``run_info`` for
+    every input's ``summary.json``."""
+    from ..errors import InputError
+    from .track_cmd import check_out_crs, load_roads, where
+
+    if map_path is None:
+        for name, value in (("--telemetry-default", telemetry_defaults),
+                            ("--roads", roads_path)):
+            if value:
+                raise InputError(f"{name}: needs --map")
+    if stabilised and map_path is not None:
+        raise InputError("--stabilised: not with --map (frames are registered to the map)")
+    if min_speed is not None and not (min_speed >= 0 and min_speed < float("inf")):
+        raise InputError(f"--min-speed {min_speed}: must be >= 0 m/s")
+    geomap = None
+    if map_path is not None:
+        from ..geo import GeoMap
+        from ..geo.telemetry import parse_telemetry_defaults
+
+        if gsd is not None:
+            log.warning("--gsd %g: not used with --map (the map gives the scale)", gsd)
+        parse_telemetry_defaults(telemetry_defaults)  # checked once, not once per input
+        geomap = GeoMap(map_path)
+    check_out_crs(out_crs, geomap)
+    roads = load_roads(roads_path, geomap, config)
+    run_info = {**({"roads": where(roads_path)} if roads_path is not None else {}),
+                **({"min_speed": min_speed} if min_speed is not None else {}),
+                **({"out_crs": out_crs} if out_crs is not None else {})}
+    return geomap, roads, run_info
 
 
 def lock_batch(out_dir):

@@ -123,6 +123,7 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
     ``config``'s registration settings)."""
     from ..errors import InputError
     from ..geo import GeoMap, read_map_init
+    from ..geo.init import check_overlap
     from ..io import open_source
     from ..io.mot import check_detections, read_mot
 
@@ -179,7 +180,7 @@ def load_inputs(input_path, detections_path, map_path, map_init_path, fps, gsd,
             H_init = read_map_init(map_init_path, geomap)
             init_label = f"--map-init {map_init_path}"
         if source is not None:
-            _check_overlap(source.size, H_init, geomap, init_label)
+            check_overlap(source.size, H_init, geomap, init_label)
             if start > 1 and telemetry_path is None:
                 from ..config import Config
                 from ..registration.registrar import carry_placement
@@ -356,33 +357,6 @@ def _check_ground(size, H, label: str) -> None:
     if not 0.5 <= span <= 1e5:
         raise GeoreferenceError(f"{label}: frame 1 spans {span:.3g} m of ground: are the ground "
                                 "coordinates in metres?")
-
-
-def _check_overlap(size, H_init, geomap, init_label) -> None:
-    import numpy as np
-
-    from ..errors import GeoreferenceError
-    from ..types import apply_homography
-
-    w, h = size
-    corners = apply_homography(H_init, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
-    centre = apply_homography(H_init, np.array([[w / 2, h / 2]], float))[0]
-    where = f"{init_label}: frame 1"
-    if not (np.all(np.isfinite(corners)) and np.all(np.isfinite(centre))):
-        raise GeoreferenceError(f"{where} maps to infinity (a degenerate homography)")
-    if not (0 <= centre[0] <= geomap.width and 0 <= centre[1] <= geomap.height):
-        raise GeoreferenceError(
-            f"{where} does not land on the map (its centre maps to map pixel "
-            f"{centre[0]:.0f},{centre[1]:.0f}; the map is {geomap.width}x{geomap.height})")
-    # A frame may be larger than the map (a wide frame over a small tile), but a corner 20 map
-    # sizes away means a homography that nearly reaches the horizon or points the wrong way.
-    far = 20 * max(geomap.width, geomap.height)
-    if np.any(np.abs(corners - centre) > far):
-        k = int(np.argmax(np.abs(corners - centre).max(axis=1)))
-        raise GeoreferenceError(
-            f"{where}'s corner {k + 1} maps to map pixel {corners[k, 0]:.0f},"
-            f"{corners[k, 1]:.0f}, more than 20 map sizes from its centre: is the homography "
-            "frame -> map pixels?")
 
 
 def load_regions(roi_paths, ignore_paths, geomap) -> list:

@@ -152,3 +152,95 @@ def ground_points(path: str | Path) -> np.ndarray | None:
     if [h.strip().lower() for h in lines[0].split(",")][:2] != ["frame_x", "frame_y"]:
         return None
     return np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], np.float64)
+
+
+def check_overlap(size: tuple[int, int], H_init: np.ndarray, geomap: GeoMap, init_label: str
+                  ) -> None:
+    """Refuse a placement of frame 1 (``size`` (w, h) pixels) that misses ``geomap``: a centre off
+    the map, a degenerate homography, or a corner more than 20 map sizes away (a homography in
+    the wrong direction). ``init_label`` names where it came from in the message."""
+    from ..types import apply_homography
+
+    w, h = size
+    corners = apply_homography(H_init, np.array([[0, 0], [w, 0], [w, h], [0, h]], float))
+    centre = apply_homography(H_init, np.array([[w / 2, h / 2]], float))[0]
+    where = f"{init_label}: frame 1"
+    if not (np.all(np.isfinite(corners)) and np.all(np.isfinite(centre))):
+        raise GeoreferenceError(f"{where} maps to infinity (a degenerate homography)")
+    if not (0 <= centre[0] <= geomap.width and 0 <= centre[1] <= geomap.height):
+        raise GeoreferenceError(
+            f"{where} does not land on the map (its centre maps to map pixel "
+            f"{centre[0]:.0f},{centre[1]:.0f}; the map is {geomap.width}x{geomap.height})")
+    # A frame may be larger than the map (a wide frame over a small tile), but a corner 20 map
+    # sizes away means a homography that nearly reaches the horizon or points the wrong way.
+    far = 20 * max(geomap.width, geomap.height)
+    if np.any(np.abs(corners - centre) > far):
+        k = int(np.argmax(np.abs(corners - centre).max(axis=1)))
+        raise GeoreferenceError(
+            f"{where}'s corner {k + 1} maps to map pixel {corners[k, 0]:.0f},"
+            f"{corners[k, 1]:.0f}, more than 20 map sizes from its centre: is the homography "
+            "frame -> map pixels?")
+
+
+#: Files beside a batch input ``NAME.mp4`` (or image folder ``NAME/``) that place its frame 1 on
+#: the batch's ``--map``: ``NAME`` + one of these. As ``--map-init``:
+MAP_INIT_SIDECARS = (".map-init.txt", ".map-init.csv", ".points")
+#: ... and as ``--telemetry`` (a DJI subtitle flight log, or a telemetry CSV):
+TELEMETRY_SIDECARS = (".srt", ".telemetry.csv")
+
+
+def placement_sidecars(input_path: str | Path) -> tuple[list[Path], list[Path]]:
+    """The ``--map-init`` and ``--telemetry`` files beside a batch input (:data:`MAP_INIT_SIDECARS`,
+    :data:`TELEMETRY_SIDECARS`; suffixes in any case: ``NAME.SRT`` as DJI writes it)."""
+    p = Path(input_path)
+    stem = p.name if p.is_dir() else p.stem
+    init, tel = [], []
+    for q in sorted(p.parent.iterdir()) if p.parent.is_dir() else []:
+        if not q.is_file() or not q.name.lower().startswith(stem.lower() + "."):
+            continue
+        if q.name[:len(stem)] != stem:  # another input's (names differing only in case)
+            continue
+        rest = q.name[len(stem):].lower()
+        if rest in MAP_INIT_SIDECARS:
+            init.append(q)
+        elif rest in TELEMETRY_SIDECARS:
+            tel.append(q)
+    return init, tel
+
+
+def sidecar_placement(input_path: str | Path, source, geomap: GeoMap, *,
+                      telemetry_defaults=(), undistort=None) -> tuple[np.ndarray, dict, dict]:
+    """Frame 1 of a batch input placed on ``geomap`` by the file beside it
+    (:func:`placement_sidecars`): ``(H_init, notes, options)``, ``notes`` as ``track`` writes
+    them to ``summary.json`` (the telemetry's lock-on) and ``options`` naming the file used
+    (``map_init`` or ``telemetry``). Raises :class:`InputError` naming the files it looked for
+    when there is none, or when more than one would place it."""
+    init, tel = placement_sidecars(input_path)
+    p = Path(input_path)
+    stem = p.name if p.is_dir() else p.stem
+    found = init + tel
+    if not found:
+        raise InputError(
+            f"{p}: nothing places it on --map: put {stem}.map-init.txt (frame 1 -> map: a 3x3 "
+            f"homography or control points, as --map-init) or its flight log {stem}.srt "
+            f"(or {stem}.telemetry.csv, as --telemetry) beside it")
+    if len(found) > 1:
+        raise InputError(f"{p}: {' and '.join(q.name for q in found)} would each place it on "
+                         "--map; keep one")
+    if init:
+        H = read_map_init(init[0], geomap, option="map-init")
+        check_overlap(source.size, H, geomap, f"map-init {init[0]}")
+        return H, {}, {"map_init": str(init[0].resolve())}
+    from .telemetry import parse_telemetry_defaults, read_telemetry, telemetry_map_init
+
+    tel_path = tel[0]
+    telemetry = read_telemetry(tel_path, fps=source.fps, option="telemetry",
+                               defaults=parse_telemetry_defaults(telemetry_defaults))
+    first = next(iter(source.frames(start=1, stop=1)), None)
+    if first is None:
+        raise InputError(f"{p}: frame 1 cannot be read")
+    if undistort is not None:
+        first = undistort(first)
+    H, note = telemetry_map_init(telemetry, first, geomap, source.fps)
+    check_overlap(source.size, H, geomap, f"telemetry {tel_path}")
+    return H, {"telemetry": note}, {"telemetry": str(tel_path.resolve())}
