@@ -69,8 +69,9 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
     interrupted batch continues where it stopped when run again; one finished with other
-    settings (--config/--set, --seed, --stride, --gsd, --fps, --stabilised) is named in a warning and kept,
-    and --overwrite tracks every input again. An input that cannot be tracked
+    settings (--config/--set, --seed, --stride, --gsd, --fps, --stabilised, --map, --roads,
+    --min-speed, --out-crs) is named in a warning and kept, and --overwrite tracks every input
+    again. An input that cannot be tracked
     (an empty or unreadable video file) is reported on one line and counted as failed: the batch
     goes on with the others and exits with code 2.
 
