@@ -424,3 +424,32 @@ def test_a_gap_in_numbered_frame_files_is_named(tmp_path, caplog):
         assert "skip" not in caplog.text
         assert open_source(gap).count == 10
     assert "file numbers skip 1 time (between 49-51; about 1 file missing)" in caplog.text
+
+
+def test_a_motchallenge_sequence_folder_is_read_from_its_image_folder(tmp_path, capsys):
+    """``SEQ/seqinfo.ini`` + ``SEQ/img1/``: frames come from imDir at frameRate (the folder itself
+    holds no image and was refused); ``--fps`` still wins; batch takes the sequence as an input
+    at its own rate; a broken seqinfo.ini is a one-line error naming it."""
+    import cv2
+    import numpy as np
+    from conftest import run_cli
+
+    from aerotrack.io.frames import open_source
+    from aerotrack.parallel import item_fps, plan_batch
+
+    seq = tmp_path / "seqs" / "MOT-01"
+    (seq / "img1").mkdir(parents=True)
+    for i in range(3):
+        cv2.imwrite(str(seq / "img1" / f"{i + 1:06d}.jpg"), np.full((24, 32, 3), 40 * i, np.uint8))
+    (seq / "seqinfo.ini").write_text("[Sequence]\nname=MOT-01\nimDir=img1\nframeRate=25\n"
+                                     "seqLength=3\nimWidth=32\nimHeight=24\nimExt=.jpg\n")
+    src = open_source(seq)
+    assert src.fps == 25.0 and src.count == 3
+    assert [f.image[0, 0, 0] for f in src.frames()] == [0, 40, 80]
+    assert open_source(seq, 10.0).fps == 10.0
+    assert [i.name for i in plan_batch(tmp_path / "seqs", tmp_path / "out")] == ["MOT-01"]
+    assert item_fps(seq, 10.0) is None  # its own rate, as a video's
+    (seq / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\nframeRate=fast\n")
+    code, _, err = run_cli(capsys, "track", seq, "--out", tmp_path / "run")
+    assert code == 2 and "seqinfo.ini: frameRate 'fast' is not a positive number" in err
+    assert "Traceback" not in err and not (tmp_path / "run").exists()

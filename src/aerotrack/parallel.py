@@ -1378,7 +1378,7 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     Output folders are ``out_dir/<stem>``; when two inputs share a stem (``a.mp4``, ``a/``) both use
     their full name instead.
     """
-    from .io.frames import IMAGE_SUFFIXES
+    from .io.frames import IMAGE_SUFFIXES, SEQINFO
 
     input_dir, out_dir = Path(input_dir), Path(out_dir)
     if not input_dir.is_dir():
@@ -1388,8 +1388,9 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
         if p.name.startswith("."):
             continue
         video = p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES and p.stat().st_size > 0
-        if video or (p.is_dir() and any(q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES
-                                        for q in p.iterdir())):
+        # an image folder, or a MOTChallenge sequence (SEQ/seqinfo.ini, SEQ/img1/)
+        if video or (p.is_dir() and ((p / SEQINFO).is_file() or any(
+                q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES for q in p.iterdir()))):
             found.append(p)
     stems = [p.stem if p.is_file() else p.name for p in found]
     items = []
@@ -1535,8 +1536,21 @@ def item_fps(input_path, fps: float | None) -> float | None:
     """The ``--fps`` a batch gives one input: an image folder's rate, and a video's only when the
     video names none. A video's own rate is kept (a folder of 30 frames/s videos beside 10
     frames/s image sequences was all tracked at the rate given for the images)."""
-    if fps is None or Path(input_path).is_dir():
+    if fps is None:
         return fps
+    if Path(input_path).is_dir():
+        from .io.frames import mot_sequence
+
+        try:
+            seq = mot_sequence(input_path)
+        except InputError:
+            return fps  # (open_source reports it, for this input alone)
+        if seq is None or seq[1] is None:
+            return fps
+        if abs(seq[1] - fps) > 1e-3 * fps:  # a sequence names its rate, as a video does
+            log.info("%s: tracked at its own %g frames/s (seqinfo.ini; --fps %g is for image "
+                     "folders and videos that name no rate)", input_path, seq[1], fps)
+        return None
     from .io.frames import RAW_STREAM_SUFFIXES
 
     if Path(input_path).suffix.lower() in RAW_STREAM_SUFFIXES:

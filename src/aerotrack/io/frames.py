@@ -734,8 +734,50 @@ def _socket_trouble(exc, host: str, port: int) -> str:
     return f"{host}:{port}: {getattr(exc, 'strerror', None) or exc}"
 
 
+#: A MOTChallenge sequence folder's description: ``SEQ/seqinfo.ini`` naming its image folder
+#: (``imDir``, usually ``img1``) and ``frameRate``.
+SEQINFO = "seqinfo.ini"
+
+
+def mot_sequence(folder: str | Path) -> tuple[Path, float | None] | None:
+    """A MOTChallenge sequence folder (``SEQ/seqinfo.ini``, ``SEQ/img1/``): ``(image folder,
+    frame rate or None)``; None for any other folder. The ``[Sequence]`` section's ``imDir``
+    (default ``img1``) names the images and ``frameRate`` their rate; an unreadable file, an
+    ``imDir`` outside the folder or a rate that is not a positive number is an
+    :class:`InputError` naming the file."""
+    import configparser
+
+    folder = Path(folder)
+    ini = folder / SEQINFO
+    if not ini.is_file():
+        return None
+    cp = configparser.ConfigParser(interpolation=None)
+    try:
+        cp.read(ini, encoding="utf-8")
+        im_dir = cp.get("Sequence", "imDir", fallback="img1").strip() or "img1"
+        rate = cp.get("Sequence", "frameRate", fallback="").strip()
+    except (configparser.Error, UnicodeDecodeError) as exc:
+        raise InputError(f"{ini}: unreadable ({type(exc).__name__}): expected a MOTChallenge "
+                         "[Sequence] section with imDir and frameRate") from None
+    images = (folder / im_dir).resolve()
+    if folder.resolve() not in images.parents:
+        raise InputError(f"{ini}: imDir {im_dir!r} is not a folder inside {folder}")
+    fps = None
+    if rate:
+        try:
+            fps = float(rate)
+        except ValueError:
+            fps = math.nan
+        if not (math.isfinite(fps) and fps > 0):
+            raise InputError(f"{ini}: frameRate {rate!r} is not a positive number")
+    return folder / im_dir, fps
+
+
 def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
     """Open a video file, an image folder or a network stream (a URL, :data:`STREAM_SCHEMES`).
+
+    A MOTChallenge sequence folder (:func:`mot_sequence`) is read from its image folder, at its
+    ``frameRate`` unless ``fps`` is given.
 
     Raises
     ------
@@ -748,6 +790,16 @@ def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
     if p.is_dir():
+        seq = mot_sequence(p)
+        if seq is not None:
+            images, rate = seq
+            if not images.is_dir():
+                raise InputError(f"{p}: its {SEQINFO} names the image folder {images.name}/, "
+                                 "which is not there")
+            logging.getLogger(__name__).info(
+                "%s: a MOTChallenge sequence: frames from %s/%s", p, images.name,
+                f", {rate:g} frames/s ({SEQINFO})" if fps is None and rate else "")
+            return ImageFolderSource(images, fps if fps is not None else rate)
         return ImageFolderSource(p, fps)
     if p.stat().st_size == 0:
         raise InputError(f"{p}: file is empty")
