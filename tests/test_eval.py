@@ -577,6 +577,38 @@ def test_rows_flagged_not_to_be_considered_are_pointed_out_and_can_be_left_out(t
     assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
 
 
+def test_classes_score_vehicles_of_a_mixed_ground_truth(tmp_path, capsys):
+    """A VisDrone-like ground truth: a car (class 4), a pedestrian (1) and an ignored region (0)
+    over a second car. A vehicle tracker is scored on the vehicles with --classes 4 (it scored
+    the pedestrians it does not look for as misses, and a track on one as a false positive),
+    and --ignore-classes 0 makes the region an ignore region; mistakes are one-line errors."""
+    rows, pred = [], []
+    for f in range(1, 21):
+        rows += [[f, 1, 10 + 2 * f, 50, 30, 15, 1, 4, 0, 0], [f, 2, 200, 60 + f, 8, 20, 1, 1, 0, 0],
+                 [f, 3, 400 + f, 300, 30, 15, 1, 4, 0, 0], [f, 0, 380, 280, 100, 60, 0, 0, 0, 0]]
+        pred += [[f, 7, 10 + 2 * f, 50, 30, 15, 1, -1, -1, -1],
+                 [f, 8, 200, 60 + f, 8, 20, 1, -1, -1, -1]]  # a track on the pedestrian
+    gt, pred = np.array(rows, float), np.array(pred, float)
+    plain = evaluate(gt, pred)
+    assert (plain["FN"], plain["GT_IDs"]) == (40, 4)
+    cars = evaluate(gt, pred, classes=[4])
+    assert (cars["FP"], cars["FN"], cars["GT_IDs"]) == (0, 20, 2)  # the pedestrian's track: free
+    vehicles = evaluate(gt, pred, classes=[4], ignore_classes=[0])
+    assert (vehicles["MOTA"], vehicles["IDF1"], vehicles["GT_IDs"]) == (1.0, 1.0, 1)
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "pred.txt", pred)
+    args = ["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt", "--json"]
+    code, out, err = _run([*args, "--classes", "4", "--ignore-classes", "0"], capsys)
+    assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
+    assert "flagged 0" not in err  # VisDrone's flagged rows are its ignored regions
+    for extra, msg in ((["--classes", "3"], "no ground-truth row of these classes in column 8"),
+                       (["--classes", "car"], "expected class ids separated by commas"),
+                       (["--classes", "4", "--class-column", "12"], "no class in column 12"),
+                       (["--classes", "0", "--ignore-classes", "0"], "both hold 0")):
+        code, _, err = _run([*args, *extra], capsys)
+        assert code == 2 and msg in err and "Traceback" not in err, (extra, err)
+
+
 def test_a_motchallenge_sequence_is_scored_over_its_seqinfo_length(tmp_path, capsys):
     """Boxes invented after the last annotated frame but inside seqLength cost nothing."""
     seq = tmp_path / "gt" / "SEQ"

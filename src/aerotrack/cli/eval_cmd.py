@@ -172,6 +172,19 @@ def _parse_frames(text: str | None, last_gt: int | None = None) -> tuple[int, in
     return a, b
 
 
+def _parse_classes(text: str | None, option: str) -> tuple[int, ...] | None:
+    """``--classes 4,5,6,9``: integer class ids, or None."""
+    if text is None:
+        return None
+    try:
+        out = tuple(int(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        out = ()
+    if not out:
+        raise InputError(f"{option} {text!r}: expected class ids separated by commas (4,5,6,9)")
+    return out
+
+
 def _json_number(v):
     """NaN (an undefined score: nothing to match) as JSON's null; NaN is not JSON."""
     return None if isinstance(v, float) and not np.isfinite(v) else v
@@ -238,13 +251,24 @@ def _coverage_hint(seqs: dict) -> None:
               help="Read a 7th ground-truth column holding only 0 and 1 as MOTChallenge's "
                    "'consider' flag (MOT16/17, VisDrone): rows flagged 0 are not scored, nor the "
                    "predictions matching them (IoU >= 0.5). Default: every row counts.")
+@click.option("--classes", "classes", default=None, metavar="LIST",
+              help="Score only ground-truth rows of these classes (e.g. 4,5,6,9: VisDrone's car, "
+                   "van, truck, bus): rows of other classes (pedestrians) are not scored, nor the "
+                   "predictions matching them (IoU >= 0.5). Classes are in column 8 "
+                   "(MOTChallenge, VisDrone), or --class-column.")
+@click.option("--ignore-classes", "ignore_classes", default=None, metavar="LIST",
+              help="Ground-truth rows of these classes are ignore regions, as --ignore (e.g. 0: "
+                   "VisDrone's 'ignored regions').")
+@click.option("--class-column", "class_column", type=int, default=8, show_default=True,
+              help="1-based column of the ground truth's class (9 in UAVDT's *_gt_whole.txt).")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
                    "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets, then TP, FP, FN, MT, PT, ML, IDP, IDR, "
                    "HOTA(0); combined over sequences, with a 'sequences' entry when there are "
                    "several; an undefined score is null).")
 def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero_based, fix_gt,
-                 drop_flagged, geo_crs, as_json):
+                 drop_flagged, geo_crs, as_json, classes=None, ignore_classes=None,
+                 class_column=8):
     """Score tracks against a ground truth: HOTA, MOTA, IDF1 and counts (TrackEval).
 
     Boxes are class-agnostic; every ground-truth row counts whatever its confidence (rows
@@ -264,8 +288,17 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
           --zero-based --frames 2:98 --fix-gt                      # Santiago, corrected GT
       aerotrack eval --gt dfs_ground_truth.csv --pred run/tracks.csv --gt-zero-based \\
           --frames 2:98 --fix-gt                                   # Santiago, aerotrack's tracks
+      aerotrack eval --gt visdrone/annotations/ --pred runs/ --classes 4,5,6,9 \\
+          --ignore-classes 0                                       # vehicles of VisDrone-MOT
     """
     _parse_frames(frames)  # a malformed range: refused before any file is read
+    classes = _parse_classes(classes, "--classes")
+    ignore_classes = _parse_classes(ignore_classes, "--ignore-classes")
+    if classes and ignore_classes and set(classes) & set(ignore_classes):
+        raise InputError(f"--classes and --ignore-classes both hold "
+                         f"{','.join(str(c) for c in sorted(set(classes) & set(ignore_classes)))}")
+    by_class = {"classes": classes, "ignore_classes": ignore_classes,
+                "class_column": class_column}
     seqs = {}
     lengths = {}
     gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
@@ -282,9 +315,19 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
                   if ign is not None else None)
         seqs[name] = (gt, pred, ignore)
         if has_consider_flag(gt) and not drop_flagged:
-            log.warning("--gt %s: %d rows are flagged 0 in the 7th column (MOTChallenge's "
-                        "'consider' flag?) and are scored like every row; --drop-flagged leaves "
-                        "them out, as MOTChallenge's protocol does", g, int((gt[:, 6] == 0).sum()))
+            flagged = gt[:, 6] == 0
+            if classes or ignore_classes:  # (VisDrone's flagged rows are its ignored regions)
+                from ..evaluation.mot import class_rows
+
+                if classes:
+                    flagged &= class_rows(gt, classes, class_column)
+                if ignore_classes:
+                    flagged &= ~class_rows(gt, ignore_classes, class_column, "--ignore-classes")
+            if flagged.any():
+                log.warning("--gt %s: %d rows are flagged 0 in the 7th column (MOTChallenge's "
+                            "'consider' flag?) and are scored like every row; --drop-flagged "
+                            "leaves them out, as MOTChallenge's protocol does", g,
+                            int(flagged.sum()))
     window = _parse_frames(frames, max(int(g[:, 0].max()) for g, _, _ in seqs.values()))
     if window is None:
         _coverage_hint(seqs)
@@ -297,8 +340,17 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         last = max(int(g[:, 0].max()) for g, _, _ in seqs.values())
         raise InputError(f"--frames {frames}: no ground-truth rows in these frames (the ground "
                          f"truth ends at frame {last})")
+    if classes:
+        from ..evaluation.mot import class_rows
+
+        if not any(class_rows(g, classes, class_column).any() for g, _, _ in seqs.values()):
+            found = sorted({int(round(c)) for g, _, _ in seqs.values()
+                            for c in g[:, class_column - 1]})
+            raise InputError(f"--classes {','.join(str(c) for c in classes)}: no ground-truth row "
+                             f"of these classes in column {class_column} (it holds "
+                             f"{', '.join(str(c) for c in found[:12])})")
     res = evaluate_sequences(seqs, iou_threshold=iou_threshold, frames=per_seq or None,
-                             drop_flagged=drop_flagged)
+                             drop_flagged=drop_flagged, **by_class)
     single = len(seqs) == 1
     geo = None
     if geo_crs is not None:
@@ -310,7 +362,7 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         parts_g, parts_p = [], []
         for name, (g, p, ign) in seqs.items():
             g, p, _, _ = scored_rows(g, p, ignore=ign, frames=per_seq.get(name), name=name,
-                                     quiet=True, drop_flagged=drop_flagged)
+                                     quiet=True, drop_flagged=drop_flagged, **by_class)
             g, p = g.copy(), p.copy()
             g[:, 0] += off
             p[:, 0] += off

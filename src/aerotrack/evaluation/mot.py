@@ -239,9 +239,20 @@ def drop_unconsidered(gt: np.ndarray, pred: np.ndarray, *, min_iou: float = 0.5
     n_gt, n_pred : int
         Flagged ground-truth rows and predictions dropped.
     """
+    flagged = gt[:, 6] == 0
+    gt, pred, n_pred = drop_distractors(gt, pred, flagged, min_iou=min_iou)
+    return gt, pred, int(flagged.sum()), n_pred
+
+
+def drop_distractors(gt: np.ndarray, pred: np.ndarray, distractor: np.ndarray, *,
+                     min_iou: float = 0.5) -> tuple[np.ndarray, np.ndarray, int]:
+    """Leave out the ground-truth rows marked ``distractor`` (bool per row) and the predictions
+    matched to them: in each frame predictions and all ground-truth boxes are matched one to one
+    (Hungarian on IoU, pairs of at least ``min_iou``), as TrackEval matches MOTChallenge's
+    distractors. Returns ``(gt kept, pred kept, predictions dropped)``."""
     from scipy.optimize import linear_sum_assignment
 
-    flagged = gt[:, 6] == 0
+    flagged = np.asarray(distractor, bool)
     drop = np.zeros(len(pred), bool)
     if len(pred):
         for f in np.unique(gt[flagged, 0]):
@@ -254,7 +265,19 @@ def drop_unconsidered(gt: np.ndarray, pred: np.ndarray, *, min_iou: float = 0.5
             r, c = linear_sum_assignment(-score)
             hit = (score[r, c] > 0) & flagged[gi[r]]
             drop[pi[c[hit]]] = True
-    return gt[~flagged], pred[~drop], int(flagged.sum()), int(drop.sum())
+    return gt[~flagged], pred[~drop], int(drop.sum())
+
+
+def class_rows(gt: np.ndarray, classes, column: int, label: str = "--classes") -> np.ndarray:
+    """Bool per ground-truth row: its class (1-based ``column``) is one of ``classes``. An
+    :class:`InputError` when the rows have no such column."""
+    if column < 7:
+        raise InputError(f"{label}: the class column must come after the box and confidence "
+                         f"(7th); got {column}")
+    if gt.shape[1] < column:
+        raise InputError(f"{label}: the ground truth has {gt.shape[1]} columns, no class in "
+                         f"column {column}")
+    return np.isin(np.round(gt[:, column - 1]), np.asarray(sorted(classes), dtype=np.float64))
 
 
 def frame_offset_overlap(gt: np.ndarray, pred: np.ndarray, offset: int, *,
@@ -437,7 +460,8 @@ class SequenceScore:
 
 def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None = None,
                 frames: tuple[int, int] | None = None, name: str = "", quiet: bool = False,
-                drop_flagged: bool = False
+                drop_flagged: bool = False, classes=None, ignore_classes=None,
+                class_column: int = 8
                 ) -> tuple[np.ndarray, np.ndarray, int, tuple[int, int]]:
     """The rows a sequence is scored on: ``(gt, pred, predictions dropped in ignore regions,
     scoring window)``.
@@ -448,9 +472,13 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
     frame). With ``drop_flagged``, a ground truth whose 7th column is MOTChallenge's 0/1
     "consider" flag (:func:`has_consider_flag`) loses its rows flagged 0 and the predictions
     matching them (:func:`drop_unconsidered`); by default every row counts, whatever its
-    confidence (the file contract). Predictions must be tracks (ids >= 0, one
-    row per frame and id, no negative size). ``eval --geo-crs`` measures its distances on the
-    same rows.
+    confidence (the file contract). ``ignore_classes``: ground-truth rows of these classes (in
+    1-based ``class_column``; VisDrone's 0, "ignored regions") are ignore regions, added to
+    ``ignore``. ``classes``: only rows of these classes are scored; the others (pedestrians
+    beside vehicles) are distractors, dropped with the predictions matching them
+    (:func:`drop_distractors`), so a class-agnostic tracker is scored on the classes asked for.
+    Predictions must be tracks (ids >= 0, one row per frame and id, no negative size).
+    ``eval --geo-crs`` measures its distances on the same rows.
     """
     suffix = f" {name}" if name else ""
     gt = _prepare_gt(gt, "ground truth" + suffix)
@@ -467,6 +495,20 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
         log.info("%sdropped %d prediction rows outside the scoring frames %d..%d",
                  f"{name}: " if name else "", int((~in_pred).sum()), first, last)
     gt, pred = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)], pred[in_pred]
+    if ignore_classes:
+        regions = class_rows(gt, ignore_classes, class_column, "--ignore-classes")
+        if regions.any():
+            given = [] if ignore is None else [_as_rows(ignore, "ignore regions" + suffix)[:, :6]]
+            ignore = np.vstack([*given, gt[regions][:, :6]])
+            gt = gt[~regions]
+    if classes:
+        other = ~class_rows(gt, classes, class_column)
+        gt, pred, n_pred = drop_distractors(gt, pred, other)
+        if not quiet and other.any():
+            log.info("%s: %d ground-truth rows of other classes than %s (column %d) are not "
+                     "scored, nor the %d predictions matching them", name or "ground truth",
+                     int(other.sum()), ",".join(str(c) for c in sorted(classes)), class_column,
+                     n_pred)
     if drop_flagged and has_consider_flag(gt):
         gt, pred, n_gt, n_pred = drop_unconsidered(gt, pred)
         if not quiet:
@@ -486,9 +528,9 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
 
 def _score_sequence(name: str, gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float,
                     ignore: np.ndarray | None, frames: tuple[int, int] | None,
-                    drop_flagged: bool = False) -> SequenceScore:
+                    drop_flagged: bool = False, **classes) -> SequenceScore:
     gt, pred, n_ignored, frames = scored_rows(gt, pred, ignore=ignore, frames=frames, name=name,
-                                              drop_flagged=drop_flagged)
+                                              drop_flagged=drop_flagged, **classes)
     data = sequence_data(gt, pred, frames=frames)
     raw = {k: m.eval_sequence(data) for k, m in _metrics(iou_threshold).items()}
     s = SequenceScore(name, raw, n_ignored)
@@ -525,7 +567,8 @@ def summarise(raw: Mapping[str, Mapping]) -> dict:
 
 def evaluate(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0.5,
              ignore: np.ndarray | None = None, frames: tuple[int, int] | None = None,
-             drop_flagged: bool = False) -> dict:
+             drop_flagged: bool = False, classes=None, ignore_classes=None,
+             class_column: int = 8) -> dict:
     """Score one sequence's predicted tracks against its ground truth (class-agnostic boxes).
 
     Parameters
@@ -547,6 +590,10 @@ def evaluate(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0.5,
         first (:func:`drop_ignored`).
     frames : (int, int), optional
         Inclusive scoring window, default ``1..`` the ground truth's last frame.
+    classes, ignore_classes : iterable of int, optional
+        Score only ground-truth rows of these classes (others are distractors); rows of
+        ``ignore_classes`` are ignore regions (:func:`scored_rows`). Classes are read from the
+        1-based ``class_column`` (8: MOTChallenge, VisDrone; 9 in UAVDT's ``*_gt_whole.txt``).
 
     Returns
     -------
@@ -556,12 +603,14 @@ def evaluate(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0.5,
     """
     _check_iou(iou_threshold)
     return _score_sequence("", gt, pred, iou_threshold=iou_threshold, ignore=ignore,
-                           frames=frames, drop_flagged=drop_flagged).summary
+                           frames=frames, drop_flagged=drop_flagged, classes=classes,
+                           ignore_classes=ignore_classes, class_column=class_column).summary
 
 
 def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: float = 0.5,
                        frames: Mapping[str, tuple[int, int]] | None = None,
-                       drop_flagged: bool = False) -> dict:
+                       drop_flagged: bool = False, classes=None, ignore_classes=None,
+                       class_column: int = 8) -> dict:
     """Score several sequences and combine them as TrackEval does.
 
     Parameters
@@ -575,6 +624,8 @@ def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: floa
     drop_flagged : bool
         Leave out ground-truth rows flagged 0 in a MOTChallenge "consider" column
         (:func:`evaluate`).
+    classes, ignore_classes, class_column
+        As in :func:`evaluate`.
 
     Returns
     -------
@@ -594,7 +645,8 @@ def evaluate_sequences(sequences: Mapping[str, Sequence], *, iou_threshold: floa
         ign = entry[2] if len(entry) > 2 else None
         scores[name] = _score_sequence(name, gt, pred, iou_threshold=iou_threshold, ignore=ign,
                                        frames=(frames or {}).get(name),
-                                       drop_flagged=drop_flagged)
+                                       drop_flagged=drop_flagged, classes=classes,
+                                       ignore_classes=ignore_classes, class_column=class_column)
     metrics = _metrics(iou_threshold)
     combined_raw = {k: m.combine_sequences({n: s.raw[k] for n, s in scores.items()})
                     for k, m in metrics.items()}
