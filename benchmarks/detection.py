@@ -84,7 +84,8 @@ from aerotrack.io.frames import open_source
 from aerotrack.types import Frame, Registration, apply_homography
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data"
+#: ../shared/data beside the checkout, or AEROTRACK_SHARED/data (as the other benchmarks)
+DATA = Path(os.environ.get("AEROTRACK_SHARED", REPO.parent / "shared")) / "data"
 SANTIAGO = DATA / "santiago_intersection_dfs"
 TRUCK = DATA / "uav123_10fps_truck4"
 #: Cache of the pipeline's Santiago registrations (keyed by config, code and video; see
