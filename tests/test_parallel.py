@@ -472,6 +472,50 @@ def test_batch_on_a_map_places_each_input_by_the_file_beside_it(tmp_path, scene,
     assert "flight_a: finished with other --map" in err
 
 
+def test_batch_tracks_each_input_with_its_own_detections(tmp_path, scene, capsys):
+    """``batch --detections det/det.txt`` over MOTChallenge sequence folders: each sequence is
+    tracked on its own file as ``track SEQ --detections SEQ/det/det.txt`` tracks it (same
+    tracks.csv); a sequence without the file fails alone; a {name} pattern names files beside
+    videos; a bare path with a video input is refused for that input."""
+    from conftest import run_cli
+
+    folder, gt = scene
+    bench = tmp_path / "train"
+    for k, name in enumerate(("SEQ-01", "SEQ-02")):
+        seq = bench / name
+        (seq / "img1").mkdir(parents=True)
+        for p in sorted(folder.iterdir())[:40]:
+            (seq / "img1" / p.name).write_bytes(p.read_bytes())
+        (seq / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\nframeRate=10\n")
+        if k == 0:
+            rows = gt[gt[:, 0] <= 40].copy()
+            rows[:, 1] = -1
+            (seq / "det").mkdir()
+            np.savetxt(seq / "det" / "det.txt", rows, fmt="%g", delimiter=",")
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "batch", bench, "--out", out, "--detections", "det/det.txt")
+    assert code == 2 and "SEQ-02: failed: --detections det/det.txt: no " in err, err
+    summary = json.loads((out / "SEQ-01" / "summary.json").read_text())
+    assert summary["detections"] == str((bench / "SEQ-01" / "det" / "det.txt").resolve())
+    assert summary["fps"] == 10.0 and summary["counts"]["tracks"] > 0
+    single = tmp_path / "single"
+    code, _, err = run_cli(capsys, "track", bench / "SEQ-01", "--out", single, "--detections",
+                           bench / "SEQ-01" / "det" / "det.txt")
+    assert code == 0, err
+    assert (out / "SEQ-01" / "tracks.csv").read_text() == (single / "tracks.csv").read_text()
+    code, _, err = run_cli(capsys, "batch", bench, "--out", out)  # without them: named
+    assert "SEQ-01: finished with other --detections" in err, err
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    (videos / "a.avi").write_bytes(b"\0" * 10)
+    from aerotrack.parallel import item_detections_path
+
+    assert item_detections_path(videos / "a.avi", str(tmp_path / "d" / "{name}.txt")) == \
+        tmp_path / "d" / "a.txt"
+    with pytest.raises(InputError, match="is a video, not a folder"):
+        item_detections_path(videos / "a.avi", "det/det.txt")
+
+
 def test_placement_sidecars_are_the_inputs_own(tmp_path):
     """Sidecars match the input's name exactly (suffixes in any case); another input's whose name
     starts the same, or differs in case, are not taken."""

@@ -1431,7 +1431,7 @@ def _messages_named(name: str) -> Iterator[None]:
 def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: int,
                   metres_per_unit: float | None, stride: int,
                   stabilised: bool = False, geomap=None,
-                  run_info: dict | None = None) -> list[str]:
+                  run_info: dict | None = None, detections: str | None = None) -> list[str]:
     """What differs between the settings of this batch and those a finished item was tracked
     with (its ``summary.json`` and ``config.toml``): names of options, empty when alike or
     unknown (a folder from before these were recorded compares by its config alone)."""
@@ -1467,6 +1467,12 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
     now_map = str(Path(geomap.path).resolve()) if geomap is not None else None
     if (before_map or None) != now_map:
         changed.append("--map")
+    try:
+        own = str(item_detections_path(item.input, detections).resolve()) if detections else None
+    except InputError:
+        own = None
+    if summary.get("detections") != own:
+        changed.append("--detections")
     for key in BATCH_MAP_OPTIONS:  # --roads, --min-speed, --out-crs: absent when not given
         if summary.get(key) != (run_info or {}).get(key):
             changed.append("--" + key.replace("_", "-"))
@@ -1482,16 +1488,18 @@ BATCH_SETTINGS = "batch.json"
 
 
 def _batch_settings(item: BatchItem, config: Config, fps, seed, metres_per_unit, stride,
-                    stabilised, geomap=None, placement: dict | None = None) -> str:
+                    stabilised, geomap=None, placement: dict | None = None,
+                    detections: Path | None = None) -> str:
     import json
 
     from .config import dumps_config
 
     on_map = {"map": str(Path(geomap.path).resolve()), **(placement or {})} \
         if geomap is not None else {}  # (absent without a map: earlier batches' files match)
+    own = {"detections": str(Path(detections).resolve())} if detections is not None else {}
     return json.dumps({"input": str(Path(item.input).resolve()), "fps": fps, "seed": seed,
                        "gsd": metres_per_unit, "stride": stride, "stabilised": stabilised,
-                       **on_map, "config": dumps_config(config)}, indent=1) + "\n"
+                       **on_map, **own, "config": dumps_config(config)}, indent=1) + "\n"
 
 
 def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bool:
@@ -1530,6 +1538,40 @@ def _check_item_folder(item: BatchItem) -> None:
     if foreign:
         raise OutputError(f"{item.out}: holds files aerotrack did not write (e.g. "
                           f"{foreign[0]!r}); move them, or give another --out")
+
+
+def item_detections_path(input_path, pattern: str) -> Path:
+    """Where ``batch --detections PATTERN`` looks for an input's detections
+    (:func:`item_detections`)."""
+    p = Path(input_path)
+    if "{name}" in pattern:
+        return Path(pattern.replace("{name}", p.name if p.is_dir() else p.stem))
+    if p.is_dir():
+        return p / pattern
+    raise InputError(f"--detections {pattern}: {p.name} is a video, not a folder; name each "
+                     "video's file with {name} (dets/{name}.txt)")
+
+
+def item_detections(input_path, pattern: str, source=None, *, zero_based: bool = False,
+                    min_conf: float | None = None) -> tuple[np.ndarray, Path]:
+    """A batch input's own detections (``batch --detections PATTERN``): ``(MOT rows, file)``.
+
+    ``PATTERN`` with ``{name}`` names a file for each input by its name (a video's without its
+    suffix): ``dets/{name}.txt``. Without it, it is a path inside each input folder:
+    ``det/det.txt`` for MOTChallenge sequences (public detections). The rows are read and
+    checked as ``track --detections`` reads them; a missing file is an :class:`InputError` for
+    that input alone."""
+    from .io.mot import check_detections, read_mot
+
+    p = Path(input_path)
+    path = item_detections_path(p, pattern)
+    if not path.is_file():
+        raise InputError(f"--detections {pattern}: no {path} for {p.name}")
+    label = f"--detections {path}"
+    rows, lines = read_mot(path, option="--detections", strict=True, zero_based=zero_based,
+                           detections=True, lines=True)
+    check_detections(rows, label, source, lines=lines, min_conf=min_conf)
+    return rows, path
 
 
 def item_fps(input_path, fps: float | None) -> float | None:
@@ -1577,7 +1619,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
               on_done: Callable[[BatchItem, dict | None, BaseException | None], None] | None = None,
               geomap=None, roads=None, min_speed_mps: float | None = None,
               out_crs: str | None = None, telemetry_defaults: Sequence[str] = (),
-              run_info: dict | None = None) -> dict[str, dict | BaseException]:
+              run_info: dict | None = None, detections: str | None = None,
+              detections_zero_based: bool = False) -> dict[str, dict | BaseException]:
     """Track every unfinished item into its output folder.
 
     With ``geomap`` every item is tracked on that map, its frame 1 placed by the file beside it
@@ -1585,7 +1628,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     ``NAME.srt``; ``telemetry_defaults`` as ``--telemetry-default``); an item without one fails
     alone. ``roads``, ``min_speed_mps`` and ``out_crs`` are ``track``'s ``--roads``,
     ``--min-speed`` and ``--out-crs``; ``run_info`` goes into every ``summary.json`` (the
-    command's options).
+    command's options). ``detections``: each item's own detections replace the built-in
+    detector (:func:`item_detections`).
 
     Without ``client`` the videos run one after the other in this process. With a
     ``distributed.Client`` the segments of every video are submitted at once (so workers stay busy
@@ -1627,10 +1671,15 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
 
     given = {it.name: item_fps(it.input, fps) for it in todo}
     placed: dict[str, tuple[np.ndarray, dict, dict]] = {}  # name -> (H_init, notes, options)
+    dets: dict[str, tuple[np.ndarray, Path]] = {}  # name -> (MOT rows, file)
     for it in todo:
         try:
             _check_item_folder(it)
             src = open_source(it.input, given[it.name])
+            if detections is not None:
+                dets[it.name] = item_detections(it.input, detections, src,
+                                                zero_based=detections_zero_based,
+                                                min_conf=config.detection.min_conf)
             if geomap is not None:
                 from .geo.init import sidecar_placement
 
@@ -1654,7 +1703,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                    map_path=geomap.path if geomap is not None else None,
                                    H_init=placed[it.name][0] if geomap is not None else None,
                                    map_every_segment=per.map_every_segment,
-                                   frame_size=getattr(src, "size", None))
+                                   frame_size=getattr(src, "size", None),
+                                   detections=dets[it.name][0] if it.name in dets else None)
                 futures[it.name] = (segs, submit_tasks(client, tasks, name=it.name))
             except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
                 fail(it, exc)
@@ -1669,7 +1719,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 H_init, notes, where = placed.get(it.name, (None, {}, {}))
                 if client is None:
                     settings = _batch_settings(it, config, fps, seed, metres_per_unit, stride,
-                                               stabilised, geomap=geomap, placement=where)
+                                               stabilised, geomap=geomap, placement=where,
+                                               detections=dets.get(it.name, (None, None))[1])
                     again = _interrupted_with(it, settings, resume)
                     folder = OutputDir(it.out, resume=True) if again else \
                         OutputDir(it.out, overwrite=True)
@@ -1685,7 +1736,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                  metres_per_unit=metres_per_unit, stride=stride,
                                  checkpoint_dir=folder.partial, stabilised=stabilised,
                                  resume=again, progress=progress, geomap=geomap, H_init=H_init,
-                                 roads=roads, min_speed_mps=min_speed_mps)
+                                 roads=roads, min_speed_mps=min_speed_mps,
+                                 detections=dets[it.name][0] if it.name in dets else None)
                 else:
                     folder = OutputDir(it.out, overwrite=True)
                     results = client.gather(futures[it.name][1])
@@ -1698,6 +1750,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                         **({"stabilised": True} if stabilised else {}),
                         **({"map": str(Path(geomap.path).resolve()), **where}
                            if geomap is not None else {}),
+                        **({"detections": str(dets[it.name][1].resolve())}
+                           if it.name in dets else {}),
                         **(run_info or {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3), **notes}
                 summary = write_outputs(result, folder, config=config, geomap=geomap,

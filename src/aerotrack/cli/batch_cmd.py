@@ -30,6 +30,13 @@ log = logging.getLogger("aerotrack")
                    "its frame 1 placed by the file beside it: NAME.map-init.txt (or .csv, "
                    ".points; as track's --map-init) or its flight log NAME.srt (or "
                    "NAME.telemetry.csv; as --telemetry).")
+@click.option("--detections", "detections", metavar="PATTERN", default=None,
+              help="Each input's own detections (MOTChallenge rows) instead of the built-in "
+                   "detector: a path inside each input folder (det/det.txt: a MOTChallenge "
+                   "sequence's public detections), or a pattern naming a file per input by its "
+                   "name: dets/{name}.txt.")
+@click.option("--detections-zero-based", "detections_zero_based", is_flag=True,
+              help="The --detections files number frames from 0; 1 is added.")
 @click.option("--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
               help="With --map: a value for a column the flight logs lack (repeatable), as "
                    "track's --telemetry-default.")
@@ -64,13 +71,14 @@ log = logging.getLogger("aerotrack")
 @click.pass_context
 def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, overrides, stride, workers,
                   scheduler, segment_s, overwrite, stabilised=False, map_path=None,
-                  telemetry_defaults=(), roads_path=None, min_speed=None, out_crs=None):
+                  telemetry_defaults=(), roads_path=None, min_speed=None, out_crs=None,
+                  detections=None, detections_zero_based=False):
     """Track every video file and image-folder sub-folder of INPUT_DIR.
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
     interrupted batch continues where it stopped when run again; one finished with other
     settings (--config/--set, --seed, --stride, --gsd, --fps, --stabilised, --map, --roads,
-    --min-speed, --out-crs) is named in a warning and kept, and --overwrite tracks every input
+    --min-speed, --out-crs, --detections) is named in a warning and kept, and --overwrite tracks every input
     again. An input that cannot be tracked
     (an empty or unreadable video file) is reported on one line and counted as failed: the batch
     goes on with the others and exits with code 2.
@@ -80,6 +88,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
       aerotrack batch flights/ --out runs/ --gsd 0.3
       aerotrack batch flights/ --out runs/ --workers 2
       aerotrack batch flights/ --out runs/ --map ortho.tif   # a.mp4 beside a.srt, b.mp4 ...
+      aerotrack batch MOT17/train/ --out runs/ --detections det/det.txt   # public detections
     """
     import contextlib
     from dataclasses import replace
@@ -106,6 +115,11 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     check_config(config, fps)  # once, before any input is tracked
     geomap, roads, run_info = map_options(map_path, telemetry_defaults, roads_path, min_speed,
                                           out_crs, gsd, stabilised, config)
+    if detections_zero_based and detections is None:
+        raise InputError("--detections-zero-based: only with --detections")
+    if detections is not None and not detections.strip():
+        raise InputError("--detections: give a path inside each input folder (det/det.txt) or a "
+                         "pattern with {name} (dets/{name}.txt)")
     if scheduler is not None:
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
@@ -146,7 +160,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
             continue
         changed = batch_changes(it, config=config, fps=fps, seed=seed, metres_per_unit=gsd,
                                 stride=stride, stabilised=stabilised, geomap=geomap,
-                                run_info=run_info)
+                                run_info=run_info, detections=detections)
         if changed:  # a warning: shown even with -q
             click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
                        f"{', '.join(changed)}; kept as it is (--overwrite tracks it again)",
@@ -174,7 +188,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
                             stabilised=stabilised, resume=not overwrite,
                             progress=stopper.wrap(lambda n: None), geomap=geomap, roads=roads,
                             min_speed_mps=min_speed, out_crs=out_crs,
-                            telemetry_defaults=telemetry_defaults, run_info=run_info)
+                            telemetry_defaults=telemetry_defaults, run_info=run_info,
+                            detections=detections, detections_zero_based=detections_zero_based)
     failed = [path.name for path, _ in unusable]
     names = {it.name: Path(it.input).name for it in items}
     failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]
