@@ -453,3 +453,27 @@ def test_a_motchallenge_sequence_folder_is_read_from_its_image_folder(tmp_path, 
     code, _, err = run_cli(capsys, "track", seq, "--out", tmp_path / "run")
     assert code == 2 and "seqinfo.ini: frameRate 'fast' is not a positive number" in err
     assert "Traceback" not in err and not (tmp_path / "run").exists()
+
+
+def test_overwrite_keeps_the_earlier_results_until_the_new_ones_are_all_written(tmp_path):
+    """``--overwrite`` deleted the earlier run's results before the new run started, so a run that
+    failed or was stopped left nothing; and a run that failed while writing its results (a full
+    disk) left some of them. Now results are staged and moved in together by ``finish``; a
+    resumed overwrite still replaces every earlier entry (a stale observations.csv went)."""
+    out = tmp_path / "run"
+    first = OutputDir(out)
+    first.write_text("tracks.csv", "old\n")
+    first.write_text("observations.csv", "old\n")
+    first.finish(keep_as="stages")
+    assert sorted(e.name for e in out.iterdir()) == ["observations.csv", "stages", "tracks.csv"]
+    again = OutputDir(out, overwrite=True)
+    again.write_text("tracks.csv", "new\n")  # ... and then the run fails: no finish
+    assert (out / "tracks.csv").read_text() == "old\n"
+    assert (out / "observations.csv").read_text() == "old\n"
+    resumed = OutputDir(out, resume=True)  # the interrupted --overwrite run, continued
+    assert not resumed.staged.exists()  # the failed write's staged files are not kept
+    resumed.write_text("tracks.csv", "new\n")
+    resumed.finish(keep_as="stages")
+    assert (out / "tracks.csv").read_text() == "new\n"
+    assert sorted(e.name for e in out.iterdir()) == ["stages", "tracks.csv"]
+    assert not (out / "stages" / "replaced.txt").exists()

@@ -1144,7 +1144,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
     if not same:
         import shutil
 
-        shutil.copytree(stages, out.path / "stages", dirs_exist_ok=True)
+        shutil.copytree(stages, out.file("stages"), dirs_exist_ok=True)
     out.finish()
     quiet, _ = root_flags(ctx)
     if not quiet:

@@ -2,7 +2,11 @@
 
 Final files appear atomically: each is written beside its destination under a temporary name and
 renamed into place (``os.replace``), so a killed run never leaves a file that looks complete. Work in
-progress lives in ``DIR/.partial/``.
+progress lives in ``DIR/.partial/``; an :class:`OutputDir`'s results are written into
+``DIR/.partial/out/`` and moved into ``DIR`` together once all are written
+(:meth:`OutputDir.finish`), so a run that fails while writing them (a full disk) leaves none of
+them, and with ``--overwrite`` the earlier run's results stay until then (a run that fails or is
+stopped left an empty folder).
 """
 
 from __future__ import annotations
@@ -18,6 +22,10 @@ from typing import IO
 from ..errors import OutputError
 
 PARTIAL = ".partial"
+#: Inside ``.partial/``: a run's finished results, until :meth:`OutputDir.finish` moves them in.
+STAGED = "out"
+#: Inside ``.partial/``: the earlier run's entries an ``--overwrite`` run replaces when it ends.
+REPLACED = "replaced.txt"
 
 
 def _umask() -> int:
@@ -152,15 +160,24 @@ class OutputDir:
                                       "--overwrite starts again")
                 raise OutputError(f"{option} {p}: folder already holds results; use --overwrite"
                                   + (" or --resume" if resumable else ""))
-            if overwrite:
-                for e in entries:
-                    if e.is_dir() and not e.is_symlink():
-                        shutil.rmtree(e)
-                    else:
-                        e.unlink()
+        #: the earlier run's entries, replaced by :meth:`finish` (``overwrite``); until then they
+        #: stay, so a run that fails or is stopped leaves them as they were
+        self._replaced: list[str] = []
         try:
+            if p.is_dir() and overwrite:
+                self._replaced = [e.name for e in entries if e.name != PARTIAL]
+                if (p / PARTIAL).exists():  # an interrupted run's work: started again
+                    _remove(p / PARTIAL)
             p.mkdir(parents=True, exist_ok=True)
             self.partial.mkdir(exist_ok=True)
+            if self.staged.exists():  # results of a resumed run that failed while writing them
+                _remove(self.staged)
+            record = self.partial / REPLACED
+            if self._replaced:  # (a resumed --overwrite run still replaces them all)
+                record.write_text("\n".join(self._replaced) + "\n", encoding="utf-8")
+            elif resume and record.is_file():
+                self._replaced = [n for n in record.read_text(encoding="utf-8").splitlines()
+                                  if n and (p / n).exists()]
             probe = self.partial / ".write-test"
             probe.write_text("")
             probe.unlink()
@@ -172,8 +189,15 @@ class OutputDir:
         """Folder for work in progress (kept on interruption, used by ``--resume``)."""
         return self.path / PARTIAL
 
+    @property
+    def staged(self) -> Path:
+        """Where results are written until :meth:`finish` moves them into the folder."""
+        return self.partial / STAGED
+
     def file(self, name: str) -> Path:
-        return self.path / name
+        """The path to write result ``name`` to (in :attr:`staged` until :meth:`finish`)."""
+        self.staged.mkdir(parents=True, exist_ok=True)
+        return self.staged / name
 
     def write_text(self, name: str, text: str) -> Path:
         dest = self.file(name)
@@ -181,14 +205,39 @@ class OutputDir:
         return dest
 
     def finish(self, keep_as: str | None = None) -> None:
-        """Once every final file is in place: remove ``.partial/``, or keep its content under the
-        name ``keep_as`` (``stages/``: cached registrations and detections for ``track --from``)."""
-        if keep_as is None:
-            shutil.rmtree(self.partial, ignore_errors=True)
-            return
-        dest = self.path / keep_as
-        shutil.rmtree(dest, ignore_errors=True)
-        os.replace(self.partial, dest)
+        """Once every result is written: the earlier run's entries (``overwrite``) go, the results
+        move into the folder, and ``.partial/`` is removed, or kept under the name ``keep_as``
+        (``stages/``: cached registrations and detections for ``track --from``)."""
+        try:
+            for name in self._replaced:
+                _remove(self.path / name)
+            (self.partial / REPLACED).unlink(missing_ok=True)
+            if self.staged.is_dir():
+                for e in sorted(self.staged.iterdir()):
+                    dest = self.path / e.name
+                    if dest.is_dir() and not dest.is_symlink():
+                        shutil.rmtree(dest)  # (os.replace moves a folder onto an empty one only)
+                    os.replace(e, dest)
+                self.staged.rmdir()
+            if keep_as is None:
+                shutil.rmtree(self.partial, ignore_errors=True)
+                return
+            dest = self.path / keep_as
+            shutil.rmtree(dest, ignore_errors=True)
+            os.replace(self.partial, dest)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot move the results into place "
+                              f"({exc.strerror or exc})") from None
+        finally:
+            self._replaced = []
+
+
+def _remove(path: Path) -> None:
+    """Remove a file, a link or a folder tree."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
 
 
 #: Top-level names any aerotrack command writes into an output folder.

@@ -107,10 +107,7 @@ def render_to(out: OutputDir | str | Path, *, seed: int = 0, frames: int = 900,
                        "(CC BY-SA 4.0)",
     }
     atomic_write_text(out.file("scenario.json"), json.dumps(info, indent=2) + "\n")
-    final = out.path / "frames"
-    if final.exists():
-        shutil.rmtree(final)
-    os.replace(fdir, final)
+    os.replace(fdir, out.file("frames"))
     out.finish()
     return info
 
