@@ -90,6 +90,18 @@ def video(tmp_path):
 
 
 # -- track ----------------------------------------------------------------------------------------
+def test_a_truncated_map_is_one_line_error(tmp_path, capsys, video):
+    """A GeoTIFF cut short (a broken download: its header intact, its pixels not) was opened and
+    failed minutes later in a traceback where the map was first drawn on."""
+    whole = write_map(tmp_path / "whole.tif")
+    cut = tmp_path / "cut.tif"
+    cut.write_bytes(whole.read_bytes()[: int(0.6 * whole.stat().st_size)])
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 100\n0 1 100\n0 0 1\n")
+    expect_error(capsys, ["--map", "cut.tif", "truncated"], "track", video, "--out",
+                 tmp_path / "o", "--map", cut, "--map-init", h, out_dir=tmp_path / "o")
+
+
 def test_track_missing_input(tmp_path, capsys):
     expect_error(capsys, ["missing.mp4"], "track", tmp_path / "missing.mp4", "--out", tmp_path / "o",
                  out_dir=tmp_path / "o")

@@ -51,8 +51,17 @@ class GeoMap:
                 self.transform = ds.transform
                 self.width, self.height, self.count = ds.width, ds.height, ds.count
                 self._dtypes = ds.dtypes
+                # its last pixel, read now: a file cut short (a broken download) fails here,
+                # not minutes later in a traceback when the map is first drawn on
+                from rasterio.windows import Window
+
+                ds.read(1, window=Window(ds.width - 1, ds.height - 1, 1, 1))
         except rasterio.errors.RasterioIOError as exc:
-            raise InputError(f"{label}: cannot read as a raster ({exc})") from None
+            detail = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+            if detail.startswith("Read failed"):  # (GDAL's own words say nothing more)
+                raise InputError(f"{label}: its pixels cannot be read: a truncated or damaged "
+                                 "file?") from None
+            raise InputError(f"{label}: cannot read as a raster ({detail})") from None
         if self.crs is None or self.transform is None or self.transform.is_identity:
             raise GeoreferenceError(f"{label}: raster has no georeference (no CRS or geotransform)")
         if self.width < 2 or self.height < 2:
@@ -132,13 +141,17 @@ class GeoMap:
         if self._image is None:
             import rasterio
 
-            with rasterio.open(self.path) as ds:
-                if ds.count >= 3:
-                    rgb = ds.read([1, 2, 3]).astype(np.float64)
-                    img = np.stack([_stretch(b) for b in rgb], axis=-1)[..., ::-1]
-                else:
-                    band = _stretch(ds.read(1).astype(np.float64))
-                    img = np.repeat(band[..., None], 3, axis=-1)
+            try:
+                with rasterio.open(self.path) as ds:
+                    if ds.count >= 3:
+                        rgb = ds.read([1, 2, 3]).astype(np.float64)
+                        img = np.stack([_stretch(b) for b in rgb], axis=-1)[..., ::-1]
+                    else:
+                        band = _stretch(ds.read(1).astype(np.float64))
+                        img = np.repeat(band[..., None], 3, axis=-1)
+            except rasterio.errors.RasterioIOError:  # damaged inside (or changed since opened)
+                raise InputError(f"--map {self.path}: its pixels cannot be read: a truncated or "
+                                 "damaged file?") from None
             self._image = np.ascontiguousarray(img)
         return self._image
 
