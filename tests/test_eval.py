@@ -585,13 +585,16 @@ def test_classes_score_vehicles_of_a_mixed_ground_truth(tmp_path, capsys):
     rows, pred = [], []
     for f in range(1, 21):
         rows += [[f, 1, 10 + 2 * f, 50, 30, 15, 1, 4, 0, 0], [f, 2, 200, 60 + f, 8, 20, 1, 1, 0, 0],
-                 [f, 3, 400 + f, 300, 30, 15, 1, 4, 0, 0], [f, 0, 380, 280, 100, 60, 0, 0, 0, 0]]
+                 [f, 3, 400 + f, 300, 30, 15, 1, 4, 0, 0], [f, 0, 380, 280, 100, 60, 0, 0, 0, 0],
+                 [f, 0, 600, 20, 40, 40, 0, 0, 0, 0]]  # regions share VisDrone's id 0
         pred += [[f, 7, 10 + 2 * f, 50, 30, 15, 1, -1, -1, -1],
                  [f, 8, 200, 60 + f, 8, 20, 1, -1, -1, -1]]  # a track on the pedestrian
     gt, pred = np.array(rows, float), np.array(pred, float)
-    plain = evaluate(gt, pred)
-    assert (plain["FN"], plain["GT_IDs"]) == (40, 4)
-    cars = evaluate(gt, pred, classes=[4])
+    with pytest.raises(InputError, match="occurs twice"):  # regions sharing an id, as objects
+        evaluate(gt, pred)
+    plain = evaluate(gt[gt[:, 7] > 0], pred)
+    assert (plain["FN"], plain["GT_IDs"]) == (20, 3)
+    cars = evaluate(gt[gt[:, 7] > 0], pred, classes=[4])
     assert (cars["FP"], cars["FN"], cars["GT_IDs"]) == (0, 20, 2)  # the pedestrian's track: free
     vehicles = evaluate(gt, pred, classes=[4], ignore_classes=[0])
     assert (vehicles["MOTA"], vehicles["IDF1"], vehicles["GT_IDs"]) == (1.0, 1.0, 1)
@@ -600,11 +603,18 @@ def test_classes_score_vehicles_of_a_mixed_ground_truth(tmp_path, capsys):
     args = ["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt", "--json"]
     code, out, err = _run([*args, "--classes", "4", "--ignore-classes", "0"], capsys)
     assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
+    code, out, err = _run([*args, "--classes", "4", "--ignore-classes", "0", "--fix-gt"], capsys)
+    assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
     assert "flagged 0" not in err  # VisDrone's flagged rows are its ignored regions
     for extra, msg in ((["--classes", "3"], "no ground-truth row of these classes in column 8"),
                        (["--classes", "car"], "expected class ids separated by commas"),
                        (["--classes", "4", "--class-column", "12"], "no class in column 12"),
-                       (["--classes", "0", "--ignore-classes", "0"], "both hold 0")):
+                       (["--classes", "0"], "both hold 0"),
+                       (["--classes", "4", "--class-column", "7"], "8 or more")):
+        code, _, err = _run([*args, "--ignore-classes", "0", *extra], capsys)
+        assert code == 2 and msg in err and "Traceback" not in err, (extra, err)
+    for extra, msg in ((["--class-column", "9"], "only with --classes"),
+                       (["--classes", "4"], "(frame, id) = (1, 0) occurs twice")):
         code, _, err = _run([*args, *extra], capsys)
         assert code == 2 and msg in err and "Traceback" not in err, (extra, err)
 

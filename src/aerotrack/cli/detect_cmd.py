@@ -109,6 +109,13 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
     regions = load_regions(roi_paths, ignore_paths, geomap)
     check_config(config, fps)  # before --out is touched
     check_overwrite(out_dir, overwrite)
+    from ..io.output import check_outside
+
+    check_outside(out_dir, "--out", [
+        ("INPUT", input_path), ("--map", map_path), ("--map-init", map_init_path),
+        ("--telemetry", telemetry_path), ("--intrinsics", intrinsics_path),
+        ("--ground", ground_path), *(("--roi", r) for r in roi_paths),
+        *(("--ignore-region", r) for r in ignore_paths)])
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
     out = OutputDir(out_dir, overwrite=overwrite)
     with cleanup:

@@ -254,8 +254,9 @@ def _coverage_hint(seqs: dict) -> None:
 @click.option("--classes", "classes", default=None, metavar="LIST",
               help="Score only ground-truth rows of these classes (e.g. 4,5,6,9: VisDrone's car, "
                    "van, truck, bus): rows of other classes (pedestrians) are not scored, nor the "
-                   "predictions matching them (IoU >= 0.5). Classes are in column 8 "
-                   "(MOTChallenge, VisDrone), or --class-column.")
+                   "predictions matching them (IoU >= 0.5): a class-agnostic protocol, not "
+                   "MOT17's (there only distractor classes are free). Classes are in column 8 "
+                   "(MOTChallenge, VisDrone), or --class-column (9 in UAVDT's *_gt_whole.txt).")
 @click.option("--ignore-classes", "ignore_classes", default=None, metavar="LIST",
               help="Ground-truth rows of these classes are ignore regions, as --ignore (e.g. 0: "
                    "VisDrone's 'ignored regions').")
@@ -297,8 +298,11 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     if classes and ignore_classes and set(classes) & set(ignore_classes):
         raise InputError(f"--classes and --ignore-classes both hold "
                          f"{','.join(str(c) for c in sorted(set(classes) & set(ignore_classes)))}")
-    by_class = {"classes": classes, "ignore_classes": ignore_classes,
-                "class_column": class_column}
+    if class_column != 8 and not (classes or ignore_classes):
+        raise InputError(f"--class-column {class_column}: only with --classes or "
+                         "--ignore-classes")
+    # (the --ignore-classes rows are moved to the ignore regions as each ground truth is read)
+    by_class = {"classes": classes, "class_column": class_column}
     seqs = {}
     lengths = {}
     gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
@@ -306,23 +310,24 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         lengths[name] = _seq_length(g)
         gt = read_mot(g, option="--gt", strict=False, allow_empty=False, zero_based=gt_zero)
         pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
+        ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
+                  if ign is not None else None)
+        if ignore_classes:  # before the duplicate check: regions have no identity (VisDrone's 0)
+            from ..evaluation.mot import split_ignore_classes
+
+            gt, ignore = split_ignore_classes(gt, ignore, ignore_classes, class_column)
         if fix_gt:
             gt, fix = fix_ground_truth(gt, f"--gt {g}")
             log.info("--fix-gt %s: %s", g, fix.describe(-1 if gt_zero else 0))
         else:
             drop_exact_duplicates(gt, f"--gt {g}")  # refuses a (frame, id) with two boxes
-        ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
-                  if ign is not None else None)
         seqs[name] = (gt, pred, ignore)
         if has_consider_flag(gt) and not drop_flagged:
             flagged = gt[:, 6] == 0
-            if classes or ignore_classes:  # (VisDrone's flagged rows are its ignored regions)
+            if classes:  # (VisDrone's flagged rows are its ignored regions, gone by now)
                 from ..evaluation.mot import class_rows
 
-                if classes:
-                    flagged &= class_rows(gt, classes, class_column)
-                if ignore_classes:
-                    flagged &= ~class_rows(gt, ignore_classes, class_column, "--ignore-classes")
+                flagged &= class_rows(gt, classes, class_column)
             if flagged.any():
                 log.warning("--gt %s: %d rows are flagged 0 in the 7th column (MOTChallenge's "
                             "'consider' flag?) and are scored like every row; --drop-flagged "

@@ -55,7 +55,7 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
     from ..errors import InputError, OutputError
     from ..geo import GeoMap, read_map_init
     from ..io import open_source
-    from ..io.output import atomic_write_bytes, check_writable
+    from ..io.output import atomic_write_bytes, check_apart, check_writable
     from ..registration import FrameRegistrar, write_registration_csv
     from ..registration.mosaic import paint_mosaic, picture_geotransform, share_off_map, world_file_text
 
@@ -70,8 +70,11 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
         raise InputError("--map and --map-init must be given together")
     config = load_config(config_path, overrides)
     source = open_source(input_path, fps)
+    inputs = [("INPUT", input_path), ("--map", map_path), ("--map-init", map_init_path)]
+    check_apart(out, "--out", inputs)
     check_writable(out, "--out")  # before registering the whole video, not after
     if reg_csv is not None:
+        check_apart(reg_csv, "--registration", [*inputs, ("--out", out)])
         check_writable(reg_csv, "--registration")
     geomap = H_init = None
     if map_path is not None:

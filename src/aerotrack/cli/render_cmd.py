@@ -94,8 +94,10 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
     out = Path(out_path) if out_path else results.path / "overlay.webm"
     source = open_source(input_path, results.fps)  # fail fast on a bad input
     results.check_input(source, input_path)
-    from ..io.output import check_writable
+    from ..io.output import check_apart, check_writable
 
+    check_apart(out, "--out", [("INPUT", input_path), ("--map", map_path)], run_dir=results.path,
+                own=("overlay.webm", "overlay.mp4"))
     check_writable(out, "--out")  # before rendering, not after
     geomap = load_map(results, map_path) if pictures else None  # a bad --map: before rendering
     if pictures:

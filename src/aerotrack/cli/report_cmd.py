@@ -55,8 +55,12 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
                  zero_based=gt_zero_based)  # before any work
     if input_path is not None and not Path(input_path).exists():
         raise InputError(f"--input {input_path}: no such file or folder")
-    from ..io.output import check_writable
+    from ..io.output import check_apart, check_writable
 
+    if out_path is not None:
+        check_apart(out_path, "--out", [("--input", input_path), ("--gt", gt_path),
+                                        ("--map", map_path)], run_dir=results.path,
+                    own=("report.html",))
     check_writable(out_path or Path(results.path) / "report.html", "--out")
     geomap = None
     if map_path is not None:

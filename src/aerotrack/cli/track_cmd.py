@@ -607,6 +607,13 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         [input_path, detections_path, map_path, map_init_path, telemetry_path, intrinsics_path,
          *roi_paths, *ignore_paths, roads_path, ground_path])
     check_overwrite(out_dir, overwrite)
+    from ..io.output import check_outside
+
+    check_outside(out_dir, "--out", [
+        ("INPUT", input_path), ("--detections", detections_path), ("--map", map_path),
+        ("--map-init", map_init_path), ("--telemetry", telemetry_path),
+        ("--intrinsics", intrinsics_path), ("--roads", roads_path), ("--ground", ground_path),
+        *(("--roi", r) for r in roi_paths), *(("--ignore-region", r) for r in ignore_paths)])
     if resume and finished_run(out_dir, input_path, detections_path, seed, manifest):
         if not root_flags(ctx)[0]:
             click.echo(f"aerotrack: {out_dir}: the run is already finished; nothing to resume "

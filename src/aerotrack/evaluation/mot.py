@@ -268,12 +268,23 @@ def drop_distractors(gt: np.ndarray, pred: np.ndarray, distractor: np.ndarray, *
     return gt[~flagged], pred[~drop], int(drop.sum())
 
 
+def split_ignore_classes(gt: np.ndarray, ignore: np.ndarray | None, ignore_classes,
+                         column: int, suffix: str = "") -> tuple[np.ndarray, np.ndarray | None]:
+    """``(gt, ignore)`` with the ground-truth rows of ``ignore_classes`` moved to the ignore
+    regions (first 6 columns)."""
+    regions = class_rows(gt, ignore_classes, column, "--ignore-classes")
+    if not regions.any():
+        return gt, ignore
+    given = [] if ignore is None else [_as_rows(ignore, "ignore regions" + suffix)[:, :6]]
+    return gt[~regions], np.vstack([*given, gt[regions][:, :6]])
+
+
 def class_rows(gt: np.ndarray, classes, column: int, label: str = "--classes") -> np.ndarray:
     """Bool per ground-truth row: its class (1-based ``column``) is one of ``classes``. An
     :class:`InputError` when the rows have no such column."""
-    if column < 7:
-        raise InputError(f"{label}: the class column must come after the box and confidence "
-                         f"(7th); got {column}")
+    if column < 8:
+        raise InputError(f"--class-column {column}: the class column comes after the box and "
+                         "the confidence (the 7th): 8 or more")
     if gt.shape[1] < column:
         raise InputError(f"{label}: the ground truth has {gt.shape[1]} columns, no class in "
                          f"column {column}")
@@ -477,10 +488,16 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
     ``ignore``. ``classes``: only rows of these classes are scored; the others (pedestrians
     beside vehicles) are distractors, dropped with the predictions matching them
     (:func:`drop_distractors`), so a class-agnostic tracker is scored on the classes asked for.
+    That is a class-agnostic protocol, not MOT17's: TrackEval frees only predictions on its
+    distractor classes (2, 7, 8, 12) and counts those on other classes (cars, for a pedestrian
+    benchmark) as false positives.
     Predictions must be tracks (ids >= 0, one row per frame and id, no negative size).
     ``eval --geo-crs`` measures its distances on the same rows.
     """
     suffix = f" {name}" if name else ""
+    if ignore_classes:  # before the duplicate check: regions have no identity (VisDrone's id 0)
+        gt, ignore = split_ignore_classes(_as_rows(gt, "ground truth" + suffix), ignore,
+                                          ignore_classes, class_column, suffix)
     gt = _prepare_gt(gt, "ground truth" + suffix)
     pred = _as_rows(pred, "prediction" + suffix)
     _check_tracks(pred, "prediction" + suffix)
@@ -495,12 +512,6 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
         log.info("%sdropped %d prediction rows outside the scoring frames %d..%d",
                  f"{name}: " if name else "", int((~in_pred).sum()), first, last)
     gt, pred = gt[(gt[:, 0] >= first) & (gt[:, 0] <= last)], pred[in_pred]
-    if ignore_classes:
-        regions = class_rows(gt, ignore_classes, class_column, "--ignore-classes")
-        if regions.any():
-            given = [] if ignore is None else [_as_rows(ignore, "ignore regions" + suffix)[:, :6]]
-            ignore = np.vstack([*given, gt[regions][:, :6]])
-            gt = gt[~regions]
     if classes:
         other = ~class_rows(gt, classes, class_column)
         gt, pred, n_pred = drop_distractors(gt, pred, other)

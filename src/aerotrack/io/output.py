@@ -73,6 +73,51 @@ def check_writable(path: str | Path, option: str, *, folder: bool = False) -> No
         raise OutputError(f"{option} {p}: cannot write there ({exc.strerror or exc})") from None
 
 
+def check_apart(out: str | Path, option: str, inputs, *, run_dir: str | Path | None = None,
+                own: tuple[str, ...] = ()) -> None:
+    """Refuse an output that would replace or write into an input: ``out`` is one of ``inputs``
+    (``(label, path)`` pairs, paths may be None) or inside an input folder; or, with
+    ``run_dir`` (a run folder the command reads), one of that run's results other than the
+    command's ``own`` files (``report --out run/tracks.csv`` replaced the tracks by HTML).
+
+    Raises
+    ------
+    OutputError
+        One line naming ``option``, ``out`` and the input.
+    """
+    o = Path(out).resolve()
+    for label, path in inputs:
+        if path is None:
+            continue
+        q = Path(path).resolve()
+        if o == q:
+            raise OutputError(f"{option} {out}: is the {label} ({path}): it would be replaced; "
+                              "write elsewhere")
+        if q.is_dir() and q in o.parents:
+            raise OutputError(f"{option} {out}: is inside the {label} folder ({path}); write "
+                              "elsewhere")
+    if run_dir is not None and o.parent == Path(run_dir).resolve() and o.name not in own \
+            and (o.name in OUTPUT_NAMES or o.suffix.lower() in (".csv", ".json", ".toml",
+                                                                  ".geojson")) and o.exists():
+        raise OutputError(f"{option} {out}: is one of the run's own results (it would be "
+                          "replaced); write elsewhere")
+
+
+def check_outside(out_dir: str | Path, option: str, inputs) -> None:
+    """Refuse an output folder that holds one of the ``inputs`` (``(label, path)`` pairs, None
+    skipped): its results replace the folder's content (``track --out q --overwrite`` of
+    ``q/overlay.webm`` deleted the video it was reading)."""
+    o = Path(out_dir).resolve()
+    for label, path in inputs:
+        if path is None or "://" in str(path):
+            continue
+        q = Path(path).resolve()
+        if q == o or o in q.parents:
+            raise OutputError(f"{option} {out_dir}: holds the {label} ({path}), which its "
+                              "results would replace; give an output folder apart from the "
+                              "inputs")
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
     """Open a temporary file beside ``path``; on success rename it to ``path``, on error delete it.
