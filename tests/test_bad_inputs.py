@@ -707,6 +707,34 @@ def test_report_bad_video_width(tmp_path, capsys, run_dir):
     assert not (run_dir / "report.html").exists()
 
 
+def test_an_output_never_replaces_an_input(tmp_path, capsys, video, run_dir):
+    """render --out the input video, report --out the run's tracks.csv, mosaic --out the map or
+    a frame of its input folder, mosaic --registration onto its own --out, and track --out a
+    folder holding its input (with --overwrite its results replace that folder's content): each
+    replaced an input and exited 0. Now each is a one-line error and the input is unchanged."""
+    before = video.read_bytes(), (run_dir / "tracks.csv").read_text()
+    expect_error(capsys, ["--out", "is the INPUT"], "render", video, run_dir, "--out", video,
+                 "--no-pictures")
+    expect_error(capsys, ["--out", "the run's own results"], "report", run_dir, "--out",
+                 run_dir / "tracks.csv", "--no-video")
+    frames = write_frames(tmp_path / "frames", [textured(shift=(0, i)) for i in range(3)])
+    expect_error(capsys, ["--out", "inside the INPUT folder"], "mosaic", frames, "--out",
+                 frames / "0001.png")
+    m = write_map(tmp_path / "m.tif")
+    h = tmp_path / "h.txt"
+    h.write_text("1 0 100\n0 1 100\n0 0 1\n")
+    expect_error(capsys, ["--out", "is the --map"], "mosaic", video, "--out", m, "--map", m,
+                 "--map-init", h)
+    expect_error(capsys, ["--registration", "is the --out"], "mosaic", video, "--out",
+                 tmp_path / "m.png", "--registration", tmp_path / "m.png")
+    inside = run_dir / "overlay.mp4"  # (a name aerotrack writes: not a foreign file)
+    inside.write_bytes(video.read_bytes())
+    expect_error(capsys, ["--out", "holds the INPUT"], "track", inside, "--out", run_dir,
+                 "--overwrite")
+    assert (video.read_bytes(), (run_dir / "tracks.csv").read_text()) == before
+    assert inside.read_bytes() == before[0]
+
+
 def test_outputs_readable_like_any_new_file(tmp_path, capsys, dets):
     """Results are not private to the user (mkstemp's 0600): another account can score them."""
     import os
