@@ -449,6 +449,16 @@ def test_a_motchallenge_sequence_folder_is_read_from_its_image_folder(tmp_path, 
     assert open_source(seq, 10.0).fps == 10.0
     assert [i.name for i in plan_batch(tmp_path / "seqs", tmp_path / "out")] == ["MOT-01"]
     assert item_fps(seq, 10.0) is None  # its own rate, as a video's
+    # shared images linked in, a BOM, a lower-case section: read all the same
+    linked = tmp_path / "seqs" / "MOT-02"
+    linked.mkdir()
+    (linked / "img1").symlink_to(seq / "img1")
+    (linked / "seqinfo.ini").write_bytes(b"\xef\xbb\xbf[sequence]\nimDir=img1/\nframeRate=12\n")
+    src = open_source(linked)
+    assert (src.fps, src.count) == (12.0, 3)
+    (linked / "seqinfo.ini").write_text("[Sequence]\nimDir=../MOT-01/img1\n")
+    with pytest.raises(InputError, match="not a folder inside"):
+        open_source(linked)
     (seq / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\nframeRate=fast\n")
     code, _, err = run_cli(capsys, "track", seq, "--out", tmp_path / "run")
     assert code == 2 and "seqinfo.ini: frameRate 'fast' is not a positive number" in err

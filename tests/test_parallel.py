@@ -431,7 +431,8 @@ def test_batch_tracks_each_input_once_and_skips_finished(tmp_path, scene, client
         assert (again / "detections.csv").read_text() == (folder / "detections.csv").read_text()
 
 
-def test_batch_on_a_map_places_each_input_by_the_file_beside_it(tmp_path, scene, capsys):
+def test_batch_on_a_map_places_each_input_by_the_file_beside_it(tmp_path, scene, capsys,
+                                                                 client):
     """``batch --map``: each input is placed by its own ``NAME.map-init.txt`` (or flight log) and
     tracked as ``track --map --map-init`` tracks it; one with no such file fails alone, named
     with the files it needs; one with two is refused; a batch over the same inputs without the
@@ -458,7 +459,7 @@ def test_batch_on_a_map_places_each_input_by_the_file_beside_it(tmp_path, scene,
     assert not (out / "flight_b").exists() and not (out / "flight_c").exists()
     summary = json.loads((out / "flight_a" / "summary.json").read_text())
     assert summary["registration_mode"] == "map" and summary["map"] == str(TILE.resolve())
-    assert summary["map_init"] == str((inp / "flight_a.map-init.txt").resolve())
+    assert summary["options"]["map_init"] == str((inp / "flight_a.map-init.txt").resolve())
     assert (out / "flight_a" / "observations.csv").is_file()
     single = tmp_path / "single"
     r = CliRunner().invoke(cli, ["track", str(inp / "flight_a"), "--out", str(single), "--map",
@@ -470,6 +471,19 @@ def test_batch_on_a_map_places_each_input_by_the_file_beside_it(tmp_path, scene,
     assert summary["counts"]["tracks"] > 0
     code, _, err = run_cli(capsys, "batch", inp, "--out", out, "--fps", "10")
     assert "flight_a: finished with other --map" in err
+    # on the cluster the segments are placed on the map as one process places them
+    out2 = tmp_path / "out2"
+    (inp / "flight_c.SRT").unlink()
+    code, _, err = run_cli(capsys, *args[:3], out2, *args[4:], "--scheduler",
+                           client.scheduler.address)
+    assert code == 2, err  # (flight_b still has nothing)
+    for name in ("flight_a", "flight_c"):
+        assert (out2 / name / "registration.csv").read_text() == \
+            (single / "registration.csv").read_text()
+    # a placement file edited after the input was tracked is named, not silently kept
+    (inp / "flight_a.map-init.txt").write_text("1 0 401\n0 1 420\n0 0 1\n")
+    code, _, err = run_cli(capsys, *args)
+    assert "flight_a: finished with other placement on the map" in err, err
 
 
 def test_batch_tracks_each_input_with_its_own_detections(tmp_path, scene, capsys):

@@ -100,6 +100,7 @@ import numpy as np
 
 from .config import Config
 from .errors import ConfigError, InputError, OutputError, install_extra
+from .geo.init import placement_fingerprint
 from .pipeline import Pipeline, Result, _group_rows, link
 from .registration.chain import normalize
 from .types import Detections, Registration, Track, TrackPoint, apply_homography, local_scales
@@ -1467,6 +1468,9 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
     now_map = str(Path(geomap.path).resolve()) if geomap is not None else None
     if (before_map or None) != now_map:
         changed.append("--map")
+    elif now_map is not None and summary.get("placement") != placement_fingerprint(item.input):
+        changed.append(f"placement on the map (its {summary.get('placement', '?').split()[0]} "
+                       "is changed or replaced)")
     try:
         own = str(item_detections_path(item.input, detections).resolve()) if detections else None
     except InputError:
@@ -1494,7 +1498,8 @@ def _batch_settings(item: BatchItem, config: Config, fps, seed, metres_per_unit,
 
     from .config import dumps_config
 
-    on_map = {"map": str(Path(geomap.path).resolve()), **(placement or {})} \
+    on_map = {"map": str(Path(geomap.path).resolve()), **(placement or {}),
+              "placement": placement_fingerprint(item.input)} \
         if geomap is not None else {}  # (absent without a map: earlier batches' files match)
     own = {"detections": str(Path(detections).resolve())} if detections is not None else {}
     return json.dumps({"input": str(Path(item.input).resolve()), "fps": fps, "seed": seed,
@@ -1519,8 +1524,8 @@ def _interrupted_with(item: BatchItem, settings: str, resume: bool = True) -> bo
     if same and resume:
         return True
     why = ("--overwrite" if not resume else
-           "its settings differ from this batch's (config, --fps, --seed, --gsd, --stride or "
-           "--stabilised)")
+           "its settings differ from this batch's (config, --fps, --seed, --gsd, --stride, "
+           "--stabilised, --map or the file placing it there, --detections)")
     # (the batch's messages already start with the input's name)
     log.warning("an interrupted run in %s is not continued (%s): tracking it again from the "
                 "first frame", item.out, why)
@@ -1748,8 +1753,9 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
                         "gsd": metres_per_unit, "fps_given": fps,
                         **({"stabilised": True} if stabilised else {}),
-                        **({"map": str(Path(geomap.path).resolve()), **where}
-                           if geomap is not None else {}),
+                        **({"map": str(Path(geomap.path).resolve()),
+                            "placement": placement_fingerprint(it.input),
+                            "options": where} if geomap is not None else {}),
                         **({"detections": str(dets[it.name][1].resolve())}
                            if it.name in dets else {}),
                         **(run_info or {}),

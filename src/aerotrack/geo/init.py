@@ -208,12 +208,24 @@ def placement_sidecars(input_path: str | Path) -> tuple[list[Path], list[Path]]:
     return init, tel
 
 
+def placement_fingerprint(input_path: str | Path) -> str | None:
+    """The file placing a batch input on the map (:func:`placement_sidecars`) as ``name size
+    mtime``, so that a finished or interrupted input placed by an older version of it is
+    known (None without exactly one such file)."""
+    init, tel = placement_sidecars(input_path)
+    if len(init) + len(tel) != 1:
+        return None
+    q = (init + tel)[0]
+    st = q.stat()
+    return f"{q.name} {st.st_size} {st.st_mtime_ns}"
+
+
 def sidecar_placement(input_path: str | Path, source, geomap: GeoMap, *,
                       telemetry_defaults=(), undistort=None) -> tuple[np.ndarray, dict, dict]:
     """Frame 1 of a batch input placed on ``geomap`` by the file beside it
     (:func:`placement_sidecars`): ``(H_init, notes, options)``, ``notes`` as ``track`` writes
     them to ``summary.json`` (the telemetry's lock-on) and ``options`` naming the file used
-    (``map_init`` or ``telemetry``). Raises :class:`InputError` naming the files it looked for
+    (``map_init``, or ``telemetry`` and ``telemetry_defaults``). Raises :class:`InputError` naming the files it looked for
     when there is none, or when more than one would place it."""
     init, tel = placement_sidecars(input_path)
     p = Path(input_path)
@@ -222,8 +234,9 @@ def sidecar_placement(input_path: str | Path, source, geomap: GeoMap, *,
     if not found:
         raise InputError(
             f"{p}: nothing places it on --map: put {stem}.map-init.txt (frame 1 -> map: a 3x3 "
-            f"homography or control points, as --map-init) or its flight log {stem}.srt "
-            f"(or {stem}.telemetry.csv, as --telemetry) beside it")
+            f"homography, or control points as {stem}.map-init.csv or {stem}.points, as "
+            f"--map-init) or its flight log {stem}.srt (or {stem}.telemetry.csv, as --telemetry) "
+            "beside it")
     if len(found) > 1:
         raise InputError(f"{p}: {' and '.join(q.name for q in found)} would each place it on "
                          "--map; keep one")
@@ -243,4 +256,5 @@ def sidecar_placement(input_path: str | Path, source, geomap: GeoMap, *,
         first = undistort(first)
     H, note = telemetry_map_init(telemetry, first, geomap, source.fps)
     check_overlap(source.size, H, geomap, f"telemetry {tel_path}")
-    return H, {"telemetry": note}, {"telemetry": str(tel_path.resolve())}
+    return H, {"telemetry": note}, {"telemetry": str(tel_path.resolve()),
+                                    "telemetry_defaults": sorted(telemetry_defaults)}

@@ -753,15 +753,21 @@ def mot_sequence(folder: str | Path) -> tuple[Path, float | None] | None:
         return None
     cp = configparser.ConfigParser(interpolation=None)
     try:
-        cp.read(ini, encoding="utf-8")
-        im_dir = cp.get("Sequence", "imDir", fallback="img1").strip() or "img1"
-        rate = cp.get("Sequence", "frameRate", fallback="").strip()
+        cp.read(ini, encoding="utf-8-sig")  # (a BOM, as Windows editors save)
+        section = next((n for n in cp.sections() if n.lower() == "sequence"), None)
+        if section is None:  # some other program's file: a plain folder
+            return None
+        given = cp.get(section, "imDir", fallback="").strip().rstrip("/\\")
+        rate = cp.get(section, "frameRate", fallback="").strip()
     except (configparser.Error, UnicodeDecodeError) as exc:
         raise InputError(f"{ini}: unreadable ({type(exc).__name__}): expected a MOTChallenge "
                          "[Sequence] section with imDir and frameRate") from None
-    images = (folder / im_dir).resolve()
-    if folder.resolve() not in images.parents:
+    im_dir = given or "img1"
+    if Path(im_dir).is_absolute() or ".." in Path(im_dir).parts:  # (a link inside is fine)
         raise InputError(f"{ini}: imDir {im_dir!r} is not a folder inside {folder}")
+    if not given and not (folder / im_dir).is_dir() and any(
+            q.suffix.lower() in IMAGE_SUFFIXES for q in folder.iterdir()):
+        im_dir = "."  # a folder of images beside a seqinfo.ini that names no imDir
     fps = None
     if rate:
         try:
