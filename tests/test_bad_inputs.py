@@ -1570,3 +1570,26 @@ def test_a_stretch_without_detections_is_named_with_its_cause():
         if d.frame in (36, 37, 38, 39, 51, 52, 53, 54):
             d.n = 1
     assert detection_gap_hint(quiet, cfg) is None
+
+
+def test_a_typo_frame_number_in_detections_is_pointed_out_once(tmp_path, capsys, caplog):
+    """A detections file whose last row says frame 5000000 was tracked silently, through millions
+    of empty frames. Now a warning names the line; and the command line's warnings about a file
+    were printed twice (its check, then the pipeline's on the same rows): now once."""
+    import logging
+
+    from aerotrack.io.mot import check_detections, read_mot
+
+    p = tmp_path / "dets.txt"
+    p.write_text("".join(f"{f},-1,{10 + f},10,8,4,0.9\n" for f in range(1, 21))
+                 + "5000000,-1,10,10,8,4,0.9\n")
+    rows, lines = read_mot(p, option="--detections", strict=True, detections=True, lines=True)
+    with caplog.at_level(logging.WARNING):
+        check_detections(rows, f"--detections {p}", None, lines=lines)
+        check_detections(rows, "detections", None)  # the same rows again: not warned twice
+    jumps = [r.getMessage() for r in caplog.records if "a typo?" in r.getMessage()]
+    assert len(jumps) == 1 and "frame 5000000 (line 21)" in jumps[0], jumps
+    empty = tmp_path / "empty.txt"
+    empty.write_text("")
+    code, _, err = run_cli(capsys, "track", "--detections", empty, "--out", tmp_path / "o")
+    assert code == 0 and err.count("no detections in the file") == 1, err

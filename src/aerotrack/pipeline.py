@@ -1289,7 +1289,7 @@ def _api_inputs(source, detections, H_init, geomap, fps, min_conf: float = 0.0):
             d = np.asarray(detections, dtype=np.float64)
         except (TypeError, ValueError):
             raise InputError("detections: expected an (N, 6..10) array of MOT rows") from None
-        if d.size == 0:
+        if d.size == 0 and not (d.ndim == 2 and d.shape[1] == 10):  # (a file's empty rows stay)
             d = np.zeros((0, 10))
         if d.ndim != 2 or not 6 <= d.shape[1] <= 10:
             raise InputError(f"detections: expected an (N, 6..10) array of MOT rows (frame, id, "

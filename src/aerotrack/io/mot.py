@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import re
+import weakref
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -261,6 +262,15 @@ def write_mot(path: str | Path, rows: np.ndarray | Iterable[Iterable[float]]) ->
         fh.write(format_mot_rows(arr))
 
 
+#: Arrays :func:`check_detections` has checked (by id, with a weak reference to tell a reused
+#: id): the command line checks a file's rows, then ``pipeline.run`` would check them again and
+#: every warning came twice.
+_CHECKED: dict[int, weakref.ref] = {}
+
+#: A jump in a detections file's frame numbers past which ``check_detections`` warns.
+FRAME_JUMP_WARN = 100_000
+
+
 def check_detections(dets: np.ndarray, label: str, source=None, *, lines=None,
                      min_conf: float | None = None) -> None:
     """Refuse detection rows no video can have; warn about what is likely a mistake (the
@@ -274,6 +284,10 @@ def check_detections(dets: np.ndarray, label: str, source=None, *, lines=None,
     ``min_conf`` (dropped by the pipeline, ``detection.min_conf``), many low-confidence boxes,
     tiny normalised boxes, and frame numbers that step by more than 1.
     """
+    seen = _CHECKED.get(id(dets))
+    if seen is not None and seen() is dets:  # (the command line checked them; the API again)
+        return
+    _CHECKED[id(dets)] = weakref.ref(dets)
     if not len(dets):
         _log.warning("%s: no detections in the file: nothing to track", label)
         return
@@ -336,6 +350,17 @@ def check_detections(dets: np.ndarray, label: str, source=None, *, lines=None,
                     "normalised to [0, 1]? aerotrack needs frame pixels", label,
                     float(np.median(np.maximum(dets[:, 4], dets[:, 5]))))
     frames = np.unique(dets[:, 0].astype(np.int64))
+    if len(frames) >= 2 and not count:
+        # a typo'd frame number far after the others: association walks every empty frame up
+        # to it (a 5000000 in a 900-frame file ran for minutes, writing a checkpoint a second)
+        gaps = np.diff(frames)
+        k = int(np.argmax(gaps))
+        if gaps[k] > max(FRAME_JUMP_WARN, 10 * len(frames)):
+            r = int(np.flatnonzero(dets[:, 0] == frames[k + 1])[0])
+            _log.warning("%s: frame %d (%s) comes %d frames after the one before it (%d), in a "
+                         "file of %d frames with detections: a typo? Every frame between is "
+                         "processed (empty)", label, int(frames[k + 1]), line(r), int(gaps[k]),
+                         int(frames[k]), len(frames))
     if len(frames) >= 10:
         step = int(np.gcd.reduce(np.diff(frames)))
         if step > 1:
