@@ -1593,3 +1593,17 @@ def test_a_typo_frame_number_in_detections_is_pointed_out_once(tmp_path, capsys,
     empty.write_text("")
     code, _, err = run_cli(capsys, "track", "--detections", empty, "--out", tmp_path / "o")
     assert code == 0 and err.count("no detections in the file") == 1, err
+
+
+def test_a_full_disk_mid_run_is_one_line_error(tmp_path, capsys, monkeypatch):
+    """synth (and demo) died with a traceback when the disk filled up while writing frames. The
+    disk is filled here by making every frame write fail as a full disk does (ENOSPC): a real
+    full file system needs a mount this test cannot make."""
+    import errno
+
+    def full(self, data):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self))
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    expect_error(capsys, ["No space left on device", "000001.jpg"], "synth", "--out",
+                 tmp_path / "s", "--frames", "5", out_dir=tmp_path / "s")

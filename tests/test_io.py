@@ -487,3 +487,24 @@ def test_overwrite_keeps_the_earlier_results_until_the_new_ones_are_all_written(
     assert (out / "tracks.csv").read_text() == "new\n"
     assert sorted(e.name for e in out.iterdir()) == ["stages", "tracks.csv"]
     assert not (out / "stages" / "replaced.txt").exists()
+
+
+def test_atomic_writes_keep_links_and_refuse_devices(tmp_path):
+    """An output that is a link was replaced by a plain file (the link gone, its target
+    unchanged); one that is a device or a pipe was replaced too (as root, /dev/full became a
+    file). Now a link's target is written and a device or pipe is refused."""
+    import os
+
+    from aerotrack.io.output import atomic_write_text
+
+    target = tmp_path / "real.csv"
+    target.write_text("old\n")
+    link = tmp_path / "link.csv"
+    link.symlink_to(target)
+    atomic_write_text(link, "new\n")
+    assert link.is_symlink() and target.read_text() == "new\n"
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(OutputError, match="not a regular file"):
+        atomic_write_text(fifo, "x\n")
+    assert not fifo.is_file()

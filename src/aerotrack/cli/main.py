@@ -180,6 +180,16 @@ def main(argv: list[str] | None = None) -> None:
     except MemoryError:
         click.echo("aerotrack: error: out of memory", err=True)
         sys.exit(2)
+    except OSError as exc:
+        import errno
+
+        # a full disk, a quota, a read-only or forbidden place met mid-run (synth's frames, a
+        # picture): the system's words and the file, not a traceback
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM):
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"aerotrack: error: {where}{exc.strerror or exc}", err=True)
+        sys.exit(2)
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -129,6 +129,14 @@ def atomic_write(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
         a folder in the way, disk full): one line naming ``path``.
     """
     path = Path(path)
+    if path.is_symlink():  # the link's target is written (renaming over the link replaced it)
+        path = Path(os.path.realpath(path))
+    if path.exists() and not path.is_file():
+        import stat
+
+        if not path.is_dir() and not stat.S_ISREG(path.stat().st_mode):
+            raise OutputError(f"{path}: not a regular file (a device, a pipe): aerotrack writes "
+                              "its results to files")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
