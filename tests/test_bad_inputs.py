@@ -904,6 +904,12 @@ def test_unwritable_output_refused_first_naming_option(tmp_path, capsys, video, 
     ("registration.scale=5", "registration.scale"),
     ("detection.window_s=0", "detection.window_s"),
     ("registration.max_features=0", "registration.max_features"),
+    # sizes no vehicle needs, which ran for hours or failed deep in OpenCV (a fuzz probe)
+    ("detection.close_px=5000", "detection.close_px"),
+    ("detection.residual_sigma_px=1000000", "detection.residual_sigma_px"),
+    ("detection.shadow_chroma_px=1000000", "detection.shadow_chroma_px"),
+    ("association.min_iters=1000000", "association.min_iters"),
+    ("registration.max_features=3000000000", "registration.max_features"),
 ])
 def test_overwrite_with_a_bad_setting_keeps_the_previous_results(tmp_path, capsys, video,
                                                                   setting, frag):

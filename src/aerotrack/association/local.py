@@ -97,6 +97,11 @@ class LocalAssociator:
                 raise ConfigError(f"config association.{name}: must be >= 0")
         if not 0 < config.extend_gamma < 1:
             raise ConfigError("config association.extend_gamma: must be in (0, 1)")
+        # the sampler's cost grows linearly with these: 10^6 ran for days
+        for name, hi in (("iters_per_ambiguity", 1000), ("min_iters", 100_000)):
+            if not 0 <= getattr(config, name) <= hi:
+                raise ConfigError(f"config association.{name}: must be in [0, {hi}], got "
+                                  f"{getattr(config, name)!r}")
         if config.split_appearance < 0 or config.split_min_gap_s < 0 or config.split_side_obs < 1:
             raise ConfigError("config association.split_appearance and split_min_gap_s must be "
                               ">= 0, split_side_obs >= 1")

@@ -840,15 +840,15 @@ def check_config(c: DetectionConfig) -> None:
         ("min_valid_samples", 1, None, False, False), ("threshold_sigma", 0, None, False, False),
         ("min_threshold", 0, 255, False, True), ("seed_ratio", 1, None, False, False),
         ("seed_sigma", 0, None, False, False), ("gain_block_px", 0, None, False, False),
-        ("close_m", 0, None, False, False), ("exposure_tolerance", 0, None, False, False),
-        ("close_px", 0, None, False, False), ("close_resolved_px", 0, None, False, False),
+        ("close_m", 0, 10, False, False), ("exposure_tolerance", 0, None, False, False),
+        ("close_px", 0, 1000, False, False), ("close_resolved_px", 0, 100, False, False),
         ("min_area_m2", 0, None, False, False), ("min_area_px", 0, None, False, False),
         ("max_length_m", 0, None, True, False), ("max_length_px", 0, None, True, False),
         ("min_width_m", 0, None, False, False), ("min_width_px", 0, None, False, False),
         ("pixel_gates_reference_px", 0, None, False, False),
         ("shadow_beta", 0, 1, False, False), ("shadow_alpha", 0, c.shadow_beta, False, False),
         ("shadow_trim_share", 0, 1, True, False), ("shadow_trim_pool_s", 0, None, False, False),
-        ("structure_ncc", 0, 1, False, False), ("shadow_chroma_px", 0, None, False, False),
+        ("structure_ncc", 0, 1, False, False), ("shadow_chroma_px", 0, 32, False, False),
         ("max_hold_s", 0, None, False, False), ("stationary_lag_s", 0, None, True, False),
         ("min_conf", 0, 1, False, False), ("protect_changed", 0, 1, False, False),
         ("ghost_part_ratio", 0, None, False, False), ("stopping_share", 0, 1, False, False),
@@ -858,6 +858,9 @@ def check_config(c: DetectionConfig) -> None:
         ("regrow_ghost_ratio", 0, None, False, False), ("join_cab_ratio", 0, None, False, False),
         ("split_full_ratio", 0, None, False, False), ("split_colour_dist", 0, None, False, False),
         ("box_edge_level", 0, 1, False, True),
+        # (upper bounds on the kernels' sizes: a 5000 px closing ran for hours, a 10^6 px blur
+        # failed deep in OpenCV; no vehicle needs more)
+        ("residual_sigma_px", 0, 32, False, False),
     ]
     for name, lo, hi, lo_open, hi_open in ranges:
         bound = {"sample_every_s": "window_s", "shadow_alpha": "shadow_beta"}.get(name)

@@ -54,6 +54,9 @@ def check_config(config: RegistrationConfig) -> None:
     for name in ("max_features", "min_inliers", "refine_patch_px", "refine_patches"):
         if getattr(config, name) < 4:
             raise ConfigError(f"config registration.{name}: must be at least 4")
+    if config.max_features > 100_000:  # (3e9 made OpenCV fail on every frame)
+        raise ConfigError(f"config registration.max_features: at most 100000, got "
+                          f"{config.max_features}")
     if config.refine_bins < 2:
         raise ConfigError("config registration.refine_bins: must be at least 2")
     if config.max_scale_change <= 1 or config.max_condition < 1:
