@@ -1613,3 +1613,19 @@ def test_a_full_disk_mid_run_is_one_line_error(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(Path, "write_bytes", full)
     expect_error(capsys, ["No space left on device", "000001.jpg"], "synth", "--out",
                  tmp_path / "s", "--frames", "5", out_dir=tmp_path / "s")
+
+
+def test_options_that_need_another_are_refused_alone(tmp_path, capsys, video, run_dir, dets):
+    """Options accepted without the one they apply to did nothing, silently; and count drew a
+    run's lines and tracks over another video's first frame (render and report refused it)."""
+    expect_error(capsys, ["--fix-gt", "--gt"], "report", run_dir, "--fix-gt", "--no-video")
+    expect_error(capsys, ["--tolerance", "--gt"], "count", run_dir, "--line", "a:0,0,10,10",
+                 "--tolerance", "3")
+    expect_error(capsys, ["--detections-zero-based", "--detections"], "track", video, "--out",
+                 tmp_path / "o", "--detections-zero-based", out_dir=tmp_path / "o")
+    other = write_video(tmp_path / "other.avi", [textured(h=96, w=128, shift=(0, i))
+                                                 for i in range(3)])
+    expect_error(capsys, ["--input", "other.avi", "frames are 128x96"], "count", run_dir,
+                 "--line", "a:0,0,10,10", "--input", other)
+    expect_error(capsys, ["--input", "other.avi", "frames are 128x96"], "report", run_dir,
+                 "--input", other, "--no-video")

@@ -112,8 +112,8 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     if not parsed and lines_path is None:
         raise InputError("no count lines: give --line NAME:x1,y1,x2,y2 (first-frame pixels) or "
                          "--lines FILE.geojson")
-    if gt_path is None and (gt_zero_based or fix_gt):
-        raise InputError("--gt-zero-based and --fix-gt only apply with --gt")
+    if gt_path is None and (gt_zero_based or fix_gt or tolerance_s != 1.0):
+        raise InputError("--gt-zero-based, --fix-gt and --tolerance only apply with --gt")
     from .track_cmd import parse_start_time
 
     clock = parse_start_time(start_time, geomap=True)  # (no "without --map" warning here)
@@ -129,8 +129,13 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     if lines_path is not None and geomap is None:
         raise InputError(f"--lines {lines_path}: GeoJSON lines need a run with a map (this run "
                          "has none); give the lines with --line in first-frame pixels")
-    if input_path is not None and not Path(input_path).exists():
-        raise InputError(f"--input {input_path}: no such file or folder")
+    if input_path is not None:
+        if not Path(input_path).exists():
+            raise InputError(f"--input {input_path}: no such file or folder")
+        from ..io import open_source
+
+        # (its first frame is drawn under the run's lines and tracks: another video's misled)
+        results.check_input(open_source(input_path, results.fps), input_path, "--input")
     out = Path(out_dir) if out_dir is not None else Path(results.path)
     for name in ("crossings.csv", "counts.csv", "movements.csv") + \
             (("count_lines.png",) if picture else ()):

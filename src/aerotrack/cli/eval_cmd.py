@@ -310,6 +310,8 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         lengths[name] = _seq_length(g)
         gt = read_mot(g, option="--gt", strict=False, allow_empty=False, zero_based=gt_zero)
         pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
+        if not len(pred):
+            log.warning("--pred %s: no rows: every ground-truth box counts as missed", p)
         ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
                   if ign is not None else None)
         if ignore_classes:  # before the duplicate check: regions have no identity (VisDrone's 0)

@@ -45,6 +45,8 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     from ..viz.report import ReportOptions, build_report
     from ..viz.results import RunResults
 
+    if gt_path is None and (gt_zero_based or fix_gt):
+        raise InputError("--gt-zero-based and --fix-gt only apply with --gt")
     results = RunResults.load(run_dir)
     if video_width < 16:
         raise InputError(f"--video-width {video_width}: must be at least 16 pixels")
@@ -53,8 +55,12 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
 
         read_mot(gt_path, option="--gt", strict=False, allow_empty=False,
                  zero_based=gt_zero_based)  # before any work
-    if input_path is not None and not Path(input_path).exists():
-        raise InputError(f"--input {input_path}: no such file or folder")
+    if input_path is not None:
+        if not Path(input_path).exists():
+            raise InputError(f"--input {input_path}: no such file or folder")
+        from ..io import open_source
+
+        results.check_input(open_source(input_path, results.fps), input_path, "--input")
     from ..io.output import check_apart, check_writable
 
     if out_path is not None:

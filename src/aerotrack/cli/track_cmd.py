@@ -523,6 +523,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     if resume and overwrite:
         raise InputError("--resume and --overwrite: give one (continue the run in --out, or "
                          "start it again)")
+    if detections_zero_based and detections_path is None and from_dir is None:
+        raise InputError("--detections-zero-based: only with --detections")
     if from_dir is not None:
         given = [name for name, value in (
             ("INPUT", input_path), ("--detections", detections_path), ("--frames", frame_range),
