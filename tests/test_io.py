@@ -265,7 +265,9 @@ def test_output_dir_rules(tmp_path):
     od.write_text("tracks.csv", "x")
     with pytest.raises(OutputError, match="already holds results"):
         OutputDir(d)
-    OutputDir(d, overwrite=True)
+    again = OutputDir(d, overwrite=True)
+    assert (d / "tracks.csv").exists()  # kept until the new results are all written
+    again.finish()
     assert not (d / "tracks.csv").exists()
 
 

@@ -2,11 +2,11 @@
 
 Final files appear atomically: each is written beside its destination under a temporary name and
 renamed into place (``os.replace``), so a killed run never leaves a file that looks complete. Work in
-progress lives in ``DIR/.partial/``; an :class:`OutputDir`'s results are written into
-``DIR/.partial/out/`` and moved into ``DIR`` together once all are written
-(:meth:`OutputDir.finish`), so a run that fails while writing them (a full disk) leaves none of
-them, and with ``--overwrite`` the earlier run's results stay until then (a run that fails or is
-stopped left an empty folder).
+progress lives in ``DIR/.partial/``. Where an :class:`OutputDir` replaces results already there
+(``--overwrite``, ``--resume``), its results are written into ``DIR/.partial/out/`` and moved
+into ``DIR`` together once all are written (:meth:`OutputDir.finish`): the earlier run's results
+stay until then (a run that failed or was stopped left an empty folder), and a run that fails
+while writing (a full disk) leaves them as they were.
 """
 
 from __future__ import annotations
@@ -216,6 +216,7 @@ class OutputDir:
         #: the earlier run's entries, replaced by :meth:`finish` (``overwrite``); until then they
         #: stay, so a run that fails or is stopped leaves them as they were
         self._replaced: list[str] = []
+        self._staging = False
         try:
             if p.is_dir() and overwrite:
                 self._replaced = [e.name for e in entries if e.name != PARTIAL]
@@ -231,6 +232,9 @@ class OutputDir:
             elif resume and record.is_file():
                 self._replaced = [n for n in record.read_text(encoding="utf-8").splitlines()
                                   if n and (p / n).exists()]
+            # results already there are replaced together at the end; a new folder's are written
+            # in place (the Python API reads them from ``path`` without calling ``finish``)
+            self._staging = bool(self._replaced) or resume
             probe = self.partial / ".write-test"
             probe.write_text("")
             probe.unlink()
@@ -248,7 +252,10 @@ class OutputDir:
         return self.partial / STAGED
 
     def file(self, name: str) -> Path:
-        """The path to write result ``name`` to (in :attr:`staged` until :meth:`finish`)."""
+        """The path to write result ``name`` to: in :attr:`staged` until :meth:`finish` where
+        they replace results already there (``overwrite``, ``resume``), else in the folder."""
+        if not self._staging:
+            return self.path / name
         self.staged.mkdir(parents=True, exist_ok=True)
         return self.staged / name
 
