@@ -1629,3 +1629,24 @@ def test_options_that_need_another_are_refused_alone(tmp_path, capsys, video, ru
                  "--line", "a:0,0,10,10", "--input", other)
     expect_error(capsys, ["--input", "other.avi", "frames are 128x96"], "report", run_dir,
                  "--input", other, "--no-video")
+
+
+def test_a_run_that_cannot_write_all_its_results_leaves_none(tmp_path, capsys, monkeypatch,
+                                                             dets):
+    """The disk filled up after tracks.csv and links.csv were written: they were left, with no
+    summary.json. Results are now moved into --out together, once all are written."""
+    from aerotrack.errors import OutputError
+    from aerotrack.io.output import OutputDir
+
+    real = OutputDir.write_text
+
+    def full(self, name, text):
+        if name == "summary.json":
+            raise OutputError(f"{self.path / name}: cannot write (No space left on device)")
+        return real(self, name, text)
+
+    monkeypatch.setattr(OutputDir, "write_text", full)
+    out = tmp_path / "o"
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out)
+    assert code == 2 and "No space left on device" in err, err
+    assert not [p.name for p in out.iterdir() if p.name != ".partial"] if out.exists() else True

@@ -1727,8 +1727,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                                stabilised, geomap=geomap, placement=where,
                                                detections=dets.get(it.name, (None, None))[1])
                     again = _interrupted_with(it, settings, resume)
-                    folder = OutputDir(it.out, resume=True) if again else \
-                        OutputDir(it.out, overwrite=True)
+                    folder = OutputDir(it.out, resume=True, stage=True) if again else \
+                        OutputDir(it.out, overwrite=True, stage=True)
                     from .io.output import atomic_write_text
 
                     atomic_write_text(folder.partial / BATCH_SETTINGS, settings)
@@ -1744,7 +1744,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                  roads=roads, min_speed_mps=min_speed_mps,
                                  detections=dets[it.name][0] if it.name in dets else None)
                 else:
-                    folder = OutputDir(it.out, overwrite=True)
+                    folder = OutputDir(it.out, overwrite=True, stage=True)
                     results = client.gather(futures[it.name][1])
                     result, _ = assemble(results, config=config, fps=src.fps, geomap=geomap,
                                          metres_per_unit=metres_per_unit, stride=stride,

@@ -117,7 +117,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
         ("--ground", ground_path), *(("--roi", r) for r in roi_paths),
         *(("--ignore-region", r) for r in ignore_paths)])
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
-    out = OutputDir(out_dir, overwrite=overwrite)
+    out = OutputDir(out_dir, overwrite=overwrite, stage=True)
     with cleanup:
         info = {"command": "detect", "input": where(input_path), "map": where(map_path),
                 **({"ground": where(ground_path)} if ground_path is not None else {}),

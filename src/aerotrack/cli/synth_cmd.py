@@ -67,7 +67,7 @@ def synth_command(ctx, out_dir, seed, frames, scenario, size_text, fps, gsd_scal
     Scenario.validate(frames=frames, size=size, fps=fps, name=scenario, gsd_scale=gsd_scale)
     check_overwrite(out_dir, overwrite)
     cleanup = CleanupOnBadInput(out_dir, always=True)  # before the folder is made; no --resume
-    out = OutputDir(out_dir, overwrite=overwrite)
+    out = OutputDir(out_dir, overwrite=overwrite, stage=True)
     quiet, verbose = root_flags(ctx)
     progress, close = make_progress(frames, "synth", quiet, verbose)
     with cleanup:

@@ -627,7 +627,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         log.warning("--resume %s: no interrupted run there (no %s/): tracking from the first "
                     "frame", out_dir, PARTIAL)
     cleanup = CleanupOnBadInput(out_dir, resume=resume)  # before the folder is made
-    out = OutputDir(out_dir, overwrite=overwrite, resume=resume, resumable=True)
+    out = OutputDir(out_dir, overwrite=overwrite, resume=resume, resumable=True, stage=True)
     with cleanup:
         resume_manifest(out.partial, manifest, resume)
     quiet, verbose = root_flags(ctx)
@@ -1123,7 +1123,7 @@ def _track_from_cache(ctx, from_dir: Path, out_dir: Path, config, map_path, seed
                          "with --overwrite (its stages/ are kept)")
     # a damaged stage is found once the folder is made: leave none behind (never the --from one)
     cleanup = CleanupOnBadInput(out_dir, resume=same)
-    out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same)
+    out = OutputDir(out_dir, overwrite=overwrite and not same, resume=same, stage=True)
     t0 = time.perf_counter()
     with cleanup:
         still = prev.get("still_placement")

@@ -186,10 +186,14 @@ class OutputDir:
     resumable : bool
         Whether the command has ``--resume`` (``track``, ``batch``), for the message that refuses
         a folder holding results.
+    stage : bool
+        Write results into :attr:`staged` for :meth:`finish` to move in even into a new folder
+        (the command line: a run that fails while writing them leaves none). Without it a new
+        folder's results are written in place.
     """
 
     def __init__(self, path: str | Path, *, overwrite: bool = False, resume: bool = False,
-                 option: str = "--out", resumable: bool = False) -> None:
+                 option: str = "--out", resumable: bool = False, stage: bool = False) -> None:
         if overwrite and resume:
             raise OutputError("--overwrite and --resume cannot be used together")
         self.path = Path(path)
@@ -234,7 +238,7 @@ class OutputDir:
                                   if n and (p / n).exists()]
             # results already there are replaced together at the end; a new folder's are written
             # in place (the Python API reads them from ``path`` without calling ``finish``)
-            self._staging = bool(self._replaced) or resume
+            self._staging = stage or bool(self._replaced) or resume
             probe = self.partial / ".write-test"
             probe.write_text("")
             probe.unlink()
