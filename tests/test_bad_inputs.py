@@ -1650,3 +1650,16 @@ def test_a_run_that_cannot_write_all_its_results_leaves_none(tmp_path, capsys, m
     code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out)
     assert code == 2 and "No space left on device" in err, err
     assert not [p.name for p in out.iterdir() if p.name != ".partial"] if out.exists() else True
+
+
+def test_a_region_of_interest_off_the_frame_is_pointed_out(tmp_path, capsys, video):
+    """An --roi wholly outside the frame (coordinates in the wrong space) dropped every detection
+    without a word."""
+    roi = tmp_path / "roi.csv"
+    roi.write_text("x,y\n10000,10000\n10100,10000\n10100,10100\n")
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "o", "--roi", roi)
+    assert code == 0 and "lies wholly outside the 160x120 frame" in err, err
+    inside = tmp_path / "in.csv"
+    inside.write_text("x,y\n0,0\n100,0\n100,100\n")
+    code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "o2", "--roi", inside)
+    assert code == 0 and "wholly outside" not in err, err

@@ -106,7 +106,7 @@ def detect_command(ctx, input_path, out_dir, map_path, map_init_path, telemetry_
         start=start, config=config, telemetry_defaults=telemetry_defaults,
         ground_path=ground_path)
     check_frame_range(frame_range, start, source.count, stop)
-    regions = load_regions(roi_paths, ignore_paths, geomap)
+    regions = load_regions(roi_paths, ignore_paths, geomap, source.size)
     check_config(config, fps)  # before --out is touched
     check_overwrite(out_dir, overwrite)
     from ..io.output import check_outside

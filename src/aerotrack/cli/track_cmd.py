@@ -359,15 +359,34 @@ def _check_ground(size, H, label: str) -> None:
                                 "coordinates in metres?")
 
 
-def load_regions(roi_paths, ignore_paths, geomap) -> list:
-    """The ``--roi`` (include) and ``--ignore-region`` regions, in that order."""
+def load_regions(roi_paths, ignore_paths, geomap, frame_size=None) -> list:
+    """The ``--roi`` (include) and ``--ignore-region`` regions, in that order. An ``--roi``
+    that cannot hold anything the run sees (wholly outside the ``frame_size`` frame, for one in
+    frame pixels, or off the map) is named in a warning: every detection would be dropped."""
     if not roi_paths and not ignore_paths:
         return []
+    import numpy as np
+
     from ..geo.roi import read_region
 
-    return ([read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
-            + [read_region(p, geomap, mode="ignore", option="--ignore-region")
-               for p in ignore_paths])
+    regions = ([read_region(p, geomap, mode="include", option="--roi") for p in roi_paths]
+               + [read_region(p, geomap, mode="ignore", option="--ignore-region")
+                  for p in ignore_paths])
+    for path, r in zip(roi_paths, regions):
+        if r.space == "frame" and frame_size is not None:
+            w, h, where = frame_size[0], frame_size[1], f"the {frame_size[0]}x{frame_size[1]} frame"
+        elif r.space == "world" and geomap is not None:
+            w, h, where = geomap.width, geomap.height, "the map"
+        else:  # (frame-1 pixels on a moving camera: it may come into view later)
+            continue
+        pts = np.vstack([ring for poly in r.polygons for ring in poly[:1]]) if r.polygons \
+            else np.zeros((0, 2))
+        if len(pts) and (pts[:, 0].max() < 0 or pts[:, 1].max() < 0 or pts[:, 0].min() > w
+                         or pts[:, 1].min() > h):
+            log.warning("--roi %s: lies wholly outside %s, so every detection is dropped: "
+                        "are its coordinates in the right space (frame pixels, or the map's "
+                        "CRS)?", path, where)
+    return regions
 
 
 def check_frame_range(frame_range: str | None, start: int, last: int,
@@ -571,7 +590,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         workers=workers if workers and not scheduler else 1)
     metres_per_unit = 1.0 if ground_path is not None else (None if geomap else gsd)
     roads = load_roads(roads_path, geomap, config)
-    regions = load_regions(roi_paths, ignore_paths, geomap)
+    regions = load_regions(roi_paths, ignore_paths, geomap,
+                           getattr(source, "size", None) if source is not None else None)
     check_out_crs(out_crs, geomap)
     start_time = parse_start_time(start_time, geomap)
     last = source.count if source is not None else (int(dets[:, 0].max()) if len(dets) else 0)
