@@ -1663,3 +1663,14 @@ def test_a_region_of_interest_off_the_frame_is_pointed_out(tmp_path, capsys, vid
     inside.write_text("x,y\n0,0\n100,0\n100,100\n")
     code, _, err = run_cli(capsys, "track", video, "--out", tmp_path / "o2", "--roi", inside)
     assert code == 0 and "wholly outside" not in err, err
+
+
+def test_a_batch_input_that_fails_leaves_no_folder(tmp_path, capsys):
+    """An image folder whose third image has another size failed (reported) but left
+    OUT/<name>/.partial behind; `track` leaves nothing for a bad input, and so does batch now."""
+    frames = [textured(shift=(0, i)) for i in range(4)]
+    frames[2] = cv2.resize(frames[2], (80, 60))
+    write_frames(tmp_path / "in" / "g", frames)
+    code, _, err = run_cli(capsys, "batch", tmp_path / "in", "--out", tmp_path / "out")
+    assert code == 2 and "g: failed:" in err and "expected 160x120" in err, err
+    assert not (tmp_path / "out" / "g").exists()

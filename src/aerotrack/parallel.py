@@ -91,6 +91,7 @@ import logging
 import math
 import os
 import pickle
+import shutil
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -1717,7 +1718,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         src = sources.get(it.name)
         if src is None or it.name in out:
             continue
-        summary = error = None
+        summary = error = folder = None
+        again = False  # continuing an interrupted run (its checkpoints are kept whatever happens)
         with _messages_named(Path(it.input).name):  # whose run a message is about
             t0 = time.perf_counter()
             try:
@@ -1771,6 +1773,12 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                 folder.finish(keep_as="stages")  # like `aerotrack track`: `track --from` reuses them
             except Exception as exc:  # noqa: BLE001  as above: logged and returned per input
                 error = exc
+                if isinstance(exc, InputError) and folder is not None and not again:
+                    # a bad input (an unreadable frame): nothing to resume, so nothing kept, as
+                    # `track` keeps nothing (its .partial/ was left, or a folder of only that)
+                    shutil.rmtree(folder.partial, ignore_errors=True)
+                    if folder.path.is_dir() and not any(folder.path.iterdir()):
+                        folder.path.rmdir()
         if error is not None:
             fail(it, error)
         else:
