@@ -542,6 +542,17 @@ def test_placement_sidecars_are_the_inputs_own(tmp_path):
     assert [p.name for p in init] == ["a.map-init.csv"]
     assert [p.name for p in tel] == ["a.SRT"]
     assert placement_sidecars(tmp_path / "ab.mp4") == ([tmp_path / "ab.map-init.txt"], [])
+    # near misses are named, not "put one beside it" when one is there
+    from aerotrack.geo.init import sidecar_placement
+
+    (tmp_path / "e.mp4").write_text("x")
+    (tmp_path / "E.SRT").write_text("x")
+    (tmp_path / "f.mp4").write_text("x")
+    (tmp_path / "f.map-init.txt").mkdir()
+    with pytest.raises(InputError, match="E.SRT beside it is not named after it"):
+        sidecar_placement(tmp_path / "e.mp4", None, None)
+    with pytest.raises(InputError, match="f.map-init.txt beside it is a folder"):
+        sidecar_placement(tmp_path / "f.mp4", None, None)
 
 
 def test_track_command_runs_on_the_cluster(tmp_path, scene, client):

@@ -232,6 +232,14 @@ def sidecar_placement(input_path: str | Path, source, geomap: GeoMap, *,
     stem = p.name if p.is_dir() else p.stem
     found = init + tel
     if not found:
+        near = [q.name for q in sorted(p.parent.iterdir()) if q.name.lower().startswith(
+            stem.lower() + ".") and q.name[len(stem):].lower() in (*MAP_INIT_SIDECARS,
+                                                                  *TELEMETRY_SIDECARS)]
+        if near:  # there, but as a folder or with the name in another case
+            q = p.parent / near[0]
+            raise InputError(f"{p}: {near[0]} beside it is " + (
+                "a folder, not a file" if q.is_dir() else
+                f"not named after it ({stem!r} in another case)") + "; it places nothing")
         raise InputError(
             f"{p}: nothing places it on --map: put {stem}.map-init.txt (frame 1 -> map: a 3x3 "
             f"homography, or control points as {stem}.map-init.csv or {stem}.points, as "
