@@ -71,14 +71,20 @@ def _seq_length(gt_file: Path) -> int | None:
         return None
     import configparser
 
-    cp = configparser.ConfigParser()
+    cp = configparser.ConfigParser(interpolation=None)
     try:
-        cp.read(ini, encoding="utf-8")
-        n = cp.getint("Sequence", "seqLength", fallback=None)
+        cp.read(ini, encoding="utf-8-sig")  # (a BOM, as the frame reader takes it)
+        section = next((n for n in cp.sections() if n.lower() == "sequence"), None)
+        n = cp.getint(section, "seqLength", fallback=None) if section else None
     except (configparser.Error, ValueError, UnicodeDecodeError):
-        log.warning("%s: unreadable; the sequence is scored up to its last annotated frame", ini)
+        log.warning("%s: unreadable seqLength; the sequence is scored up to its last annotated "
+                    "frame", ini)
         return None
-    return n if n is not None and n >= 1 else None
+    if n is not None and n < 1:
+        log.warning("%s: seqLength %d is not a frame count; the sequence is scored up to its "
+                    "last annotated frame", ini, n)
+        return None
+    return n
 
 
 def _unused_ignore_hint(pairs) -> None:
