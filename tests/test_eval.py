@@ -698,3 +698,21 @@ def test_zero_size_ground_truth_boxes_are_pointed_out(tmp_path, capsys):
     code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt"],
                         capsys)
     assert code == 0 and "1 boxes with a zero width or height" in err, err
+
+
+def test_folder_scoring_names_what_it_leaves_out_or_chooses(tmp_path, capsys):
+    """A sequence folder without gt/gt.txt was left out of the scores silently, and of an empty
+    SEQ.txt beside a run's SEQ/tracks.csv the empty file was scored without a word."""
+    gt_dir, pred_dir = tmp_path / "gt", tmp_path / "pred"
+    for name in ("A", "B"):
+        (gt_dir / name / "gt").mkdir(parents=True)
+        (gt_dir / name / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\n")
+    write_mot(gt_dir / "A" / "gt" / "gt.txt", _two_targets(10))
+    (gt_dir / "B" / "gt" / "GT.txt").write_text("")  # misnamed: B has no gt/gt.txt
+    (pred_dir / "A").mkdir(parents=True)
+    write_mot(pred_dir / "A" / "tracks.csv", _two_targets(10))
+    (pred_dir / "A.txt").write_text("")
+    code, _, err = _run(["eval", "--gt", gt_dir, "--pred", pred_dir], capsys)
+    assert code == 0, err
+    assert "1 sequence folder(s) without gt/gt.txt are not scored: B" in err, err
+    assert "A.txt and A/tracks.csv for sequence 'A'" in err, err

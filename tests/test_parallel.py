@@ -975,3 +975,33 @@ def test_segments_of_known_detections_on_a_map_keep_the_still_placement():
         assert evaluate(gt, track_rows(r, geomap)[0])["HOTA"] > 0.9
         world = np.concatenate([t.world() for t in r.tracks])
         assert world[:, 0].min() > 300  # map pixels, not the detections' own
+
+
+def test_batch_names_an_input_whose_detections_changed_and_keeps_quiet_on_own_rates(tmp_path,
+                                                                                    capsys):
+    """A det.txt regenerated in place after its sequence was tracked was skipped silently; and a
+    batch run again with --fps warned "finished with other --fps" for sequences that keep their
+    own rate whatever --fps says."""
+    import os
+
+    from conftest import run_cli
+
+    seq = tmp_path / "bench" / "S1"
+    (seq / "img1").mkdir(parents=True)
+    (seq / "det").mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(12):
+        cv2.imwrite(str(seq / "img1" / f"{i + 1:06d}.png"),
+                    rng.integers(0, 255, (60, 80, 3), dtype=np.uint8))
+    (seq / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\nframeRate=30\n")
+    det = seq / "det" / "det.txt"
+    det.write_text("".join(f"{f},-1,{10 + f},10,8,4,0.9\n" for f in range(1, 13)))
+    args = ["batch", tmp_path / "bench", "--out", tmp_path / "out", "--detections", "det/det.txt"]
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0, err
+    code, _, err = run_cli(capsys, *args, "--fps", "30")
+    assert "already finished, skipped" in err and "other --fps" not in err, err
+    det.write_text("".join(f"{f},-1,{10 + f},10,8,4,0.9\n" for f in range(1, 7)))
+    os.utime(det, ns=(det.stat().st_atime_ns, det.stat().st_mtime_ns + 10**9))
+    code, _, err = run_cli(capsys, *args)
+    assert "S1: finished with other detections (det.txt changed since)" in err, err

@@ -1461,7 +1461,8 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
         changed.append("--stride")
     if "gsd" in summary and summary["gsd"] != metres_per_unit:
         changed.append("--gsd")
-    if "fps_given" in summary and summary["fps_given"] != fps:
+    # (compared as it applies to this input: a video or sequence that names its rate keeps it)
+    if "fps_given" in summary and summary["fps_given"] not in (fps, item_fps(item.input, fps)):
         changed.append("--fps")
     if bool(summary.get("stabilised", False)) != stabilised:
         changed.append("--stabilised")
@@ -1478,6 +1479,9 @@ def batch_changes(item: BatchItem, *, config: Config, fps: float | None, seed: i
         own = None
     if summary.get("detections") != own:
         changed.append("--detections")
+    elif own is not None and "detections_file" in summary \
+            and summary["detections_file"] != file_fingerprint(Path(own)):
+        changed.append(f"detections ({Path(own).name} changed since)")
     for key in BATCH_MAP_OPTIONS:  # --roads, --min-speed, --out-crs: absent when not given
         if summary.get(key) != (run_info or {}).get(key):
             changed.append("--" + key.replace("_", "-"))
@@ -1502,7 +1506,8 @@ def _batch_settings(item: BatchItem, config: Config, fps, seed, metres_per_unit,
     on_map = {"map": str(Path(geomap.path).resolve()), **(placement or {}),
               "placement": placement_fingerprint(item.input)} \
         if geomap is not None else {}  # (absent without a map: earlier batches' files match)
-    own = {"detections": str(Path(detections).resolve())} if detections is not None else {}
+    own = {"detections": str(Path(detections).resolve()),
+           "detections_file": file_fingerprint(detections)} if detections is not None else {}
     return json.dumps({"input": str(Path(item.input).resolve()), "fps": fps, "seed": seed,
                        "gsd": metres_per_unit, "stride": stride, "stabilised": stabilised,
                        **on_map, **own, "config": dumps_config(config)}, indent=1) + "\n"
@@ -1544,6 +1549,16 @@ def _check_item_folder(item: BatchItem) -> None:
     if foreign:
         raise OutputError(f"{item.out}: holds files aerotrack did not write (e.g. "
                           f"{foreign[0]!r}); move them, or give another --out")
+
+
+def file_fingerprint(path) -> str | None:
+    """A file's ``size mtime_ns`` (None when it is gone): a batch names an input whose
+    detections file was regenerated in place since it was tracked."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return None
+    return f"{st.st_size} {st.st_mtime_ns}"
 
 
 def item_detections_path(input_path, pattern: str) -> Path:
@@ -1753,12 +1768,13 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                                          parallel=parallel, roads=roads,
                                          min_speed_mps=min_speed_mps)
                 info = {"input": str(Path(it.input).resolve()), "seed": seed, "stride": stride,
-                        "gsd": metres_per_unit, "fps_given": fps,
+                        "gsd": metres_per_unit, "fps_given": given[it.name],
                         **({"stabilised": True} if stabilised else {}),
                         **({"map": str(Path(geomap.path).resolve()),
                             "placement": placement_fingerprint(it.input),
                             "options": where} if geomap is not None else {}),
-                        **({"detections": str(dets[it.name][1].resolve())}
+                        **({"detections": str(dets[it.name][1].resolve()),
+                            "detections_file": file_fingerprint(dets[it.name][1])}
                            if it.name in dets else {}),
                         **(run_info or {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3), **notes}

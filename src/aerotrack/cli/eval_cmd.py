@@ -40,6 +40,11 @@ def _gt_files(folder: Path) -> list[Path]:
     entries = [d for d in folder.iterdir() if not d.name.startswith(".")]  # macOS ._ files
     mot = sorted(d / "gt" / "gt.txt" for d in entries if (d / "gt" / "gt.txt").is_file())
     if mot:
+        lost = sorted(d.name for d in entries if (d / "seqinfo.ini").is_file()
+                      and not (d / "gt" / "gt.txt").is_file())
+        if lost:  # a sequence left out of the scores without a word
+            log.warning("--gt %s: %d sequence folder(s) without gt/gt.txt are not scored: %s",
+                        folder, len(lost), ", ".join(lost))
         return mot
     files = sorted(p for p in entries if p.is_file() and p.suffix in _MOT_EXTS
                    and not p.stem.endswith(_GT_SKIP_SUFFIXES))
@@ -53,10 +58,13 @@ def _gt_files(folder: Path) -> list[Path]:
 
 
 def _find_in(folder: Path, seq: str, option: str, candidates: list[str]) -> Path:
-    for c in candidates:
-        p = folder / c
-        if p.is_file():
-            return p
+    found = [folder / c for c in candidates if (folder / c).is_file()]
+    if len(found) > 1:  # (an empty SEQ.txt beside a run's SEQ/tracks.csv was scored silently)
+        log.warning("%s %s: %s for sequence %r; scoring %s", option, folder,
+                    " and ".join(p.name if p.parent == folder else f"{p.parent.name}/{p.name}"
+                                 for p in found), seq, found[0])
+    for p in found:
+        return p
     raise InputError(f"{option} {folder}: no file for sequence {seq!r} "
                      f"(looked for {', '.join(candidates)})")
 
