@@ -1663,7 +1663,9 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         that item; finished items are not run. ``on_done(item, summary, error)`` is called after
         each item.
 
-    In this process, ``progress`` is called after each frame of the item being tracked; an
+    In this process, ``progress`` is called after each frame of the item being tracked (and
+    with 0 before each item, so that an interruption during the previous one's finish stops the
+    batch there); an
     interruption it raises (``KeyboardInterrupt``) stops the batch with that item's checkpoints
     kept, and the next batch over the same inputs and settings resumes the item from them
     (``.partial/batch.json`` records the settings; it was tracked again from frame 1); ``resume``
@@ -1733,6 +1735,10 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
         src = sources.get(it.name)
         if src is None or it.name in out:
             continue
+        if client is None and progress is not None:
+            # an interruption that came while the previous input was being finished (linked,
+            # written) stops the batch here, not after the next input's first frame
+            progress(0)
         summary = error = folder = None
         again = False  # continuing an interrupted run (its checkpoints are kept whatever happens)
         with _messages_named(Path(it.input).name):  # whose run a message is about
