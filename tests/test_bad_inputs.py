@@ -1675,3 +1675,12 @@ def test_a_batch_input_that_fails_leaves_no_folder(tmp_path, capsys):
     code, _, err = run_cli(capsys, "batch", tmp_path / "in", "--out", tmp_path / "out")
     assert code == 2 and "g: failed:" in err and "expected 160x120" in err, err
     assert not (tmp_path / "out" / "g").exists()
+
+
+def test_raw_detector_scores_say_what_becomes_of_them(tmp_path, capsys):
+    """Raw scores (MOT17's DPM: -0.8 to 3.5) were clipped to [0, 1] with a warning that did not
+    say the negative ones then fall under detection.min_conf and are dropped (19% of a file)."""
+    p = tmp_path / "raw.txt"
+    p.write_text("1,-1,10,10,8,4,-0.5\n1,-1,40,10,8,4,2.5\n2,-1,12,10,8,4,0.9\n")
+    code, _, err = run_cli(capsys, "track", "--detections", p, "--out", tmp_path / "o")
+    assert code == 0 and "the 1 below 0 become 0 and are dropped by detection.min_conf" in err, err

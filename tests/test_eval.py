@@ -606,6 +606,8 @@ def test_classes_score_vehicles_of_a_mixed_ground_truth(tmp_path, capsys):
     code, out, err = _run([*args, "--classes", "4", "--ignore-classes", "0", "--fix-gt"], capsys)
     assert code == 0 and json.loads(out)["MOTA"] == pytest.approx(1.0), err
     assert "flagged 0" not in err  # VisDrone's flagged rows are its ignored regions
+    code, out, err = _run(args[:-1] + ["--classes", "4", "--ignore-classes", "0"], capsys)
+    assert "0 predictions in ignore regions dropped" in out, out  # (said, as --ignore says it)
     for extra, msg in ((["--classes", "3"], "no ground-truth row of these classes in column 8"),
                        (["--classes", "car"], "expected class ids separated by commas"),
                        (["--classes", "4", "--class-column", "12"], "no class in column 12"),

@@ -431,7 +431,8 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     c = res["combined"]
     click.echo(f"TP {c['TP']}  FP {c['FP']}  FN {c['FN']}  MT {c['MT']}  PT {c['PT']}  ML {c['ML']}"
                f"  IDP {c['IDP']:.3f}  IDR {c['IDR']:.3f}  (IoU {iou_threshold:g}"
-               + (f", {c['ignored_pred']} predictions in ignore regions dropped" if ignores else "")
+               + (f", {c['ignored_pred']} predictions in ignore regions dropped"
+                  if ignores or ignore_classes else "")
                + (", corrected ground truth" if fix_gt else "") + ")")
     if geo is not None:
         click.echo(f"geo error over {geo['matches']} matched boxes: median {geo['median_m']:.2f} m, "

@@ -328,9 +328,13 @@ def check_detections(dets: np.ndarray, label: str, source=None, *, lines=None,
     conf = dets[:, 6]
     outside = (conf < 0) | (conf > 1)
     if outside.any():
+        below = int((conf < 0).sum())
+        drop = (f"; the {below} below 0 become 0 and are dropped by detection.min_conf "
+                f"{min_conf:g} (raw detector scores, as MOT17's DPM ones? rescale them to [0, 1] "
+                "first, or --min-conf 0 keeps every box)") if below and min_conf else ""
         _log.warning("%s: %d confidence(s) outside [0, 1] (from %g to %g; first: %s) are clipped "
-                    "to it", label, int(outside.sum()), float(conf.min()), float(conf.max()),
-                    line(int(outside.argmax())))
+                     "to it%s", label, int(outside.sum()), float(conf.min()), float(conf.max()),
+                     line(int(outside.argmax())), drop)
     conf = np.clip(conf, 0.0, 1.0)
     if min_conf is not None and min_conf > 0:
         low = conf < min_conf
