@@ -213,6 +213,11 @@ def read_mot(path: str | Path, *, option: str | None = None, strict: bool = True
     data, linenos = _parse(text, label, zero_based=zero_based)
     if detections and len(data):
         data[:, 1] = -1.0
+        zero = (data[:, 4] == 0) | (data[:, 5] == 0)
+        if zero.any():  # a degenerate box of a detector: nothing to track, not a broken file
+            _log.warning("%s: %d box(es) of zero width or height dropped (first: line %d)", label,
+                         int(zero.sum()), int(linenos[np.flatnonzero(zero)[0]]))
+            data, linenos = data[~zero], linenos[~zero]
     if not len(data) and not allow_empty:
         raise InputError(f"{label}: no rows")
     shown = "0-based " if zero_based else ""
