@@ -461,6 +461,16 @@ def test_a_motchallenge_sequence_folder_is_read_from_its_image_folder(tmp_path, 
     (linked / "seqinfo.ini").write_text("[Sequence]\nimDir=../MOT-01/img1\n")
     with pytest.raises(InputError, match="not a folder inside"):
         open_source(linked)
+    # a missing image: frames keep the files' numbers (as the sequence's gt.txt and det.txt do)
+    gap = tmp_path / "seqs2" / "GAP"
+    (gap / "img1").mkdir(parents=True)
+    for i in (1, 2, 4):
+        cv2.imwrite(str(gap / "img1" / f"{i:06d}.jpg"), np.full((24, 32, 3), 40 * i, np.uint8))
+    (gap / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\nframeRate=25\n")
+    src = open_source(gap)
+    got = [(f.index, int(f.image[0, 0, 0])) for f in src.frames()]
+    assert src.count == 4 and [i for i, _ in got] == [1, 2, 4] and src.skipped_frames == {3}
+    assert abs(got[2][1] - 160) <= 2  # frame 4 is 000004.jpg (JPEG rounding aside)
     (seq / "seqinfo.ini").write_text("[Sequence]\nimDir=img1\nframeRate=fast\n")
     code, _, err = run_cli(capsys, "track", seq, "--out", tmp_path / "run")
     assert code == 2 and "seqinfo.ini: frameRate 'fast' is not a positive number" in err

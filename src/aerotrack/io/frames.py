@@ -145,7 +145,8 @@ def _check_fps(fps: float | None, label: str) -> float | None:
 class VideoSource(FrameSource):
     """A video file anything OpenCV/FFmpeg decodes."""
 
-    def __init__(self, path: str | Path, fps: float | None = None) -> None:
+    def __init__(self, path: str | Path, fps: float | None = None, *,
+                 by_name: bool = False) -> None:
         self.path = Path(path)
         fps = _check_fps(fps, str(self.path))
         cap = cv2.VideoCapture(str(self.path))
@@ -297,7 +298,8 @@ class ImageFolderSource(FrameSource):
     object enters, which the background would take for motion.
     """
 
-    def __init__(self, path: str | Path, fps: float | None = None) -> None:
+    def __init__(self, path: str | Path, fps: float | None = None, *,
+                 by_name: bool = False) -> None:
         self.path = Path(path)
         self.fps = _check_fps(fps, str(self.path)) or DEFAULT_FOLDER_FPS
         self.files = sorted(
@@ -319,7 +321,23 @@ class ImageFolderSource(FrameSource):
                 raise InputError(f"{self.path}: both {stems[key].name} and {f.name}: one "
                                  "image per frame expected (which comes first?)")
             stems[key] = f
-        _warn_numbering_gaps(self.path, self.files)
+        #: with ``by_name`` and files named by numbers only (a MOTChallenge sequence's 000001.jpg):
+        #: frame n is the file numbered n, None where none is (a missing image: skipped, as an
+        #: undecodable one); else frame n is the n-th file
+        self._slots: list[Path | None] | None = None
+        nums = [int(f.stem) if f.stem.isdigit() else 0 for f in self.files]
+        if by_name and min(nums) >= 1 and len(set(nums)) == len(nums):
+            self._slots = [None] * max(nums)
+            for n, f in zip(nums, self.files):
+                self._slots[n - 1] = f
+            missing = [i + 1 for i, f in enumerate(self._slots) if f is None]
+            if missing:
+                logging.getLogger(__name__).warning(
+                    "%s: no image for %d frame%s (first: frame %d): frames are numbered by the "
+                    "files' names, as the sequence's annotations are, and those are skipped",
+                    self.path, len(missing), "s" * (len(missing) != 1), missing[0])
+        else:
+            _warn_numbering_gaps(self.path, self.files)
         #: (low, high) values mapped to 0 and 255 for frames of more than 8 bits, else None.
         self.depth_range: tuple[float, float] | None = None
         #: Frames whose image could not be decoded (skipped with a warning), for summary.json.
@@ -338,7 +356,7 @@ class ImageFolderSource(FrameSource):
                 self.path, raw.dtype, *self.depth_range)
         first = self._read(self.files[0])
         self.size = (first.shape[1], first.shape[0])
-        self.count = len(self.files)
+        self.count = len(self._slots) if self._slots is not None else len(self.files)
 
     def _decode(self, p: Path) -> np.ndarray:
         flags = cv2.IMREAD_UNCHANGED if getattr(self, "alpha", False) else \
@@ -414,9 +432,12 @@ class ImageFolderSource(FrameSource):
         return _opaque_bgr(img8)
 
     def frames(self, start: int = 1, stop: int | None = None, stride: int = 1) -> Iterator[Frame]:
-        last = len(self.files) if stop is None else min(stop, len(self.files))
+        last = self.count if stop is None else min(stop, self.count)
         for index in range(start, last + 1, stride):
-            p = self.files[index - 1]
+            p = self.files[index - 1] if self._slots is None else self._slots[index - 1]
+            if p is None:  # no file of this number (said once when the folder was opened)
+                self.skipped_frames.add(index)
+                continue
             try:
                 img = self._read(p)
             except UnreadableImage as exc:  # one bad file must not end a long run
@@ -805,7 +826,7 @@ def open_source(path: str | Path, fps: float | None = None) -> FrameSource:
             logging.getLogger(__name__).info(
                 "%s: a MOTChallenge sequence: frames from %s/%s", p, images.name,
                 f", {rate:g} frames/s ({SEQINFO})" if fps is None and rate else "")
-            return ImageFolderSource(images, fps if fps is not None else rate)
+            return ImageFolderSource(images, fps if fps is not None else rate, by_name=True)
         return ImageFolderSource(p, fps)
     if p.stat().st_size == 0:
         raise InputError(f"{p}: file is empty")
