@@ -1005,6 +1005,12 @@ def test_batch_names_an_input_whose_detections_changed_and_keeps_quiet_on_own_ra
     os.utime(det, ns=(det.stat().st_atime_ns, det.stat().st_mtime_ns + 10**9))
     code, _, err = run_cli(capsys, *args)
     assert "S1: finished with other detections (det.txt changed since)" in err, err
+    assert "1 skipped (1 of them tracked with other settings)" in err, err  # (the last line too)
+    # --min-conf, as track's: every box here is 0.9
+    code, _, err = run_cli(capsys, "batch", tmp_path / "bench", "--out", tmp_path / "out2",
+                           "--detections", "det/det.txt", "--min-conf", "0.95")
+    assert code == 0, err
+    assert (tmp_path / "out2" / "S1" / "detections.csv").read_text() == ""
 
 
 def test_an_interrupt_while_an_input_is_finished_stops_before_the_next(tmp_path, scene):

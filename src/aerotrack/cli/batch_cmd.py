@@ -37,6 +37,9 @@ log = logging.getLogger("aerotrack")
                    "name: dets/{name}.txt.")
 @click.option("--detections-zero-based", "detections_zero_based", is_flag=True,
               help="The --detections files number frames from 0; 1 is added.")
+@click.option("--min-conf", "min_conf", type=float, default=None,
+              help="Drop detections whose confidence is below this (0-1; sets "
+                   "detection.min_conf), as track's --min-conf.")
 @click.option("--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
               help="With --map: a value for a column the flight logs lack (repeatable), as "
                    "track's --telemetry-default.")
@@ -72,7 +75,7 @@ log = logging.getLogger("aerotrack")
 def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, overrides, stride, workers,
                   scheduler, segment_s, overwrite, stabilised=False, map_path=None,
                   telemetry_defaults=(), roads_path=None, min_speed=None, out_crs=None,
-                  detections=None, detections_zero_based=False):
+                  detections=None, detections_zero_based=False, min_conf=None):
     """Track every video file and image-folder sub-folder of INPUT_DIR.
 
     Inputs whose output folder already has a summary.json are skipped (a finished run), so an
@@ -111,6 +114,10 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     check_positive(fps, "--fps")
     if not segment_s > 0:
         raise InputError(f"--segment-s {segment_s}: must be positive")
+    if min_conf is not None:  # (as track's: the option beats --config/--set)
+        if not 0.0 <= min_conf <= 1.0:
+            raise InputError(f"--min-conf {min_conf}: must be a confidence between 0 and 1")
+        overrides = (*overrides, f"detection.min_conf={min_conf!r}")
     config = load_config(config_path, overrides)
     check_config(config, fps)  # once, before any input is tracked
     geomap, roads, run_info = map_options(map_path, telemetry_defaults, roads_path, min_speed,
@@ -155,6 +162,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         click.echo(f"aerotrack: {path.name}: failed: {path}: {why}", err=True)
     if overwrite:
         items = [replace(it, done=False) for it in items]
+    kept_other = 0  # finished inputs kept although tracked with other settings
     for it in items:
         if not it.done:
             continue
@@ -162,6 +170,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
                                 stride=stride, stabilised=stabilised, geomap=geomap,
                                 run_info=run_info, detections=detections)
         if changed:  # a warning: shown even with -q
+            kept_other += 1
             click.echo(f"aerotrack: WARNING: {Path(it.input).name}: finished with other "
                        f"{', '.join(changed)}; kept as it is (--overwrite tracks it again)",
                        err=True)
@@ -196,7 +205,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     tracked = sum(1 for r in results.values() if not isinstance(r, BaseException))
     done = sum(1 for it in items if it.done)
     if not quiet:
-        click.echo(f"aerotrack: batch: {tracked} tracked, {done} skipped, "
+        other = f" ({kept_other} of them tracked with other settings)" if kept_other else ""
+        click.echo(f"aerotrack: batch: {tracked} tracked, {done} skipped{other}, "
                    f"{len(failed)} failed", err=True)
     if failed:
         raise InputError(f"batch: {len(failed)} of {len(items) + len(unusable)} inputs failed: "
