@@ -10,6 +10,8 @@ import click
 from .common import (
     check_positive,
     config_option,
+    detections_zero_based_option,
+    min_conf_option,
     root_flags,
     seed_option,
     set_option,
@@ -35,11 +37,8 @@ log = logging.getLogger("aerotrack")
                    "detector: a path inside each input folder (det/det.txt: a MOTChallenge "
                    "sequence's public detections), or a pattern naming a file per input by its "
                    "name: dets/{name}.txt.")
-@click.option("--detections-zero-based", "detections_zero_based", is_flag=True,
-              help="The --detections files number frames from 0; 1 is added.")
-@click.option("--min-conf", "min_conf", type=float, default=None,
-              help="Drop detections whose confidence is below this (0-1; sets "
-                   "detection.min_conf), as track's --min-conf.")
+@detections_zero_based_option
+@min_conf_option
 @click.option("--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
               help="With --map: a value for a column the flight logs lack (repeatable), as "
                    "track's --telemetry-default.")

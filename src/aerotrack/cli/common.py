@@ -29,6 +29,13 @@ config_option = click.option("--config", "config_path", type=click.Path(dir_okay
                              help="TOML file with per-stage parameters (see config.toml of any run).")
 set_option = click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
                           help="Override one config parameter (repeatable).")
+detections_zero_based_option = click.option(
+    "--detections-zero-based", "detections_zero_based", is_flag=True,
+    help="--detections numbers frames from 0 (as many detectors do); 1 is added.")
+min_conf_option = click.option(
+    "--min-conf", "min_conf", type=float, default=None,
+    help="Drop detections whose confidence is below this (0-1; sets detection.min_conf, default "
+         "0.05): for a detector's low-confidence boxes.")
 
 
 ground_option = click.option(

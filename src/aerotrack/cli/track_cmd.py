@@ -16,6 +16,7 @@ from .common import (
     check_overwrite,
     check_positive,
     config_option,
+    detections_zero_based_option,
     frames_option,
     ground_option,
     gsd_option,
@@ -23,6 +24,7 @@ from .common import (
     intrinsics_option,
     make_progress,
     map_init_option,
+    min_conf_option,
     roi_option,
     root_flags,
     seed_option,
@@ -435,11 +437,8 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
               help="MOTChallenge detections (frame,id,x,y,w,h,conf; 1-based; the id column is "
                    "ignored) replacing the built-in detector. Without INPUT: association alone "
                    "in image coordinates.")
-@click.option("--detections-zero-based", "detections_zero_based", is_flag=True,
-              help="--detections numbers frames from 0 (as many detectors do); 1 is added.")
-@click.option("--min-conf", "min_conf", type=float, default=None,
-              help="Drop detections whose confidence is below this (0-1; sets "
-                   "detection.min_conf, default 0.05): for a detector's low-confidence boxes.")
+@detections_zero_based_option
+@min_conf_option
 @click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
 @map_init_option
