@@ -718,3 +718,20 @@ def test_folder_scoring_names_what_it_leaves_out_or_chooses(tmp_path, capsys):
     assert code == 0, err
     assert "1 sequence folder(s) without gt/gt.txt are not scored: B" in err, err
     assert "A.txt and A/tracks.csv for sequence 'A'" in err, err
+
+
+def test_one_sequence_folder_scores_against_its_run_or_tracks_file(tmp_path, capsys):
+    """`--gt SEQ --pred RUN` (the sequence's own run folder) looked for RUN/SEQ/tracks.csv, and
+    `--gt SEQ --pred tracks.csv` was refused ("must be a folder"): both score now, alike."""
+    seq = tmp_path / "SEQ"
+    (seq / "gt").mkdir(parents=True)
+    write_mot(seq / "gt" / "gt.txt", _two_targets(10))
+    run = tmp_path / "run"
+    run.mkdir()
+    write_mot(run / "tracks.csv", _two_targets(10)[:15])
+    got = []
+    for pred in (run, run / "tracks.csv"):
+        code, out, err = _run(["eval", "--gt", seq, "--pred", pred, "--json"], capsys)
+        assert code == 0, err
+        got.append(json.loads(out)["MOTA"])
+    assert got[0] == got[1] == pytest.approx(0.75)

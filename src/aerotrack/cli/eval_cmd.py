@@ -131,14 +131,21 @@ def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
         for p in paths:
             if not p.exists():
                 raise InputError(f"{opt} {p}: file not found")
-    if len(gpaths) == 1 and gpaths[0].is_dir():
+    one_seq = len(gpaths) == 1 and (gpaths[0] / "gt" / "gt.txt").is_file()
+    if one_seq and len(ppaths) == 1 and ppaths[0].is_file():
+        # one MOTChallenge sequence folder and its tracks file
+        g = gpaths[0] / "gt" / "gt.txt"
+        pairs = [(_seq_name(g), g, ppaths[0])]
+    elif len(gpaths) == 1 and gpaths[0].is_dir():
         if len(ppaths) != 1 or not ppaths[0].is_dir():
             raise InputError("--pred: must be a folder when --gt is a folder")
         pairs = []
         for g in _gt_files(gpaths[0]):
             seq = _seq_name(g)
+            # (a sequence folder's own run folder holds tracks.csv itself)
             pairs.append((seq, g, _find_in(ppaths[0], seq, "--pred",
-                                           [f"{seq}.txt", f"{seq}.csv", f"{seq}/tracks.csv"])))
+                                           [f"{seq}.txt", f"{seq}.csv", f"{seq}/tracks.csv",
+                                            *(["tracks.csv"] if one_seq else [])])))
     else:
         for opt, paths in (("--gt", gpaths), ("--pred", ppaths)):
             for p in paths:
