@@ -735,3 +735,23 @@ def test_one_sequence_folder_scores_against_its_run_or_tracks_file(tmp_path, cap
         assert code == 0, err
         got.append(json.loads(out)["MOTA"])
     assert got[0] == got[1] == pytest.approx(0.75)
+
+
+def test_a_sequence_without_objects_is_scored_among_others(tmp_path, capsys):
+    """One empty gt.txt in a benchmark folder stopped the whole evaluation ("no rows"); TrackEval
+    scores such a sequence (every prediction there a false positive). One empty ground truth
+    alone is still an error."""
+    gt_dir, pred_dir = tmp_path / "gt", tmp_path / "pred"
+    for name in ("A", "B"):
+        (gt_dir / name / "gt").mkdir(parents=True)
+        (pred_dir / name).mkdir(parents=True)
+        write_mot(pred_dir / name / "tracks.csv", _two_targets(10))
+    write_mot(gt_dir / "A" / "gt" / "gt.txt", _two_targets(10))
+    (gt_dir / "B" / "gt" / "gt.txt").write_text("")
+    code, out, err = _run(["eval", "--gt", gt_dir, "--pred", pred_dir, "--json"], capsys)
+    assert code == 0 and "no object to find" in err, err
+    res = json.loads(out)
+    assert res["sequences"]["B"]["FP"] == 20 and res["FP"] == 20 and res["TP"] == 20
+    code, _, err = _run(["eval", "--gt", gt_dir / "B" / "gt" / "gt.txt", "--pred",
+                         pred_dir / "B" / "tracks.csv"], capsys)
+    assert code == 2 and "no rows" in err, err

@@ -327,9 +327,16 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     seqs = {}
     lengths = {}
     gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
-    for name, g, p, ign in _pair(gts, preds, ignores):
+    pairs = _pair(gts, preds, ignores)
+    for name, g, p, ign in pairs:
         lengths[name] = _seq_length(g)
-        gt = read_mot(g, option="--gt", strict=False, allow_empty=False, zero_based=gt_zero)
+        # one sequence of several may hold no object (TrackEval scores it: every prediction a
+        # false positive); one empty ground truth alone is a mistake
+        gt = read_mot(g, option="--gt", strict=False, allow_empty=len(pairs) > 1,
+                      zero_based=gt_zero)
+        if not len(gt):
+            log.warning("--gt %s: no rows: the sequence has no object to find, and every "
+                        "prediction there counts as a false positive", g)
         pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
         if not len(pred):
             log.warning("--pred %s: no rows: every ground-truth box counts as missed", p)
@@ -356,16 +363,17 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
                             "'consider' flag?) and are scored like every row; --drop-flagged "
                             "leaves them out, as MOTChallenge's protocol does", g,
                             int(flagged.sum()))
-    window = _parse_frames(frames, max(int(g[:, 0].max()) for g, _, _ in seqs.values()))
+    window = _parse_frames(frames, max(int(g[:, 0].max(initial=0)) for g, _, _ in seqs.values()))
     if window is None:
         _coverage_hint(seqs)
     _frame_shift_hint(seqs)
     per_seq = ({n: window for n in seqs} if window else
-               {n: (1, max(n_len, int(seqs[n][0][:, 0].max()))) for n, n_len in lengths.items()
+               {n: (1, max(n_len, int(seqs[n][0][:, 0].max(initial=0))))
+                for n, n_len in lengths.items()
                 if n_len is not None})
     if window is not None and not any(((g[:, 0] >= window[0]) & (g[:, 0] <= window[1])).any()
                                       for g, _, _ in seqs.values()):
-        last = max(int(g[:, 0].max()) for g, _, _ in seqs.values())
+        last = max(int(g[:, 0].max(initial=0)) for g, _, _ in seqs.values())
         raise InputError(f"--frames {frames}: no ground-truth rows in these frames (the ground "
                          f"truth ends at frame {last})")
     if classes:
