@@ -755,3 +755,23 @@ def test_a_sequence_without_objects_is_scored_among_others(tmp_path, capsys):
     code, _, err = _run(["eval", "--gt", gt_dir / "B" / "gt" / "gt.txt", "--pred",
                          pred_dir / "B" / "tracks.csv"], capsys)
     assert code == 2 and "no rows" in err, err
+
+
+def test_a_run_folder_scores_beside_a_ground_truth_file(tmp_path, capsys):
+    """`--gt gt.txt --pred RUN` was refused ("is a folder"), though a run folder stands for its
+    tracks.csv beside a sequence folder; a folder without tracks.csv is still refused."""
+    write_mot(tmp_path / "gt.txt", _two_targets(10))
+    run = tmp_path / "run"
+    run.mkdir()
+    write_mot(run / "tracks.csv", _two_targets(10)[:15])
+    got = []
+    for pred in (run, run / "tracks.csv"):
+        code, out, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", pred, "--json"],
+                              capsys)
+        assert code == 0, err
+        got.append(json.loads(out)["MOTA"])
+    assert got[0] == got[1] == pytest.approx(0.75)
+    (tmp_path / "empty").mkdir()
+    code, _, err = _run(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "empty"],
+                        capsys)
+    assert code == 2 and "is a folder" in err, err

@@ -147,6 +147,10 @@ def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
                                            [f"{seq}.txt", f"{seq}.csv", f"{seq}/tracks.csv",
                                             *(["tracks.csv"] if one_seq else [])])))
     else:
+        # a run folder stands for its tracks.csv beside ground-truth files (as it does beside a
+        # sequence folder): `--gt gt.txt --pred run/` was refused
+        ppaths = [p / "tracks.csv" if p.is_dir() and (p / "tracks.csv").is_file() else p
+                  for p in ppaths]
         for opt, paths in (("--gt", gpaths), ("--pred", ppaths)):
             for p in paths:
                 if p.is_dir():
@@ -245,8 +249,9 @@ def _coverage_hint(seqs: dict) -> None:
                    "sequences, or give a folder: MOTChallenge's SEQ/gt/gt.txt, else UAVDT's "
                    "*_gt.txt (*_gt_whole and *_gt_ignore skipped), else every .txt/.csv.")
 @click.option("--pred", "preds", multiple=True, required=True, metavar="FILE|DIR",
-              help="Predicted tracks, one per --gt in the same order, or a folder holding SEQ.txt, "
-                   "SEQ.csv or SEQ/tracks.csv for each ground-truth sequence SEQ.")
+              help="Predicted tracks, one per --gt in the same order (a run folder stands for "
+                   "its tracks.csv), or a folder holding SEQ.txt, SEQ.csv or SEQ/tracks.csv for "
+                   "each ground-truth sequence SEQ.")
 @click.option("--ignore", "ignores", multiple=True, metavar="FILE|DIR|auto",
               help="Ignore regions (MOT rows, e.g. UAVDT *_gt_ignore.txt): predicted and true boxes "
                    "whose centre or most of whose area lies in one are dropped. One per --gt, a "
