@@ -1691,3 +1691,19 @@ def test_raw_detector_scores_say_what_becomes_of_them(tmp_path, capsys):
     p.write_text("1,-1,10,10,8,4,-0.5\n1,-1,40,10,8,4,2.5\n2,-1,12,10,8,4,0.9\n")
     code, _, err = run_cli(capsys, "track", "--detections", p, "--out", tmp_path / "o")
     assert code == 0 and "the 1 below 0 become 0 and are dropped by detection.min_conf" in err, err
+
+
+@pytest.mark.parametrize("argv", [
+    ["track", "--detections", "DETS", "--out", ""],
+    ["detect", "", "--out", "o"],
+    ["eval", "--gt", "", "--pred", "DETS"],
+    ["render", "o", "--out", ""],
+    ["batch", "", "--out", "o"],
+])
+def test_an_empty_path_is_refused(tmp_path, capsys, dets, monkeypatch, argv):
+    """`--out ""` (a script's unset variable) wrote the run into the current folder, and an empty
+    input path was taken for the current folder: both are one-line errors now, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, *[dets if a == "DETS" else a for a in argv])
+    assert code == 2 and "empty path" in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dets.txt"]

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from .common import (
+    PathArg,
     check_positive,
     config_option,
     detections_zero_based_option,
@@ -21,13 +22,13 @@ log = logging.getLogger("aerotrack")
 
 
 @click.command("batch")
-@click.argument("input_dir", type=click.Path(path_type=Path, file_okay=False))
-@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False),
+@click.argument("input_dir", type=PathArg(path_type=Path, file_okay=False))
+@click.option("--out", "out_dir", required=True, type=PathArg(path_type=Path, file_okay=False),
               help="Output folder; each input gets OUT/<name>/ with the files of "
                    "`aerotrack track`.")
 @click.option("--gsd", type=float, default=None,
               help="Metres per frame pixel (gates become metric; observations.csv in metres).")
-@click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
+@click.option("--map", "map_path", type=PathArg(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: every input is tracked on it, "
                    "its frame 1 placed by the file beside it: NAME.map-init.txt (or .csv, "
                    ".points; as track's --map-init) or its flight log NAME.srt (or "
@@ -42,7 +43,7 @@ log = logging.getLogger("aerotrack")
 @click.option("--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
               help="With --map: a value for a column the flight logs lack (repeatable), as "
                    "track's --telemetry-default.")
-@click.option("--roads", "roads_path", type=click.Path(path_type=Path), default=None,
+@click.option("--roads", "roads_path", type=PathArg(path_type=Path), default=None,
               help="Road centre-lines (needs --map), as track's --roads.")
 @click.option("--min-speed", "min_speed", type=float, default=None,
               help="Drop tracks never faster than this many m/s (parked vehicles).")

@@ -14,6 +14,17 @@ import click
 
 log = logging.getLogger("aerotrack")
 
+
+class PathArg(click.Path):
+    """``click.Path`` that refuses an empty value: ``--out "$DIR"`` with ``DIR`` unset meant the
+    current folder (``Path("")`` is ``.``), and an empty input path was reported as a folder."""
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and not value.strip():
+            self.fail("empty path", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 fps_option = click.option(
     "--fps", type=float, default=None,
     help="Frame rate. Defaults to the video's rate, and to 30 for image folders.",
@@ -25,7 +36,7 @@ track_fps_option = click.option(
 )
 seed_option = click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
                            help="Random seed: the same input, config and seed give the same tracks.")
-config_option = click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+config_option = click.option("--config", "config_path", type=PathArg(dir_okay=False), default=None,
                              help="TOML file with per-stage parameters (see config.toml of any run).")
 set_option = click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
                           help="Override one config parameter (repeatable).")
@@ -39,32 +50,32 @@ min_conf_option = click.option(
 
 
 ground_option = click.option(
-    "--ground", "ground_path", type=click.Path(path_type=Path), default=None,
+    "--ground", "ground_path", type=PathArg(path_type=Path), default=None,
     help="Frame 1 -> a ground plane in metres, for an oblique view without a map (one --gsd is "
          "wrong there): a homography, or CSV frame_x,frame_y,ground_x,ground_y with 4+ measured "
          "points. Size gates and speeds follow the scale at each place.")
 map_init_option = click.option(
-    "--map-init", "map_init_path", type=click.Path(path_type=Path), default=None,
+    "--map-init", "map_init_path", type=PathArg(path_type=Path), default=None,
     help="Frame 1 -> map: a 3x3 homography, or a CSV of >= 4 control points.")
 gsd_option = click.option(
     "--gsd", type=float, default=None,
     help="Metres per frame pixel when no map is given: gates become metric, and observations.csv "
          "gives positions (metres on frame 1's ground plane) and speeds.")
 telemetry_option = click.option(
-    "--telemetry", "telemetry_path", type=click.Path(path_type=Path), default=None,
+    "--telemetry", "telemetry_path", type=PathArg(path_type=Path), default=None,
     help="Flight log (CSV or DJI .srt) placing frame 1 on --map instead of --map-init.")
 telemetry_default_option = click.option(
     "--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
     help="A value for a column the --telemetry log lacks (repeatable): heading_deg=29 for a DJI "
          ".srt without gimbal yaw; also alt_m, pitch_deg, roll_deg, hfov_deg, focal_35mm.")
 intrinsics_option = click.option(
-    "--intrinsics", "intrinsics_path", type=click.Path(path_type=Path), default=None,
+    "--intrinsics", "intrinsics_path", type=PathArg(path_type=Path), default=None,
     help="Camera matrix and distortion (TOML/JSON, OpenCV model): frames are undistorted.")
 roi_option = click.option(
-    "--roi", "roi_paths", multiple=True, type=click.Path(path_type=Path),
+    "--roi", "roi_paths", multiple=True, type=PathArg(path_type=Path),
     help="Region of interest (GeoJSON or CSV polygon, frame or map coordinates).")
 ignore_option = click.option(
-    "--ignore-region", "ignore_paths", multiple=True, type=click.Path(path_type=Path),
+    "--ignore-region", "ignore_paths", multiple=True, type=PathArg(path_type=Path),
     help="Region whose detections are ignored (same formats as --roi). In frame coordinates "
          "(a burned-in caption or timestamp) its pixels are also kept out of detection and "
          "of the background.")
@@ -76,7 +87,7 @@ stride_option = click.option(
     help="Use every N-th frame.")
 
 
-class InputParam(click.Path):
+class InputParam(PathArg):
     """INPUT: a video file or image folder (a Path), or a network stream's URL (kept as the
     text: ``Path("rtsp://host/live")`` would fold its double slash)."""
 

@@ -6,10 +6,12 @@ import textwrap
 
 import click
 
+from .common import PathArg
+
 
 @click.command("config")
 @click.argument("name", required=False)
-@click.option("--config", "config_path", type=click.Path(path_type=str), default=None,
+@click.option("--config", "config_path", type=PathArg(path_type=str), default=None,
               help="Show this TOML file's values (defaults for what it leaves out) instead of the "
                    "defaults; a run's own config.toml shows what that run used.")
 def config_command(name, config_path):

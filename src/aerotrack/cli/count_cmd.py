@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .common import root_flags
+from .common import PathArg, root_flags
 
 log = logging.getLogger(__name__)
 
@@ -20,12 +20,12 @@ BAND_M, BAND_PX = 1.0, 4.0
 
 
 @click.command("count")
-@click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
+@click.argument("run_dir", metavar="DIR", type=PathArg(exists=False, file_okay=False))
 @click.option("--line", "line_texts", multiple=True, metavar="NAME:x1,y1,x2,y2",
               help="A count line from (x1, y1) to (x2, y2) in the pixels of the run's first "
                    "frame (repeatable). Crossings from its left to its right, as seen on the "
                    "screen walking from the first point to the second, count as '+'.")
-@click.option("--lines", "lines_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--lines", "lines_path", type=PathArg(dir_okay=False), default=None,
               help="GeoJSON of count lines (2-vertex LineStrings named by a 'name' property; "
                    "lon/lat, or the CRS of its 'crs' member); needs a run with a map.")
 @click.option("--band", type=float, default=None,
@@ -36,11 +36,11 @@ BAND_M, BAND_PX = 1.0, 4.0
 @click.option("--bin", "bin_s", type=float, default=None,
               help="Also count per time bin of this many seconds (counts.csv). Default: one bin "
                    "for the whole run.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+@click.option("--out", "out_dir", type=PathArg(file_okay=False), default=None,
               help="Folder for crossings.csv, counts.csv and movements.csv. Default: DIR.")
-@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--map", "map_path", type=PathArg(dir_okay=False), default=None,
               help="The run's map raster (default: the map named in DIR/summary.json).")
-@click.option("--gt", "gt_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--gt", "gt_path", type=PathArg(dir_okay=False), default=None,
               help="Ground-truth boxes (MOTChallenge, the run's frames): counted the same way "
                    "through the run's registration and compared (count error, crossing "
                    "precision and recall, turning-movement error).")
@@ -56,7 +56,7 @@ BAND_M, BAND_PX = 1.0, 4.0
                    "the lines fell (needs the run's input, named in summary.json, or --input); "
                    "with a map, the map around them when a line lies outside that frame or the "
                    "input is not at hand.")
-@click.option("--input", "input_path", type=click.Path(), default=None,
+@click.option("--input", "input_path", type=PathArg(), default=None,
               help="The run's input video or image folder, for --picture (default: the input "
                    "named in DIR/summary.json, if it still exists).")
 @click.option("--start-time", "start_time", metavar="TIME", default=None,

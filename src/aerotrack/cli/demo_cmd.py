@@ -8,11 +8,13 @@ from pathlib import Path
 
 import click
 
+from .common import PathArg
+
 DEMO_FRAMES = 600  # 20 s at 30 fps: enough for occlusions and an exit/re-entry, quick to run
 
 
 @click.command("demo")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("aerotrack-demo"),
+@click.option("--out", "out_dir", type=PathArg(path_type=Path), default=Path("aerotrack-demo"),
               show_default=True, help="Folder for the scene, the run and the report.")
 @click.option("--frames", type=click.IntRange(min=60), default=DEMO_FRAMES, show_default=True,
               help="Length of the rendered scene.")

@@ -13,6 +13,7 @@ from .common import (
     CleanupOnBadInput,
     InputParam,
     Interrupted,
+    PathArg,
     check_overwrite,
     config_option,
     fps_option,
@@ -35,9 +36,9 @@ log = logging.getLogger("aerotrack")
 
 @click.command("detect")
 @click.argument("input_path", metavar="INPUT", type=InputParam(path_type=Path))
-@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
+@click.option("--out", "out_dir", required=True, type=PathArg(path_type=Path),
               help="Output folder (new, or empty; see --overwrite).")
-@click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
+@click.option("--map", "map_path", type=PathArg(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: size gates in metres, as in "
                    "`track`.")
 @map_init_option

@@ -18,6 +18,7 @@ from ..evaluation import (
 )
 from ..evaluation.mot import EXTRA_KEYS, frame_offset_overlap, has_consider_flag, scored_rows
 from ..io.mot import read_mot
+from .common import PathArg
 
 log = logging.getLogger(__name__)
 
@@ -244,15 +245,15 @@ def _coverage_hint(seqs: dict) -> None:
 
 
 @click.command("eval")
-@click.option("--gt", "gts", multiple=True, required=True, metavar="FILE|DIR",
+@click.option("--gt", "gts", multiple=True, type=PathArg(), required=True, metavar="FILE|DIR",
               help="Ground truth (MOTChallenge rows, 1-based frames). Repeat for several "
                    "sequences, or give a folder: MOTChallenge's SEQ/gt/gt.txt, else UAVDT's "
                    "*_gt.txt (*_gt_whole and *_gt_ignore skipped), else every .txt/.csv.")
-@click.option("--pred", "preds", multiple=True, required=True, metavar="FILE|DIR",
+@click.option("--pred", "preds", multiple=True, type=PathArg(), required=True, metavar="FILE|DIR",
               help="Predicted tracks, one per --gt in the same order (a run folder stands for "
                    "its tracks.csv), or a folder holding SEQ.txt, SEQ.csv or SEQ/tracks.csv for "
                    "each ground-truth sequence SEQ.")
-@click.option("--ignore", "ignores", multiple=True, metavar="FILE|DIR|auto",
+@click.option("--ignore", "ignores", multiple=True, type=PathArg(), metavar="FILE|DIR|auto",
               help="Ignore regions (MOT rows, e.g. UAVDT *_gt_ignore.txt): predicted and true boxes "
                    "whose centre or most of whose area lies in one are dropped. One per --gt, a "
                    "folder, or 'auto' (SEQ_gt_ignore.txt beside each ground truth).")

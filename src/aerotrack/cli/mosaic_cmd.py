@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import config_option, fps_option, make_progress, root_flags, set_option
+from .common import PathArg, config_option, fps_option, make_progress, root_flags, set_option
 
 log = logging.getLogger("aerotrack")
 
@@ -16,20 +16,20 @@ OFF_MAP_WARN = 0.05
 
 
 @click.command("mosaic")
-@click.argument("input_path", metavar="INPUT", type=click.Path())
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+@click.argument("input_path", metavar="INPUT", type=PathArg())
+@click.option("--out", "out_path", required=True, type=PathArg(dir_okay=False),
               help="Output picture (.png, .jpg, or .tif: a GeoTIFF with --map; a .png or .jpg "
                    "gets a world file and a .aux.xml with the CRS beside it).")
-@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--map", "map_path", type=PathArg(dir_okay=False), default=None,
               help="Georeferenced map raster; the frames are painted onto it.")
-@click.option("--map-init", "map_init_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--map-init", "map_init_path", type=PathArg(dir_okay=False), default=None,
               help="Frame 1 -> map: a 3x3 homography or >= 4 control points (needs --map).")
 @fps_option
 @click.option("--stride", type=int, default=10, show_default=True,
               help="Paint every N-th frame (every frame is registered).")
 @click.option("--max-side", type=int, default=4000, show_default=True,
               help="Longest side of the picture in pixels.")
-@click.option("--registration", "reg_csv", type=click.Path(dir_okay=False), default=None,
+@click.option("--registration", "reg_csv", type=PathArg(dir_okay=False), default=None,
               help="Also write the per-frame homographies as registration.csv here.")
 @config_option
 @set_option

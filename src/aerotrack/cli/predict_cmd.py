@@ -9,17 +9,17 @@ import click
 from ..config import load_config
 from ..context.motion import PREDICTION_METHODS
 from ..context.predict import run_predict
-from .common import check_positive, config_option, set_option
+from .common import PathArg, check_positive, config_option, set_option
 
 log = logging.getLogger(__name__)
 
 
 @click.command("predict")
-@click.argument("tracks", type=click.Path(dir_okay=False))
-@click.option("--queries", "queries", required=True, type=click.Path(dir_okay=False),
+@click.argument("tracks", type=PathArg(dir_okay=False))
+@click.option("--queries", "queries", required=True, type=PathArg(dir_okay=False),
               help="CSV with a header id,last_seen,horizon: predict track `id` for the `horizon` "
                    "frames after `last_seen`.")
-@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
+@click.option("--out", "out", required=True, type=PathArg(dir_okay=False),
               help="Output CSV: query,id,frame,x,y (query = 0-based row of the queries file).")
 @click.option("--method", type=click.Choice(list(PREDICTION_METHODS)), default=None,
               help="Predictor: context (default: Kalman fused with other objects' paths and "
@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 @click.option("--gsd", type=float, default=None,
               help="Metres per coordinate unit. Default: metres (or lon/lat degrees) for --space "
                    "map; for image, the median box's long side is taken as context.image_object_size_m.")
-@click.option("--roads", "roads", type=click.Path(dir_okay=False), default=None,
+@click.option("--roads", "roads", type=PathArg(dir_okay=False), default=None,
               help="Road centre-lines (GeoJSON LineStrings, any CRS) for --space map: the context "
                    "method predicts targets on a road along it.")
 @click.option("--crs", "crs", default=None,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import make_progress, root_flags
+from .common import PathArg, make_progress, root_flags
 
 log = logging.getLogger(__name__)
 
@@ -28,9 +28,9 @@ def load_map(results, map_path):
 
 
 @click.command("render")
-@click.argument("input_path", metavar="INPUT", type=click.Path(exists=False))
-@click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
-@click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
+@click.argument("input_path", metavar="INPUT", type=PathArg(exists=False))
+@click.argument("run_dir", metavar="DIR", type=PathArg(exists=False, file_okay=False))
+@click.option("--out", "out_path", type=PathArg(dir_okay=False), default=None,
               help="Video to write: .webm (VP9, plays in browsers) or .mp4 (H.264). "
                    "Default: DIR/overlay.webm.")
 @click.option("--trail-s", type=float, default=2.0, show_default=True,
@@ -42,7 +42,7 @@ def load_map(results, map_path):
               help="First frame (1-based). Default: the run's first frame.")
 @click.option("--stop", type=int, default=None,
               help="Last frame (inclusive). Default: the run's last frame.")
-@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--map", "map_path", type=PathArg(dir_okay=False), default=None,
               help="The run's map raster (default: the map named in DIR/summary.json).")
 @click.option("--pictures/--no-pictures", default=True, show_default=True,
               help="Also write DIR/map.png, DIR/spacetime.png and DIR/registration.png.")

@@ -6,23 +6,23 @@ from pathlib import Path
 
 import click
 
-from .common import make_progress, root_flags
+from .common import PathArg, make_progress, root_flags
 
 
 @click.command("report")
-@click.argument("run_dir", metavar="DIR", type=click.Path(exists=False, file_okay=False))
-@click.option("--gt", "gt_path", type=click.Path(dir_okay=False), default=None,
+@click.argument("run_dir", metavar="DIR", type=PathArg(exists=False, file_okay=False))
+@click.option("--gt", "gt_path", type=PathArg(dir_okay=False), default=None,
               help="Ground truth (MOTChallenge, 1-based frames): adds the evaluation section.")
 @click.option("--gt-zero-based", is_flag=True,
               help="The ground truth numbers frames from 0 (as Santiago's): add 1.")
 @click.option("--fix-gt", is_flag=True,
               help="Correct the ground truth first (as `aerotrack eval --fix-gt`).")
-@click.option("--input", "input_path", type=click.Path(), default=None,
+@click.option("--input", "input_path", type=PathArg(), default=None,
               help="The run's input video or image folder, for the overlay player "
                    "(default: the input named in DIR/summary.json, if it still exists).")
-@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--map", "map_path", type=PathArg(dir_okay=False), default=None,
               help="The run's map raster (default: the map named in DIR/summary.json).")
-@click.option("--out", "out_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--out", "out_path", type=PathArg(dir_okay=False), default=None,
               help="Report file to write. Default: DIR/report.html.")
 @click.option("--video-width", type=int, default=960, show_default=True,
               help="Width of the embedded overlay video at most (a wider DIR/overlay.webm is "

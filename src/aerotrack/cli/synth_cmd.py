@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .common import CleanupOnBadInput, check_overwrite, make_progress, root_flags
+from .common import CleanupOnBadInput, PathArg, check_overwrite, make_progress, root_flags
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -23,7 +23,7 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 @click.command("synth")
-@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
+@click.option("--out", "out_dir", required=True, type=PathArg(path_type=Path),
               help="Output folder (new or empty; see --overwrite).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Scene seed.")
 @click.option("--frames", type=int, default=900, show_default=True, help="Number of frames.")

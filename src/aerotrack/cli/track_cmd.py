@@ -13,6 +13,7 @@ from .common import (
     CleanupOnBadInput,
     InputParam,
     Interrupted,
+    PathArg,
     check_overwrite,
     check_positive,
     config_option,
@@ -431,15 +432,15 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 
 @click.command("track")
 @click.argument("input_path", metavar="[INPUT]", required=False, type=InputParam(path_type=Path))
-@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
+@click.option("--out", "out_dir", required=True, type=PathArg(path_type=Path),
               help="Output folder (new, or empty; see --overwrite/--resume).")
-@click.option("--detections", "detections_path", type=click.Path(path_type=Path), default=None,
+@click.option("--detections", "detections_path", type=PathArg(path_type=Path), default=None,
               help="MOTChallenge detections (frame,id,x,y,w,h,conf; 1-based; the id column is "
                    "ignored) replacing the built-in detector. Without INPUT: association alone "
                    "in image coordinates.")
 @detections_zero_based_option
 @min_conf_option
-@click.option("--map", "map_path", type=click.Path(path_type=Path), default=None,
+@click.option("--map", "map_path", type=PathArg(path_type=Path), default=None,
               help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
 @map_init_option
 @gsd_option
@@ -453,7 +454,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @intrinsics_option
 @roi_option
 @ignore_option
-@click.option("--roads", "roads_path", type=click.Path(path_type=Path), default=None,
+@click.option("--roads", "roads_path", type=PathArg(path_type=Path), default=None,
               help="Road centre-lines (GeoJSON LineStrings, any CRS, or a GeoPackage, "
                    "Shapefile, ... with pyogrio; needs --map): unobserved vehicles are predicted "
                    "along the roads.")
@@ -470,7 +471,7 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @click.option("--stabilised", is_flag=True,
               help="Frames are already registered to each other (a stabilised video, a fixed "
                    "camera): skip registration and use identity homographies (not with --map).")
-@click.option("--from", "from_dir", type=click.Path(path_type=Path), default=None,
+@click.option("--from", "from_dir", type=PathArg(path_type=Path), default=None,
               help="Reuse the registrations and detections cached by an earlier run in this folder "
                    "(its stages/): only association and linking run again.")
 @click.option("--overwrite", is_flag=True,
