@@ -37,7 +37,7 @@ log = logging.getLogger("aerotrack")
               help="Each input's own detections (MOTChallenge rows) instead of the built-in "
                    "detector: a path inside each input folder (det/det.txt: a MOTChallenge "
                    "sequence's public detections), or a pattern naming a file per input by its "
-                   "name: dets/{name}.txt.")
+                   "name: dets/{name}.txt (relative to the current folder).")
 @detections_zero_based_option
 @min_conf_option
 @click.option("--telemetry-default", "telemetry_defaults", multiple=True, metavar="NAME=VALUE",
@@ -127,6 +127,9 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     if detections is not None and not detections.strip():
         raise InputError("--detections: give a path inside each input folder (det/det.txt) or a "
                          "pattern with {name} (dets/{name}.txt)")
+    if detections is not None and "{name}" in detections and not Path(detections).is_absolute():
+        # from the folder the command runs in, also on workers that run elsewhere
+        detections = str(Path.cwd() / detections)
     if scheduler is not None:
         if workers is not None:
             raise InputError("--workers and --scheduler cannot be used together")
