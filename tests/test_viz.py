@@ -514,3 +514,16 @@ def test_an_mp4_overlay_beyond_common_decoders_is_warned(caplog, tmp_path):
         warn_large_h264(tmp_path / "o.webm", (4000, 3000), None)
         warn_large_h264(tmp_path / "o.mp4", (1920, 1080), None)
         assert caplog.text == ""
+
+
+def test_track_map_without_a_map_shows_tracks_beyond_frame_one():
+    """A moving camera's tracks run far beyond its first frame: the track map's view was clamped
+    to frame 1 plus 10 %, and a probe found 6 of truck4's 22 tracks missing from map.png."""
+    from aerotrack.viz.mapplot import plot_map
+
+    rows = np.array([[f, tid, x0 + 5 * f, 40, 10, 6, 1.0, -1, -1, -1]
+                     for tid, x0 in ((1, 20), (2, 900)) for f in range(1, 11)], float)
+    res = RunResults(Path("."), rows, np.zeros((0, 10)), None, None, {}, {}, 30.0, None)
+    ax = plot_map(res, background=np.zeros((100, 200, 3), np.uint8)).axes[0]
+    lo, hi = sorted(ax.get_xlim())
+    assert lo <= 25 and hi >= 955, (lo, hi)

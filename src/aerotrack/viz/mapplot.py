@@ -251,7 +251,9 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
         else:
             ax.set_facecolor((0.93, 0.93, 0.93))
         unit_per_m = 1.0 / metres_per_unit if metres_per_unit else None
-    ext = _extent(allpts, bounds) or (0, 0, 100, 100)
+    # clamped to the map's raster only: without a map a moving camera's tracks run far beyond
+    # frame 1, and clamping to it left them out of the picture (a probe: 6 of truck4's 22)
+    ext = _extent(allpts, bounds if geomap is not None else None) or (0, 0, 100, 100)
     ax.set_xlim(ext[0], ext[2])
     if ground:
         ax.set_ylim(ext[1], ext[3])
@@ -281,8 +283,18 @@ def plot_map(results: RunResults, geomap=None, *, background: np.ndarray | None 
     n_re = sum(len(tv.reacquisitions()) for tv in tracks)
     default = (f"{len(tracks)} track{'s' * (len(tracks) != 1)}, "
                f"{n_re} re-acquisition{'s' * (n_re != 1)}")
+    outside = sum(1 for tv in tracks
+                  if tv.observed.any() and not _any_inside(tv.world[tv.observed], ext))
+    if outside:
+        default += f" ({outside} outside the map's view)"
     ax.set_title(title or default, fontsize=fs * 1.1, pad=fs * 2.6)
     return fig
+
+
+def _any_inside(points: np.ndarray, ext) -> bool:
+    x0, y0, x1, y1 = ext
+    return bool(np.any((points[:, 0] >= x0) & (points[:, 0] <= x1)
+                       & (points[:, 1] >= y0) & (points[:, 1] <= y1)))
 
 
 def _ground_background(ax, results: RunResults, background: np.ndarray, ext) -> None:
