@@ -42,3 +42,9 @@ def test_demo_replaces_an_earlier_demo_only(tmp_path, capsys):
     code, _, err = run_cli(capsys, "demo", "--out", tmp_path / "d", "--seed", "-1")
     assert code == 2 and "--seed" in err and "Traceback" not in err, err
     assert not (tmp_path / "d").exists()
+    # a file of the user's inside an earlier demo's run/ was deleted (a probe)
+    (tmp_path / "e" / "run").mkdir(parents=True)
+    (tmp_path / "e" / "run" / "mine.csv").write_text("precious")
+    code, _, err = run_cli(capsys, "demo", "--out", tmp_path / "e", "--frames", "60")
+    assert code == 2 and "run/ holds 'mine.csv'" in err, err
+    assert (tmp_path / "e" / "run" / "mine.csv").read_text() == "precious"

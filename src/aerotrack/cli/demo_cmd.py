@@ -116,3 +116,13 @@ def _check_earlier_demo(out_dir: Path, overwrite: bool) -> None:
     if other:
         raise OutputError(f"--out {p}: holds {other[0]!r}, so it is not an earlier demo's folder "
                           "(scene/ and run/); give a new or empty folder, or an earlier demo's")
+    # and inside them only what synth and track write (a file of the user's in run/ was deleted)
+    from ..io.output import is_aerotrack_output
+
+    for sub in ("scene", "run"):
+        if (p / sub).is_dir():
+            foreign = sorted(e.name for e in (p / sub).iterdir()
+                             if not is_aerotrack_output(e.name))
+            if foreign:
+                raise OutputError(f"--out {p}: {sub}/ holds {foreign[0]!r}, which no demo "
+                                  "writes; move it away, or give a new or empty folder")
