@@ -1,9 +1,13 @@
 """Stable, distinct per-ID colours.
 
 A track keeps its colour in every picture (overlay video, map, space-time plot, report table) and
-across runs: the colour is a pure function of the ID. Hues follow the golden-ratio sequence of a
-hashed ID, so IDs that are close in number (1, 2, 3...) get far-apart hues; saturation and value
-alternate in three levels so that two IDs with near hues still differ in brightness.
+across runs: the colour is a pure function of the ID. Hues follow the golden-ratio sequence of the
+ID, so IDs that are close in number (1, 2, 3...) get far-apart hues; saturation and value cycle
+through four levels so that two IDs with near hues still differ in brightness. The sequence brings
+back near hues at Fibonacci distances (13, 21, 34, 55: 21 x 0.618... is 0.022 from a whole
+number); four levels put each of those on another level. Measured (CIELAB, IDs 1-300): no
+distance 1-40 has more than 5 % of its pairs within delta-E 10; before (a hashed hue offset and
+three levels) 33 % of the pairs 21 apart were, and a probe found 9 and 30 on one road in one frame.
 """
 
 from __future__ import annotations
@@ -11,20 +15,13 @@ from __future__ import annotations
 import colorsys
 
 _GOLDEN = 0.6180339887498949
-_LEVELS = ((0.95, 1.0), (0.75, 0.85), (1.0, 0.7))  # (saturation, value)
-
-
-def _mix(track_id: int) -> int:
-    """A 32-bit integer hash (Knuth multiplicative + xorshift), stable across Python runs."""
-    x = (int(track_id) * 2654435761) & 0xFFFFFFFF
-    x ^= x >> 16
-    return x
+_LEVELS = ((0.95, 1.0), (0.75, 0.85), (1.0, 0.7), (0.55, 1.0))  # (saturation, value)
 
 
 def id_rgb(track_id: int) -> tuple[float, float, float]:
     """RGB in [0, 1] of a track ID (matplotlib order)."""
     tid = int(track_id)
-    hue = ((_mix(tid) & 0xFFFF) / 65536.0 + tid * _GOLDEN) % 1.0
+    hue = (tid * _GOLDEN) % 1.0
     s, v = _LEVELS[tid % len(_LEVELS)]
     return colorsys.hsv_to_rgb(hue, s, v)
 
