@@ -538,3 +538,18 @@ def test_track_map_without_a_map_shows_tracks_beyond_frame_one():
     ax = plot_map(res, background=np.zeros((100, 200, 3), np.uint8)).axes[0]
     lo, hi = sorted(ax.get_xlim())
     assert lo <= 25 and hi >= 955, (lo, hi)
+
+
+def test_a_predicted_targets_label_reads_in_a_dark_colour():
+    """A predicted target's label is text in its colour on a darkened patch: navy and blue IDs
+    (14 here) vanished; the text is lifted towards white, keeping its hue."""
+    from aerotrack.viz.overlay import _label
+
+    colour = id_bgr(14)
+    assert 0.299 * colour[2] + 0.587 * colour[1] + 0.114 * colour[0] < 60
+    img = np.full((200, 400, 3), 40, np.uint8)
+    assert _label(img, "14 +1.2s", 100, 100, 130, colour, 1.0, 2, hollow=True)
+    luma = img[..., 2] * 0.299 + img[..., 1] * 0.587 + img[..., 0] * 0.114
+    assert luma.max() >= 140
+    text = img[luma >= 140]
+    assert (text[:, 0] > text[:, 2]).all()  # still blue, not white

@@ -294,12 +294,23 @@ def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False, placed
         roi = img[y0:y0 + bh, x0:x0 + tw + 2 * pad]
         roi[:] = (roi * 0.3).astype(np.uint8)
         cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, max(1, thick // 2))
-        fg = colour
+        fg = _lifted(colour)
     else:
         cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, -1)
         fg = text_colour_on(colour)
     cv2.putText(img, text, (x0 + pad, y0 + pad + th), FONT, scale, fg, thick, cv2.LINE_AA)
     return True
+
+
+def _lifted(bgr, luma_min: float = 150.0) -> tuple[int, int, int]:
+    """``bgr`` mixed with white until its luma is at least ``luma_min``: the text of a predicted
+    target's label, drawn in its colour on a darkened patch (navy and blue IDs vanished there)."""
+    b, g, r = (float(c) for c in bgr)
+    luma = 0.299 * r + 0.587 * g + 0.114 * b
+    if luma >= luma_min:
+        return int(b), int(g), int(r)
+    t = (luma_min - luma) / (255.0 - luma)
+    return tuple(int(round(c + t * (255.0 - c))) for c in (b, g, r))
 
 
 def _dashed_line(img, p, q, colour, lw, dash) -> None:
