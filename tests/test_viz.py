@@ -553,3 +553,26 @@ def test_a_predicted_targets_label_reads_in_a_dark_colour():
     assert luma.max() >= 140
     text = img[luma >= 140]
     assert (text[:, 0] > text[:, 2]).all()  # still blue, not white
+
+
+def test_labels_of_neighbouring_vehicles_do_not_hide_each_other():
+    """Dense traffic put every label above its box's left edge, so neighbours' labels covered each
+    other and the cars beside them (a probe, Santiago at 1080p): a label now takes the first
+    corner that is free of labels and of other boxes. --no-labels draws none."""
+    from aerotrack.viz.overlay import _label, _overlap
+
+    img = np.zeros((300, 400, 3), np.uint8)
+    boxes = [(100, 100, 140, 120), (112, 100, 152, 120), (100, 70, 140, 90)]
+    placed, rects = [], []
+    for i, (x0, y0, x1, y1) in enumerate(boxes):
+        rects.append(_label(img, str(30 + i), x0, y0, y1, id_bgr(30 + i), 0.6, 1, placed=placed,
+                            right=x1, avoid=boxes[:i] + boxes[i + 1:]))
+    for i, a in enumerate(rects):
+        area = (a[2] - a[0]) * (a[3] - a[1])
+        assert all(_overlap(a, b) <= 0.25 * area for b in rects[i + 1:]), rects
+    rows = np.array([[1, 7, 100, 100, 40, 20, 1.0, -1, -1, -1]])
+    res = RunResults(Path("."), rows, np.zeros((0, 10)), None, None, {}, {}, 30.0, None)
+    off = OverlayPainter(res, OverlayStyle(hud=False, labels=False)).draw(
+        np.zeros((300, 400, 3), np.uint8), 1)
+    on = OverlayPainter(res, OverlayStyle(hud=False)).draw(np.zeros((300, 400, 3), np.uint8), 1)
+    assert (off[:99] == 0).all() and (on[:99] != 0).any()  # the label sits above the box

@@ -44,11 +44,16 @@ def load_map(results, map_path):
               help="Last frame (inclusive). Default: the run's last frame.")
 @click.option("--map", "map_path", type=PathArg(dir_okay=False), default=None,
               help="The run's map raster (default: the map named in DIR/summary.json).")
+@click.option("--text-height", type=float, default=0.017, show_default=True,
+              help="Label text height, a fraction of the frame height: down to 0.008 for dense "
+                   "traffic, where a label is larger than a car.")
+@click.option("--labels/--no-labels", default=True, show_default=True,
+              help="Draw the ID labels (--no-labels: boxes, trails and predictions only).")
 @click.option("--pictures/--no-pictures", default=True, show_default=True,
               help="Also write DIR/map.png, DIR/spacetime.png and DIR/registration.png.")
 @click.pass_context
 def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, max_width, start, stop,
-                   map_path, pictures) -> None:
+                   map_path, text_height, labels, pictures) -> None:
     """Draw a run's tracks on its input video.
 
     INPUT is the video or image folder the run tracked, DIR its output folder. Targets in view get
@@ -90,7 +95,8 @@ def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, m
         raise InputError(f"--trail-s {trail_s}: must be a number of seconds >= 0")
     if max_width is not None and max_width < 16:
         raise InputError(f"--max-width {max_width}: too small")
-    style = OverlayStyle(trail_s=trail_s, max_width=max_width)
+    style = OverlayStyle(trail_s=trail_s, max_width=max_width, text_height=text_height,
+                         labels=labels)
     out = Path(out_path) if out_path else results.path / "overlay.webm"
     source = open_source(input_path, results.fps)  # fail fast on a bad input
     results.check_input(source, input_path)

@@ -53,8 +53,8 @@ class OverlayStyle:
     trail_s : float
         Seconds of trail behind each target. Longer shows more history but clutters dense scenes.
     text_height : float
-        Label text height as a fraction of the frame height (>= 0.015 keeps it readable at 640x480
-        and 4K alike).
+        Label text height as a fraction of the frame height (the default 0.017 reads at 640x480
+        and 4K alike; down to 0.008 for dense traffic, where a label is larger than a car).
     line_width : float
         Box line width as a fraction of the frame height (at least 1 pixel).
     speed_uncertainty : float
@@ -63,6 +63,8 @@ class OverlayStyle:
         Output frames wider than this are downscaled (keeps report videos small).
     hud : bool
         Draw the frame number, time and counts in the top-left corner.
+    labels : bool
+        Draw the ID labels (off: boxes, trails and predictions only).
     """
 
     trail_s: float = 2.0
@@ -71,10 +73,12 @@ class OverlayStyle:
     speed_uncertainty: float = 0.3
     max_width: int | None = None
     hud: bool = True
+    labels: bool = True
 
     def __post_init__(self) -> None:
-        if self.text_height < 0.015:
-            raise InputError(f"text_height {self.text_height}: must be >= 0.015 (1.5% of the frame height)")
+        if not 0.008 <= self.text_height <= 0.1:
+            raise InputError(f"--text-height {self.text_height}: must be between 0.008 and 0.1 "
+                             "(a fraction of the frame height)")
         if self.trail_s < 0:
             raise InputError(f"--trail-s {self.trail_s}: must be >= 0")
 
@@ -166,7 +170,7 @@ class OverlayPainter:
         # of predicted ones only where they do not hide another label (most recently seen first)
         pending = []
         hud = self._hud_box(frame, rows, scale, thick) if self.style.hud else None
-        pscale = scale * max(0.015, 0.85 * self.style.text_height) / self.style.text_height
+        pscale = scale * max(0.008, 0.85 * self.style.text_height) / self.style.text_height
         for r in sorted((r for r in rows if not r.observed), key=lambda r: r.since_s):
             colour = id_bgr(r.id)
             x, y, bw, bh = (float(v) for v in r.box)
@@ -183,17 +187,25 @@ class OverlayPainter:
         placed: list[tuple[int, int, int, int]] = []
         if hud is not None:
             placed.append((0, 0, hud[0], hud[1]))
-        for r in (r for r in rows if r.observed):
+        observed = [r for r in rows if r.observed]
+        boxes = [(int(r.box[0]), int(r.box[1]), int(r.box[0] + r.box[2]), int(r.box[1] + r.box[3]))
+                 for r in observed]
+        chosen = []
+        for i, r in enumerate(observed):
             colour = id_bgr(r.id)
             x, y, bw, bh = (float(v) for v in r.box)
             cv2.rectangle(img, _pt(x, y), _pt(x + bw, y + bh), colour, lw, cv2.LINE_AA)
-            _label(img, str(r.id), x, y, y + bh, colour, scale, thick, placed=placed)
-        for text, x, top, bottom, colour in pending:
-            _label(img, text, x, top, bottom, colour, pscale, thick, hollow=True, placed=placed,
-                   optional=True)
-        for r in (r for r in rows if r.observed):  # again, on top of any predicted label edge
-            x, y, bw, bh = (float(v) for v in r.box)
-            _label(img, str(r.id), x, y, y + bh, id_bgr(r.id), scale, thick)
+            if self.style.labels:
+                chosen.append(_label(img, str(r.id), x, y, y + bh, colour, scale, thick,
+                                     placed=placed, right=x + bw,
+                                     avoid=boxes[:i] + boxes[i + 1:]))
+        if self.style.labels:
+            for text, x, top, bottom, colour in pending:
+                _label(img, text, x, top, bottom, colour, pscale, thick, hollow=True,
+                       placed=placed, optional=True, avoid=boxes)
+            for r, rect in zip(observed, chosen):  # again, on top of any predicted label edge
+                x, y, bw, bh = (float(v) for v in r.box)
+                _label(img, str(r.id), x, y, y + bh, id_bgr(r.id), scale, thick, rect=rect)
         if self.style.hud:
             self._draw_hud(img, frame, rows, scale, thick)
         return img
@@ -266,40 +278,58 @@ def _pt(x: float, y: float) -> tuple[int, int]:
     return (int(round(x)), int(round(y)))
 
 
-def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False, placed=None,
-           optional=False) -> bool:
-    """A filled (or outlined, for predicted targets) label above the box, or below at the top edge.
+def _overlap(rect, q) -> int:
+    ix = min(rect[2], q[2]) - max(rect[0], q[0])
+    iy = min(rect[3], q[3]) - max(rect[1], q[1])
+    return ix * iy if ix > 0 and iy > 0 else 0
 
-    ``placed`` collects the rectangles of labels drawn so far; an ``optional`` label that would
-    cover more than a quarter of its area with one of them is skipped. Returns whether it was drawn.
+
+def _label(img, text, x, top, bottom, colour, scale, thick, hollow=False, placed=None,
+           optional=False, right=None, avoid=(), rect=None):
+    """A filled (or outlined, for predicted targets) label at a corner of the box: above it at its
+    left edge, else below it, else at its right edge (``right``, the box's right x) above or
+    below, whichever first covers at most a quarter of its area with a label drawn so far
+    (``placed``) or a box in ``avoid``; the first of them when none does. At the top edge of the
+    frame "above" is below. Dense traffic put every label above-left and they hid each other and
+    the vehicles next to them (a probe, Santiago at 1080p).
+
+    An ``optional`` label (a predicted target's) with no free place is skipped. ``rect`` draws at
+    a place chosen before. Returns the rectangle drawn, or None.
     """
     h, w = img.shape[:2]
     (tw, th), base = cv2.getTextSize(text, FONT, scale, thick)
     pad = max(1, int(th * 0.25))
-    bh = th + base + 2 * pad
-    y0 = top - bh if top - bh >= 0 else bottom
-    y0 = int(min(max(y0, 0), h - bh))
-    x0 = int(min(max(x, 0), max(0, w - tw - 2 * pad)))
-    rect = (x0, y0, x0 + tw + 2 * pad, y0 + bh)
-    if placed is not None:
-        if optional:
-            area = (rect[2] - rect[0]) * (rect[3] - rect[1])
-            for q in placed:
-                ix = min(rect[2], q[2]) - max(rect[0], q[0])
-                iy = min(rect[3], q[3]) - max(rect[1], q[1])
-                if ix > 0 and iy > 0 and ix * iy > 0.25 * area:
-                    return False
-        placed.append(rect)
+    bh, bw = th + base + 2 * pad, tw + 2 * pad
+    if rect is None:
+        cands = []
+        for left in ([x] if right is None else [x, right - bw]):
+            for y0 in (top - bh if top - bh >= 0 else bottom, bottom if top - bh >= 0 else top - bh):
+                y0 = int(min(max(y0, 0), h - bh))
+                x0 = int(min(max(left, 0), max(0, w - bw)))
+                cands.append((x0, y0, x0 + bw, y0 + bh))
+        rect = None
+        others = [*(placed or []), *avoid]
+        for c in cands:
+            if all(_overlap(c, q) <= 0.25 * bw * bh for q in others):
+                rect = c
+                break
+        if rect is None:
+            if optional and placed is not None:
+                return None
+            rect = cands[0]
+        if placed is not None:
+            placed.append(rect)
+    x0, y0 = rect[0], rect[1]
     if hollow:
-        roi = img[y0:y0 + bh, x0:x0 + tw + 2 * pad]
+        roi = img[y0:y0 + bh, x0:x0 + bw]
         roi[:] = (roi * 0.3).astype(np.uint8)
-        cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, max(1, thick // 2))
+        cv2.rectangle(img, (x0, y0), (x0 + bw, y0 + bh), colour, max(1, thick // 2))
         fg = _lifted(colour)
     else:
-        cv2.rectangle(img, (x0, y0), (x0 + tw + 2 * pad, y0 + bh), colour, -1)
+        cv2.rectangle(img, (x0, y0), (x0 + bw, y0 + bh), colour, -1)
         fg = text_colour_on(colour)
     cv2.putText(img, text, (x0 + pad, y0 + pad + th), FONT, scale, fg, thick, cv2.LINE_AA)
-    return True
+    return rect
 
 
 def _lifted(bgr, luma_min: float = 150.0) -> tuple[int, int, int]:
