@@ -576,3 +576,29 @@ def test_labels_of_neighbouring_vehicles_do_not_hide_each_other():
         np.zeros((300, 400, 3), np.uint8), 1)
     on = OverlayPainter(res, OverlayStyle(hud=False)).draw(np.zeros((300, 400, 3), np.uint8), 1)
     assert (off[:99] == 0).all() and (on[:99] != 0).any()  # the label sits above the box
+
+
+def test_render_names_an_input_that_is_not_the_one_tracked(tmp_path, caplog):
+    """A probe rendered 49 of a run's 421 frames, and 60 unrelated frames of the same size, with
+    no word: an input shorter than the run, or whose files are not the size the run recorded, is
+    named in a warning (the size check stays an error)."""
+    from aerotrack.io.frames import open_source
+    from aerotrack.io.state import input_fingerprints
+
+    tracked = grey_frames(tmp_path / "tracked", n=12)
+    rows = np.array([[f, 1, 10, 10, 8, 6, 1.0, -1, -1, -1] for f in range(1, 13)], float)
+    summary = {"input": str(tracked), "frame_size": [W, H], "last_frame": 12,
+               "options": {"input_files": input_fingerprints([tracked])}}
+    res = RunResults(tmp_path, rows, np.zeros((0, 10)), None, None, summary, {}, 30.0, None)
+    other = tmp_path / "other"
+    other.mkdir()
+    rng = np.random.default_rng(0)
+    for f in range(1, 13):
+        cv2.imwrite(str(other / f"{f:06d}.png"), rng.integers(0, 255, (H, W, 3), np.uint8))
+    short = grey_frames(tmp_path / "short", n=5)
+    for folder, expect in ((tracked, None), (other, "not the input the run"),
+                           (short, "holds 5 frames")):
+        caplog.clear()
+        res.check_input(open_source(folder, 30.0), folder)
+        warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert (expect is None and not warned) or (expect and expect in " ".join(warned)), warned

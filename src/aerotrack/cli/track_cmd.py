@@ -625,6 +625,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     }
     # the input files as they were (size, modification time): a resume over a changed frame
     # had silently kept the results of the old one
+    from ..io.state import input_fingerprints
+
     manifest["input_files"] = input_fingerprints(
         [input_path, detections_path, map_path, map_init_path, telemetry_path, intrinsics_path,
          *roi_paths, *ignore_paths, roads_path, ground_path])
@@ -830,30 +832,6 @@ MANIFEST = "run.json"
 #: Manifest entries written only when they differ from these values (so that the run.json of
 #: runs made before the option existed still match).
 _MANIFEST_DEFAULTS = {"stabilised": False, "on_dask": False}
-
-
-def input_fingerprints(paths) -> dict[str, list[int]]:
-    """Resolved path -> (bytes, latest modification time in ns) of each input file given; a
-    folder counts its files and sums their sizes (``[files, bytes, latest time]``). Streams and
-    missing paths are left out."""
-    import os
-
-    out = {}
-    for p in paths:
-        if p is None or "://" in str(p):
-            continue
-        path = Path(p)
-        try:
-            if path.is_dir():
-                files = [e.stat() for e in os.scandir(path) if e.is_file()]
-                out[str(path.resolve())] = [len(files), sum(f.st_size for f in files),
-                                            max((f.st_mtime_ns for f in files), default=0)]
-            elif path.is_file():
-                st = path.stat()
-                out[str(path.resolve())] = [st.st_size, st.st_mtime_ns]
-        except OSError:
-            continue
-    return out
 
 
 def finished_run(out_dir, input_path, detections_path, seed, manifest: dict | None = None

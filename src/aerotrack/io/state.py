@@ -466,3 +466,27 @@ def drop_state(folder: str | Path) -> None:
     """Remove ``folder/state.npz`` (stale once later checkpoints exist)."""
     (Path(folder) / STATE_FILE).unlink(missing_ok=True)
     shutil.rmtree(Path(folder) / STATE_TRACKLETS, ignore_errors=True)
+
+
+def input_fingerprints(paths) -> dict[str, list[int]]:
+    """Resolved path -> (bytes, latest modification time in ns) of each input file given; a
+    folder counts its files and sums their sizes (``[files, bytes, latest time]``). Streams and
+    missing paths are left out."""
+    import os
+
+    out = {}
+    for p in paths:
+        if p is None or "://" in str(p):
+            continue
+        path = Path(p)
+        try:
+            if path.is_dir():
+                files = [e.stat() for e in os.scandir(path) if e.is_file()]
+                out[str(path.resolve())] = [len(files), sum(f.st_size for f in files),
+                                            max((f.st_mtime_ns for f in files), default=0)]
+            elif path.is_file():
+                st = path.stat()
+                out[str(path.resolve())] = [st.st_size, st.st_mtime_ns]
+        except OSError:
+            continue
+    return out
