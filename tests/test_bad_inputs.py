@@ -714,6 +714,13 @@ def test_report_bad_video_width(tmp_path, capsys, run_dir):
     assert not (run_dir / "report.html").exists()
 
 
+def test_report_out_must_be_html(tmp_path, capsys, run_dir):
+    """HTML was written into report.pdf with exit 0 (a probe)."""
+    expect_error(capsys, ["--out", "name it .html"], "report", run_dir, "--out",
+                 tmp_path / "r.pdf", "--no-video")
+    assert not (tmp_path / "r.pdf").exists()
+
+
 def test_an_output_never_replaces_an_input(tmp_path, capsys, video, run_dir):
     """render --out the input video, report --out the run's tracks.csv, mosaic --out the map or
     a frame of its input folder, mosaic --registration onto its own --out, and track --out a
