@@ -1714,3 +1714,36 @@ def test_an_empty_path_is_refused(tmp_path, capsys, dets, monkeypatch, argv):
     code, _, err = run_cli(capsys, *[dets if a == "DETS" else a for a in argv])
     assert code == 2 and "empty path" in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dets.txt"]
+
+
+def test_a_file_name_that_is_not_utf8_is_read(tmp_path, video):
+    """A FAT card's or Windows zip's Latin-1 name ('v\\xeddeo') crashed OpenCV (a segfault, exit
+    139, no message; in a batch, every input lost): the video and an image folder holding such a
+    name are read like any other. Run in a child process, so that a crash fails the test."""
+    import os
+    import subprocess
+    import sys
+
+    odd = Path(os.fsdecode(b"v\xeddeo.avi"))
+    os.rename(video, tmp_path / odd)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(4):
+        name = f"{i:03d}.png" if i != 2 else os.fsdecode(b"002\xf1.png")
+        cv2.imwrite(str(tmp_path / "x.png"), textured(shift=(0, i)))
+        os.rename(tmp_path / "x.png", folder / name)
+    code = ("import sys; from aerotrack.io import open_source\n"
+            "for p, fps in ((sys.argv[1], None), (sys.argv[2], 10)):\n"
+            "    s = open_source(p, fps)\n"
+            "    print(sum(1 for _ in s.frames()), s.size)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    res = subprocess.run([sys.executable, "-c", code, os.fsencode(tmp_path / odd),
+                          os.fsencode(folder)], check=False, capture_output=True, env=env,
+                         timeout=120)
+    assert res.returncode == 0, (res.returncode, res.stderr[-800:])
+    assert res.stdout.decode().split("\n")[:2] == ["6 (160, 120)", "4 (160, 120)"], res.stdout
+    # and such a name in a report or table is written escaped, not a traceback
+    from aerotrack.io.output import atomic_write_text
+
+    atomic_write_text(tmp_path / "r.html", f"<p>{tmp_path / odd}</p>")
+    assert b"v\\udceddeo.avi" in (tmp_path / "r.html").read_bytes()

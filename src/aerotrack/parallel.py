@@ -1614,13 +1614,13 @@ def item_fps(input_path, fps: float | None) -> float | None:
             log.info("%s: tracked at its own %g frames/s (seqinfo.ini; --fps %g is for image "
                      "folders and videos that name no rate)", input_path, seq[1], fps)
         return None
-    from .io.frames import RAW_STREAM_SUFFIXES
+    from .io.frames import RAW_STREAM_SUFFIXES, cv_path
 
     if Path(input_path).suffix.lower() in RAW_STREAM_SUFFIXES:
         return fps  # FFmpeg's guess (25), not a rate the stream names
     import cv2
 
-    cap = cv2.VideoCapture(str(input_path))
+    cap = cv2.VideoCapture(cv_path(input_path))
     try:
         native = cap.get(cv2.CAP_PROP_FPS) if cap.isOpened() else 0.0
     finally:

@@ -63,9 +63,11 @@ def read_mask(path) -> np.ndarray | None:
     """The mask :func:`write_mask` saved, or None when there is none (or it is unreadable)."""
     import cv2
 
+    from ..io.frames import cv_path
+
     if not Path(path).is_file():
         return None
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    img = cv2.imread(cv_path(path), cv2.IMREAD_GRAYSCALE)
     return None if img is None else img > 127
 
 

@@ -142,6 +142,51 @@ def _check_fps(fps: float | None, label: str) -> float | None:
     return float(fps)
 
 
+_CV_LINKS: dict[str, str] = {}
+_CV_LINK_DIR: list[str] = []
+
+
+def cv_path(path) -> str:
+    """The name OpenCV is given for ``path``.
+
+    OpenCV takes its file names as UTF-8 text. A name that is not valid UTF-8 (a FAT card's or a
+    Windows zip's Latin-1 name, which Python holds with surrogate escapes) crashed the process in
+    ``cv2.VideoCapture`` and ``cv2.imread`` (a segfault, exit 139, no message; a probe, also
+    killing a whole batch). Such a path is reached through a link with a plain name in a private
+    temporary folder (removed at exit), keeping its suffix (OpenCV picks image decoders by it).
+    """
+    s = str(path)
+    try:
+        s.encode("utf-8")
+        return s
+    except UnicodeEncodeError:
+        pass
+    key = os.path.abspath(s)
+    link = _CV_LINKS.get(key)
+    if link is None:
+        import atexit
+        import shutil
+        import tempfile
+
+        if not _CV_LINK_DIR:
+            _CV_LINK_DIR.append(tempfile.mkdtemp(prefix="aerotrack-names-"))
+            atexit.register(shutil.rmtree, _CV_LINK_DIR[0], True)
+        suffix = Path(s).suffix
+        try:
+            suffix.encode("utf-8")
+        except UnicodeEncodeError:
+            suffix = ""
+        link = os.path.join(_CV_LINK_DIR[0], f"{len(_CV_LINKS)}{suffix}")
+        try:
+            os.symlink(key, link)
+        except OSError as exc:
+            shown = s.encode("utf-8", "backslashreplace").decode("ascii", "replace")
+            raise InputError(f"{shown}: its name is not valid UTF-8, which OpenCV cannot open "
+                             f"({exc.strerror}); rename it") from None
+        _CV_LINKS[key] = link
+    return link
+
+
 class VideoSource(FrameSource):
     """A video file anything OpenCV/FFmpeg decodes."""
 
@@ -149,7 +194,7 @@ class VideoSource(FrameSource):
                  by_name: bool = False) -> None:
         self.path = Path(path)
         fps = _check_fps(fps, str(self.path))
-        cap = cv2.VideoCapture(str(self.path))
+        cap = cv2.VideoCapture(cv_path(self.path))
         try:
             if not cap.isOpened():
                 raise InputError(f"{self.path}: cannot open as a video (unknown format or corrupt)")
@@ -174,7 +219,7 @@ class VideoSource(FrameSource):
         differ by more than a third (a variable-frame-rate video, as phones and some drones
         write), else None. Frames are numbered in decoding order and timed at ``fps``: speeds
         then run fast or slow where the rate differs from the mean."""
-        cap = cv2.VideoCapture(str(self.path))
+        cap = cv2.VideoCapture(cv_path(self.path))
         try:
             stamps = []
             while len(stamps) < n and cap.grab():
@@ -203,12 +248,12 @@ class VideoSource(FrameSource):
         and falls back to the checkpoints (:mod:`aerotrack.io.state`).
         """
         log = logging.getLogger(__name__)
-        cap = cv2.VideoCapture(str(self.path))
+        cap = cv2.VideoCapture(cv_path(self.path))
         try:
             index = self._seek(cap, start) if start > 1 else 0  # frames before the next read
             if index < 0:  # cannot seek: decode from the first frame
                 cap.release()
-                cap = cv2.VideoCapture(str(self.path))
+                cap = cv2.VideoCapture(cv_path(self.path))
                 index = 0
             sought, fails, t_last = index > 0, 0, None
             while True:
@@ -217,7 +262,7 @@ class VideoSource(FrameSource):
                     log.info("%s: nothing decodes after seeking to frame %d; decoding from the "
                              "first frame", self.path, start)
                     cap.release()
-                    cap = cv2.VideoCapture(str(self.path))
+                    cap = cv2.VideoCapture(cv_path(self.path))
                     index, sought = 0, False
                     continue
                 sought = False
@@ -347,7 +392,7 @@ class ImageFolderSource(FrameSource):
         #: whether images carry an alpha channel (transparent pixels read black)
         self.alpha = False
         if self.files[0].suffix.lower() in (".png", ".tif", ".tiff", ".webp"):
-            full = cv2.imread(str(self.files[0]), cv2.IMREAD_UNCHANGED)
+            full = cv2.imread(cv_path(self.files[0]), cv2.IMREAD_UNCHANGED)
             self.alpha = full is not None and full.ndim == 3 and full.shape[2] == 4
         if raw.dtype != np.uint8:
             self.depth_range = self._depth_range(raw)
@@ -361,7 +406,7 @@ class ImageFolderSource(FrameSource):
     def _decode(self, p: Path) -> np.ndarray:
         flags = cv2.IMREAD_UNCHANGED if getattr(self, "alpha", False) else \
             cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR
-        img = cv2.imread(str(p), flags)
+        img = cv2.imread(cv_path(p), flags)
         if img is None:
             raise UnreadableImage(f"{p}: cannot decode image")
         return img
@@ -412,12 +457,12 @@ class ImageFolderSource(FrameSource):
 
     def _read_decoded(self, p: Path) -> np.ndarray:
         if self.depth_range is None and not self.alpha:
-            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            img = cv2.imread(cv_path(p), cv2.IMREAD_COLOR)
             if img is None:
                 raise UnreadableImage(f"{p}: cannot decode image")
             return img
         if self.depth_range is None:  # 8 bits with alpha
-            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            img = cv2.imread(cv_path(p), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise UnreadableImage(f"{p}: cannot decode image")
             return _opaque_bgr(img)

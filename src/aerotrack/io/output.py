@@ -144,6 +144,10 @@ def atomic_write(path: str | Path, mode: str = "w", **kwargs) -> Iterator[IO]:
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; results are as readable as any new file
     except OSError as exc:
         raise OutputError(f"{path}: cannot write there ({_why_not(path, exc)})") from None
+    if "b" not in mode:
+        # a file name that is not valid UTF-8 (held with surrogate escapes) in a report or a
+        # table stopped the write with a traceback: it is written escaped (``\udced``)
+        kwargs.setdefault("errors", "backslashreplace")
     try:
         with open(tmp, mode, **kwargs) as fh:
             yield fh

@@ -258,7 +258,9 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
 
 
 def _video_width(path: Path) -> int:
-    cap = cv2.VideoCapture(str(path))
+    from ..io.frames import cv_path
+
+    cap = cv2.VideoCapture(cv_path(path))
     try:
         return int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) if cap.isOpened() else 0
     finally:
@@ -269,7 +271,9 @@ def _covers_run(path: Path, results: RunResults) -> bool:
     """Whether a video holds (about) as many frames as the run tracked: one `aerotrack render
     --start/--stop` made over a part of it is not the run's overlay. A count the container does
     not give (<= 0) is trusted."""
-    cap = cv2.VideoCapture(str(path))
+    from ..io.frames import cv_path
+
+    cap = cv2.VideoCapture(cv_path(path))
     try:
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
     finally:
