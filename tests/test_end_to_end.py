@@ -297,7 +297,8 @@ def test_clips_too_short_or_with_repeated_frames_are_pointed_out(scene, tmp_path
         shutil.copy(f, short / f.name)
     code, _, err = run_cli(capsys, "track", short, "--out", tmp_path / "o1", "--fps", "30")
     assert code == 0 and "the clip is 10 frames" in err, err
-    assert "min_length_s" in json.loads((tmp_path / "o1" / "summary.json").read_text())["hints"][0]
+    hint = json.loads((tmp_path / "o1" / "summary.json").read_text())["hints"][0]
+    assert "min_length_s" in hint and "image folder" in hint and "min_edge_track_s" in hint
     rep = tmp_path / "repeated"
     rep.mkdir()
     for i, f in enumerate(frames[:120]):
@@ -518,3 +519,29 @@ def test_detections_alone_on_a_map_are_placed_by_map_init(scene, tmp_path, capsy
     assert code == 0, err
     local = table(tmp_path / "gsd" / "observations.csv")
     assert local and local[0]["crs"].startswith("LOCAL") and any(r["speed_mps"] for r in local)
+
+
+def test_the_short_clip_hint_says_what_tracks_one(shared_data, tmp_path, capsys):
+    """Santiago's first 10 frames gave 0 tracks and a hint naming association.min_length_s,
+    which alone changed nothing (the linking gates drop such tracks too: a probe); what the hint
+    says to set now tracks the clip."""
+    from conftest import run_cli
+
+    cap = cv2.VideoCapture(str(shared_data / "santiago_intersection_dfs"
+                               / "video_sift_estabilizado_filtrado.mp4"))
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for i in range(10):
+        ok, img = cap.read()
+        assert ok
+        cv2.imwrite(str(clip / f"{i + 1:03d}.jpg"), img)
+    cap.release()
+    code, _, err = run_cli(capsys, "track", clip, "--out", tmp_path / "a", "--fps", "30")
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert code == 0 and summary["counts"]["tracks"] == 0, err
+    hint = summary["hints"][0]
+    sets = [a for part in hint.split("--set ")[1:] for a in ("--set", part.split()[0])]
+    assert len(sets) == 6, hint
+    code, _, err = run_cli(capsys, "track", clip, "--out", tmp_path / "b", "--fps", "30", *sets)
+    assert code == 0, err
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["counts"]["tracks"] >= 5

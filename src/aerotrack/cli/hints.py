@@ -5,23 +5,32 @@ from __future__ import annotations
 
 
 def clip_hints(result, config, *, builtin_detector: bool = True,
-               tracked: bool = True) -> list[str]:
+               tracked: bool = True, image_folder: bool = False) -> list[str]:
     """Warnings about the clip itself, each a line for the log and ``summary.json`` ``hints``:
     a clip shorter than the shortest track kept (``association.min_length_s``: 10 frames at 30 fps
     gave 0 tracks and no word), one shorter than the background window (a wrong frame-rate tag:
     Santiago tagged 59.94 fps lost 0.22 HOTA), and frames that repeat the one before (a recorder
     that dropped frames: 6 repeated frames cost 0.04 HOTA and 4 ID switches). ``tracked`` False
-    (``aerotrack detect``): no hint about tracks."""
+    (``aerotrack detect``): no hint about tracks. ``image_folder``: the frames came from image
+    files, read at 30 frames/s unless told."""
     hints = []
     fps = float(result.fps or 30.0)
     # the clip's length, not the frames processed (--stride k processes every k-th)
     seconds = (result.last_frame - result.first_frame + 1) / fps if result.frames else 0.0
-    if (tracked and result.frames and not result.tracks
-            and seconds < 2 * config.association.min_length_s):
-        hints.append(f"the clip is {round(seconds * fps)} frames ({seconds:.2f} s at {fps:g} frames/s) "
-                     f"and tracks shorter than association.min_length_s "
-                     f"({config.association.min_length_s:g} s) are dropped: is --fps right?"
-                     + (" (an image folder is read at 30 unless told)" if builtin_detector else ""))
+    shortest = max(config.association.min_length_s, config.linking.min_edge_track_s)
+    if tracked and result.frames and not result.tracks and seconds < 2 * shortest:
+        # (the hint named association.min_length_s alone; setting it changed nothing, as the
+        # linking gates drop such tracks too: a probe)
+        hints.append(
+            f"the clip is {round(seconds * fps)} frame{'s' * (round(seconds * fps) != 1)} "
+            f"({seconds:.2f} s at {fps:g} frames/s), and tracks shorter than "
+            f"association.min_length_s ({config.association.min_length_s:g} s) and "
+            f"linking.min_edge_track_s ({config.linking.min_edge_track_s:g} s, for tracks the "
+            "clip's ends cut) are dropped: is --fps right?"
+            + (" (an image folder is read at 30 unless told)" if image_folder else "")
+            + " To track a clip this short anyway (expect more false tracks): --set "
+              "association.min_length_s=0.1 --set linking.min_edge_track_s=0.1 --set "
+              "linking.min_track_s=0.2")
     elif builtin_detector and result.frames and seconds < config.detection.window_s:
         hints.append(f"the clip ({round(seconds * fps)} frames, {seconds:.1f} s at {fps:g} frames/s) is "
                      f"shorter than the background window detection.window_s "

@@ -696,7 +696,8 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         warn_if_never_refined(result, geomap, config,
                               f"--telemetry {telemetry_path}" if telemetry_path is not None
                               else f"--map-init {map_init_path}" if map_init_path else None)
-        hints = clip_hints(result, config, builtin_detector=dets is None)
+        hints = clip_hints(result, config, builtin_detector=dets is None,
+                           image_folder=input_path is not None and Path(input_path).is_dir())
         if dets is None and geomap is None and metres_per_unit is None:
             from ..detection.moving import small_vehicles_hint
 
