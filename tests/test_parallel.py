@@ -1036,3 +1036,23 @@ def test_an_interrupt_while_an_input_is_finished_stops_before_the_next(tmp_path,
         run_batch(items, fps=FPS, metres_per_unit=0.3, progress=progress)
     assert (tmp_path / "out" / "a" / "summary.json").is_file()
     assert not (tmp_path / "out" / "b").exists()
+
+
+def test_batch_writes_each_inputs_hints_as_track_does(tmp_path, scene, capsys):
+    """`batch` wrote no hints: a 5-frame clip's "0 tracks" came with no word (summary.json
+    `hints` absent), which `track` explains; each input's warnings are now logged under its name
+    and written to its summary.json, alike for both."""
+    from conftest import run_cli
+
+    folder, _ = scene
+    videos = tmp_path / "videos"
+    (videos / "short").mkdir(parents=True)
+    for p in sorted(folder.iterdir())[:5]:
+        (videos / "short" / p.name).write_bytes(p.read_bytes())
+    code, _, err = run_cli(capsys, "batch", videos, "--out", tmp_path / "out", "--fps", "30")
+    assert code == 0 and "short: the clip is 5 frames" in err, err
+    got = json.loads((tmp_path / "out" / "short" / "summary.json").read_text())["hints"]
+    code, _, err = run_cli(capsys, "track", videos / "short", "--out", tmp_path / "one",
+                           "--fps", "30")
+    assert code == 0, err
+    assert got == json.loads((tmp_path / "one" / "summary.json").read_text())["hints"]

@@ -1641,7 +1641,8 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
               geomap=None, roads=None, min_speed_mps: float | None = None,
               out_crs: str | None = None, telemetry_defaults: Sequence[str] = (),
               run_info: dict | None = None, detections: str | None = None,
-              detections_zero_based: bool = False) -> dict[str, dict | BaseException]:
+              detections_zero_based: bool = False,
+              hints: Callable[..., list[str]] | None = None) -> dict[str, dict | BaseException]:
     """Track every unfinished item into its output folder.
 
     With ``geomap`` every item is tracked on that map, its frame 1 placed by the file beside it
@@ -1650,7 +1651,10 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     alone. ``roads``, ``min_speed_mps`` and ``out_crs`` are ``track``'s ``--roads``,
     ``--min-speed`` and ``--out-crs``; ``run_info`` goes into every ``summary.json`` (the
     command's options). ``detections``: each item's own detections replace the built-in
-    detector (:func:`item_detections`).
+    detector (:func:`item_detections`). ``hints(result, config, detections_given=,
+    image_folder=, geomap=, metres_per_unit=, gsd=)`` gives each run's warnings (logged under
+    its name and written to its ``summary.json``, as ``track`` does:
+    :func:`aerotrack.cli.hints.run_hints`).
 
     Without ``client`` the videos run one after the other in this process. With a
     ``distributed.Client`` the segments of every video are submitted at once (so workers stay busy
@@ -1784,6 +1788,14 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                            if it.name in dets else {}),
                         **(run_info or {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3), **notes}
+                said = hints(result, config, detections_given=it.name in dets,
+                             image_folder=Path(it.input).is_dir(), geomap=geomap,
+                             metres_per_unit=metres_per_unit,
+                             gsd=metres_per_unit) if hints is not None else []
+                for hint in said:
+                    log.warning(hint)
+                if said:
+                    info["hints"] = said
                 summary = write_outputs(result, folder, config=config, geomap=geomap,
                                         run_info=info, out_crs=out_crs)
                 if client is not None:  # the joined stages, as `aerotrack track --workers` keeps them

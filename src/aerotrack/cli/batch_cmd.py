@@ -17,6 +17,7 @@ from .common import (
     seed_option,
     set_option,
 )
+from .hints import run_hints
 
 log = logging.getLogger("aerotrack")
 
@@ -201,7 +202,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
                             progress=stopper.wrap(lambda n: None), geomap=geomap, roads=roads,
                             min_speed_mps=min_speed, out_crs=out_crs,
                             telemetry_defaults=telemetry_defaults, run_info=run_info,
-                            detections=detections, detections_zero_based=detections_zero_based)
+                            detections=detections, detections_zero_based=detections_zero_based,
+                            hints=run_hints)
     failed = [path.name for path, _ in unusable]
     names = {it.name: Path(it.input).name for it in items}
     failed += [names.get(name, name) for name, r in results.items() if isinstance(r, BaseException)]

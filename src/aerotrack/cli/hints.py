@@ -61,6 +61,33 @@ def clip_hints(result, config, *, builtin_detector: bool = True,
     return hints
 
 
+def run_hints(result, config, *, detections_given: bool = False, image_folder: bool = False,
+              geomap=None, metres_per_unit: float | None = None, gsd: float | None = None,
+              ground: bool = False) -> list[str]:
+    """Every warning about a tracking run's clip and results (``track`` and each input of
+    ``batch``, which wrote none: a 5-frame clip's "0 tracks" came with no word, and an oblique
+    folder lost the warning ``track`` gives): :func:`clip_hints`, small vehicles and an oblique
+    view (built-in detector, no map), and the scale."""
+    import numpy as np
+
+    from ..detection.moving import oblique_hint, small_vehicles_hint
+
+    hints = clip_hints(result, config, builtin_detector=not detections_given,
+                       image_folder=image_folder)
+    if not detections_given and geomap is None and metres_per_unit is None:
+        hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
+                                         result.frames))
+    if not detections_given and geomap is None and not ground:
+        # (with a map or a ground plane the detector models the view)
+        observed = [p.box for t in result.tracks for p in t.points
+                    if p.kind == "observed" and p.box is not None]
+        hints.append(oblique_hint(None, gsd, boxes=np.asarray(observed, float)))
+    hints.append(scale_hint(result, "--ground" if ground else
+                            "--map/--map-init" if geomap is not None else
+                            "--gsd" if gsd is not None else None))
+    return [h for h in hints if h]
+
+
 #: The noise hint: in at least NOISE_SHARE of the frames the threshold is NOISE_RATIO times
 #: ``detection.min_threshold`` or more.
 NOISE_RATIO = 1.5

@@ -35,7 +35,7 @@ from .common import (
     telemetry_option,
     track_fps_option,
 )
-from .hints import clip_hints, noise_hint, scale_hint
+from .hints import clip_hints, noise_hint, run_hints
 
 log = logging.getLogger("aerotrack")
 
@@ -696,26 +696,10 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
         warn_if_never_refined(result, geomap, config,
                               f"--telemetry {telemetry_path}" if telemetry_path is not None
                               else f"--map-init {map_init_path}" if map_init_path else None)
-        hints = clip_hints(result, config, builtin_detector=dets is None,
-                           image_folder=input_path is not None and Path(input_path).is_dir())
-        if dets is None and geomap is None and metres_per_unit is None:
-            from ..detection.moving import small_vehicles_hint
-
-            hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
-                                             result.frames))
-        if dets is None:
-            import numpy as np
-
-            from ..detection.moving import oblique_hint
-
-            if geomap is None and ground_path is None:  # (with either, the detector models it)
-                observed = [p.box for t in result.tracks for p in t.points
-                            if p.kind == "observed" and p.box is not None]
-                hints.append(oblique_hint(None, gsd, boxes=np.asarray(observed, float)))
-        hints.append(scale_hint(result, "--ground" if ground_path is not None else
-                                "--map/--map-init" if geomap is not None else
-                                "--gsd" if gsd is not None else None))
-        hints = [h for h in hints if h]
+        hints = run_hints(result, config, detections_given=dets is not None,
+                          image_folder=input_path is not None and Path(input_path).is_dir(),
+                          geomap=geomap, metres_per_unit=metres_per_unit, gsd=gsd,
+                          ground=ground_path is not None)
         for hint in hints:
             log.warning(hint)
         if hints:
