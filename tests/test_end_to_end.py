@@ -545,3 +545,20 @@ def test_the_short_clip_hint_says_what_tracks_one(shared_data, tmp_path, capsys)
     code, _, err = run_cli(capsys, "track", clip, "--out", tmp_path / "b", "--fps", "30", *sets)
     assert code == 0, err
     assert json.loads((tmp_path / "b" / "summary.json").read_text())["counts"]["tracks"] >= 5
+
+
+def test_the_closing_line_quotes_the_report_command(tmp_path, capsys):
+    """"to look at them: aerotrack report out dir/clip1" failed when pasted into a shell (a path
+    with spaces); "1 frames", "1 tracks" read wrong."""
+    import shlex
+
+    from conftest import run_cli
+
+    dets = tmp_path / "dets.txt"
+    dets.write_text("1,-1,10,10,8,4,0.9\n")
+    out = tmp_path / "out dir" / "clip 1"
+    code, _, err = run_cli(capsys, "track", "--detections", dets, "--out", out)
+    assert code == 0, err
+    line = err.strip().splitlines()[-1]
+    assert "1 frame," in line and "1 detection," in line and "0 tracks" in line, line
+    assert shlex.split(line.split("to look at them: ")[1]) == ["aerotrack", "report", str(out)]

@@ -158,9 +158,9 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         elif quiet:
             return
         else:
-            c = summary["counts"]
-            click.echo(f"aerotrack: {Path(item.input).name}: {summary['frames']} frames, "
-                       f"{c['tracks']} tracks -> {item.out}", err=True)
+            c, k = summary["counts"], summary["frames"]
+            click.echo(f"aerotrack: {Path(item.input).name}: {k} frame{'s' * (k != 1)}, "
+                       f"{c['tracks']} track{'s' * (c['tracks'] != 1)} -> {item.out}", err=True)
 
     for path, why in unusable:
         click.echo(f"aerotrack: {path.name}: failed: {path}: {why}", err=True)

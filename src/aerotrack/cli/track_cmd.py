@@ -749,11 +749,17 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     if not quiet:
         cut = (f" (interrupted: frames {result.first_frame}-{result.last_frame})"
                if "interrupted_at_frame" in notes else "")
+        import shlex
+
+        def n(k, what):
+            return f"{k} {what}{'s' * (k != 1)}"
+
+        # (the command is quoted: a path with spaces pasted into a shell failed)
         click.echo(
-            f"aerotrack: {result.frames} frames{cut}, {c['detections']} detections, "
-            f"{c['tracks']} tracks "
+            f"aerotrack: {n(result.frames, 'frame')}{cut}, {n(c['detections'], 'detection')}, "
+            f"{n(c['tracks'], 'track')} "
             f"-> {out.path}/tracks.csv ({summary['frames_per_second']} frames/s); to look at "
-            f"them: aerotrack report {out.path}", err=True)
+            f"them: aerotrack report {shlex.quote(str(out.path))}", err=True)
 
 
 #: Share of a run's frames that may be blank (no contrast) before the run warns.
