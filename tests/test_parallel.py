@@ -1056,3 +1056,15 @@ def test_batch_writes_each_inputs_hints_as_track_does(tmp_path, scene, capsys):
                            "--fps", "30")
     assert code == 0, err
     assert got == json.loads((tmp_path / "one" / "summary.json").read_text())["hints"]
+
+
+def test_batch_output_names_apart_on_case_insensitive_disks(tmp_path):
+    """Clip.AVI and clip.mkv went to Clip/ and clip/, one folder on macOS, Windows and exFAT:
+    stems alike but for case keep their suffixes, as equal stems do."""
+    inp = tmp_path / "in"
+    inp.mkdir()
+    for name in ("Clip.AVI", "clip.mkv", "DJI_0001.MOV", "DJI_0001.MP4", "other.mp4"):
+        (inp / name).write_bytes(b"\0" * 10)
+    names = sorted(i.name for i in plan_batch(inp, tmp_path / "out"))
+    assert names == ["Clip.AVI", "DJI_0001.MOV", "DJI_0001.MP4", "clip.mkv", "other"]
+    assert len({n.casefold() for n in names}) == len(names)

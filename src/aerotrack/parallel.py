@@ -1395,9 +1395,12 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
                 q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES for q in p.iterdir()))):
             found.append(p)
     stems = [p.stem if p.is_file() else p.name for p in found]
+    # stems alike but for case keep their suffixes too: Clip.AVI's Clip/ and clip.mkv's clip/
+    # are one folder on macOS, Windows and exFAT
+    folded = [s.casefold() for s in stems]
     items = []
     for p, stem in zip(found, stems):
-        name = p.name if stems.count(stem) > 1 else stem
+        name = p.name if folded.count(stem.casefold()) > 1 else stem
         out = out_dir / name
         src, dst = p.resolve(), out.resolve()
         if dst == src or src in dst.parents or dst in src.parents:
