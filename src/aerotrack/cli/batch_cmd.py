@@ -101,6 +101,7 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     from ..errors import InputError
     from ..io.output import check_writable
     from ..parallel import (
+        VIDEO_SUFFIXES,
         ParallelConfig,
         batch_changes,
         check_scheduler,
@@ -145,7 +146,15 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
     bad = {p for p, _ in unusable}
     items = [it for it in items if Path(it.input) not in bad]
     if not items and not unusable:
-        raise InputError(f"{input_dir}: no video files or image folders")
+        # a camera card (DCIM/100MEDIA/...): name the sub-folders that hold videos
+        deeper = sorted({q.parent.relative_to(input_dir).as_posix()
+                         for q in Path(input_dir).glob("*/**/*")
+                         if q.is_file() and q.suffix.lower() in VIDEO_SUFFIXES
+                         and not any(part.startswith(".") for part in q.parts)})
+        raise InputError(f"{input_dir}: no video files or image folders"
+                         + (f"; videos are in its sub-folder{'s' * (len(deeper) > 1)} "
+                            f"{', '.join(deeper[:3])}{', ...' if len(deeper) > 3 else ''}: "
+                            "give that folder" if deeper else ""))
     lock = lock_batch(out_dir)
     if lock is not None:
         ctx.call_on_close(lock.close)  # released when the command ends, however it ends
