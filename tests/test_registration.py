@@ -666,3 +666,22 @@ def test_a_pan_blurred_throughout_keeps_taking_keyframes(map_img):
         return corner_error(r.H, np.linalg.inv(cam(0)) @ cam(39), W, H)
 
     assert final_error(RegistrationConfig().keyframe_blur_ratio) <= final_error(0.0) + 0.5
+
+
+def test_mosaic_frames_leave_no_dark_seam_at_their_edges():
+    """A frame's edge was interpolated with the black outside it, leaving a dark dotted seam
+    along every painted frame (a probe); --no-outlines (outline_every 0) draws no outline."""
+    from aerotrack.registration.mosaic import paint_mosaic
+    from aerotrack.types import Frame
+
+    w, h = 64, 48
+    frames = [Frame(index=k, image=np.full((h, w, 3), 200, np.uint8), time=0.0)
+              for k in (1, 2)]
+    Hs = {1: np.eye(3), 2: np.array([[np.cos(0.3), -np.sin(0.3), 20.3],
+                                     [np.sin(0.3), np.cos(0.3), 7.7], [0, 0, 1]])}
+    img = paint_mosaic(frames, Hs, (w, h), margin=5, outline_every=0)
+    bright = img[..., 1] > 100  # painted (the empty canvas is 40)
+    assert bright.sum() > w * h
+    inner = cv2.erode(bright.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    edge = bright & ~inner
+    assert img[edge][:, 1].min() >= 190, img[edge][:, 1].min()

@@ -31,16 +31,20 @@ OFF_MAP_WARN = 0.05
               help="Longest side of the picture in pixels.")
 @click.option("--registration", "reg_csv", type=PathArg(dir_okay=False), default=None,
               help="Also write the per-frame homographies as registration.csv here.")
+@click.option("--outlines/--no-outlines", default=True, show_default=True,
+              help="Draw frame outlines: the first frame green, the last red, and about every "
+                   "twelfth of the painted frames yellow (burned into the picture).")
 @config_option
 @set_option
 @click.pass_context
 def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stride, max_side, reg_csv,
-                   config_path, overrides):
+                   outlines, config_path, overrides):
     """Register every frame of INPUT (video or image folder) and paint them into one picture.
 
     With --map and --map-init the frames are painted onto the map in map pixels (registration
-    refined against the map); without a map, onto frame 1's plane. Outlines: first frame green,
-    last red. With a map the picture is georeferenced: a .tif is a GeoTIFF in the map's CRS, a
+    refined against the map); without a map, onto frame 1's plane, at most twice frame 1's
+    diagonal around it (an oblique view reaches the horizon). Outlines: first frame green, last
+    red, others yellow (--no-outlines: none). With a map the picture is georeferenced: a .tif is a GeoTIFF in the map's CRS, a
     .png or .jpg gets a world file (.pgw, .jgw) and a .aux.xml naming the CRS, which QGIS and
     GDAL read.
 
@@ -101,8 +105,22 @@ def mosaic_command(ctx, input_path, out_path, map_path, map_init_path, fps, stri
                         "the picture, which covers the map (without --map the frames are "
                         "painted whole, on frame 1's plane)", 100 * off)
     n_painted = (len(regs) + stride - 1) // stride
+    if base is None:
+        import numpy as np
+
+        from ..registration.mosaic import mosaic_bounds
+
+        w, h = source.size
+        whole = mosaic_bounds(Hs.values(), w, h)
+        if mosaic_bounds(Hs.values(), w, h, 2.0 * float(np.hypot(w, h))) != whole:
+            # (the picture was cut there with no word: truck4's later flight over the city was
+            # a sliver near frame 1's horizon)
+            log.warning("mosaic: the frames reach beyond twice frame 1's diagonal on its plane "
+                        "(an oblique view towards the horizon, or a long flight): the picture "
+                        "shows that much around frame 1; --map paints them onto a map instead")
     img, S = paint_mosaic(source.frames(stride=stride), Hs, source.size, base=base,
-                          max_side=max_side, outline_every=max(1, n_painted // 12),
+                          max_side=max_side,
+                          outline_every=max(1, n_painted // 12) if outlines else 0,
                           with_transform=True)
     beside: list[tuple[Path, bytes]] = []  # world file and CRS of a georeferenced .png/.jpg
     if geomap is not None and out.suffix.lower() in (".tif", ".tiff"):

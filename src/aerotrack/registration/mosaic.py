@@ -138,7 +138,10 @@ def paint_mosaic(frames: Iterable[Frame], Hs: Mapping[int, np.ndarray], frame_si
             continue
         T = np.array([[1, 0, -bx0], [0, 1, -by0], [0, 0, 1]], dtype=np.float64) @ Hc
         size = (bx1 - bx0, by1 - by0)
-        warped = cv2.warpPerspective(frame.image, T, size, flags=cv2.INTER_LINEAR)
+        # the border replicated: interpolating the frame's edge with the black outside left a
+        # dark dotted seam along every painted frame's edge (a probe)
+        warped = cv2.warpPerspective(frame.image, T, size, flags=cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE)
         m = cv2.warpPerspective(np.full(frame.image.shape[:2], 255, np.uint8), T, size,
                                 flags=cv2.INTER_NEAREST) > 0
         sub = layer[by0:by1, bx0:bx1]
