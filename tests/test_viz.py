@@ -602,3 +602,11 @@ def test_render_names_an_input_that_is_not_the_one_tracked(tmp_path, caplog):
         res.check_input(open_source(folder, 30.0), folder)
         warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
         assert (expect is None and not warned) or (expect and expect in " ".join(warned)), warned
+
+
+def test_registration_picture_of_a_stabilised_run_says_none_was_done(tmp_path):
+    """A --stabilised run's chart showed flat zero lines with no word (taken for a failure)."""
+    res = RunResults.load(make_run(tmp_path, with_map=False))
+    assert "no registration" not in plot_registration(res).axes[0].get_title()
+    res.summary["stabilised"] = True
+    assert "no registration" in plot_registration(res).axes[0].get_title()

@@ -78,7 +78,8 @@ def count_command(ctx: click.Context, run_dir, line_texts, lines_path, band, bin
     counts.csv (per line, direction and bin: the count, the mean spot speed, and the share of
     the bin the camera saw the line, since a zero count in a bin it did not see means nothing)
     and movements.csv (per track: first and last line crossed, travel time between them), and
-    prints the totals and the origin-destination matrix.
+    count_lines.png (the lines on the run's first frame, unless --no-picture), and prints the
+    totals and the origin-destination matrix.
 
     \b
     Examples:

@@ -32,8 +32,9 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
       OUT/scene/    the rendered video frames, gt.txt, map.tif, map_init.txt, roads.geojson,
                     true homographies
       OUT/run/      what `aerotrack track` writes with a map (tracks.csv, predicted.csv,
-                    detections.csv, registration.csv, tracks.geojson, observations.csv/.gpkg,
-                    config.toml, summary.json, stages/), then overlay.webm, map.png,
+                    links.csv, detections.csv, registration.csv, tracks.geojson,
+                    observations.csv/.gpkg/.parquet, config.toml, summary.json, stages/), then
+                    overlay.webm, map.png,
                     spacetime.png, registration.png, report.html
 
     \b

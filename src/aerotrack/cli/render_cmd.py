@@ -50,7 +50,8 @@ def load_map(results, map_path):
 @click.option("--labels/--no-labels", default=True, show_default=True,
               help="Draw the ID labels (--no-labels: boxes, trails and predictions only).")
 @click.option("--pictures/--no-pictures", default=True, show_default=True,
-              help="Also write DIR/map.png, DIR/spacetime.png and DIR/registration.png.")
+              help="Also write DIR/map.png, DIR/spacetime.png and DIR/registration.png (into "
+                   "DIR, wherever --out puts the video).")
 @click.pass_context
 def render_command(ctx: click.Context, input_path, run_dir, out_path, trail_s, max_width, start, stop,
                    map_path, text_height, labels, pictures) -> None:
