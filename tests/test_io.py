@@ -426,6 +426,15 @@ def test_a_gap_in_numbered_frame_files_is_named(tmp_path, caplog):
         assert "skip" not in caplog.text
         assert open_source(gap).count == 10
     assert "file numbers skip 1 time (between 49-51; about 1 file missing)" in caplog.text
+    # one file without a number beside them turned the check off (a probe)
+    cv2.imwrite(str(gap / "zfinal.png"), img)
+    from aerotrack.io import frames
+
+    frames._GAPS_WARNED.clear()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="aerotrack"):
+        open_source(gap)
+    assert "file numbers skip 1 time" in caplog.text
 
 
 def test_a_motchallenge_sequence_folder_is_read_from_its_image_folder(tmp_path, capsys):

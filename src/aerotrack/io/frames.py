@@ -522,9 +522,10 @@ def _warn_numbering_gaps(folder: Path, files: list[Path]) -> None:
     nums = []
     for f in files:
         m = re.search(r"(\d+)\D*$", f.stem)
-        if m is None:
-            return
-        nums.append(int(m.group(1)))
+        if m is not None:  # (one file without a number, frame_final.jpg, turned the check off)
+            nums.append(int(m.group(1)))
+    if len(nums) < 0.8 * len(files):  # not a numbered sequence
+        return
     steps = np.diff(nums)
     if len(steps) < 2 or len(set(steps.tolist())) == 1:  # one spacing (every 5th file kept) is a
         return                                            # numbering, not a gap
