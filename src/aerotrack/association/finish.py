@@ -337,12 +337,19 @@ def window_sizes(times: np.ndarray, sizes: np.ndarray, valid: np.ndarray, window
     return out
 
 
-def is_static(world: np.ndarray, metres_per_unit: float, extent_m: float) -> bool:
-    """True when the world points (N, 2) fit in a box of diagonal ``extent_m`` metres."""
+def is_static(world: np.ndarray, metres_per_unit: float, extent_m: float,
+              duration_s: float | None = None, speed_mps: float = 0.0) -> bool:
+    """True when the world points (N, 2) fit in a box of diagonal ``extent_m`` metres and, with
+    ``speed_mps`` > 0, of ``speed_mps`` x ``duration_s`` (the track's span in seconds): a track
+    seen for a moment has not had the time to leave ``extent_m`` (a car at 5 m/s covers 3.3 m in
+    the 0.67 s of a 20-frame clip, and a probe's moving cars there were dropped as parked)."""
     if extent_m <= 0 or not len(world):
         return False
     ext = np.ptp(np.asarray(world, dtype=np.float64), axis=0)
-    return float(np.hypot(*ext)) * metres_per_unit < extent_m
+    diag = float(np.hypot(*ext)) * metres_per_unit
+    if speed_mps > 0 and duration_s is not None and diag >= speed_mps * duration_s:
+        return False
+    return diag < extent_m
 
 
 def wanders(world: np.ndarray, times: np.ndarray, metres_per_unit: float, extent_m: float,
@@ -533,7 +540,9 @@ class TrackFinisher:
             xs[:, :2] = world
         # only a registered world is the ground: in the image of a moving camera a vehicle
         # driving along with it stands still
-        if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m):
+        span = float(times[measured][-1] - times[measured][0]) if measured.any() else 0.0
+        if regs is not None and is_static(xs[measured, :2], mpu, c.static_extent_m, span,
+                                          c.static_speed_mps):
             self._dropped = "standing still (finish.static_extent_m)"
             return False
         if regs is not None and wanders(xs[measured, :2], times[measured], mpu, c.wander_extent_m,
