@@ -845,8 +845,10 @@ def test_batch_reports_each_unusable_video_once_and_fails(tmp_path, capsys):
     (inputs / "junk.avi").write_text("not a video\n")
     (inputs / "notes.txt").write_text("not an input at all\n")
     code, _, err = run_cli(capsys, "batch", inputs, "--out", tmp_path / "o", "--gsd", "0.3")
-    assert code == 2 and "Traceback" not in err and "WARNING" not in err, err
     lines = err.strip().splitlines()
+    # (the good input's own warnings, its 4-frame clip, are fine)
+    assert code == 2 and "Traceback" not in err, err
+    assert not [ln for ln in lines if "WARNING" in ln and ("junk" in ln or "empty" in ln)], err
     assert sum("empty.mp4: failed" in ln and "0 bytes" in ln for ln in lines) == 1, err
     assert sum("junk.avi: failed" in ln for ln in lines) == 1, err
     assert sum("junk.avi" in ln for ln in lines[:-1]) == 1, err  # one line, then the summary

@@ -63,13 +63,13 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
         results.check_input(open_source(input_path, results.fps), input_path, "--input")
     from ..io.output import check_apart, check_writable
 
-    if out_path is not None and Path(out_path).suffix.lower() not in (".html", ".htm"):
-        # (HTML was written into report.pdf with exit 0)
-        raise InputError(f"--out {out_path}: the report is an HTML file; name it .html")
     if out_path is not None:
         check_apart(out_path, "--out", [("--input", input_path), ("--gt", gt_path),
                                         ("--map", map_path)], run_dir=results.path,
                     own=("report.html",))
+        if Path(out_path).suffix.lower() not in (".html", ".htm"):
+            # (HTML was written into report.pdf with exit 0)
+            raise InputError(f"--out {out_path}: the report is an HTML file; name it .html")
     check_writable(out_path or Path(results.path) / "report.html", "--out")
     geomap = None
     if map_path is not None:
