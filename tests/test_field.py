@@ -473,6 +473,14 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path, monkeypatch):
     assert "speed_mps" in names and "kind" in names
     x0, y0 = np.frombuffer(geom[0][-16:], "<f8")
     assert (x0, y0) == pytest.approx(tuple(_utm(lon[0], lat[0])[0]), abs=0.01)
+    # and tracks.gpkg: the track in view (frames 1-21, joined to the prediction) and predicted
+    assert out["tracks_gpkg"].name == "tracks.gpkg"
+    meta, _, geom, fields = pyogrio.raw.read(out["tracks_gpkg"])
+    seg = dict(zip(meta["fields"], fields))
+    assert list(seg["in_view"]) == [1, 0] and list(seg["first_frame"]) == [1, 21]
+    assert list(seg["last_frame"]) == [21, 30]
+    assert seg["length_m"][0] == pytest.approx(20 * v / fps, rel=0.01)
+    assert pyogrio.read_info(out["tracks_gpkg"])["geometry_type"] == "LineString"
     # GDAL stamps gpkg_contents.last_change with the time of writing; SOURCE_DATE_EPOCH pins it,
     # and two writes are then the same file
     import sqlite3

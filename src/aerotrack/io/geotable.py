@@ -28,7 +28,8 @@ diagonal in the frame (an axis-aligned box cannot tell its orientation). Without
 the frame they are empty, or ``frame_gsd`` x the box sides when a frame scale is given.
 
 The GeoPackage (``pyogrio``, extra ``gis``) holds one point layer ``observations`` in the output
-CRS; the Parquet file (written when ``pyarrow`` is installed) is GeoParquet 1.0: the same columns
+CRS, and ``tracks.gpkg`` beside it one line layer ``tracks`` (:func:`track_segments`: each
+track's path in pieces, in view and predicted apart, for styling); the Parquet file (written when ``pyarrow`` is installed) is GeoParquet 1.0: the same columns
 plus a WKB point ``geometry`` in the output CRS (``geo`` metadata with the CRS as PROJJSON, so
 ``geopandas.read_parquet`` and GDAL open it as a layer; the short CRS name is also in a ``crs`` key).
 """
@@ -500,6 +501,40 @@ def _point_wkbs(cols: dict[str, np.ndarray]) -> list[bytes | None]:
             for a, b in zip(np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64))]
 
 
+def track_segments(cols: dict[str, np.ndarray]) -> tuple[list[bytes], dict[str, np.ndarray]]:
+    """Each track's path cut where it goes from in view to predicted and back: (WKB LineStrings
+    in the output CRS, columns ``id``, ``in_view`` (1: observed, bridged or stationary rows; 0:
+    predicted), ``first_frame``, ``last_frame``, ``length_m``). A piece ends on the next one's
+    first point, so the pieces join. ``tracks.geojson`` draws a track as one line through both,
+    which a GIS cannot style apart (its per-vertex lists read as text there: a probe)."""
+    ids = np.asarray(cols["id"]).astype(np.int64)
+    frames = np.asarray(cols["frame"]).astype(np.int64)
+    x, y = np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64)
+    seen = np.asarray(cols["kind"]).astype(str) != "predicted"
+    geoms: list[bytes] = []
+    out: dict[str, list] = {"id": [], "in_view": [], "first_frame": [], "last_frame": [],
+                            "length_m": []}
+    for tid in np.unique(ids):
+        idx = np.flatnonzero((ids == tid) & np.isfinite(x) & np.isfinite(y))
+        idx = idx[np.argsort(frames[idx], kind="stable")]
+        if len(idx) < 2:
+            continue
+        cuts = np.flatnonzero(np.diff(seen[idx].astype(np.int8))) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(idx)]):
+            part = idx[a:min(b + 1, len(idx))]  # to the next piece's first point
+            if len(part) < 2:
+                continue
+            xy = np.column_stack([x[part], y[part]])
+            geoms.append(struct.pack("<BII", 1, 2, len(xy)) + xy.astype("<f8").tobytes())
+            out["id"].append(int(tid))
+            out["in_view"].append(int(seen[idx[a]]))
+            out["first_frame"].append(int(frames[part[0]]))
+            out["last_frame"].append(int(frames[part[-1]]))
+            out["length_m"].append(round(float(np.hypot(*np.diff(xy, axis=0).T).sum()), 2))
+    return geoms, {k: np.asarray(v, np.float64 if k == "length_m" else np.int64)
+                   for k, v in out.items()}
+
+
 def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
     try:
         from pyogrio.raw import write
@@ -525,6 +560,32 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
                   geometry_type="Point", crs=crs)
         os.replace(tmp, path)
     except (OSError, RuntimeError, ValueError) as exc:  # pyogrio's errors are RuntimeErrors
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise OutputError(f"{path}: cannot write the GeoPackage ({exc})") from None
+
+
+def _write_segments_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
+    """``tracks.gpkg``: one layer ``tracks`` of :func:`track_segments` (a file of its own: a
+    second layer in observations.gpkg made every plain read of it warn)."""
+    from pyogrio.raw import write
+
+    segs, seg_cols = track_segments(cols)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()
+    try:
+        crs = crs_name
+        if crs_name.startswith("+"):
+            from pyproj import CRS
+
+            crs = CRS.from_user_input(crs_name).to_wkt()
+        with gpkg_date():
+            write(str(tmp), np.array(segs, dtype=object), list(seg_cols.values()),
+                  list(seg_cols), layer="tracks", driver="GPKG", geometry_type="LineString",
+                  crs=crs)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError, ValueError) as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise OutputError(f"{path}: cannot write the GeoPackage ({exc})") from None
@@ -603,6 +664,8 @@ def write_observation_table(path: str | Path, rows: Any, geomap: Any, fps: float
     if "gpkg" in formats:
         out["gpkg"] = p.with_suffix(".gpkg")
         _write_gpkg(out["gpkg"], cols, crs_name)
+        out["tracks_gpkg"] = p.with_name("tracks.gpkg")
+        _write_segments_gpkg(out["tracks_gpkg"], cols, crs_name)
     if "parquet" in formats:
         out["parquet"] = p.with_suffix(".parquet")
         _write_parquet(out["parquet"], cols, crs_name)
