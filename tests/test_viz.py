@@ -602,6 +602,12 @@ def test_render_names_an_input_that_is_not_the_one_tracked(tmp_path, caplog):
         res.check_input(open_source(folder, 30.0), folder)
         warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
         assert (expect is None and not warned) or (expect and expect in " ".join(warned)), warned
+    # a file browser's clutter or a note beside the frames is not another input (a reviewer)
+    (tracked / ".DS_Store").write_bytes(b"\0" * 10)
+    (tracked / "README.txt").write_text("flight 3")
+    caplog.clear()
+    res.check_input(open_source(tracked, 30.0), tracked)
+    assert not [r for r in caplog.records if r.levelname == "WARNING"], caplog.text
 
 
 def test_registration_picture_of_a_stabilised_run_says_none_was_done(tmp_path):
@@ -610,3 +616,15 @@ def test_registration_picture_of_a_stabilised_run_says_none_was_done(tmp_path):
     assert "no registration" not in plot_registration(res).axes[0].get_title()
     res.summary["stabilised"] = True
     assert "no registration" in plot_registration(res).axes[0].get_title()
+
+
+def test_report_names_a_short_input_once(tmp_path, capsys):
+    """`report --input` checked the input in the command and again in the report: every warning
+    came twice."""
+    from conftest import run_cli
+
+    run = make_run(tmp_path, n_frames=60)
+    frames = grey_frames(tmp_path / "frames", n=12)
+    code, _, err = run_cli(capsys, "report", run, "--input", frames, "--no-video")
+    assert code == 0, err
+    assert err.count("holds 12 frames") == 1, err

@@ -23,7 +23,7 @@ from .common import PathArg, make_progress, root_flags
 @click.option("--map", "map_path", type=PathArg(dir_okay=False), default=None,
               help="The run's map raster (default: the map named in DIR/summary.json).")
 @click.option("--out", "out_path", type=PathArg(dir_okay=False), default=None,
-              help="Report file to write. Default: DIR/report.html.")
+              help="Report file to write (.html). Default: DIR/report.html.")
 @click.option("--video-width", type=int, default=960, show_default=True,
               help="Width of the embedded overlay video at most (a wider DIR/overlay.webm is "
                    "not embedded: one this wide is rendered for the report).")
@@ -83,7 +83,7 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     try:
         out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
                            out_path=out_path, progress=progress, gt_zero_based=gt_zero_based,
-                           fix_gt=fix_gt,
+                           fix_gt=fix_gt, checked=input_path is not None,
                            options=ReportOptions(video_width=video_width, render_video=video,
                                                  max_video_mb=ReportOptions.max_video_mb if video else 0.0))
     finally:

@@ -470,9 +470,13 @@ def drop_state(folder: str | Path) -> None:
 
 def input_fingerprints(paths) -> dict[str, list[int]]:
     """Resolved path -> (bytes, latest modification time in ns) of each input file given; a
-    folder counts its files and sums their sizes (``[files, bytes, latest time]``). Streams and
-    missing paths are left out."""
+    folder counts the image files a run reads from it and sums their sizes (``[files, bytes,
+    latest time]``: hidden files and others left out, so that a file browser's ``.DS_Store`` or
+    a README does not make it another input; a MOTChallenge sequence's images in its ``imDir``).
+    Streams and missing paths are left out."""
     import os
+
+    from .frames import IMAGE_SUFFIXES, mot_sequence
 
     out = {}
     for p in paths:
@@ -481,7 +485,14 @@ def input_fingerprints(paths) -> dict[str, list[int]]:
         path = Path(p)
         try:
             if path.is_dir():
-                files = [e.stat() for e in os.scandir(path) if e.is_file()]
+                try:
+                    seq = mot_sequence(path)
+                except InputError:
+                    seq = None
+                images = seq[0] if seq is not None else path
+                files = [e.stat() for e in os.scandir(images) if e.is_file()
+                         and not e.name.startswith(".")
+                         and os.path.splitext(e.name)[1].lower() in IMAGE_SUFFIXES]
                 out[str(path.resolve())] = [len(files), sum(f.st_size for f in files),
                                             max((f.st_mtime_ns for f in files), default=0)]
             elif path.is_file():

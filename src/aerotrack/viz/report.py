@@ -153,7 +153,8 @@ def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions)
 def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                  gt_path: str | Path | None = None, geomap=None, out_path: str | Path | None = None,
                  options: ReportOptions = ReportOptions(), progress=None,
-                 gt_zero_based: bool = False, fix_gt: bool = False) -> Path:
+                 gt_zero_based: bool = False, fix_gt: bool = False,
+                 checked: bool = False) -> Path:
     """Write ``DIR/report.html`` (or ``out_path``) for the run in ``run_dir``.
 
     Parameters
@@ -174,6 +175,9 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         Called with the frames written while the overlay video is rendered.
     gt_zero_based, fix_gt : bool
         The ground truth numbers frames from 0 / is corrected first (as ``eval``'s options).
+    checked : bool
+        ``input_path`` was already checked against the run (``aerotrack report --input``): its
+        warnings are not given twice.
 
     Returns
     -------
@@ -188,6 +192,7 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
             geomap = GeoMap(results.map_path)
         except AerotrackError as exc:
             log.warning("map %s not used: %s", results.map_path, exc)
+    given = input_path is not None  # (the command line checked a given --input already)
     input_path = Path(input_path) if input_path is not None else results.input_path
     if input_path is None and isinstance(results.summary.get("input"), str):
         from ..io.frames import is_stream_url
@@ -197,10 +202,11 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                  "of it) for one", named, "was a live stream, which cannot be read again"
                  if is_stream_url(named) else "is not at hand")
 
-    if input_path is not None:  # the input the run tracked, before any work
+    if input_path is not None and not (given and checked):  # before any work
         from ..io.frames import open_source
 
-        results.check_input(open_source(input_path, results.fps), input_path, "--input")
+        results.check_input(open_source(input_path, results.fps), input_path,
+                            "--input" if given else "the run's input")
 
     def first_image():
         return None if geomap is not None else results.reference_image(input_path)
