@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeoreferenceError, InputError
+from ..io.frames import cv_path
 
 
 class GeoMap:
@@ -45,7 +46,9 @@ class GeoMap:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-                ds = rasterio.open(self.path)
+                # (a name that is not valid UTF-8 stopped rasterio with a traceback; its
+                # sidecar files, a world file or .aux.xml, are not found through the link)
+                ds = rasterio.open(cv_path(self.path))
             with ds:
                 self.crs = ds.crs
                 self.transform = ds.transform
@@ -142,7 +145,7 @@ class GeoMap:
             import rasterio
 
             try:
-                with rasterio.open(self.path) as ds:
+                with rasterio.open(cv_path(self.path)) as ds:
                     if ds.count >= 3:
                         rgb = ds.read([1, 2, 3]).astype(np.float64)
                         img = np.stack([_stretch(b) for b in rgb], axis=-1)[..., ::-1]

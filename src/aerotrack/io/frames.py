@@ -144,6 +144,7 @@ def _check_fps(fps: float | None, label: str) -> float | None:
 
 _CV_LINKS: dict[str, str] = {}
 _CV_LINK_DIR: list[str] = []
+_CV_LINK_LOCK = threading.Lock()  # (threads of a dask worker open files at once)
 
 
 def cv_path(path) -> str:
@@ -162,28 +163,32 @@ def cv_path(path) -> str:
     except UnicodeEncodeError:
         pass
     key = os.path.abspath(s)
-    link = _CV_LINKS.get(key)
-    if link is None:
-        import atexit
-        import shutil
-        import tempfile
+    with _CV_LINK_LOCK:
+        return _CV_LINKS.get(key) or _new_link(key, s)
 
-        if not _CV_LINK_DIR:
-            _CV_LINK_DIR.append(tempfile.mkdtemp(prefix="aerotrack-names-"))
-            atexit.register(shutil.rmtree, _CV_LINK_DIR[0], True)
-        suffix = Path(s).suffix
-        try:
-            suffix.encode("utf-8")
-        except UnicodeEncodeError:
-            suffix = ""
-        link = os.path.join(_CV_LINK_DIR[0], f"{len(_CV_LINKS)}{suffix}")
-        try:
-            os.symlink(key, link)
-        except OSError as exc:
-            shown = s.encode("utf-8", "backslashreplace").decode("ascii", "replace")
-            raise InputError(f"{shown}: its name is not valid UTF-8, which OpenCV cannot open "
-                             f"({exc.strerror}); rename it") from None
-        _CV_LINKS[key] = link
+
+def _new_link(key: str, s: str) -> str:
+    """A link to ``key`` with a plain name (:func:`cv_path`; called under its lock)."""
+    import atexit
+    import shutil
+    import tempfile
+
+    if not _CV_LINK_DIR:
+        _CV_LINK_DIR.append(tempfile.mkdtemp(prefix="aerotrack-names-"))
+        atexit.register(shutil.rmtree, _CV_LINK_DIR[0], True)
+    suffix = Path(s).suffix
+    try:
+        suffix.encode("utf-8")
+    except UnicodeEncodeError:
+        suffix = ""
+    link = os.path.join(_CV_LINK_DIR[0], f"{len(_CV_LINKS)}{suffix}")
+    try:
+        os.symlink(key, link)
+    except OSError as exc:
+        shown = s.encode("utf-8", "backslashreplace").decode("ascii", "replace")
+        raise InputError(f"{shown}: its name is not valid UTF-8, which OpenCV cannot open "
+                         f"({exc.strerror}); rename it") from None
+    _CV_LINKS[key] = link
     return link
 
 
