@@ -1068,6 +1068,10 @@ def test_batch_output_names_apart_on_case_insensitive_disks(tmp_path):
     names = sorted(i.name for i in plan_batch(inp, tmp_path / "out"))
     assert names == ["Clip.AVI", "DJI_0001.MOV", "DJI_0001.MP4", "clip.mkv", "other"]
     assert len({n.casefold() for n in names}) == len(names)
+    # an earlier batch's Clip/ (by the stem alone) keeps its results (a reviewer)
+    (tmp_path / "out" / "Clip").mkdir(parents=True)
+    names = sorted(i.name for i in plan_batch(inp, tmp_path / "out"))
+    assert "Clip" in names and "Clip.AVI" not in names
 
 
 def test_batch_of_a_camera_card_names_the_folder_with_the_videos(tmp_path, capsys):
@@ -1077,4 +1081,9 @@ def test_batch_of_a_camera_card_names_the_folder_with_the_videos(tmp_path, capsy
     (tmp_path / "DCIM" / "100MEDIA").mkdir(parents=True)
     (tmp_path / "DCIM" / "100MEDIA" / "DJI_0001.MP4").write_bytes(b"\0" * 10)
     code, _, err = run_cli(capsys, "batch", tmp_path / "DCIM", "--out", tmp_path / "out")
+    assert code == 2 and "sub-folder 100MEDIA: give that folder" in err, err
+    hidden = tmp_path / ".cards" / "DCIM" / "100MEDIA"  # a hidden folder above it is fine
+    hidden.mkdir(parents=True)
+    (hidden / "DJI_0001.MP4").write_bytes(b"\0" * 10)
+    code, _, err = run_cli(capsys, "batch", hidden.parent, "--out", tmp_path / "out")
     assert code == 2 and "sub-folder 100MEDIA: give that folder" in err, err

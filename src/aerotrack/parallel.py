@@ -1400,7 +1400,9 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     folded = [s.casefold() for s in stems]
     items = []
     for p, stem in zip(found, stems):
-        name = p.name if folded.count(stem.casefold()) > 1 else stem
+        name = p.name if stems.count(stem) > 1 or (
+            folded.count(stem.casefold()) > 1 and not (out_dir / stem).exists()) else stem
+        # (an earlier batch's folder by the stem alone is kept: its results are not redone)
         out = out_dir / name
         src, dst = p.resolve(), out.resolve()
         if dst == src or src in dst.parents or dst in src.parents:

@@ -150,7 +150,8 @@ def batch_command(ctx, input_dir, out_dir, gsd, fps, seed, config_path, override
         deeper = sorted({q.parent.relative_to(input_dir).as_posix()
                          for q in Path(input_dir).glob("*/**/*")
                          if q.is_file() and q.suffix.lower() in VIDEO_SUFFIXES
-                         and not any(part.startswith(".") for part in q.parts)})
+                         and not any(part.startswith(".")
+                                     for part in q.relative_to(input_dir).parts)})
         raise InputError(f"{input_dir}: no video files or image folders"
                          + (f"; videos are in its sub-folder{'s' * (len(deeper) > 1)} "
                             f"{', '.join(deeper[:3])}{', ...' if len(deeper) > 3 else ''}: "
