@@ -298,7 +298,10 @@ def test_clips_too_short_or_with_repeated_frames_are_pointed_out(scene, tmp_path
     code, _, err = run_cli(capsys, "track", short, "--out", tmp_path / "o1", "--fps", "30")
     assert code == 0 and "the clip is 10 frames" in err, err
     hint = json.loads((tmp_path / "o1" / "summary.json").read_text())["hints"][0]
-    assert "min_length_s" in hint and "image folder" in hint and "min_edge_track_s" in hint
+    assert "min_length_s" in hint and "min_edge_track_s" in hint
+    assert "image folder" not in hint  # --fps was given (it said so anyway: a reviewer)
+    code, _, err = run_cli(capsys, "track", short, "--out", tmp_path / "o1c")
+    assert code == 0 and "(an image folder is read at 30 unless told)" in err, err
     rep = tmp_path / "repeated"
     rep.mkdir()
     for i, f in enumerate(frames[:120]):

@@ -1657,7 +1657,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
     ``--min-speed`` and ``--out-crs``; ``run_info`` goes into every ``summary.json`` (the
     command's options). ``detections``: each item's own detections replace the built-in
     detector (:func:`item_detections`). ``hints(result, config, detections_given=,
-    image_folder=, geomap=, metres_per_unit=, gsd=)`` gives each run's warnings (logged under
+    input_path=, fps=, geomap=, metres_per_unit=, gsd=)`` gives each run's warnings (logged under
     its name and written to its ``summary.json``, as ``track`` does:
     :func:`aerotrack.cli.hints.run_hints`).
 
@@ -1794,7 +1794,7 @@ def run_batch(items: Sequence[BatchItem], *, config: Config | None = None, fps: 
                         **(run_info or {}),
                         "wall_time_s": round(time.perf_counter() - t0, 3), **notes}
                 said = hints(result, config, detections_given=it.name in dets,
-                             image_folder=Path(it.input).is_dir(), geomap=geomap,
+                             input_path=it.input, fps=given[it.name], geomap=geomap,
                              metres_per_unit=metres_per_unit,
                              gsd=metres_per_unit) if hints is not None else []
                 for hint in said:

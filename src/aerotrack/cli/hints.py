@@ -61,19 +61,36 @@ def clip_hints(result, config, *, builtin_detector: bool = True,
     return hints
 
 
-def run_hints(result, config, *, detections_given: bool = False, image_folder: bool = False,
-              geomap=None, metres_per_unit: float | None = None, gsd: float | None = None,
+def default_rate_folder(input_path, fps) -> bool:
+    """Whether ``input_path`` is an image folder read at the default 30 frames/s: a folder, no
+    ``--fps``, not a MOTChallenge sequence (whose seqinfo.ini names its rate)."""
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..io.frames import mot_sequence
+
+    if input_path is None or fps is not None or not Path(input_path).is_dir():
+        return False
+    try:
+        return mot_sequence(input_path) is None
+    except InputError:
+        return False
+
+
+def run_hints(result, config, *, detections_given: bool = False, input_path=None,
+              fps: float | None = None, geomap=None, metres_per_unit: float | None = None, gsd: float | None = None,
               ground: bool = False) -> list[str]:
     """Every warning about a tracking run's clip and results (``track`` and each input of
     ``batch``, which wrote none: a 5-frame clip's "0 tracks" came with no word, and an oblique
     folder lost the warning ``track`` gives): :func:`clip_hints`, small vehicles and an oblique
-    view (built-in detector, no map), and the scale."""
+    view (built-in detector, no map), and the scale. ``input_path`` and ``fps`` (the rate
+    given, or None) tell an image folder read at the default rate."""
     import numpy as np
 
     from ..detection.moving import oblique_hint, small_vehicles_hint
 
     hints = clip_hints(result, config, builtin_detector=not detections_given,
-                       image_folder=image_folder)
+                       image_folder=default_rate_folder(input_path, fps))
     if not detections_given and geomap is None and metres_per_unit is None:
         hints.append(small_vehicles_hint(result.tracks, result.frame_size, config.detection,
                                          result.frames))

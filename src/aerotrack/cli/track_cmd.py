@@ -697,7 +697,7 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
                               f"--telemetry {telemetry_path}" if telemetry_path is not None
                               else f"--map-init {map_init_path}" if map_init_path else None)
         hints = run_hints(result, config, detections_given=dets is not None,
-                          image_folder=input_path is not None and Path(input_path).is_dir(),
+                          input_path=input_path, fps=fps,
                           geomap=geomap, metres_per_unit=metres_per_unit, gsd=gsd,
                           ground=ground_path is not None)
         for hint in hints:
