@@ -131,3 +131,50 @@ def test_outputs_across_the_antimeridian(tmp_path):
     cols, crs = observation_table(rows, m, 10.0)
     assert np.all((cols["lon"] >= -180) & (cols["lon"] < 180)) and crs in ("EPSG:32760", "EPSG:32701")
     assert np.all(np.abs(cols["speed_mps"] - 10.7) < 0.2)  # no jump at the antimeridian
+
+
+def _raster(path, bands, **kw):
+    bands = np.atleast_3d(bands).transpose(2, 0, 1) if np.ndim(bands) == 3 else bands[None]
+    with rasterio.open(path, "w", driver="GTiff", width=bands.shape[2], height=bands.shape[1],
+                       count=bands.shape[0], dtype=bands.dtype, crs="EPSG:32611",
+                       transform=from_origin(659000, 4001000, 0.5, 0.5), **kw) as ds:
+        ds.write(bands)
+    return path
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.sampled_from([np.uint8, np.uint16, np.int16]), st.integers(0, 2**31 - 1))
+def test_map_stretch_by_histogram_equals_the_percentile_stretch(dtype, seed):
+    """The histogram lookup (memory: a 20000 x 20000 map needed > 23 GB stretched in float64)
+    gives exactly what the float64 stretch between np.percentile's 0.5 and 99.5 gave."""
+    from aerotrack.geo.maprast import _stretch
+
+    rng = np.random.default_rng(seed)
+    info = np.iinfo(dtype)
+    band = rng.integers(info.min, info.max, (37, 53), endpoint=True).astype(dtype)
+    band[:5] = rng.integers(info.min, info.min + 3)  # ties, as real imagery has
+    f = band.astype(np.float64)
+    lo, hi = np.percentile(f, [0.5, 99.5])
+    hi = hi if hi > lo else lo + 1
+    expect = np.nan_to_num(np.clip((f - lo) / (hi - lo) * 255.0, 0, 255)).astype(np.uint8)
+    np.testing.assert_array_equal(_stretch(band), expect)
+
+
+def test_map_nodata_alpha_and_palette_are_drawn(tmp_path):
+    """A uint16 map with nodata 65535 was drawn all black (the nodata border set the stretch),
+    a float one with nodata -9999 all white, a paletted one as grey noise (a probe)."""
+    rng = np.random.default_rng(0)
+    ground = rng.integers(200, 1400, (60, 80)).astype(np.uint16)
+    border = ground.copy()
+    border[:, :20] = 65535
+    img = GeoMap(_raster(tmp_path / "u16.tif", border, nodata=65535)).read_image()
+    assert (img[:, :20] == 0).all() and img[:, 20:].mean() > 60  # valid pixels span the range
+    f = np.where(border == 65535, -9999.0, ground).astype(np.float32)
+    img = GeoMap(_raster(tmp_path / "f32.tif", f, nodata=-9999)).read_image()
+    assert (img[:, :20] == 0).all() and 60 < img[:, 20:].mean() < 200
+    pal = (np.arange(60 * 80).reshape(60, 80) % 3).astype(np.uint8)
+    path = _raster(tmp_path / "pal.tif", pal)
+    with rasterio.open(path, "r+") as ds:
+        ds.write_colormap(1, {0: (255, 0, 0, 255), 1: (0, 255, 0, 255), 2: (0, 0, 255, 255)})
+    img = GeoMap(path).read_image()
+    assert tuple(img[0, 0]) == (0, 0, 255) and tuple(img[0, 1]) == (0, 255, 0)  # BGR of red, green
