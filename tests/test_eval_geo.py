@@ -54,3 +54,30 @@ def test_cli_geo_error(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["geo_error"]["median_m"] == pytest.approx(1.8, abs=0.05)
     assert out["IDF1"] == pytest.approx(1.0)
+
+
+def test_a_run_on_a_projected_map_scores_against_lonlat(tmp_path, capsys):
+    """A run on a UTM map (tracks.csv x, y in metres) scored with --geo-crs EPSG:4326 against
+    lon/lat ground truth gave a NaN geo error and --json a traceback (a probe): a run folder's
+    tracks.csv is converted from its map's CRS; a bare file of metres is a one-line error."""
+    from pyproj import Transformer
+
+    gt = rows()
+    write_mot(tmp_path / "gt.txt", gt)
+    run = tmp_path / "run"
+    run.mkdir()
+    pred = gt.copy()
+    to_utm = Transformer.from_crs("EPSG:4326", "EPSG:32611", always_xy=True)
+    pred[:, 7], pred[:, 8] = to_utm.transform(pred[:, 7], pred[:, 8] + 1e-5)  # 1.109 m north
+    write_mot(run / "tracks.csv", pred)
+    (run / "summary.json").write_text(json.dumps({"map_crs": "EPSG:32611"}))
+    from conftest import run_cli
+
+    argv = ["eval", "--gt", tmp_path / "gt.txt", "--pred", run / "tracks.csv", "--geo-crs",
+            "EPSG:4326", "--json"]
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 0, err
+    assert json.loads(out)["geo_error"]["median_m"] == pytest.approx(1.109, abs=0.01)
+    (run / "summary.json").unlink()
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 2 and "--pred's x, y are not degrees" in err and "Traceback" not in err, err

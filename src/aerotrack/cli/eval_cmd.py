@@ -182,6 +182,37 @@ def _pair(gts: tuple[str, ...], preds: tuple[str, ...], ignores: tuple[str, ...]
     return [(n, g, p, Path(i)) for (n, g, p), i in zip(pairs, ignores)]
 
 
+def _pred_in_crs(pred: np.ndarray, path: Path, geo_crs: str) -> np.ndarray:
+    """``--pred``'s x, y in ``--geo-crs``: a run's tracks.csv holds them in its map's CRS
+    (``summary.json`` ``map_crs`` beside it), which is converted; other files are taken as they
+    are. A run on a UTM map scored with ``--geo-crs EPSG:4326`` against lon/lat ground truth gave
+    a NaN geo error, and ``--json`` a traceback (a probe)."""
+    summary = Path(path).parent / "summary.json"
+    try:
+        named = json.loads(summary.read_text(encoding="utf-8")).get("map_crs")
+    except (OSError, ValueError, AttributeError):
+        return pred
+    if not named:
+        return pred
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError
+
+    try:
+        src, dst = CRS.from_user_input(named), CRS.from_user_input(geo_crs)
+    except CRSError:
+        return pred  # (geo_errors names a bad --geo-crs)
+    if src == dst:
+        return pred
+    pred = pred.copy()
+    ok = ~np.all(pred[:, 7:9] == -1, axis=1)
+    if ok.any():
+        t = Transformer.from_crs(src, dst, always_xy=True)
+        pred[ok, 7], pred[ok, 8] = t.transform(pred[ok, 7], pred[ok, 8])
+    log.info("--pred %s: x, y converted from the run's map CRS (%s, summary.json) to --geo-crs %s",
+             path, named, geo_crs)
+    return pred
+
+
 def _parse_frames(text: str | None, last_gt: int | None = None) -> tuple[int, int] | None:
     """``FIRST:LAST`` (either end may be empty: 1, the ground truth's last frame)."""
     if text is None:
@@ -273,7 +304,8 @@ def _coverage_hint(seqs: dict) -> None:
                    "duplicates), say what changed, and report the corrected score.")
 @click.option("--geo-crs", "geo_crs", default=None, metavar="CRS",
               help="Also report the geo error: metres between the x, y columns of matched true and "
-                   "predicted boxes, both in this CRS (e.g. EPSG:4326 for lon/lat).")
+                   "predicted boxes, both in this CRS (e.g. EPSG:4326 for lon/lat). A run's "
+                   "tracks.csv, in its map's CRS, is converted to it.")
 @click.option("--drop-flagged", is_flag=True,
               help="Read a 7th ground-truth column holding only 0 and 1 as MOTChallenge's "
                    "'consider' flag (MOT16/17, VisDrone): rows flagged 0 are not scored, nor the "
@@ -346,6 +378,8 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         pred = read_mot(p, option="--pred", strict=True, zero_based=zero_based, tracks=True)
         if not len(pred):
             log.warning("--pred %s: no rows: every ground-truth box counts as missed", p)
+        if geo_crs is not None:
+            pred = _pred_in_crs(pred, p, geo_crs)
         ignore = (read_mot(ign, option="--ignore", strict=False, zero_based=gt_zero)
                   if ign is not None else None)
         if ignore_classes:  # before the duplicate check: regions have no identity (VisDrone's 0)
@@ -416,8 +450,18 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
 
         try:
             projected = CRS.from_user_input(geo_crs).is_projected
+            geographic = CRS.from_user_input(geo_crs).is_geographic
         except Exception:  # noqa: BLE001 - geo_errors names a bad CRS itself
-            projected = False
+            projected = geographic = False
+        if geographic:  # metres read as degrees gave a NaN error (and --json a traceback)
+            for option, rows in (("--gt", gt_all), ("--pred", pred_all)):
+                v = rows[~np.all(rows[:, 7:9] == -1, axis=1), 7:9]
+                if len(v) and (np.abs(v[:, 0]).max() > 360 or np.abs(v[:, 1]).max() > 90):
+                    raise InputError(f"--geo-crs {geo_crs} is lon/lat, but {option}'s x, y "
+                                     "are not degrees (up to "
+                                     f"{np.abs(v[:, 0]).max():.0f}, {np.abs(v[:, 1]).max():.0f}):"
+                                     " give the CRS they are in (a run folder's tracks.csv is "
+                                     "converted from its map's)")
         xy = np.vstack([gt_all[:, 7:9], pred_all[:, 7:9]])
         xy = xy[~np.all(xy == -1, axis=1)]
         degrees = bool(projected and len(xy) and np.all(np.abs(xy[:, 0]) <= 180)
@@ -439,7 +483,8 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         keys = (*METRIC_KEYS, *EXTRA_KEYS)
         out = {k: _json_number(res["combined"][k]) for k in keys}
         if geo is not None:
-            out["geo_error"] = geo
+            out["geo_error"] = {k: _json_number(v) if isinstance(v, float) else v
+                                for k, v in geo.items()}
         if not single:
             out["sequences"] = {n: {k: _json_number(r[k]) for k in keys}
                                 for n, r in res["sequences"].items()}
