@@ -123,6 +123,11 @@ class FrameRegistrar:
             raise InputError("--map needs --map-init (frame 1 -> map homography or control points)")
         self.H_init = np.eye(3) if H_init is None else normalize(H_init)
         self._map_gray = None
+        #: working map pixels per map pixel (:meth:`_working_map`), None until the first
+        #: refinement
+        self._map_scale: float | None = None
+        #: map pixels per frame pixel at the first refinement (its frame's centre), or None
+        self.map_pixel_ratio: float | None = None
         if geomap is not None:
             self._map_gray = cv2.cvtColor(geomap.read_image(), cv2.COLOR_BGR2GRAY)
         self.counts: Counter[str] = Counter()
@@ -325,11 +330,43 @@ class FrameRegistrar:
         self._since_good = 0
         return Registration(frame.index, normalize(H), status, 0, float("nan"), float("nan"), reason)
 
+    def _working_map(self, frame: Frame, H: np.ndarray) -> float:
+        """Resample the map once so that its pixels are about the frames' ground size, and
+        return working pixels per map pixel.
+
+        The refinement's patch, search and correction sizes are pixels (``refine_*_px``), chosen
+        where a map pixel is about a frame pixel on the ground. A drone orthomosaic at 5 cm
+        under a video at 30 cm made the 12 px search 0.6 m and a patch a few square metres of
+        asphalt; a 2 m satellite map left no room for a patch in the frame's footprint: the
+        refinement never succeeded on either (a probe: a 2.5 m placement error stayed 2.5 m).
+        A map up to :data:`MAP_SCALE_KEPT` times finer is used as it is, and so is a coarser
+        one: upsampled, a 2 m map (video at 0.3 m) corrected a 2.5 m placement error to 0.24 m
+        but with the placement right it made the error 0.24 m instead of 0.13 m and cost 0.011
+        HOTA. Measured on a generated scene (300 frames) with its map reprojected to 5 cm: a
+        2.5 m placement error 2.51 -> 0.12 m median geo error; placed right, HOTA/MOTA
+        0.745/0.854 -> 0.763/0.864, geo error 0.14 -> 0.12 m."""
+        h, w = frame.image.shape[:2]
+        J = _jacobian(H, w / 2.0, h / 2.0)
+        ratio = math.sqrt(abs(float(np.linalg.det(J))))  # map pixels per frame pixel
+        scale = 1.0
+        self.map_pixel_ratio = ratio
+        if math.isfinite(ratio) and ratio > MAP_SCALE_KEPT:
+            mh, mw = self._map_gray.shape
+            size = (max(1, round(mw / ratio)), max(1, round(mh / ratio)))
+            self._map_gray = cv2.resize(self._map_gray, size, interpolation=cv2.INTER_AREA)
+            scale = size[0] / mw
+            log.info("registration: the map's pixels are %.2f of a frame pixel on the ground; "
+                     "refined against it downsampled to %dx%d", 1 / ratio, *size)
+        self._map_scale = scale
+        return scale
+
     def _refine(self, frame: Frame, H: np.ndarray, search_scale: float = 1.0
                 ) -> tuple[np.ndarray, str, str]:
         cfg = self.config
         self._last_refine = frame.time
-        r = refine_against_map(frame.image, H, self._map_gray,
+        k = self._map_scale if self._map_scale is not None else self._working_map(frame, H)
+        S = np.diag([k, k, 1.0])  # map pixels -> working pixels (continuous, corner origin)
+        r = refine_against_map(frame.image, S @ H, self._map_gray,
                                search_px=cfg.refine_search_px * search_scale,
                                patch_px=cfg.refine_patch_px, n_patches=cfg.refine_patches,
                                bins=cfg.refine_bins,
@@ -337,7 +374,7 @@ class FrameRegistrar:
         if isinstance(r, Failure):
             log.debug("frame %d: %s", frame.index, r.reason)
             return H, "ok", r.reason
-        return r[0], "refined", ""
+        return normalize(np.diag([1 / k, 1 / k, 1.0]) @ r[0]), "refined", ""
 
     def _lost(self, frame: Frame, gray: np.ndarray, reason: str, common: dict) -> Registration:
         """A frame of good quality that did not register against the reference: carried, or
@@ -382,6 +419,19 @@ SHARPNESS_FRAMES = 9
 #: A blurred frame is held back from becoming the keyframe only while it shows less than this
 #: share of ground the keyframe did not.
 BLUR_HOLD_UNCOVERED = 0.1
+
+
+#: A map whose pixels are finer than the frames' by more than this (on the ground) is
+#: downsampled for the refinement (``FrameRegistrar._working_map``); the defaults were chosen
+#: on maps about as fine as the frames. At 2x (generated scenes flown twice as high, placed
+#: right) downsampling cost HOTA/MOTA 0.006/0.010 (0.694/0.773 -> 0.688/0.763, same run).
+MAP_SCALE_KEPT = 3.0
+
+
+def _jacobian(H: np.ndarray, x: float, y: float) -> np.ndarray:
+    """The 2x2 derivative of the homography ``H`` at (x, y)."""
+    p = H @ np.array([x, y, 1.0])
+    return (H[:2, :2] * p[2] - np.outer(p[:2], H[2, :2])) / p[2] ** 2
 
 
 def sharpness(gray: np.ndarray) -> float:
