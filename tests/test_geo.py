@@ -178,3 +178,23 @@ def test_map_nodata_alpha_and_palette_are_drawn(tmp_path):
         ds.write_colormap(1, {0: (255, 0, 0, 255), 1: (0, 255, 0, 255), 2: (0, 0, 255, 255)})
     img = GeoMap(path).read_image()
     assert tuple(img[0, 0]) == (0, 0, 255) and tuple(img[0, 1]) == (0, 255, 0)  # BGR of red, green
+
+
+def test_map_georeference_errors_say_what_is_missing(tmp_path):
+    """Rasters placed by control points only, or with a world file but no CRS, were all told
+    "no CRS or geotransform" (a probe)."""
+    from rasterio.control import GroundControlPoint
+
+    band = np.zeros((1, 20, 30), np.uint8)
+    gcps = [GroundControlPoint(row=r, col=c, x=-115.2 + c * 1e-5, y=36.1 - r * 1e-5)
+            for r, c in ((0, 0), (0, 29), (19, 0), (19, 29))]
+    with rasterio.open(tmp_path / "gcp.tif", "w", driver="GTiff", width=30, height=20, count=1,
+                       dtype="uint8", gcps=gcps, crs="EPSG:4326") as ds:
+        ds.write(band)
+    with pytest.raises(GeoreferenceError, match="ground control points only.*gdalwarp"):
+        GeoMap(tmp_path / "gcp.tif")
+    with rasterio.open(tmp_path / "nocrs.tif", "w", driver="GTiff", width=30, height=20, count=1,
+                       dtype="uint8", transform=from_origin(659000, 4001000, 0.5, 0.5)) as ds:
+        ds.write(band)
+    with pytest.raises(GeoreferenceError, match="geotransform .* but no CRS"):
+        GeoMap(tmp_path / "nocrs.tif")

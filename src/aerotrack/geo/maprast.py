@@ -52,6 +52,7 @@ class GeoMap:
             with ds:
                 self.crs = ds.crs
                 self.transform = ds.transform
+                gcps = bool(ds.gcps[0])
                 self.width, self.height, self.count = ds.width, ds.height, ds.count
                 self._dtypes = ds.dtypes
                 # its last pixel, read now: a file cut short (a broken download) fails here,
@@ -62,11 +63,29 @@ class GeoMap:
         except rasterio.errors.RasterioIOError as exc:
             detail = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
             if detail.startswith("Read failed"):  # (GDAL's own words say nothing more)
+                if self.path.suffix.lower() == ".vrt":  # (it was called damaged)
+                    raise InputError(f"{label}: its pixels cannot be read: are the files this "
+                                     "VRT names there (moved, or named relative to another "
+                                     "folder)?") from None
                 raise InputError(f"{label}: its pixels cannot be read: a truncated or damaged "
                                  "file?") from None
             raise InputError(f"{label}: cannot read as a raster ({detail})") from None
-        if self.crs is None or self.transform is None or self.transform.is_identity:
-            raise GeoreferenceError(f"{label}: raster has no georeference (no CRS or geotransform)")
+        no_transform = self.transform is None or self.transform.is_identity
+        if self.crs is None or no_transform:
+            # (each case was "no CRS or geotransform", also for a raster that has one of them)
+            if no_transform and gcps:
+                raise GeoreferenceError(f"{label}: georeferenced by ground control points only, "
+                                        "which aerotrack does not fit: warp it to a grid first "
+                                        f"(gdalwarp {self.path.name} warped.tif)")
+            if no_transform and self.crs is None:
+                raise GeoreferenceError(f"{label}: raster has no georeference (no CRS or "
+                                        "geotransform)")
+            if self.crs is None:
+                raise GeoreferenceError(f"{label}: has a geotransform (a world file?) but no "
+                                        "CRS: name it in a .prj or .aux.xml beside it (e.g. "
+                                        f"gdal_edit.py -a_srs EPSG:32611 {self.path.name})")
+            raise GeoreferenceError(f"{label}: has a CRS but no geotransform (where its pixels "
+                                    "lie): a world file or a georeferenced copy is needed")
         if self.width < 2 or self.height < 2:
             raise InputError(f"{label}: raster is too small ({self.width}x{self.height})")
         self._pcrs = CRS.from_user_input(self.crs.to_wkt())
