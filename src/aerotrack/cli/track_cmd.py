@@ -441,7 +441,8 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
 @detections_zero_based_option
 @min_conf_option
 @click.option("--map", "map_path", type=PathArg(path_type=Path), default=None,
-              help="Georeferenced raster (GeoTIFF) of the area: tracking happens on the map.")
+              help="Georeferenced raster of the area (GeoTIFF, VRT, or any raster GDAL reads with "
+                   "a world file and CRS): tracking happens on the map.")
 @map_init_option
 @gsd_option
 @ground_option
