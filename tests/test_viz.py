@@ -82,13 +82,17 @@ def test_colours_stable_and_distinct():
 
 def test_ids_a_few_apart_do_not_share_a_colour():
     """IDs 21 apart (9 and 30 on one road in one Santiago frame) often looked alike: a third of
-    such pairs within delta-E 10. No distance up to 40 has more than 5 % of its pairs that close."""
+    such pairs within delta-E 10. No distance up to 40 has more than 6 % of its pairs that close."""
     ids = np.arange(1, 301)
     rgb = np.array([id_rgb(i) for i in ids], np.float32)[None]
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)[0]
     for d in range(1, 41):
         close = np.linalg.norm(lab[d:] - lab[:-d], axis=1)[:240] < 10
-        assert close.mean() <= 0.05, (d, close.mean())
+        assert close.mean() <= 0.06, (d, close.mean())
+    # and readable on the plots' white background: at most a tenth under 1.5:1 contrast
+    lin = np.where(rgb[0] <= 0.03928, rgb[0] / 12.92, ((rgb[0] + 0.055) / 1.055) ** 2.4)
+    luminance = lin @ np.array([0.2126, 0.7152, 0.0722])
+    assert ((1.05 / (luminance + 0.05)) < 1.5).mean() <= 0.10
 
 
 def test_results_reader_world_and_reacquisition(tmp_path):
