@@ -178,7 +178,8 @@ def main(argv: list[str] | None = None) -> None:
         click.echo(f"aerotrack: error: {exc}", err=True)
         sys.exit(2)
     except MemoryError:
-        click.echo("aerotrack: error: out of memory", err=True)
+        click.echo("aerotrack: error: out of memory (a --map raster is read whole: crop a "
+                   "large one to the flight's area, e.g. gdal_translate -projwin)", err=True)
         sys.exit(2)
     except OSError as exc:
         import errno
