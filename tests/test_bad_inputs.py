@@ -702,6 +702,8 @@ def run_dir(tmp_path, capsys, video):
 @pytest.mark.parametrize("argv,frag", [
     (["--trail-s", "nan"], "--trail-s"),
     (["--start", "50"], "--start"),
+    (["--text-height", "0.001"], "--text-height"),
+    (["--text-height", "nan"], "--text-height"),
 ])
 def test_render_bad_numbers(tmp_path, capsys, video, run_dir, argv, frag):
     out = tmp_path / "overlay.webm"

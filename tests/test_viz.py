@@ -542,6 +542,7 @@ def test_track_map_without_a_map_shows_tracks_beyond_frame_one():
     ax = plot_map(res, background=np.zeros((100, 200, 3), np.uint8)).axes[0]
     lo, hi = sorted(ax.get_xlim())
     assert lo <= 25 and hi >= 955, (lo, hi)
+    assert "outside" not in ax.get_title()
 
 
 def test_a_predicted_targets_label_reads_in_a_dark_colour():
