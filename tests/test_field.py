@@ -473,14 +473,19 @@ def test_observation_table_gpkg_and_csv(geomap, tmp_path, monkeypatch):
     assert "speed_mps" in names and "kind" in names
     x0, y0 = np.frombuffer(geom[0][-16:], "<f8")
     assert (x0, y0) == pytest.approx(tuple(_utm(lon[0], lat[0])[0]), abs=0.01)
-    # and tracks.gpkg: the track in view (frames 1-21, joined to the prediction) and predicted
-    assert out["tracks_gpkg"].name == "tracks.gpkg"
-    meta, _, geom, fields = pyogrio.raw.read(out["tracks_gpkg"])
+    # and track_segments.gpkg: in view (frames 1-21, joined to the prediction) and predicted
+    assert out["segments_gpkg"].name == "track_segments.gpkg"
+    meta, _, geom, fields = pyogrio.raw.read(out["segments_gpkg"])
     seg = dict(zip(meta["fields"], fields))
     assert list(seg["in_view"]) == [1, 0] and list(seg["first_frame"]) == [1, 21]
     assert list(seg["last_frame"]) == [21, 30]
     assert seg["length_m"][0] == pytest.approx(20 * v / fps, rel=0.01)
-    assert pyogrio.read_info(out["tracks_gpkg"])["geometry_type"] == "LineString"
+    assert pyogrio.read_info(out["segments_gpkg"])["geometry_type"] == "LineString"
+    # lengths on the ground whatever --out-crs is (California state plane in US feet: 3.28x)
+    from aerotrack.io.geotable import observation_table, track_segments
+
+    cols, _ = observation_table(obs, geomap, fps, "EPSG:2229", predicted=pred, homographies=homs)
+    assert track_segments(cols)[1]["length_m"][0] == pytest.approx(20 * v / fps, rel=0.01)
     # GDAL stamps gpkg_contents.last_change with the time of writing; SOURCE_DATE_EPOCH pins it,
     # and two writes are then the same file
     import sqlite3

@@ -28,7 +28,7 @@ diagonal in the frame (an axis-aligned box cannot tell its orientation). Without
 the frame they are empty, or ``frame_gsd`` x the box sides when a frame scale is given.
 
 The GeoPackage (``pyogrio``, extra ``gis``) holds one point layer ``observations`` in the output
-CRS, and ``tracks.gpkg`` beside it one line layer ``tracks`` (:func:`track_segments`: each
+CRS, and ``track_segments.gpkg`` beside it one line layer ``track_segments`` (:func:`track_segments`: each
 track's path in pieces, in view and predicted apart, for styling); the Parquet file (written when ``pyarrow`` is installed) is GeoParquet 1.0: the same columns
 plus a WKB point ``geometry`` in the output CRS (``geo`` metadata with the CRS as PROJJSON, so
 ``geopandas.read_parquet`` and GDAL open it as a layer; the short CRS name is also in a ``crs`` key).
@@ -504,12 +504,18 @@ def _point_wkbs(cols: dict[str, np.ndarray]) -> list[bytes | None]:
 def track_segments(cols: dict[str, np.ndarray]) -> tuple[list[bytes], dict[str, np.ndarray]]:
     """Each track's path cut where it goes from in view to predicted and back: (WKB LineStrings
     in the output CRS, columns ``id``, ``in_view`` (1: observed, bridged or stationary rows; 0:
-    predicted), ``first_frame``, ``last_frame``, ``length_m``). A piece ends on the next one's
-    first point, so the pieces join. ``tracks.geojson`` draws a track as one line through both,
+    predicted), ``first_frame``, ``last_frame``, ``length_m``: geodesic, from the rows' lon/lat).
+    A piece ends on the next one's first point, so the pieces join; a single predicted row at a
+    track's end makes no piece of its own (a line needs two points). ``tracks.geojson`` draws a track as one line through both,
     which a GIS cannot style apart (its per-vertex lists read as text there: a probe)."""
+    from pyproj import Geod
+
+    geod = Geod(ellps="WGS84")  # lengths on the ground: --out-crs may be in feet, or 3857
     ids = np.asarray(cols["id"]).astype(np.int64)
     frames = np.asarray(cols["frame"]).astype(np.int64)
     x, y = np.asarray(cols["x"], np.float64), np.asarray(cols["y"], np.float64)
+    lon = np.asarray(cols["lon"], np.float64) if "lon" in cols else None
+    lat = np.asarray(cols["lat"], np.float64) if "lat" in cols else None
     seen = np.asarray(cols["kind"]).astype(str) != "predicted"
     geoms: list[bytes] = []
     out: dict[str, list] = {"id": [], "in_view": [], "first_frame": [], "last_frame": [],
@@ -530,7 +536,11 @@ def track_segments(cols: dict[str, np.ndarray]) -> tuple[list[bytes], dict[str, 
             out["in_view"].append(int(seen[idx[a]]))
             out["first_frame"].append(int(frames[part[0]]))
             out["last_frame"].append(int(frames[part[-1]]))
-            out["length_m"].append(round(float(np.hypot(*np.diff(xy, axis=0).T).sum()), 2))
+            if lon is not None and np.all(np.isfinite(lon[part])) and np.all(np.isfinite(lat[part])):
+                length = float(geod.line_length(lon[part], lat[part]))
+            else:
+                length = float("nan")
+            out["length_m"].append(round(length, 2))
     return geoms, {k: np.asarray(v, np.float64 if k == "length_m" else np.int64)
                    for k, v in out.items()}
 
@@ -566,7 +576,7 @@ def _write_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
 
 
 def _write_segments_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str) -> None:
-    """``tracks.gpkg``: one layer ``tracks`` of :func:`track_segments` (a file of its own: a
+    """``track_segments.gpkg``: one layer ``track_segments`` (:func:`track_segments`; a file of its own: a
     second layer in observations.gpkg made every plain read of it warn)."""
     from pyogrio.raw import write
 
@@ -582,7 +592,7 @@ def _write_segments_gpkg(path: Path, cols: dict[str, np.ndarray], crs_name: str)
             crs = CRS.from_user_input(crs_name).to_wkt()
         with gpkg_date():
             write(str(tmp), np.array(segs, dtype=object), list(seg_cols.values()),
-                  list(seg_cols), layer="tracks", driver="GPKG", geometry_type="LineString",
+                  list(seg_cols), layer="track_segments", driver="GPKG", geometry_type="LineString",
                   crs=crs)
         os.replace(tmp, path)
     except (OSError, RuntimeError, ValueError) as exc:
@@ -640,7 +650,8 @@ def write_observation_table(path: str | Path, rows: Any, geomap: Any, fps: float
     Returns
     -------
     dict of str -> Path
-        The files written, by format.
+        The files written, by format (``segments_gpkg``: ``track_segments.gpkg`` beside the
+        GeoPackage).
     """
     p = Path(path)
     if formats is None:
@@ -664,8 +675,8 @@ def write_observation_table(path: str | Path, rows: Any, geomap: Any, fps: float
     if "gpkg" in formats:
         out["gpkg"] = p.with_suffix(".gpkg")
         _write_gpkg(out["gpkg"], cols, crs_name)
-        out["tracks_gpkg"] = p.with_name("tracks.gpkg")
-        _write_segments_gpkg(out["tracks_gpkg"], cols, crs_name)
+        out["segments_gpkg"] = p.with_name("track_segments.gpkg")
+        _write_segments_gpkg(out["segments_gpkg"], cols, crs_name)
     if "parquet" in formats:
         out["parquet"] = p.with_suffix(".parquet")
         _write_parquet(out["parquet"], cols, crs_name)

@@ -313,7 +313,7 @@ OUTPUT_NAMES = {
     "tracks.csv", "predicted.csv", "links.csv", "detections.csv", "registration.csv",
     "tracks.geojson",
     "config.toml", "summary.json", "observations.csv", "observations.gpkg",
-    "observations.parquet", "tracks.gpkg", "stages", ".partial", "overlay.webm", "overlay.mp4", "map.png",
+    "observations.parquet", "track_segments.gpkg", "stages", ".partial", "overlay.webm", "overlay.mp4", "map.png",
     "spacetime.png", "registration.png", "report.html", "debug.mp4",
     # synth
     "frames", "gt.txt", "states.csv", "homographies.csv", "map.tif", "map_init.txt",
