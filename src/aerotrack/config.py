@@ -110,7 +110,9 @@ class RegistrationConfig:
         A frame-to-frame inlier ratio under this triggers an immediate map refinement.
     refine_search_px : float
         How far (map pixels) the mutual-information patch search looks around the rough alignment.
-        Larger tolerates more drift but costs time quadratically and admits false peaks.
+        Larger tolerates more drift but costs time quadratically and admits false peaks. On a map
+        more than 3x finer than the frames, this and the other ``refine_*_px`` are pixels of the
+        map downsampled to about the frames' ground resolution (docs/DESIGN.md, Registration).
     refine_patch_px : int
         Side of the square patches matched against the map by mutual information, map pixels.
     refine_patches : int

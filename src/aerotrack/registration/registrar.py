@@ -123,11 +123,10 @@ class FrameRegistrar:
             raise InputError("--map needs --map-init (frame 1 -> map homography or control points)")
         self.H_init = np.eye(3) if H_init is None else normalize(H_init)
         self._map_gray = None
-        #: working map pixels per map pixel (:meth:`_working_map`), None until the first
-        #: refinement
+        #: working map pixels per map pixel along x and y (:meth:`_working_map`), None until
+        #: the first refinement
         self._map_scale: float | None = None
-        #: map pixels per frame pixel at the first refinement (its frame's centre), or None
-        self.map_pixel_ratio: float | None = None
+        self._map_scale_y: float | None = None
         if geomap is not None:
             self._map_gray = cv2.cvtColor(geomap.read_image(), cv2.COLOR_BGR2GRAY)
         self.counts: Counter[str] = Counter()
@@ -330,9 +329,9 @@ class FrameRegistrar:
         self._since_good = 0
         return Registration(frame.index, normalize(H), status, 0, float("nan"), float("nan"), reason)
 
-    def _working_map(self, frame: Frame, H: np.ndarray) -> float:
+    def _working_map(self, frame: Frame, H: np.ndarray) -> tuple[float, float]:
         """Resample the map once so that its pixels are about the frames' ground size, and
-        return working pixels per map pixel.
+        return working pixels per map pixel along x and y.
 
         The refinement's patch, search and correction sizes are pixels (``refine_*_px``), chosen
         where a map pixel is about a frame pixel on the ground. A drone orthomosaic at 5 cm
@@ -342,30 +341,38 @@ class FrameRegistrar:
         A map up to :data:`MAP_SCALE_KEPT` times finer is used as it is, and so is a coarser
         one: upsampled, a 2 m map (video at 0.3 m) corrected a 2.5 m placement error to 0.24 m
         but with the placement right it made the error 0.24 m instead of 0.13 m and cost 0.011
-        HOTA. Measured on a generated scene (300 frames) with its map reprojected to 5 cm: a
-        2.5 m placement error 2.51 -> 0.12 m median geo error; placed right, HOTA/MOTA
-        0.745/0.854 -> 0.763/0.864, geo error 0.14 -> 0.12 m."""
+        HOTA. Measured on a generated scene (300 frames, 0.3 m frame pixels) with its map
+        reprojected to 5 cm (downsampled 8x): a 2.5 m placement error 2.51 -> 0.14 m median geo
+        error; placed right, HOTA/MOTA 0.745/0.854 -> 0.751/0.855, geo error 0.14 m either way
+        (the exact factor, 5.9: 0.12 m and 0.763/0.864; 4x: 0.13 m and 0.747/0.833).
+
+        The factor is a power of two (4, 8, ...), so that registrars started at other frames
+        (a resumed run, Dask segments) choose the same one unless the zoom changed by about
+        1.4x; each axis keeps its own scale, the resized sides being whole pixels (one scale
+        for both had put a tall map's refined positions several pixels off in y: a reviewer).
+        """
         h, w = frame.image.shape[:2]
         J = _jacobian(H, w / 2.0, h / 2.0)
         ratio = math.sqrt(abs(float(np.linalg.det(J))))  # map pixels per frame pixel
-        scale = 1.0
-        self.map_pixel_ratio = ratio
+        sx = sy = 1.0
         if math.isfinite(ratio) and ratio > MAP_SCALE_KEPT:
+            f = 2.0 ** round(math.log2(ratio))
             mh, mw = self._map_gray.shape
-            size = (max(1, round(mw / ratio)), max(1, round(mh / ratio)))
+            size = (max(1, round(mw / f)), max(1, round(mh / f)))
             self._map_gray = cv2.resize(self._map_gray, size, interpolation=cv2.INTER_AREA)
-            scale = size[0] / mw
+            sx, sy = size[0] / mw, size[1] / mh
             log.info("registration: the map's pixels are %.2f of a frame pixel on the ground; "
-                     "refined against it downsampled to %dx%d", 1 / ratio, *size)
-        self._map_scale = scale
-        return scale
+                     "refined against it downsampled %gx to %dx%d", 1 / ratio, f, *size)
+        self._map_scale, self._map_scale_y = sx, sy
+        return sx, sy
 
     def _refine(self, frame: Frame, H: np.ndarray, search_scale: float = 1.0
                 ) -> tuple[np.ndarray, str, str]:
         cfg = self.config
         self._last_refine = frame.time
-        k = self._map_scale if self._map_scale is not None else self._working_map(frame, H)
-        S = np.diag([k, k, 1.0])  # map pixels -> working pixels (continuous, corner origin)
+        kx, ky = ((self._map_scale, self._map_scale_y) if self._map_scale is not None
+                  else self._working_map(frame, H))
+        S = np.diag([kx, ky, 1.0])  # map pixels -> working pixels (continuous, corner origin)
         r = refine_against_map(frame.image, S @ H, self._map_gray,
                                search_px=cfg.refine_search_px * search_scale,
                                patch_px=cfg.refine_patch_px, n_patches=cfg.refine_patches,
@@ -374,7 +381,7 @@ class FrameRegistrar:
         if isinstance(r, Failure):
             log.debug("frame %d: %s", frame.index, r.reason)
             return H, "ok", r.reason
-        return normalize(np.diag([1 / k, 1 / k, 1.0]) @ r[0]), "refined", ""
+        return normalize(np.diag([1 / kx, 1 / ky, 1.0]) @ r[0]), "refined", ""
 
     def _lost(self, frame: Frame, gray: np.ndarray, reason: str, common: dict) -> Registration:
         """A frame of good quality that did not register against the reference: carried, or
