@@ -78,6 +78,11 @@ def test_a_run_on_a_projected_map_scores_against_lonlat(tmp_path, capsys):
     code, out, err = run_cli(capsys, *argv)
     assert code == 0, err
     assert json.loads(out)["geo_error"]["median_m"] == pytest.approx(1.109, abs=0.01)
+    # a file of the user's beside a run's results is not converted (it was: 4053 km)
+    (run / "mine.csv").write_bytes((tmp_path / "gt.txt").read_bytes())
+    code, out, err = run_cli(capsys, "eval", "--gt", tmp_path / "gt.txt", "--pred",
+                             run / "mine.csv", "--geo-crs", "EPSG:4326", "--json")
+    assert code == 0 and json.loads(out)["geo_error"]["median_m"] == pytest.approx(0, abs=0.01)
     (run / "summary.json").unlink()
     code, out, err = run_cli(capsys, *argv)
     assert code == 2 and "--pred's x, y are not degrees" in err and "Traceback" not in err, err

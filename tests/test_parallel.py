@@ -1087,3 +1087,18 @@ def test_batch_of_a_camera_card_names_the_folder_with_the_videos(tmp_path, capsy
     (hidden / "DJI_0001.MP4").write_bytes(b"\0" * 10)
     code, _, err = run_cli(capsys, "batch", hidden.parent, "--out", tmp_path / "out")
     assert code == 2 and "sub-folder 100MEDIA: give that folder" in err, err
+
+
+def test_batch_keeps_an_earlier_folder_for_one_input_alike_but_for_case(tmp_path, monkeypatch):
+    """On a case-insensitive disk an earlier Clip/ made clip "exist" too, and both inputs went
+    back to bare stems, one folder (a reviewer): only the exact name, and only once, is kept."""
+    inp = tmp_path / "in"
+    inp.mkdir()
+    for name in ("Clip.AVI", "clip.mkv"):
+        (inp / name).write_bytes(b"\0" * 10)
+    (tmp_path / "out" / "Clip").mkdir(parents=True)
+    real = Path.exists
+    monkeypatch.setattr(Path, "exists", lambda p: real(p) or (  # a case-insensitive disk
+        p.parent.is_dir() and p.name.casefold() in {q.casefold() for q in os.listdir(p.parent)}))
+    names = sorted(i.name for i in plan_batch(inp, tmp_path / "out"))
+    assert names == ["Clip", "clip.mkv"], names

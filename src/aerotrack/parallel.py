@@ -1398,11 +1398,19 @@ def plan_batch(input_dir, out_dir) -> list[BatchItem]:
     # stems alike but for case keep their suffixes too: Clip.AVI's Clip/ and clip.mkv's clip/
     # are one folder on macOS, Windows and exFAT
     folded = [s.casefold() for s in stems]
+    # an earlier batch's folder by the stem alone is kept (its results are not redone), by its
+    # exact name and for one input of a group alike but for case (on a case-insensitive disk
+    # every one of them "exists")
+    existing = set(os.listdir(out_dir)) if out_dir.is_dir() else set()
+    kept: set[str] = set()
     items = []
     for p, stem in zip(found, stems):
+        keep = (folded.count(stem.casefold()) > 1 and stem in existing
+                and stem.casefold() not in kept)
+        if keep:
+            kept.add(stem.casefold())
         name = p.name if stems.count(stem) > 1 or (
-            folded.count(stem.casefold()) > 1 and not (out_dir / stem).exists()) else stem
-        # (an earlier batch's folder by the stem alone is kept: its results are not redone)
+            folded.count(stem.casefold()) > 1 and not keep) else stem
         out = out_dir / name
         src, dst = p.resolve(), out.resolve()
         if dst == src or src in dst.parents or dst in src.parents:

@@ -429,7 +429,8 @@ class TrackFinisher:
             raise ConfigError(f"config finish.size_quantile: {self.config.size_quantile} "
                               "must be in [0, 1]")
         for name in ("stop_hold_s", "stop_hold_back_s", "stop_speed_mps", "stop_decel_mps2",
-                     "stop_radius_m", "stop_window_s", "stop_run_gap_s", "stop_gap_speed_mps"):
+                     "stop_radius_m", "stop_window_s", "stop_run_gap_s", "stop_gap_speed_mps",
+                     "static_speed_mps"):
             if not getattr(self.config, name) >= 0:
                 raise ConfigError(f"config finish.{name}: must be >= 0")
         if not (0.0 <= self.config.absorbed_ratio < 1.0 and self.config.absorbed_speed > 0):

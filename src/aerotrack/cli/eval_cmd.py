@@ -187,6 +187,8 @@ def _pred_in_crs(pred: np.ndarray, path: Path, geo_crs: str) -> np.ndarray:
     (``summary.json`` ``map_crs`` beside it), which is converted; other files are taken as they
     are. A run on a UTM map scored with ``--geo-crs EPSG:4326`` against lon/lat ground truth gave
     a NaN geo error, and ``--json`` a traceback (a probe)."""
+    if Path(path).name not in ("tracks.csv", "predicted.csv"):  # (a file of the user's beside
+        return pred                                             # a run's results is not one)
     summary = Path(path).parent / "summary.json"
     try:
         named = json.loads(summary.read_text(encoding="utf-8")).get("map_crs")
