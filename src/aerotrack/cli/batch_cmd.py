@@ -49,7 +49,8 @@ log = logging.getLogger("aerotrack")
 @click.option("--min-speed", "min_speed", type=float, default=None,
               help="Drop tracks never faster than this many m/s (parked vehicles).")
 @click.option("--out-crs", "out_crs", default=None,
-              help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
+              help="Projected CRS of observations.csv/.gpkg and track_segments.gpkg (default: the "
+                   "local UTM zone).")
 @click.option("--fps", type=float, default=None,
               help="Frame rate of the image folders (default 30) and of videos that name none; a "
                    "video's own rate is kept.")

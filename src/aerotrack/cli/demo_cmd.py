@@ -33,9 +33,9 @@ def demo_command(ctx: click.Context, out_dir: Path, frames: int, seed: int, over
                     true homographies
       OUT/run/      what `aerotrack track` writes with a map (tracks.csv, predicted.csv,
                     links.csv, detections.csv, registration.csv, tracks.geojson,
-                    observations.csv/.gpkg/.parquet, config.toml, summary.json, stages/), then
-                    overlay.webm, map.png,
-                    spacetime.png, registration.png, report.html
+                    observations.csv/.gpkg/.parquet, track_segments.gpkg, config.toml,
+                    summary.json, stages/), then overlay.webm, map.png, spacetime.png,
+                    registration.png, report.html
 
     \b
     Example:

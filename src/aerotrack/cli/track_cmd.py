@@ -466,7 +466,8 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None]:
                    "observations get a time_utc column and tracks.geojson start and end times, "
                    "for GIS time sliders.")
 @click.option("--out-crs", "out_crs", default=None,
-              help="Projected CRS of observations.csv/.gpkg (default: the local UTM zone).")
+              help="Projected CRS of observations.csv/.gpkg and track_segments.gpkg (default: the "
+                   "local UTM zone).")
 @frames_option
 @stride_option
 @click.option("--stabilised", is_flag=True,
@@ -502,8 +503,9 @@ def track_command(ctx, input_path, out_dir, detections_path, map_path, map_init_
     """Track every moving vehicle: registration, detection, local and global association.
 
     \b
-    Writes to --out: tracks.csv, predicted.csv, detections.csv, registration.csv,
-    tracks.geojson and observations.csv (with a map), config.toml, summary.json,
+    Writes to --out: tracks.csv, predicted.csv, links.csv, detections.csv, registration.csv,
+    tracks.geojson and observations.csv (with a map; with the gis extra also
+    observations.gpkg/.parquet and track_segments.gpkg), config.toml, summary.json,
     stages/ (cached registrations and detections for --from).
 
     \b

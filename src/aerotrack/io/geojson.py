@@ -12,8 +12,9 @@ length. A track seen in a single frame becomes a two-vertex LineString with both
 
 :func:`write_tracks_gpkg` (Python API) writes the same lines (per-vertex lists as JSON text, as
 GeoPackage fields are scalar) in layer ``tracks``, and one Point per vertex in layer
-``track_points``; ``aerotrack track`` writes ``observations.gpkg`` instead
-(:mod:`aerotrack.io.geotable`: one Point per row, in a projected CRS).
+``track_points``; ``aerotrack track`` writes ``observations.gpkg`` (one Point per row) and
+``track_segments.gpkg`` (each track's in-view and predicted stretches as lines) instead, in a
+projected CRS (:mod:`aerotrack.io.geotable`).
 """
 
 from __future__ import annotations
