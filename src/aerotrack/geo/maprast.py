@@ -71,6 +71,10 @@ class GeoMap:
                                  "file?") from None
             raise InputError(f"{label}: cannot read as a raster ({detail})") from None
         no_transform = self.transform is None or self.transform.is_identity
+        if (self.crs is None or no_transform) and cv_path(self.path) != str(self.path):
+            raise GeoreferenceError(f"{label}: no georeference found; its name is not valid "
+                                    "UTF-8, so it is opened through a link and files beside it "
+                                    "(a world file, .prj or .aux.xml) are not found: rename it")
         if self.crs is None or no_transform:
             # (each case was "no CRS or geotransform", also for a raster that has one of them)
             if no_transform and gcps:
