@@ -374,3 +374,18 @@ def test_memory_warning_counts_every_worker(caplog):
     assert len(caplog.records) == 1
     msg = caplog.records[0].getMessage()
     assert "in each of 2 workers" in msg and "fewer --workers" in msg and "survey.mp4" in msg
+
+
+def test_numba_gets_a_cache_folder_when_the_install_and_home_are_read_only(tmp_path,
+                                                                           monkeypatch):
+    """A read-only install run with no writable home (a container's ``nobody``): numba raised
+    "cannot cache function" at import and ``track`` stopped with a traceback (an ops probe)."""
+    import aerotrack
+
+    env = {"HOME": "/nonexistent", "XDG_CACHE_HOME": "/proc/nonexistent"}
+    monkeypatch.setattr("os.access", lambda path, mode: False)
+    aerotrack._numba_cache_fallback(str(tmp_path), env)
+    assert env["NUMBA_CACHE_DIR"].startswith(__import__("tempfile").gettempdir())
+    kept = {"NUMBA_CACHE_DIR": "/mine"}
+    aerotrack._numba_cache_fallback(str(tmp_path), kept)
+    assert kept["NUMBA_CACHE_DIR"] == "/mine"

@@ -23,8 +23,35 @@ Subpackages are imported on first use (``import aerotrack; aerotrack.pipeline.ru
 """
 
 import importlib as _importlib
+import os as _os
 
 __version__ = "0.1.0"
+
+
+def _numba_cache_fallback(package_dir: str, environ=_os.environ) -> None:
+    """Give numba a writable cache folder when it would have none.
+
+    The compiled kernels (``@njit(cache=True)``) are cached beside the sources, else in the
+    user's cache folder; with neither writable (a read-only install run as ``nobody`` with no
+    home: a container) numba raised "cannot cache function" when the detector was imported, and
+    ``track`` stopped with a traceback (an ops probe). ``NUMBA_CACHE_DIR`` is then set to a folder
+    in the temporary directory; one the user set is kept."""
+    import tempfile
+
+    if "NUMBA_CACHE_DIR" in environ or _os.access(package_dir, _os.W_OK):
+        return
+    base = environ.get("XDG_CACHE_HOME") or _os.path.join(_os.path.expanduser("~"), ".cache")
+    try:
+        _os.makedirs(_os.path.join(base, "numba"), exist_ok=True)
+        if _os.access(_os.path.join(base, "numba"), _os.W_OK):
+            return
+    except OSError:
+        pass
+    uid = getattr(_os, "getuid", lambda: "user")()
+    environ["NUMBA_CACHE_DIR"] = _os.path.join(tempfile.gettempdir(), f"aerotrack-numba-{uid}")
+
+
+_numba_cache_fallback(_os.path.dirname(_os.path.abspath(__file__)))
 
 #: The subpackages and modules reachable as attributes of the package.
 __all__ = ["analysis", "association", "config", "context", "detection", "errors", "evaluation", "geo", "io",
