@@ -185,6 +185,11 @@ def test_sigterm_during_detect_keeps_the_finished_frames(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted_at_frame"] < 1500
     assert summary["counts"]["detections"] == len(rows)
+    # the finished frames, not the frames read (they said 1-91 with detections to 46: a probe)
+    assert summary["frames_read"] == summary["interrupted_at_frame"]
+    if len(rows):
+        assert summary["last_frame"] >= rows[:, 0].max() and summary["last_frame"] <= \
+            summary["frames_read"]
 
 
 def test_detections_alone_write_identity_registrations(tmp_path, capsys):

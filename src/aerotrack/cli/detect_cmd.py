@@ -207,6 +207,13 @@ def _detect(ctx, source, out, config, info: dict, *, geomap, H_init, gsd, undist
         info = {**info, "wall_time_s": round(time.perf_counter() - t0, 3),
                 "environment": environment(), **notes, **({"hints": hints} if hints else {})}
         summary = run_summary(result, geomap, info)
+        if interrupted is not None:
+            # the frames detections.csv holds: frames read after the last final one have no
+            # detections yet (summary.json said frames 1-91 with detections to 46: an ops probe)
+            done = max((d.frame for d in result.detections), default=None)
+            summary["frames_read"] = summary.get("frames")
+            summary["last_frame"] = done if done is not None else summary.get("first_frame", 1) - 1
+            summary["frames"] = sum(1 for d in result.detections)
         out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
         if writer is not None:
             writer.release()
