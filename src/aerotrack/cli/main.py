@@ -87,6 +87,13 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
       aerotrack demo                       # render a scene, track it, write a report
       aerotrack track video.mp4 --out run/ --map map.tif --map-init h.txt
       aerotrack eval --gt gt.txt --pred run/tracks.csv
+
+    \b
+    Exit codes: 0 done; 2 bad input or options, or results that cannot be written (a full
+    disk, no permission): one line on stderr says which; 130 / 143 stopped by Ctrl-C / SIGTERM
+    (what was finished is kept, --resume continues a track run); 1 an unexpected error (a bug:
+    the traceback is shown). Results go to files; stdout carries only what a command prints
+    (eval's table or --json, count's totals), and with -vv OpenCV's own log lines.
     """
     configure_logging(verbose, quiet)
     ctx.obj = {"verbose": verbose, "quiet": quiet}
