@@ -211,7 +211,8 @@ def test_a_car_crossing_a_short_clip_is_not_dropped_as_parked():
     for p in car.points:
         p.world = p.box[:2] + p.box[2:] / 2
     span = np.ptp([p.world for p in car.points], axis=0)
-    assert 1.0 < np.hypot(*span) * MPU < 4.0  # inside static_extent_m
+    extent = np.hypot(*span) * MPU
+    assert extent > 1.0 and extent < 4.0  # inside static_extent_m
     assert len(finish_tracks([car], FinishConfig(), FPS, metres_per_unit=MPU,
                              registrations=identity)) == 1
 
