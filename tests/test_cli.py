@@ -394,3 +394,41 @@ def test_numba_gets_a_cache_folder_when_the_install_and_home_are_read_only(tmp_p
     kept = {"NUMBA_CACHE_DIR": "/mine"}
     aerotrack._numba_cache_fallback(str(tmp_path), kept)
     assert kept["NUMBA_CACHE_DIR"] == "/mine"
+
+
+def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path):
+    """A run still going was called "an interrupted run", and its advice (--resume, --overwrite)
+    ran two at once into one folder, the first one's results silently replaced (an ops probe).
+    Once the first has stopped, its .partial/ is an interrupted run again."""
+    import signal
+    import time
+
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.integers(0, 255, (200, 900, 3), dtype=np.uint8), (0, 0), 2)
+    video = tmp_path / "v.avi"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (240, 180))
+    for i in range(1500):
+        vw.write(np.ascontiguousarray(base[10:190, (i // 3) % 600:(i // 3) % 600 + 240]))
+    vw.release()
+    out = tmp_path / "o"
+    argv = [sys.executable, "-m", "aerotrack", "-q", "track", str(video), "--out", str(out)]
+    first = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not (out / ".partial").exists() and first.poll() is None:
+        time.sleep(0.1)
+    time.sleep(0.5)
+    if first.poll() is not None:
+        pytest.skip("the first run finished before the second started")
+    try:
+        second = subprocess.run([*argv, "--overwrite"], capture_output=True, text=True,
+                                timeout=120, check=False)
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=120)
+    assert second.returncode == 2, second.stderr
+    assert f"another aerotrack (process {first.pid}) is writing into it" in second.stderr
+    again = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
+    assert again.returncode == 2 and "holds an interrupted run" in again.stderr, again.stderr

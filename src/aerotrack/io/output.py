@@ -172,6 +172,50 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         fh.write(data)
 
 
+#: In ``.partial/``: the host and process writing the folder (:func:`_running_owner`).
+OWNER = "owner"
+
+
+def _start_time(pid: int) -> str:
+    """The process's start time in clock ticks since boot (Linux ``/proc``), or "" elsewhere: with
+    the pid it tells a process from a later one given the same number."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return ""
+
+
+def _owner_record(pid: int) -> str:
+    import socket
+
+    return f"{socket.gethostname()} {pid} {_start_time(pid)}\n"
+
+
+def _running_owner(partial: Path) -> int | None:
+    """The pid of the process on this host still writing into the folder of ``partial``, or
+    None (no record, another host's, or a process that has ended: an interrupted run)."""
+    import socket
+
+    try:
+        parts = (partial / OWNER).read_text(encoding="utf-8").split()
+        host, pid = parts[0], int(parts[1])
+        started = parts[2] if len(parts) > 2 else ""
+    except (OSError, ValueError, IndexError):
+        return None
+    if host != socket.gethostname() or pid == os.getpid():
+        return None
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return None
+    except PermissionError:  # another user's process: alive
+        pass
+    if started and _start_time(pid) not in ("", started):
+        return None  # its number was given to a later process
+    return pid
+
+
 class OutputDir:
     """An output folder under the contract's rules.
 
@@ -207,6 +251,12 @@ class OutputDir:
             raise OutputError(f"{option} {p}: exists and is not a folder")
         if p.is_dir():
             entries = [e for e in p.iterdir()]
+            busy = _running_owner(p / PARTIAL)
+            if busy is not None:
+                # (a run still going was called "an interrupted run", and the advice to
+                # --resume or --overwrite it ran two at once into one folder: an ops probe)
+                raise OutputError(f"{option} {p}: another aerotrack (process {busy}) is writing "
+                                  "into it; wait for it to end, or give another folder")
             if entries and not (overwrite or resume):
                 foreign = sorted(e.name for e in entries if not is_aerotrack_output(e.name))
                 if foreign:
@@ -246,6 +296,7 @@ class OutputDir:
             probe = self.partial / ".write-test"
             probe.write_text("")
             probe.unlink()
+            (self.partial / OWNER).write_text(_owner_record(os.getpid()), encoding="utf-8")
         except OSError as exc:
             raise OutputError(f"{option} {p}: cannot write there ({_why_not(p, exc)})") from None
 
