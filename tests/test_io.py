@@ -529,3 +529,15 @@ def test_atomic_writes_keep_links_and_refuse_devices(tmp_path):
     with pytest.raises(OutputError, match="not a regular file"):
         atomic_write_text(fifo, "x\n")
     assert not fifo.is_file()
+
+
+def test_output_dir_records_its_writer_while_it_works(tmp_path):
+    """.partial/owner names the process writing the folder (so a second run is refused while it
+    runs); it is not kept in stages/ once the results are in place."""
+    import os
+
+    out = OutputDir(tmp_path / "o", stage=True)
+    assert str(os.getpid()) in (out.partial / "owner").read_text().split()
+    out.finish(keep_as="stages")
+    assert (tmp_path / "o" / "stages").is_dir()
+    assert not (tmp_path / "o" / "stages" / "owner").exists()

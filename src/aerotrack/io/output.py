@@ -331,6 +331,7 @@ class OutputDir:
             for name in self._replaced:
                 _remove(self.path / name)
             (self.partial / REPLACED).unlink(missing_ok=True)
+            (self.partial / OWNER).unlink(missing_ok=True)  # (not kept in stages/)
             if self.staged.is_dir():
                 for e in sorted(self.staged.iterdir()):
                     dest = self.path / e.name
