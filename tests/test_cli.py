@@ -144,29 +144,42 @@ def test_bare_command_shows_the_help():
     assert "Traceback" not in res.stderr
 
 
-def test_sigterm_during_detect_keeps_the_finished_frames(tmp_path):
-    """detect cannot resume, but an interruption keeps what was final: detections.csv holds the
-    frames the detector had finished, written whole (no .partial left), exit 128 + signal."""
-    import signal
-    import time
-
+def _panning_video(path):
+    """1500 frames (50 s at 30 frames/s) of a camera panning over blurred noise: a run on it
+    lasts long enough to be stopped or raced."""
     import cv2
     import numpy as np
 
     rng = np.random.default_rng(0)
     base = cv2.GaussianBlur(rng.integers(0, 255, (200, 900, 3), dtype=np.uint8), (0, 0), 2)
-    video = tmp_path / "v.avi"
-    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (240, 180))
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (240, 180))
     for i in range(1500):
         vw.write(np.ascontiguousarray(base[10:190, (i // 3) % 600:(i // 3) % 600 + 240]))
     vw.release()
-    out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "aerotrack", "detect", str(video), "--out",
-                             str(out)], stderr=subprocess.PIPE, text=True)
+    return path
+
+
+def _wait_for_work(out, proc, settle_s: float) -> None:
+    """Until the run ``proc`` has made ``out/.partial`` (at most 60 s), then ``settle_s`` more."""
+    import time
+
     deadline = time.time() + 60
     while time.time() < deadline and not (out / ".partial").exists() and proc.poll() is None:
         time.sleep(0.1)
-    time.sleep(1.0)
+    time.sleep(settle_s)
+
+
+def test_sigterm_during_detect_keeps_the_finished_frames(tmp_path):
+    """detect cannot resume, but an interruption keeps what was final: detections.csv holds the
+    frames the detector had finished, written whole (no .partial left), exit 128 + signal."""
+    import signal
+
+
+    video = _panning_video(tmp_path / "v.avi")
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "aerotrack", "detect", str(video), "--out",
+                             str(out)], stderr=subprocess.PIPE, text=True)
+    _wait_for_work(out, proc, settle_s=1.0)
     if proc.poll() is not None:
         pytest.skip("detect finished before it could be stopped")
     proc.send_signal(signal.SIGTERM)
@@ -401,25 +414,13 @@ def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path):
     ran two at once into one folder, the first one's results silently replaced (an ops probe).
     Once the first has stopped, its .partial/ is an interrupted run again."""
     import signal
-    import time
 
-    import cv2
-    import numpy as np
 
-    rng = np.random.default_rng(0)
-    base = cv2.GaussianBlur(rng.integers(0, 255, (200, 900, 3), dtype=np.uint8), (0, 0), 2)
-    video = tmp_path / "v.avi"
-    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (240, 180))
-    for i in range(1500):
-        vw.write(np.ascontiguousarray(base[10:190, (i // 3) % 600:(i // 3) % 600 + 240]))
-    vw.release()
+    video = _panning_video(tmp_path / "v.avi")
     out = tmp_path / "o"
     argv = [sys.executable, "-m", "aerotrack", "-q", "track", str(video), "--out", str(out)]
     first = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and not (out / ".partial").exists() and first.poll() is None:
-        time.sleep(0.1)
-    time.sleep(0.5)
+    _wait_for_work(out, first, settle_s=0.5)
     if first.poll() is not None:
         pytest.skip("the first run finished before the second started")
     try:
