@@ -36,7 +36,9 @@ def test_report_is_self_contained(report):
     text = path.read_text()
     assert not re.search(r'(src|href)\s*=\s*"(https?:)?//', text)
     assert "Content-Security-Policy" in text
-    assert 'src="data:video/webm;base64,' in text and text.count('src="data:image/png;base64,') == 3
+    # map, space-time, registration, and the evaluation's errors over time
+    assert 'src="data:video/webm;base64,' in text and text.count('src="data:image/png;base64,') == 4
+    assert "Frames with the most errors" not in text  # a perfect prediction has none
     assert (run / "overlay.webm").is_file()
 
 

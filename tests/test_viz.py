@@ -467,7 +467,8 @@ def test_report_scores_as_eval_does(tmp_path):
     run = make_run(tmp_path, n_frames=60)
     tracks = read_mot(run / "tracks.csv")
     write_mot(tmp_path / "gt.txt", tracks[tracks[:, 0] <= 50])
-    metrics, note = _evaluation(RunResults.load(run), tmp_path / "gt.txt")
+    ev = _evaluation(RunResults.load(run), tmp_path / "gt.txt")
+    metrics, note = ev.metrics, ev.note
     assert metrics == evaluate(read_mot(tmp_path / "gt.txt"), tracks)
     assert metrics["FP"] == 0 and "frames 1-50" in note
 

@@ -263,6 +263,35 @@ def _table(rows: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
+def _write_errors(path: Path, seqs: dict, per_seq: dict, iou_threshold: float, by_class: dict,
+                  drop_flagged: bool, frame_offset: int) -> None:
+    """``eval --errors``: CLEAR's matching of the scored rows, errors to ``path`` (atomic), a
+    line per sequence, and per target at -v."""
+    from ..evaluation.errors import KINDS, clear_matching, error_rows_csv, target_summaries
+    from ..io.output import atomic_write_text
+
+    matchings = {}
+    for name, (g, p, ign) in seqs.items():
+        g, p, _, _ = scored_rows(g, p, ignore=ign, frames=per_seq.get(name), name=name,
+                                 quiet=True, drop_flagged=drop_flagged, **by_class)
+        matchings[name] = m = clear_matching(g, p, iou_threshold=iou_threshold)
+        n = np.bincount(m.kind, minlength=len(KINDS))
+        lost = [t for t in target_summaries(m) if t.found < t.frames]
+        lost.sort(key=lambda t: (t.found_fraction, -t.longest_miss, t.gt_id))
+        log.info("%s: %d misses, %d false, %d switches%s", name, n[2], n[3], n[1],
+                 "; least found: " + ", ".join(
+                     f"gt {t.gt_id} {100 * t.found_fraction:.0f}%" for t in lost[:3])
+                 if lost else "")
+        for t in target_summaries(m):
+            log.debug("%s gt %d: frames %d-%d, found %d/%d, tracks %s, switches %d, longest "
+                      "miss %d frames", name, t.gt_id, t.first_frame + frame_offset,
+                      t.last_frame + frame_offset, t.found, t.frames,
+                      " ".join(f"{i}({n})" for i, n in t.tracks) or "none", t.switches,
+                      t.longest_miss)
+    atomic_write_text(path, error_rows_csv(matchings, frame_offset=frame_offset))
+    log.info("errors -> %s", path)
+
+
 def _coverage_hint(seqs: dict) -> None:
     """Say when the predictions cover only a part of the ground truth's frames (a --frames A:B
     run scored against a whole clip's ground truth counts every other frame as misses)."""
@@ -323,6 +352,11 @@ def _coverage_hint(seqs: dict) -> None:
                    "VisDrone's 'ignored regions').")
 @click.option("--class-column", "class_column", type=int, default=8, show_default=True,
               help="1-based column of the ground truth's class (9 in UAVDT's *_gt_whole.txt).")
+@click.option("--errors", "errors_path", type=PathArg(dir_okay=False, path_type=Path),
+              default=None, metavar="FILE",
+              help="Also write every error to this CSV: sequence, frame, kind (miss, false, "
+                   "switch), gt_id, track_id, previous_id, x, y, w, h, iou; frames numbered as "
+                   "--pred's. A line per target (found, tracks, switches, longest miss) with -vv.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
                    "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets, then TP, FP, FN, MT, PT, ML, IDP, IDR, "
@@ -330,7 +364,7 @@ def _coverage_hint(seqs: dict) -> None:
                    "several; an undefined score is null).")
 def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero_based, fix_gt,
                  drop_flagged, geo_crs, as_json, classes=None, ignore_classes=None,
-                 class_column=8):
+                 class_column=8, errors_path=None):
     """Score tracks against a ground truth: HOTA, MOTA, IDF1 and counts (TrackEval).
 
     Boxes are class-agnostic; every ground-truth row counts whatever its confidence (rows
@@ -363,6 +397,13 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         raise InputError(f"--class-column {class_column}: only with --classes or "
                          "--ignore-classes")
     # (the --ignore-classes rows are moved to the ignore regions as each ground truth is read)
+    if errors_path is not None:
+        from ..io.output import check_apart, check_writable
+
+        check_apart(errors_path, "--errors", [("--gt", Path(g)) for g in gts]
+                    + [("--pred", Path(p)) for p in preds] + [("--ignore", Path(i)) for i in ignores
+                                                               if i != "auto"])
+        check_writable(errors_path, "--errors")
     by_class = {"classes": classes, "class_column": class_column}
     seqs = {}
     lengths = {}
@@ -430,6 +471,9 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     res = evaluate_sequences(seqs, iou_threshold=iou_threshold, frames=per_seq or None,
                              drop_flagged=drop_flagged, **by_class)
     single = len(seqs) == 1
+    if errors_path is not None:
+        _write_errors(errors_path, seqs, per_seq, iou_threshold, by_class, drop_flagged,
+                      frame_offset=-1 if zero_based else 0)
     geo = None
     if geo_crs is not None:
         from ..evaluation.geo import geo_errors

@@ -12,7 +12,8 @@ from .common import PathArg, make_progress, root_flags
 @click.command("report")
 @click.argument("run_dir", metavar="DIR", type=PathArg(exists=False, file_okay=False))
 @click.option("--gt", "gt_path", type=PathArg(dir_okay=False), default=None,
-              help="Ground truth (MOTChallenge, 1-based frames): adds the evaluation section.")
+              help="Ground truth (MOTChallenge, 1-based frames): adds the evaluation section "
+                   "and its errors.")
 @click.option("--gt-zero-based", is_flag=True,
               help="The ground truth numbers frames from 0 (as Santiago's): add 1.")
 @click.option("--fix-gt", is_flag=True,
@@ -34,7 +35,8 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
                    video_width, video, gt_zero_based=False, fix_gt=False) -> None:
     """Write DIR/report.html: a single offline file (no network needed) with the run's numbers,
     timings, registration quality, map and space-time pictures, an overlay player, the track
-    table and, with --gt, the evaluation.
+    table and, with --gt, the evaluation and where its errors are (over time, per true target,
+    the frames with the most errors drawn).
 
     \b
     Examples:

@@ -441,8 +441,10 @@ def _check_iou(iou_threshold: float) -> None:
         raise InputError(f"--iou: threshold must be in (0, 1], got {iou_threshold}")
 
 
-def _prepare_gt(gt: np.ndarray, label: str) -> np.ndarray:
+def _prepare_gt(gt: np.ndarray, label: str, quiet: bool = False) -> np.ndarray:
     gt, dups = drop_exact_duplicates(_as_rows(gt, label), label)
+    if quiet:
+        return gt
     if dups:
         log.warning("%s: dropped %s (frames counted from 1)", label,
                     GroundTruthFix(duplicates=dups).describe().removeprefix("dropped "))
@@ -498,7 +500,7 @@ def scored_rows(gt: np.ndarray, pred: np.ndarray, *, ignore: np.ndarray | None =
     if ignore_classes:  # before the duplicate check: regions have no identity (VisDrone's id 0)
         gt, ignore = split_ignore_classes(_as_rows(gt, "ground truth" + suffix), ignore,
                                           ignore_classes, class_column, suffix)
-    gt = _prepare_gt(gt, "ground truth" + suffix)
+    gt = _prepare_gt(gt, "ground truth" + suffix, quiet)
     pred = _as_rows(pred, "prediction" + suffix)
     _check_tracks(pred, "prediction" + suffix)
     if frames is None:

@@ -7,8 +7,8 @@ years.
 
 Sections: summary numbers, per-stage timings, registration quality over time, the map and space-time
 pictures, the overlay (video player and a JPEG frame scrubber), the track table, the evaluation
-(when ground truth is given, or stored in ``summary.json`` under ``"eval"``), the failures and the
-resolved configuration.
+(when ground truth is given, or stored in ``summary.json`` under ``"eval"``; with ground truth also
+where the errors are: :mod:`aerotrack.viz.errors`), the failures and the resolved configuration.
 
 The page checks itself when it loads: it writes ``data-selfcheck`` on ``<html>`` with the number of
 pictures that decoded, whether the video decoded, and the number of track rows shown (headless
@@ -91,18 +91,30 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return html.escape(str(v))
 
 
+@dataclass
+class Evaluation:
+    """The report's evaluation: the scores, where they come from, and (when the ground truth is
+    at hand) CLEAR's box-by-box matching."""
+
+    metrics: dict | None = None
+    note: str = ""
+    matching: Any = None  # aerotrack.evaluation.errors.Matching
+
+
 def _evaluation(results: RunResults, gt_path: str | Path | None, *, zero_based: bool = False,
-                fix_gt: bool = False) -> tuple[dict | None, str]:
-    """Metrics of ``tracks.csv`` against ``gt_path`` (or stored ones); (metrics, note).
+                fix_gt: bool = False) -> Evaluation:
+    """Metrics of ``tracks.csv`` against ``gt_path`` (or stored ones) and the matching.
     ``zero_based``: the ground truth numbers frames from 0; ``fix_gt``: corrected first
     (:func:`aerotrack.evaluation.fix_ground_truth`), as ``eval`` does."""
     if gt_path is None:
         ev = results.summary.get("eval")
-        return (ev, "from summary.json") if isinstance(ev, dict) else (None, "")
+        return Evaluation(ev, "from summary.json") if isinstance(ev, dict) else Evaluation()
     try:
         from ..evaluation import evaluate
+        from ..evaluation.errors import clear_matching
+        from ..evaluation.mot import scored_rows
     except ImportError as exc:
-        return None, f"evaluation unavailable ({exc})"
+        return Evaluation(None, f"evaluation unavailable ({exc})")
     from ..io.mot import read_mot
 
     gt = read_mot(gt_path, option="--gt", strict=False, allow_empty=False, zero_based=zero_based)
@@ -115,10 +127,38 @@ def _evaluation(results: RunResults, gt_path: str | Path | None, *, zero_based: 
     gt_last = int(gt[:, 0].max())
     first = results.first_frame
     last = max(first, min(results.last_frame or gt_last, gt_last))
-    return (evaluate(gt, results.tracks, frames=(first, last)),
-            f"tracks.csv against {Path(gt_path).name}"
-            + (" (corrected)" if fix_gt else "")
-            + f", frames {first}-{last} (the run's, to the ground truth's last, as eval)")
+    metrics = evaluate(gt, results.tracks, frames=(first, last))
+    g, p, _, _ = scored_rows(gt, results.tracks, frames=(first, last), quiet=True)
+    return Evaluation(metrics, f"tracks.csv against {Path(gt_path).name}"
+                      + (" (corrected)" if fix_gt else "")
+                      + f", frames {first}-{last} (the run's, to the ground truth's last, as eval)",
+                      clear_matching(g, p))
+
+
+def _error_frames(input_path: Path, results: RunResults, matching, opts: ReportOptions
+                  ) -> list[tuple[int, str]]:
+    """The worst frames (:func:`aerotrack.viz.errors.worst_frames`) with their errors drawn, as
+    JPEG data URIs."""
+    from ..io.frames import open_source
+    from .errors import draw_errors, worst_frames
+
+    wanted = worst_frames(matching, results.fps)
+    if not wanted:
+        return []
+    source = open_source(input_path, results.fps)
+    out = []
+    for frame in source.frames(start=wanted[0], stop=wanted[-1]):
+        if frame.index not in wanted:
+            continue
+        img = draw_errors(frame.image, matching, frame.index)
+        h, w = img.shape[:2]
+        width = max(opts.scrubber_width, 960)
+        if w > width:
+            img = cv2.resize(img, (width, int(round(h * width / w))), interpolation=cv2.INTER_AREA)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        if ok:
+            out.append((frame.index, _data_uri(buf.tobytes(), "image/jpeg")))
+    return out
 
 
 def _scrubber_frames(input_path: Path, results: RunResults, opts: ReportOptions) -> list[tuple[int, str]]:
@@ -246,11 +286,13 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                       f'src="{src}"></video>')
     scrub = _scrubber_frames(input_path, results, options) if input_path is not None else []
     stats = track_stats(results, geomap)
-    metrics, eval_note = _evaluation(results, gt_path, zero_based=gt_zero_based, fix_gt=fix_gt)
+    evaluation = _evaluation(results, gt_path, zero_based=gt_zero_based, fix_gt=fix_gt)
+    errors_html = _errors_section(evaluation.matching, results, input_path, options)
     if video_path is not None and video_path.parent != run_dir:
         video_path.unlink(missing_ok=True)  # rendered for this report only
-    page = _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path,
-                 counts=_counts_section(run_dir, t_tracks))
+    page = _page(results, stats, pictures, video_html, scrub, evaluation.metrics, evaluation.note,
+                 geomap, input_path, counts=_counts_section(run_dir, t_tracks),
+                 errors=errors_html)
     out = Path(out_path) if out_path is not None else run_dir / "report.html"
     atomic_write_text(out, page)
     out.chmod(0o644)
@@ -473,6 +515,69 @@ def _metrics_table(metrics: dict) -> str:
     return f'<div class="cards">{cells}</div>'
 
 
+def _errors_section(matching, results: RunResults, input_path, options: ReportOptions) -> str:
+    """The evaluation's error analysis: the timeline and per-target picture, the worst frames
+    with their errors drawn (when the input is at hand), the per-target table and the tracks
+    holding false positives; "" without a matching."""
+    if matching is None or not len(matching):
+        return ""
+    from ..evaluation.errors import false_tracks, target_summaries
+    from .errors import plot_errors
+
+    e = html.escape
+    parts = []
+    fig = plot_errors(matching, results.fps, first_frame=results.first_frame)
+    if fig is not None:
+        parts.append(f'<h3>Errors over time</h3><img class="fig" alt="errors over time" '
+                     f'src="{_data_uri(figure_png(fig), "image/png")}">')
+    if input_path is not None:
+        try:
+            shots = _error_frames(Path(input_path), results, matching, options)
+        except AerotrackError as exc:
+            log.warning("report: error frames not drawn: %s", exc)
+            shots = []
+        if shots:
+            parts.append('<h3>Frames with the most errors</h3><p class="note">Thin green: true '
+                         'boxes found; yellow: missed; magenta: an ID switch (old -&gt; new track); '
+                         'red: false positives (predicted boxes matching no true box).</p>'
+                         + "".join(f'<figure><img class="fig" alt="frame {f}" src="{uri}">'
+                                   f'<figcaption>frame {f}</figcaption></figure>'
+                                   for f, uri in shots))
+    fps = results.fps
+    rows = []
+    for t in target_summaries(matching):
+        tracks = " ".join(f'<span class="sw" style="background:{id_hex(i)}"></span>{i}'
+                          f"&nbsp;({n})" for i, n in t.tracks) or "none"
+        cells = [(t.gt_id, _fmt(t.gt_id)), (t.first_frame, _fmt(t.first_frame)),
+                 (t.last_frame, _fmt(t.last_frame)), (t.frames, _fmt(t.frames)),
+                 (t.found_fraction, f"{100 * t.found_fraction:.0f} %"),
+                 (len(t.tracks), tracks), (t.switches, _fmt(t.switches)),
+                 (t.longest_miss / fps, _fmt(t.longest_miss / fps, 2))]
+        rows.append("<tr>" + "".join(f'<td data-v="{v}">{c}</td>' for v, c in cells) + "</tr>")
+    head = ["true ID", "first frame", "last frame", "frames", "found", "tracks (frames)",
+            "ID switches", "longest miss (s)"]
+    ths = "".join(f'<th data-sort="1">{e(h)}</th>' for h in head)
+    parts.append('<h3>True targets</h3><p class="note">CLEAR-MOT\'s matching (IoU &ge; 0.5), '
+                 'as <code>aerotrack eval --errors</code> writes it. Click a heading to sort.</p>'
+                 f'<div class="tw"><table id="targets"><thead><tr>{ths}</tr></thead>'
+                 f'<tbody>{"".join(rows)}</tbody></table></div>')
+    false = false_tracks(matching)
+    if false:
+        frows = "".join(f'<tr><td data-v="{i}"><span class="sw" style="background:{id_hex(i)}">'
+                        f'</span>{i}</td><td data-v="{n}">{n}</td><td data-v="{k}">{k}</td>'
+                        f'<td data-v="{k / n}">{100 * k / n:.0f} %</td></tr>'
+                        for i, n, k in false)
+        parts.append('<h3>Tracks with false positives</h3><p class="note">A track false in all '
+                     'its frames is often a vehicle the ground truth leaves out (parked, or a '
+                     'mover not annotated): look at it before calling it a ghost.</p>'
+                     '<details><summary>' + f"{len(false)} tracks" + '</summary>'
+                     '<div class="tw"><table id="false_tracks"><thead><tr><th data-sort="1">track'
+                     '</th><th data-sort="1">boxes</th><th data-sort="1">false</th>'
+                     f'<th data-sort="1">share</th></tr></thead><tbody>{frows}</tbody></table>'
+                     '</div></details>')
+    return "".join(parts)
+
+
 def _counts_section(run_dir: Path, t_tracks: float) -> str:
     """The counts ``aerotrack count`` wrote into the run folder (newer than ``tracks.csv``): the
     lines' picture, totals per line and direction, and the turning movements; "" without them."""
@@ -516,7 +621,7 @@ def _counts_section(run_dir: Path, t_tracks: float) -> str:
 
 
 def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geomap, input_path,
-          counts: str = "") -> str:
+          counts: str = "", errors: str = "") -> str:
     full = results.path.resolve()
     name = html.escape("/".join(full.parts[-2:]) if len(full.parts) > 2 else full.name)
     when = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -539,7 +644,7 @@ def _page(results, stats, pictures, video_html, scrub, metrics, eval_note, geoma
         parts.append(f'<section id="hints"><h2>Warnings</h2><ul>{items}</ul></section>')
     if metrics:
         parts.append(f'<section id="evaluation"><h2>Evaluation</h2><p class="note">{html.escape(eval_note)}'
-                     f'</p>{_metrics_table(metrics)}</section>')
+                     f'</p>{_metrics_table(metrics)}{errors}</section>')
     if video_html or scrub:
         player = f"<h3>Video</h3>{video_html}" if video_html else ""
         if scrub:
