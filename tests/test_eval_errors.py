@@ -9,6 +9,8 @@ import re
 
 import numpy as np
 import pytest
+from test_eval import _run as _cli  # the tests folder is on sys.path
+from test_eval import _two_targets
 
 from aerotrack.cli.main import main
 from aerotrack.evaluation import evaluate
@@ -21,14 +23,6 @@ from aerotrack.evaluation.errors import (
     target_summaries,
 )
 from aerotrack.io.mot import write_mot
-
-
-def _two_targets(n_frames: int = 20) -> np.ndarray:
-    rows = []
-    for f in range(1, n_frames + 1):
-        rows.append([f, 1, 10 + 2 * f, 10, 20, 10, 1, -1, -1, -1])
-        rows.append([f, 2, 10 + 2 * f, 200, 20, 10, 1, -1, -1, -1])
-    return np.asarray(rows, float)
 
 
 def _random_case(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -96,16 +90,6 @@ def test_a_switch_names_the_old_and_new_track_and_the_frame():
     assert (t1.gt_id, t1.found, t1.frames, t1.tracks, t1.switches) == (1, 20, 20, ((11, 10), (7, 10)), 1)
     assert (t2.found, t2.longest_miss, t2.tracks) == (17, 3, ((12, 17),))
     assert false_tracks(m) == [(9, 1, 1)]
-
-
-def _cli(argv, capsys):
-    try:
-        main([str(a) for a in argv])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
 def test_eval_errors_writes_every_error_once(tmp_path, capsys):
