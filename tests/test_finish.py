@@ -285,6 +285,35 @@ def test_border_boxes_are_rebuilt_and_clipped():
     assert np.abs(world[:, 0] - true_x).mean() < 0.3 * np.abs(raw_world[:, 0] - true_x).mean()
 
 
+def test_a_vehicle_mostly_past_the_border_is_out_of_view():
+    """tracks.csv holds the frames a target is in view; a whole-vehicle box whose centre is past
+    the border (more than half the vehicle outside) was written there, a false positive against
+    every ground truth (generated scenes call it outside; clipped truth keeps a sliver)."""
+    regs = {k: Registration(index=k, H=np.eye(3)) for k in range(1, 61)}
+    L, W = 45.0, 20.0
+    pts = []
+    for k in range(1, 61):
+        x0 = 500 + 3.0 * k - L / 2
+        w = min(x0 + L, 640.0) - x0
+        if w <= 2:
+            break
+        box = np.array([x0, 300 - W / 2, w, W])
+        pts.append(TrackPoint(frame=k, box=box, world=box[:2] + box[2:] / 2, conf=1.0))
+    centre_out = 500 + 3.0 * np.arange(1, len(pts) + 1) >= 640
+    assert 3 < centre_out.sum() < len(pts) - 10
+    for on in (True, False):
+        (out,) = finish_tracks([Track(id=1, points=[dataclasses.replace(p) for p in pts])],
+                               FinishConfig(centre_out_of_view=on), FPS, metres_per_unit=MPU,
+                               registrations=regs, frame_size=(640, 480))
+        kinds = np.array([p.kind for p in out.points])
+        centres = np.array([p.box[0] + p.box[2] / 2 for p in out.points])
+        if on:
+            assert np.array_equal(kinds == "predicted", centres >= 640)
+            assert abs(int((kinds == "predicted").sum()) - int(centre_out.sum())) <= 1
+        else:
+            assert (kinds == "observed").all()
+
+
 def test_bad_size_mode_is_a_config_error():
     with pytest.raises(ConfigError, match="size_mode"):
         TrackFinisher(FinishConfig(size_mode="nope"))

@@ -1683,6 +1683,15 @@ class FinishConfig:
     clip_to_frame : bool
         Clip reported boxes to the frame. Off: ground truths (generated scenes, Santiago) draw the
         whole vehicle past the border, and clipping cost 0.014 HOTA on generated scenes.
+    centre_out_of_view : bool
+        A point whose whole-vehicle box has its centre outside the frame (more than half the
+        vehicle past the border) is out of view: it goes to ``predicted.csv``, not ``tracks.csv``
+        (the contract: a target's ground point is its box's centre, and tracks.csv holds the
+        frames it is believed in view). Ground truths do not score such a vehicle as one whole
+        box: generated scenes call it outside, and truth that clips boxes to the image (UAVDT,
+        VisDrone, Santiago's exits) keeps a sliver no whole box matches at IoU 0.5. On the 18
+        held-out generated scenes it removed 189 of 4527 false positives for 19 more misses
+        (HOTA +0.002, MOTA +0.003); Santiago unchanged. Off: such rows stay in tracks.csv.
     static_extent_m : float
         Tracks whose smoothed ground points all lie within a box of this diagonal (metres) never
         moved: a parked vehicle, a road marking, a registration artefact, not a target. 0 keeps
@@ -1846,6 +1855,7 @@ class FinishConfig:
     default_aspect: float = 0.45
     edge_margin_px: float = 1.0
     clip_to_frame: bool = False
+    centre_out_of_view: bool = True
     static_extent_m: float = 4.0
     static_speed_mps: float = 3.0
     wander_extent_m: float = 10.0

@@ -41,7 +41,8 @@ size one pixel already costs a lot of HOTA. After global linking the whole track
 3. **Frame border**: a box touching the border is clipped by it; it gives no size and its centre
    is rebuilt from its inner edges and the track's size before the final smoothing. Reported
    boxes keep the whole vehicle past the border unless ``clip_to_frame`` (off by default, as
-   ground truths draw them).
+   ground truths draw them). A point whose whole box has its centre outside the frame is out of
+   view (``centre_out_of_view``): it is reported as predicted.
 4. **Static, wandering and small tracks** (:func:`is_static`, :func:`wanders`,
    :func:`is_small`): a track whose smoothed ground points stay within a box of
    ``static_extent_m`` diagonal never moved (a parked vehicle, a median blob, a registration
@@ -612,12 +613,18 @@ class TrackFinisher:
             xs2 = self._smooth(times, frames, world2, sizes, measured, kf, mpu, inflate)
             new[:, :2] += (_project(Hinv, xs2[:, None, :2]) - _project(Hinv, xs[:, None, :2]))[:, 0]
             xs = xs2
+        outside = np.zeros(n, bool)
+        if c.centre_out_of_view and frame_size is not None:
+            cx, cy = new[:, 0] + new[:, 2] / 2, new[:, 1] + new[:, 3] / 2
+            outside = ~((cx >= 0) & (cx < frame_size[0]) & (cy >= 0) & (cy < frame_size[1]))
         if c.clip_to_frame and frame_size is not None:
             new = _clip(new, frame_size)
         good = (new[:, 2] > 0) & (new[:, 3] > 0) & np.all(np.isfinite(new), axis=1)
         for i in np.flatnonzero(good):
             pts[i].box = new[i]
             pts[i].world = xs[i, :2].copy()
+            if outside[i]:  # more than half the vehicle past the border: out of view
+                pts[i].kind = "predicted"
         return True
 
     def _unabsorbed(self, wh, norm, times, valid, vel) -> np.ndarray:
