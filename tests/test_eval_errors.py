@@ -19,6 +19,7 @@ from aerotrack.evaluation.errors import (
     MISS,
     SWITCH,
     clear_matching,
+    error_rows_csv,
     false_tracks,
     target_summaries,
 )
@@ -110,7 +111,7 @@ def test_eval_errors_writes_every_error_once(tmp_path, capsys):
     assert kinds.count("false") == res["FP"] == 0
     sw = next(r for r in rows if r["kind"] == "switch")
     assert (sw["frame"], sw["gt_id"], sw["previous_id"], sw["track_id"]) == ("11", "1", "1", "7")
-    assert "gt 2 75%" in err  # the least-found target named
+    assert "gt 2 75 %" in err  # the least-found target named
 
 
 def test_eval_errors_frames_follow_zero_based_files(tmp_path, capsys):
@@ -157,3 +158,52 @@ def test_report_shows_the_errors(tmp_path, capsys):
     assert targets.count("<tr>") == len(np.unique(gt[:, 1])) + 2  # a row each, and the head
     assert re.search(r'<td data-v="999">999</td>.*?<td data-v="0.0">0 %</td>', targets)
     assert 'alt="frame 1"' in text  # the worst frames start with the first of the misses
+
+
+def test_eval_errors_never_replaces_an_ignore_file_found_by_auto(tmp_path, capsys):
+    """`--ignore auto` finds SEQ_gt_ignore.txt beside the ground truth: --errors naming it
+    replaced UAVDT's ignore regions with the errors, exit 0 (a probe)."""
+    write_mot(tmp_path / "M01_gt.txt", _two_targets(3))
+    write_mot(tmp_path / "pred.txt", _two_targets(3))
+    ign = tmp_path / "M01_gt_ignore.txt"
+    write_mot(ign, np.array([[1, -1, 500, 500, 10, 10, 1, -1, -1, -1]], float))
+    before = ign.read_bytes()
+    code, _, err = _cli(["eval", "--gt", tmp_path / "M01_gt.txt", "--pred", tmp_path / "pred.txt",
+                         "--ignore", "auto", "--errors", ign], capsys)
+    assert code == 2 and "--errors" in err and "--ignore" in err, err
+    assert ign.read_bytes() == before
+    code, _, err = _cli(["eval", "--gt", tmp_path / "M01_gt.txt", "--pred", tmp_path / "pred.txt",
+                         "--errors", "-"], capsys)
+    assert code == 2 and "file name" in err and not (tmp_path / "-").exists()
+
+
+def test_a_loose_box_names_its_neighbour_and_percentages_round_down():
+    gt = _two_targets(400)
+    pred = gt.copy()
+    half = (pred[:, 1] == 2) & (pred[:, 0] == 5)
+    pred[half, 4] *= 2.5  # target 2's box far too wide in frame 5: IoU 0.4
+    m = clear_matching(gt, pred)
+    miss, false = np.flatnonzero(m.kind == MISS), np.flatnonzero(m.kind == FALSE)
+    assert len(miss) == len(false) == 1
+    assert (m.near_id[miss[0]], m.near_id[false[0]]) == (2, 2)
+    assert m.near_iou[miss[0]] == pytest.approx(0.4) == m.near_iou[false[0]]
+    t2 = target_summaries(m)[1]
+    assert (t2.found, t2.frames, t2.found_percent) == (399, 400, "99 %")
+    lines = error_rows_csv({"s": m}).splitlines()
+    assert lines[0].endswith(",iou,near_id,near_iou") and lines[1].endswith(",2,0.400")
+
+
+def test_report_scores_the_frames_asked(tmp_path, capsys):
+    from test_viz import make_run
+
+    run = make_run(tmp_path, with_map=False, n_frames=12)
+    rows = np.loadtxt(run / "tracks.csv", delimiter=",")
+    write_mot(tmp_path / "gt.txt", rows[rows[:, 0] != 3])  # frame 3: every track a false box
+    main(["-q", "report", str(run), "--gt", str(tmp_path / "gt.txt"), "--no-video",
+          "--frames", "4:"])
+    text = (run / "report.html").read_text()
+    assert "frames 4-12 (as asked)" in text and "Tracks with false positives" not in text
+    main(["-q", "report", str(run), "--gt", str(tmp_path / "gt.txt"), "--no-video"])
+    assert "Tracks with false positives" in (run / "report.html").read_text()
+    code, _, err = _cli(["report", run, "--frames", "2:3"], capsys)
+    assert code == 2 and "--frames" in err

@@ -278,10 +278,9 @@ def _write_errors(path: Path, seqs: dict, per_seq: dict, iou_threshold: float, b
         n = np.bincount(m.kind, minlength=len(KINDS))
         lost = [t for t in target_summaries(m) if t.found < t.frames]
         lost.sort(key=lambda t: (t.found_fraction, -t.longest_miss, t.gt_id))
-        log.info("%s: %d misses, %d false, %d switches%s", name, n[2], n[3], n[1],
-                 "; least found: " + ", ".join(
-                     f"gt {t.gt_id} {100 * t.found_fraction:.0f}%" for t in lost[:3])
-                 if lost else "")
+        log.info("%s: %d missed, %d false, %d ID switch%s%s", name, n[2], n[3], n[1],
+                 "" if n[1] == 1 else "es", "; least found: " + ", ".join(
+                     f"gt {t.gt_id} {t.found_percent}" for t in lost[:3]) if lost else "")
         for t in target_summaries(m):
             log.debug("%s gt %d: frames %d-%d, found %d/%d, tracks %s, switches %d, longest "
                       "miss %d frames", name, t.gt_id, t.first_frame + frame_offset,
@@ -354,9 +353,14 @@ def _coverage_hint(seqs: dict) -> None:
               help="1-based column of the ground truth's class (9 in UAVDT's *_gt_whole.txt).")
 @click.option("--errors", "errors_path", type=PathArg(dir_okay=False, path_type=Path),
               default=None, metavar="FILE",
-              help="Also write every error to this CSV: sequence, frame, kind (miss, false, "
-                   "switch), gt_id, track_id, previous_id, x, y, w, h, iou; frames numbered as "
-                   "--pred's. A line per target (found, tracks, switches, longest miss) with -vv.")
+              help="Also write every error to this CSV, a row each: sequence, frame (numbered as "
+                   "--pred's), kind (miss: a true box no track matched; false: a predicted box "
+                   "matching no true box; switch: a match whose track is not the one that matched "
+                   "the target before, previous_id), gt_id, track_id, previous_id, x, y, w, h (the "
+                   "true box; the predicted one for false), iou (of a switch's match), near_id and "
+                   "near_iou (a miss's best-overlapping predicted track, a false box's "
+                   "best-overlapping target: a loose box, not a lost vehicle and a ghost). -1 or "
+                   "empty when none. A line per target with -vv.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print one JSON object (HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1, IDSW, Frag, "
                    "GT_IDs, Pred_IDs, GT_Dets, Pred_Dets, then TP, FP, FN, MT, PT, ML, IDP, IDR, "
@@ -397,18 +401,25 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
         raise InputError(f"--class-column {class_column}: only with --classes or "
                          "--ignore-classes")
     # (the --ignore-classes rows are moved to the ignore regions as each ground truth is read)
-    if errors_path is not None:
-        from ..io.output import check_apart, check_writable
-
-        check_apart(errors_path, "--errors", [("--gt", Path(g)) for g in gts]
-                    + [("--pred", Path(p)) for p in preds] + [("--ignore", Path(i)) for i in ignores
-                                                               if i != "auto"])
-        check_writable(errors_path, "--errors")
     by_class = {"classes": classes, "class_column": class_column}
     seqs = {}
     lengths = {}
     gt_zero = zero_based or gt_zero_based  # ignore regions are numbered as the ground truth
     pairs = _pair(gts, preds, ignores)
+    if errors_path is not None:
+        from ..io.output import check_apart, check_writable
+
+        if str(errors_path) == "-":
+            raise InputError("--errors -: give a file name (the scores go to standard output)")
+        # every file read, as resolved (`--ignore auto` finds ignore files beside the ground
+        # truth: one of them was replaced by the errors), and the folders given
+        check_apart(errors_path, "--errors",
+                    [(opt, Path(q)) for opt, given in (("--gt", gts), ("--pred", preds),
+                                                       ("--ignore", ignores))
+                     for q in given if q != "auto"]
+                    + [(opt, q) for _, g, p, ign in pairs
+                       for opt, q in (("--gt", g), ("--pred", p), ("--ignore", ign))])
+        check_writable(errors_path, "--errors")
     for name, g, p, ign in pairs:
         lengths[name] = _seq_length(g)
         # one sequence of several may hold no object (TrackEval scores it: every prediction a

@@ -18,6 +18,9 @@ from .common import PathArg, make_progress, root_flags
               help="The ground truth numbers frames from 0 (as Santiago's): add 1.")
 @click.option("--fix-gt", is_flag=True,
               help="Correct the ground truth first (as `aerotrack eval --fix-gt`).")
+@click.option("--frames", "gt_frames", default=None, metavar="FIRST:LAST",
+              help="Score only these 1-based frames, as `aerotrack eval --frames` (default: the "
+                   "run's frames up to the ground truth's last).")
 @click.option("--input", "input_path", type=PathArg(), default=None,
               help="The run's input video or image folder, for the overlay player "
                    "(default: the input named in DIR/summary.json, if it still exists).")
@@ -32,7 +35,8 @@ from .common import PathArg, make_progress, root_flags
               help="Render DIR/overlay.webm from the input (when missing) and embed it.")
 @click.pass_context
 def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, out_path,
-                   video_width, video, gt_zero_based=False, fix_gt=False) -> None:
+                   video_width, video, gt_zero_based=False, fix_gt=False,
+                   gt_frames=None) -> None:
     """Write DIR/report.html: a single offline file (no network needed) with the run's numbers,
     timings, registration quality, map and space-time pictures, an overlay player, the track
     table and, with --gt, the evaluation and where its errors are (over time, per true target,
@@ -42,21 +46,31 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     Examples:
       aerotrack report run/
       aerotrack report run/ --gt gt.txt --input flight.mp4
+      aerotrack report run/ --gt dfs_ground_truth.csv --gt-zero-based --fix-gt --frames 2:98
     """
     from ..errors import InputError
     from ..viz.report import ReportOptions, build_report
     from ..viz.results import RunResults
 
-    if gt_path is None and (gt_zero_based or fix_gt):
-        raise InputError("--gt-zero-based and --fix-gt only apply with --gt")
+    if gt_path is None and (gt_zero_based or fix_gt or gt_frames is not None):
+        raise InputError("--gt-zero-based, --fix-gt and --frames only apply with --gt")
+    from .eval_cmd import _parse_frames
+
+    window = _parse_frames(gt_frames)
     results = RunResults.load(run_dir)
     if video_width < 16:
         raise InputError(f"--video-width {video_width}: must be at least 16 pixels")
     if gt_path is not None:
         from ..io.mot import read_mot
 
-        read_mot(gt_path, option="--gt", strict=False, allow_empty=False,
-                 zero_based=gt_zero_based)  # before any work
+        gt_rows = read_mot(gt_path, option="--gt", strict=False, allow_empty=False,
+                           zero_based=gt_zero_based)  # before any work
+        if window is not None:
+            window = _parse_frames(gt_frames, int(gt_rows[:, 0].max()))
+            if not ((gt_rows[:, 0] >= window[0]) & (gt_rows[:, 0] <= window[1])).any():
+                raise InputError(f"--frames {gt_frames}: no ground-truth rows in these frames "
+                                 f"(the ground truth holds frames {int(gt_rows[:, 0].min())}-"
+                                 f"{int(gt_rows[:, 0].max())})")
     if input_path is not None:
         if not Path(input_path).exists():
             raise InputError(f"--input {input_path}: no such file or folder")
@@ -85,7 +99,7 @@ def report_command(ctx: click.Context, run_dir, gt_path, input_path, map_path, o
     try:
         out = build_report(results.path, input_path=input_path, gt_path=gt_path, geomap=geomap,
                            out_path=out_path, progress=progress, gt_zero_based=gt_zero_based,
-                           fix_gt=fix_gt, checked=input_path is not None,
+                           fix_gt=fix_gt, checked=input_path is not None, gt_frames=window,
                            options=ReportOptions(video_width=video_width, render_video=video,
                                                  max_video_mb=ReportOptions.max_video_mb if video else 0.0))
     finally:

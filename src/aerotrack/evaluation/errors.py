@@ -31,6 +31,9 @@ from scipy.optimize import linear_sum_assignment
 from .mot import _box_ious
 
 KINDS = ("match", "switch", "miss", "false")
+#: ``eval --errors``' columns (:func:`error_rows_csv`)
+CSV_COLUMNS = ("sequence", "frame", "kind", "gt_id", "track_id", "previous_id", "x", "y", "w", "h",
+               "iou", "near_id", "near_iou")
 MATCH, SWITCH, MISS, FALSE = range(4)
 _EPS = np.finfo(float).eps
 
@@ -57,6 +60,14 @@ class Matching:
         The matched predicted box of ``match`` and ``switch`` rows; NaN otherwise.
     iou : (N,) float64
         IoU of a match or switch; NaN otherwise.
+    near_id : (N,) int64
+        For ``miss``: the predicted track whose box overlaps the true box most (IoU > 0, below
+        the threshold or taken by another target); for ``false``: the true target overlapping
+        the predicted box most. -1 when nothing overlaps, and for matches. A miss and a false
+        box that are each other's nearest are one loose or shifted box, not a lost vehicle and
+        a ghost.
+    near_iou : (N,) float64
+        That overlap's IoU; NaN with ``near_id`` -1.
     """
 
     frame: np.ndarray
@@ -67,6 +78,8 @@ class Matching:
     box: np.ndarray
     pred_box: np.ndarray
     iou: np.ndarray
+    near_id: np.ndarray
+    near_iou: np.ndarray
 
     def __len__(self) -> int:
         return len(self.frame)
@@ -114,17 +127,13 @@ def clear_matching(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0
     last_track: dict[int, int] = {}  # the track that matched each target last (for switches)
     step_track: dict[int, int] = {}  # ... in the previous frame holding both kinds of box
     cols: dict[str, list] = {k: [] for k in ("frame", "kind", "gt", "tr", "prev", "box", "pbox",
-                                             "iou")}
+                                             "iou", "near", "near_iou")}
 
-    def add(frame, kind, g, t, prev, box, pbox, iou):
-        cols["frame"].append(frame)
-        cols["kind"].append(kind)
-        cols["gt"].append(g)
-        cols["tr"].append(t)
-        cols["prev"].append(prev)
-        cols["box"].append(box)
-        cols["pbox"].append(pbox)
-        cols["iou"].append(iou)
+    def add(frame, kind, g, t, prev, box, pbox, iou, near=-1, near_iou=np.nan):
+        for k, v in (("frame", frame), ("kind", kind), ("gt", g), ("tr", t), ("prev", prev),
+                     ("box", box), ("pbox", pbox), ("iou", iou), ("near", near),
+                     ("near_iou", near_iou)):
+            cols[k].append(v)
 
     nan4 = np.full(4, np.nan)
     for k, f in enumerate(frames.tolist()):
@@ -133,6 +142,7 @@ def clear_matching(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0
         g_ids = gt[gi, 1].astype(np.int64)
         p_ids = pred[pi, 1].astype(np.int64)
         matched_g: dict[int, tuple[int, float]] = {}
+        sim = np.zeros((len(gi), len(pi)))
         if len(gi) and len(pi):
             sim = _box_ious(gt[gi, 2:6], pred[pi, 2:6])
             prev = np.array([step_track.get(int(g), -(2 ** 62)) for g in g_ids])
@@ -155,11 +165,16 @@ def clear_matching(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0
                     pred[pi[c], 2:6], iou)
                 last_track[g] = t
             else:
-                add(f, MISS, g, -1, -1, box, nan4, np.nan)
+                near = int(np.argmax(sim[r])) if len(pi) and sim[r].max() > 0 else -1
+                add(f, MISS, g, -1, -1, box, nan4, np.nan, int(p_ids[near]) if near >= 0 else -1,
+                    float(sim[r, near]) if near >= 0 else np.nan)
         used = {c for c, _ in matched_g.values()}
         for c in range(len(pi)):
             if c not in used:
-                add(f, FALSE, -1, int(p_ids[c]), -1, pred[pi[c], 2:6], nan4, np.nan)
+                near = int(np.argmax(sim[:, c])) if len(gi) and sim[:, c].max() > 0 else -1
+                add(f, FALSE, -1, int(p_ids[c]), -1, pred[pi[c], 2:6], nan4, np.nan,
+                    int(g_ids[near]) if near >= 0 else -1,
+                    float(sim[near, c]) if near >= 0 else np.nan)
     n = len(cols["frame"])
     return Matching(
         frame=np.asarray(cols["frame"], dtype=np.int64),
@@ -170,6 +185,8 @@ def clear_matching(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0
         box=np.asarray(cols["box"], dtype=np.float64).reshape(n, 4),
         pred_box=np.asarray(cols["pbox"], dtype=np.float64).reshape(n, 4),
         iou=np.asarray(cols["iou"], dtype=np.float64),
+        near_id=np.asarray(cols["near"], dtype=np.int64),
+        near_iou=np.asarray(cols["near_iou"], dtype=np.float64),
     )
 
 
@@ -207,6 +224,11 @@ class TargetSummary:
     def found_fraction(self) -> float:
         return self.found / self.frames if self.frames else float("nan")
 
+    @property
+    def found_percent(self) -> str:
+        """``found`` in whole percent, rounded down: 399 of 400 frames is 99 %, not 100 %."""
+        return f"{100 * self.found // self.frames} %" if self.frames else "–"
+
 
 def target_summaries(matching: Matching) -> list[TargetSummary]:
     """One :class:`TargetSummary` per true target of ``matching``, by ground-truth id."""
@@ -231,19 +253,20 @@ def target_summaries(matching: Matching) -> list[TargetSummary]:
 
 
 def error_rows_csv(matchings: dict[str, Matching], *, frame_offset: int = 0) -> str:
-    """The errors of each sequence's matching as CSV text (header ``sequence, frame, kind, gt_id,
-    track_id, previous_id, x, y, w, h, iou``); ``frame_offset`` is added to the frames (-1 writes
-    them 0-based, as the ground truth was given)."""
-    lines = ["sequence,frame,kind,gt_id,track_id,previous_id,x,y,w,h,iou"]
+    """The errors of each sequence's matching as CSV text (header :data:`CSV_COLUMNS`: the true
+    box, the predicted one for ``false``); ``frame_offset`` is added to the frames (-1 writes
+    them 0-based, as the files were given)."""
+    lines = [",".join(CSV_COLUMNS)]
     for name, m in matchings.items():
         seq = name.replace('"', '""')
         seq = f'"{seq}"' if any(ch in seq for ch in ',"\n') else seq
         for i in np.flatnonzero(m.errors).tolist():
             x, y, w, h = (f"{v:.2f}" for v in m.box[i])
             iou = "" if np.isnan(m.iou[i]) else f"{m.iou[i]:.3f}"
+            near = "" if np.isnan(m.near_iou[i]) else f"{m.near_iou[i]:.3f}"
             lines.append(f"{seq},{int(m.frame[i]) + frame_offset},{KINDS[m.kind[i]]},"
                          f"{int(m.gt_id[i])},{int(m.track_id[i])},{int(m.previous_id[i])},"
-                         f"{x},{y},{w},{h},{iou}")
+                         f"{x},{y},{w},{h},{iou},{int(m.near_id[i])},{near}")
     return "\n".join(lines) + "\n"
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..evaluation.errors import FALSE, MATCH, MISS, SWITCH, Matching, target_summaries
 from .colours import id_rgb
-from .mapplot import _figure, _font_pt
+from .mapplot import _figure
 
 MAX_TARGET_ROWS = 60
 
@@ -41,29 +41,33 @@ def plot_errors(matching: Matching, fps: float, *, first_frame: int = 1):
     t = (frames - t0) / fps
     summaries = target_summaries(matching)
     shown = summaries
-    if len(shown) > MAX_TARGET_ROWS:
-        shown = sorted(shown, key=lambda s: (s.found_fraction, s.gt_id))[:MAX_TARGET_ROWS]
+    if len(shown) > MAX_TARGET_ROWS:  # those with switches first, then the least found
+        shown = sorted(shown, key=lambda s: (-min(s.switches, 1), s.found_fraction,
+                                             s.gt_id))[:MAX_TARGET_ROWS]
     shown = sorted(shown, key=lambda s: (s.first_frame, s.gt_id))
     rows = max(len(shown), 1)
-    fig = _figure(12.0, 2.6 + 0.22 * rows, layout="constrained")
-    fs = max(_font_pt(fig, 0.012), 10.0)
+    fs = 10.0  # points: the rows are a fixed height, so are the labels
+    fig = _figure(12.0, 2.4 + 0.2 * rows, layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True,
-                               gridspec_kw={"height_ratios": [2.2, max(1.0, 0.22 * rows)]})
+                               gridspec_kw={"height_ratios": [2.0, max(1.0, 0.2 * rows)]})
     top.step(t, n_miss, where="mid", color="#d08a00", lw=1.3, label="missed true boxes")
     top.step(t, n_false, where="mid", color="#d62728", lw=1.3, label="false positives")
-    for ts in np.unique((matching.frame[sw] - t0) / fps):
-        top.axvline(ts, color="#c000c0", lw=1.0, alpha=0.8)
-    if sw.any():
-        top.plot([], [], color="#c000c0", lw=1.0, label="ID switch")
+    if sw.any():  # ticks along the top, not lines through the curves
+        ts = (matching.frame[sw] - t0) / fps
+        top.plot(ts, np.full(len(ts), 1.0), "v", color="#c000c0", ms=5, alpha=0.8,
+                 transform=top.get_xaxis_transform(), clip_on=False, label="ID switch")
     top.set_ylabel("boxes", fontsize=fs)
-    top.legend(fontsize=fs * 0.85, loc="upper right", ncol=3, frameon=False)
+    top.legend(fontsize=fs * 0.9, loc="upper left", bbox_to_anchor=(0, -0.02, 1, 1), ncol=3,
+               frameon=False, mode=None)
     top.grid(alpha=0.3)
     counts = matching.counts()
     left_out = len(summaries) - len(shown)
-    top.set_title(f"errors: {counts['FN']} missed, {counts['FP']} false, {counts['IDSW']} ID "
-                  f"switches; below, each true target coloured by the track that found it "
-                  f"(grey: missed){f'; {left_out} best-found targets not drawn' if left_out else ''}",
-                  fontsize=fs)
+    top.set_title(f"{counts['FN']} missed, {counts['FP']} false, {counts['IDSW']} ID "
+                  f"switch{'' if counts['IDSW'] == 1 else 'es'}", fontsize=fs + 1)
+    bottom.set_title("each true target coloured by the track that found it; grey: missed; "
+                     "white: not annotated" + (f"; {left_out} targets without a switch and best "
+                                              "found not drawn" if left_out else ""),
+                     fontsize=fs)
     half = 0.5 / fps
     for row, s in enumerate(shown):
         sel = matching.gt_id == s.gt_id
@@ -82,10 +86,11 @@ def plot_errors(matching: Matching, fps: float, *, first_frame: int = 1):
             bottom.plot([ts, ts], [row - 0.5, row + 0.5], color="#c000c0", lw=1.6)
     bottom.set_yticks(range(len(shown)))
     bottom.set_yticklabels([f"gt {s.gt_id}" for s in shown], fontsize=fs * 0.8)
+    bottom.tick_params(axis="y", length=0)
     bottom.set_ylim(len(shown) - 0.5, -0.5)
     bottom.set_xlabel("time (s)", fontsize=fs)
     for ax in (top, bottom):
-        ax.tick_params(labelsize=fs * 0.85)
+        ax.tick_params(axis="x", labelsize=fs * 0.9)
     return fig
 
 
@@ -108,29 +113,49 @@ def worst_frames(matching: Matching, fps: float, count: int = 4) -> list[int]:
     return sorted(picked)
 
 
-def draw_errors(image: np.ndarray, matching: Matching, frame: int) -> np.ndarray:
-    """``image`` (BGR, the frame's pixels) with ``frame``'s true and false boxes drawn (a copy)."""
-    out = image.copy()
+def draw_errors(image: np.ndarray, matching: Matching, frame: int, *,
+                width: int | None = None) -> np.ndarray:
+    """``image`` (BGR, the frame's pixels) with ``frame``'s true and false boxes drawn, resized to
+    at most ``width`` pixels first (so the labels keep their size); a new array.
+
+    Labels go where they cover no other box or label (:func:`aerotrack.viz.overlay._label`),
+    switches first, then misses, then false positives (skipped when no place is free). A miss
+    or a false box that overlaps a box of the other kind names it ("near id 5"): one loose box,
+    not a lost vehicle and a ghost.
+    """
+    from .overlay import _label, _Rects
+
+    h0, w0 = image.shape[:2]
+    k = 1.0
+    if width is not None and w0 > width:
+        k = width / w0
+        out = cv2.resize(image, (width, max(1, int(round(h0 * k)))), interpolation=cv2.INTER_AREA)
+    else:
+        out = image.copy()
     h, w = out.shape[:2]
-    thick = max(1, int(round(min(h, w) / 400)))
-    font = max(0.35, min(h, w) / 1400)
+    thick = max(1, int(round(min(h, w) / 500)))
+    scale = max(0.4, min(h, w) / 1300)
     sel = np.flatnonzero(matching.frame == frame)
-    for i in sel.tolist():
-        k = int(matching.kind[i])
-        x, y, bw, bh = matching.box[i]
-        p0, p1 = (int(round(x)), int(round(y))), (int(round(x + bw)), int(round(y + bh)))
-        if k == MATCH:
-            cv2.rectangle(out, p0, p1, FOUND_BGR, thick, cv2.LINE_AA)
-            continue
-        g, t = int(matching.gt_id[i]), int(matching.track_id[i])
-        colour, label = {MISS: (MISS_BGR, f"gt {g} missed"),
-                         SWITCH: (SWITCH_BGR, f"gt {g}: {int(matching.previous_id[i])}->{t}"),
-                         FALSE: (FALSE_BGR, f"id {t} false")}[k]
-        cv2.rectangle(out, p0, p1, colour, thick + 1, cv2.LINE_AA)
-        (tw, th), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, font, 1)
-        ty = p0[1] - 3 if p0[1] - th - 4 >= 0 else min(h - 2, p1[1] + th + 3)
-        tx = min(max(0, p0[0]), max(0, w - tw - 1))
-        cv2.rectangle(out, (tx - 1, ty - th - 2), (tx + tw + 1, ty + base - 1), (0, 0, 0), -1)
-        cv2.putText(out, label, (tx, ty - 1), cv2.FONT_HERSHEY_SIMPLEX, font, colour, 1,
-                    cv2.LINE_AA)
+    boxes = np.round(matching.box[sel] * k).astype(np.int64)
+    corners = np.c_[boxes[:, :2], boxes[:, :2] + boxes[:, 2:]]
+    style = {MATCH: (FOUND_BGR, thick), SWITCH: (SWITCH_BGR, thick + 1),
+             MISS: (MISS_BGR, thick + 1), FALSE: (FALSE_BGR, thick + 1)}
+    for j, i in enumerate(sel.tolist()):
+        colour, lw = style[int(matching.kind[i])]
+        cv2.rectangle(out, tuple(corners[j, :2].tolist()), tuple(corners[j, 2:].tolist()), colour,
+                      lw, cv2.LINE_AA)
+    placed = _Rects()
+    for kind in (SWITCH, MISS, FALSE):
+        for j in np.flatnonzero(matching.kind[sel] == kind).tolist():
+            i = int(sel[j])
+            g, t, near = int(matching.gt_id[i]), int(matching.track_id[i]), int(matching.near_id[i])
+            if kind == SWITCH:
+                text = f"gt {g}: id {int(matching.previous_id[i])}->{t}"
+            elif kind == MISS:
+                text = f"gt {g} missed" + (f" (near id {near})" if near >= 0 else "")
+            else:
+                text = f"id {t} false" + (f" (near gt {near})" if near >= 0 else "")
+            x0, y0, x1, y1 = corners[j].tolist()
+            _label(out, text, x0, y0, y1, style[kind][0], scale, 1, placed=placed,
+                   optional=kind == FALSE, right=x1, avoid=np.delete(corners, j, axis=0))
     return out

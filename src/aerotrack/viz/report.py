@@ -41,6 +41,9 @@ from .trackstats import TrackStats, track_stats
 
 log = logging.getLogger(__name__)
 
+#: width (pixels) of the report's frames with their errors drawn, at most
+ERROR_FRAME_WIDTH = 1280
+
 METRIC_ORDER = ("HOTA", "DetA", "AssA", "LocA", "MOTA", "MOTP", "IDF1", "IDSW", "Frag", "GT_IDs",
                 "Pred_IDs", "GT_Dets", "Pred_Dets")
 
@@ -102,10 +105,11 @@ class Evaluation:
 
 
 def _evaluation(results: RunResults, gt_path: str | Path | None, *, zero_based: bool = False,
-                fix_gt: bool = False) -> Evaluation:
+                fix_gt: bool = False, frames: tuple[int, int] | None = None) -> Evaluation:
     """Metrics of ``tracks.csv`` against ``gt_path`` (or stored ones) and the matching.
     ``zero_based``: the ground truth numbers frames from 0; ``fix_gt``: corrected first
-    (:func:`aerotrack.evaluation.fix_ground_truth`), as ``eval`` does."""
+    (:func:`aerotrack.evaluation.fix_ground_truth`), as ``eval`` does; ``frames``: the scoring
+    window (1-based, inclusive), else the run's frames to the ground truth's last."""
     if gt_path is None:
         ev = results.summary.get("eval")
         return Evaluation(ev, "from summary.json") if isinstance(ev, dict) else Evaluation()
@@ -125,18 +129,21 @@ def _evaluation(results: RunResults, gt_path: str | Path | None, *, zero_based: 
     # the run's frames up to the ground truth's last, as `aerotrack eval` scores by default
     # (frames the annotators never reached are not false positives: Santiago's 99-100 were)
     gt_last = int(gt[:, 0].max())
-    first = results.first_frame
-    last = max(first, min(results.last_frame or gt_last, gt_last))
+    if frames is not None:
+        first, last = frames
+        which = "as asked"
+    else:
+        first = results.first_frame
+        last = max(first, min(results.last_frame or gt_last, gt_last))
+        which = "the run's, to the ground truth's last, as eval"
     metrics = evaluate(gt, results.tracks, frames=(first, last))
     g, p, _, _ = scored_rows(gt, results.tracks, frames=(first, last), quiet=True)
     return Evaluation(metrics, f"tracks.csv against {Path(gt_path).name}"
-                      + (" (corrected)" if fix_gt else "")
-                      + f", frames {first}-{last} (the run's, to the ground truth's last, as eval)",
+                      + (" (corrected)" if fix_gt else "") + f", frames {first}-{last} ({which})",
                       clear_matching(g, p))
 
 
-def _error_frames(input_path: Path, results: RunResults, matching, opts: ReportOptions
-                  ) -> list[tuple[int, str]]:
+def _error_frames(input_path: Path, results: RunResults, matching) -> list[tuple[int, str]]:
     """The worst frames (:func:`aerotrack.viz.errors.worst_frames`) with their errors drawn, as
     JPEG data URIs."""
     from ..io.frames import open_source
@@ -147,17 +154,12 @@ def _error_frames(input_path: Path, results: RunResults, matching, opts: ReportO
         return []
     source = open_source(input_path, results.fps)
     out = []
-    for frame in source.frames(start=wanted[0], stop=wanted[-1]):
-        if frame.index not in wanted:
-            continue
-        img = draw_errors(frame.image, matching, frame.index)
-        h, w = img.shape[:2]
-        width = max(opts.scrubber_width, 960)
-        if w > width:
-            img = cv2.resize(img, (width, int(round(h * width / w))), interpolation=cv2.INTER_AREA)
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
-        if ok:
-            out.append((frame.index, _data_uri(buf.tobytes(), "image/jpeg")))
+    for f in wanted:  # each sought on its own: two picked an hour apart decoded the hour
+        for frame in source.frames(start=f, stop=f):
+            img = draw_errors(frame.image, matching, frame.index, width=ERROR_FRAME_WIDTH)
+            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+            if ok:
+                out.append((frame.index, _data_uri(buf.tobytes(), "image/jpeg")))
     return out
 
 
@@ -194,7 +196,7 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                  gt_path: str | Path | None = None, geomap=None, out_path: str | Path | None = None,
                  options: ReportOptions = ReportOptions(), progress=None,
                  gt_zero_based: bool = False, fix_gt: bool = False,
-                 checked: bool = False) -> Path:
+                 checked: bool = False, gt_frames: tuple[int, int] | None = None) -> Path:
     """Write ``DIR/report.html`` (or ``out_path``) for the run in ``run_dir``.
 
     Parameters
@@ -215,6 +217,9 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
         Called with the frames written while the overlay video is rendered.
     gt_zero_based, fix_gt : bool
         The ground truth numbers frames from 0 / is corrected first (as ``eval``'s options).
+    gt_frames : (int, int), optional
+        Scoring window (1-based, inclusive; ``eval --frames``), else the run's frames up to the
+        ground truth's last.
     checked : bool
         ``input_path`` was already checked against the run (``aerotrack report --input``): its
         warnings are not given twice.
@@ -286,7 +291,8 @@ def build_report(run_dir: str | Path, *, input_path: str | Path | None = None,
                       f'src="{src}"></video>')
     scrub = _scrubber_frames(input_path, results, options) if input_path is not None else []
     stats = track_stats(results, geomap)
-    evaluation = _evaluation(results, gt_path, zero_based=gt_zero_based, fix_gt=fix_gt)
+    evaluation = _evaluation(results, gt_path, zero_based=gt_zero_based, fix_gt=fix_gt,
+                             frames=gt_frames)
     errors_html = _errors_section(evaluation.matching, results, input_path, options)
     if video_path is not None and video_path.parent != run_dir:
         video_path.unlink(missing_ok=True)  # rendered for this report only
@@ -532,7 +538,7 @@ def _errors_section(matching, results: RunResults, input_path, options: ReportOp
                      f'src="{_data_uri(figure_png(fig), "image/png")}">')
     if input_path is not None:
         try:
-            shots = _error_frames(Path(input_path), results, matching, options)
+            shots = _error_frames(Path(input_path), results, matching)
         except AerotrackError as exc:
             log.warning("report: error frames not drawn: %s", exc)
             shots = []
@@ -543,22 +549,23 @@ def _errors_section(matching, results: RunResults, input_path, options: ReportOp
                          + "".join(f'<figure><img class="fig" alt="frame {f}" src="{uri}">'
                                    f'<figcaption>frame {f}</figcaption></figure>'
                                    for f, uri in shots))
-    fps = results.fps
     rows = []
     for t in target_summaries(matching):
         tracks = " ".join(f'<span class="sw" style="background:{id_hex(i)}"></span>{i}'
                           f"&nbsp;({n})" for i, n in t.tracks) or "none"
         cells = [(t.gt_id, _fmt(t.gt_id)), (t.first_frame, _fmt(t.first_frame)),
                  (t.last_frame, _fmt(t.last_frame)), (t.frames, _fmt(t.frames)),
-                 (t.found_fraction, f"{100 * t.found_fraction:.0f} %"),
+                 (t.found_fraction, t.found_percent),
                  (len(t.tracks), tracks), (t.switches, _fmt(t.switches)),
-                 (t.longest_miss / fps, _fmt(t.longest_miss / fps, 2))]
+                 (t.longest_miss, _fmt(t.longest_miss))]
         rows.append("<tr>" + "".join(f'<td data-v="{v}">{c}</td>' for v, c in cells) + "</tr>")
     head = ["true ID", "first frame", "last frame", "frames", "found", "tracks (frames)",
-            "ID switches", "longest miss (s)"]
+            "ID switches", "longest miss (frames)"]
     ths = "".join(f'<th data-sort="1">{e(h)}</th>' for h in head)
-    parts.append('<h3>True targets</h3><p class="note">CLEAR-MOT\'s matching (IoU &ge; 0.5), '
-                 'as <code>aerotrack eval --errors</code> writes it. Click a heading to sort.</p>'
+    parts.append('<h3>True targets</h3><p class="note">CLEAR-MOT\'s matching at IoU 0.5 over '
+                 'the frames named above (<code>aerotrack eval --errors</code> writes the same '
+                 'rows, with its <code>--frames</code>); frames numbered from 1. Click a heading '
+                 'to sort.</p>'
                  f'<div class="tw"><table id="targets"><thead><tr>{ths}</tr></thead>'
                  f'<tbody>{"".join(rows)}</tbody></table></div>')
     false = false_tracks(matching)
