@@ -1075,3 +1075,24 @@ def test_motions_of_a_split_follow_allow_split():
         assert many == pytest.approx(one, rel=1e-9)
         costs[allow] = many
     assert costs[True] < costs[False]
+
+
+def test_two_vehicles_passing_in_opposite_directions_in_one_blob_are_not_merged():
+    """Target 1 (5 x 2 m) drives +x at 4 m/s for 200 frames; target 2 (2 x 1.6 m, another
+    colour) comes the other way at 2 m/s, seen for 20 frames while it passes, its box inside or
+    over target 1's (the detector drew one blob round both; local association kept both
+    tracklets). It is no second view of target 1 (they move apart), so it keeps its own
+    identity; before, merge_duplicates made it a part of target 1."""
+    from aerotrack.association.linking import merge_duplicates
+
+    rng = np.random.default_rng(7)
+    red, blue = [0.7, 0.1, 0.1, 0.1], [0.1, 0.1, 0.1, 0.7]
+    one = Track(0, _box_track(range(1, 201), lambda f: (4 * f / FPS, 0.0), (5.0, 2.0), red, rng))
+    meet = 4 * 100 / FPS  # where they pass, at frame 100
+    two = Track(0, _box_track(range(90, 110), lambda f: (meet - 2 * (f - 100) / FPS, 0.0),
+                              (2.0, 1.6), blue, rng))
+    assert len(merge_duplicates([one, two], 0.5)) == 2
+    # the same box moving with target 1 (a partial blob of it) is still merged
+    part = Track(0, _box_track(range(90, 110), lambda f: (4 * f / FPS + 0.5, 0.0), (2.0, 1.6), red,
+                               rng))
+    assert len(merge_duplicates([one, part], 0.5)) == 1

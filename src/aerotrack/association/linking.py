@@ -1259,7 +1259,8 @@ def merge_duplicates(tracklets: list[Track], min_overlap: float) -> list[Track]:
             if not nf or (tb.last - tb.first, big) <= (ts.last - ts.first, small):
                 continue
             score = m * n / nf  # frames of the small one without the big one count 0
-            if score >= min_overlap and score > host.get(small, (-1.0, -1))[0]:
+            if score >= min_overlap and score > host.get(small, (-1.0, -1))[0] \
+                    and not _opposite_motion(ts, tb):
                 host[small] = (score, big)
     if not host:
         return tracklets
@@ -1284,6 +1285,32 @@ def merge_duplicates(tracklets: list[Track], min_overlap: float) -> list[Track]:
         out.append(t)
     log.debug("linking: %d duplicate tracklets merged into the tracklets they lie on", len(host))
     return out
+
+
+#: :func:`_opposite_motion`: each tracklet moves at least this fraction of its own typical length
+#: over the frames both are seen.
+OPPOSITE_MIN_TRAVEL = 0.25
+
+
+def _opposite_motion(a: Track, b: Track) -> bool:
+    """Whether tracklets ``a`` and ``b`` move in opposite directions over the frames both are seen
+    (their displacements, from a straight-line fit, at over 90 degrees, and each at least
+    ``OPPOSITE_MIN_TRAVEL`` of its typical length): one object does not, so neither is a second
+    view of the other's (two vehicles passing in one blob, one leaving the view at its edge as
+    another comes in)."""
+    (fa, xa), (fb, xb) = _positions(a), _positions(b)
+    common = np.intersect1d(fa, fb)
+    if len(common) < 3:
+        return False
+    d = []
+    for fr, xy, t in ((fa, xa, a), (fb, xb, b)):
+        k = np.isin(fr, common)
+        slope = np.polyfit(fr[k].astype(np.float64), xy[k], 1)[0]  # (2,) world units per frame
+        step = slope * float(common[-1] - common[0])
+        if float(np.hypot(*step)) < OPPOSITE_MIN_TRAVEL * _typical_length(t):
+            return False
+        d.append(step)
+    return float(d[0] @ d[1]) < 0.0
 
 
 def handover_pairs(tracklets: list[Track], min_overlap: float, max_overlap_frames: int,
