@@ -1745,6 +1745,15 @@ class FinishConfig:
         vehicles start to be dropped between 2.6 and 3.0 (3.0: 0.622 / 0.811 / 0.632). With a
         known scale ``min_size_m`` stays 1.5: a small car (2.7 x 1.7 m) is 2.1 m, and a tight
         box makes it less.
+    regain_gap_s : float
+        Inside a linked track's gaps up to this long, a detection lying on the track's path
+        (interpolated between the sightings either side) that no other track holds becomes an
+        observation of it (:mod:`aerotrack.association.regain`): local association had left it
+        out (a run too short for a tracklet). 0 turns it off. Raising it claims detections
+        across longer gaps, where a straight path between two sightings is a worse guess.
+    regain_iou : float
+        IoU a detection needs with the interpolated box to be claimed (0-1). Lower claims more,
+        and risks taking a neighbour's detection.
     fill_gaps_s : float
         Gaps between linked tracklets up to this long are reported in ``tracks.csv`` as
         ``bridged`` (smoothed through) instead of ``predicted``, as local association reports the
@@ -1863,6 +1872,8 @@ class FinishConfig:
     wander_step_s: float = 0.5
     min_size_m: float = 1.5
     min_size_estimated_m: float = 2.0
+    regain_gap_s: float = 8.0
+    regain_iou: float = 0.5
     fill_gaps_s: float = 0.5
     stop_hold_s: float = 0.0
     stop_hold_back_s: float = 0.0

@@ -1194,7 +1194,7 @@ def assemble(results: Sequence[SegmentResult], *, config: Config, fps: float, ge
     mpu = geomap.metres_per_pixel if geomap is not None else metres_per_unit
     still_H = still_H if geomap is not None and not regs and frame_size is None else None
     tracks = link(tracklets, config, fps, metres_per_unit=mpu, frame_size=frame_size,
-                  registrations=regs, roads=roads, still_H=still_H)
+                  registrations=regs, roads=roads, still_H=still_H, detections=dets)
     if min_speed_mps:
         from .geo.roi import filter_min_speed
         from .pipeline import _renumber

@@ -805,7 +805,7 @@ class Pipeline:
     def _link(self, tracklets: list[Track]) -> list[Track]:
         return link(tracklets, self.config, self.fps, metres_per_unit=self.metres_per_unit,
                     frame_size=self.frame_size, registrations=self.registrations, roads=self.roads,
-                    still_H=self.still_H)
+                    still_H=self.still_H, detections=self.detections)
 
     @property
     def still_H(self) -> np.ndarray | None:
@@ -851,7 +851,8 @@ def check_config(config: Config, fps: float | None = None) -> None:
 def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit: float | None = None,
          frame_size: tuple[int, int] | None = None,
          registrations: dict[int, Registration] | None = None, roads=None,
-         still_H: np.ndarray | None = None) -> list[Track]:
+         still_H: np.ndarray | None = None,
+         detections: Iterable[Detections] | None = None) -> list[Track]:
     """Global linking of tracklets (world coordinates) into tracks numbered 1..N.
 
     The step after local association, shared by :class:`Pipeline` and segment-parallel runs
@@ -860,7 +861,8 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     context. The linked tracks are then finished (:mod:`aerotrack.association.finish`, config
     section ``finish``): smoothed ground points, robust box sizes, static tracks dropped.
     ``still_H``: detections alone on a map, the placement their boxes went through (boxes are
-    rebuilt in frame pixels through it).
+    rebuilt in frame pixels through it). ``detections``: the run's, for the detections regained
+    inside the linked tracks' gaps (:mod:`aerotrack.association.regain`; none without them).
     """
     try:
         from .association.linking import GlobalLinker
@@ -873,6 +875,15 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
     if roads is not None:
         linker.predictor.roads = roads
     tracks = linker.link(tracklets, frame_size=frame_size, registrations=registrations or None)
+    if detections is not None and config.finish.enabled:
+        from .association.finish import TrackFinisher
+        from .association.regain import regain_gap_detections
+
+        TrackFinisher(config.finish, fps)  # its settings checked before they are used
+        regain_gap_detections(tracks, detections, fps=fps, max_gap_s=config.finish.regain_gap_s,
+                              min_iou=config.finish.regain_iou,
+                              registrations=registrations or None,
+                              still_H=None if registrations else still_H)
     from .association.finish import finish_tracks  # smoothed boxes, static tracks out
 
     tracks = finish_tracks(tracks, config.finish, fps, metres_per_unit=metres_per_unit or linker.mpu,

@@ -1,0 +1,143 @@
+"""Detections regained inside a linked track's gaps.
+
+Global linking joins a target's tracklets across a gap and reports the frames between as
+predicted (believed out of view). Often the target was in view for some of them and the detector
+saw it: local association had left those detections out (a run too short to be a tracklet, a
+blob it could not explain). Once both ends of the gap are known, the target's path through it is
+well constrained (interpolated between its last sighting before and its first after), so a
+detection lying on that path, which no other track claims, is the target itself.
+
+Not in the papers: an offline tracker's second pass over its own gaps (tracklet interpolation
+with re-detection). Measured on the 18 held-out generated scenes, where 585 missed true boxes
+had a detection at IoU >= 0.5 but no track box (most of them inside a track's predicted gap).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections.abc import Iterable
+
+import numpy as np
+
+from ..types import Detections, Registration, Track, TrackPoint, apply_homography
+
+log = logging.getLogger(__name__)
+
+IN_VIEW = ("observed", "bridged", "stationary")
+
+
+def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """IoU of one ``x, y, w, h`` box with (N, 4) boxes."""
+    x0 = np.maximum(box[0], boxes[:, 0])
+    y0 = np.maximum(box[1], boxes[:, 1])
+    x1 = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2])
+    y1 = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    union = box[2] * box[3] + boxes[:, 2] * boxes[:, 3] - inter
+    return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
+
+
+def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections], *,
+                          fps: float, max_gap_s: float, min_iou: float,
+                          registrations: dict[int, Registration] | None = None,
+                          still_H: np.ndarray | None = None) -> int:
+    """Claim, in place, the detections that lie on a track's path through its gaps.
+
+    For every gap of at most ``max_gap_s`` between two sightings (observed points) of a track,
+    at each frame of the gap where the track is not in view (a predicted point, or none; local
+    association's bridged misses are its own decision), the box is interpolated: the ground point linearly in time between
+    the two sightings' (world coordinates), seen through that frame's registration, and the
+    width and height linearly between theirs (frame pixels). A detection of that frame whose
+    box overlaps it at IoU >= ``min_iou`` (the best one) becomes an observed point of the track,
+    unless another track already holds it (its detection index) or has an in-view box on it
+    (IoU > 0.3).
+
+    Parameters
+    ----------
+    tracks : list of Track
+        Linked tracks (world coordinates: map pixels, frame-1 pixels, or frame pixels without
+        registrations).
+    detections : iterable of Detections
+        The run's detections (frame pixels), any order.
+    registrations : dict frame -> Registration, optional
+        Frame -> world homographies; without them world is frame pixels, or the map placement
+        ``still_H`` (detections alone on a map).
+
+    Returns
+    -------
+    int
+        Detections claimed.
+    """
+    if max_gap_s <= 0 or not tracks:
+        return 0
+    by_frame = {int(d.frame): d for d in detections if len(d)}
+    if not by_frame:
+        return 0
+    max_frames = int(round(max_gap_s * fps))
+    used: dict[int, set[int]] = {}
+    boxes_at: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for t in tracks:
+        for p in t.points:
+            if p.kind == "observed" and p.det_index >= 0:
+                used.setdefault(p.frame, set()).add(p.det_index)
+            if p.kind in IN_VIEW and p.box is not None and np.all(np.isfinite(p.box)):
+                boxes_at.setdefault(p.frame, []).append((t.id, np.asarray(p.box, np.float64)))
+    inv_still = np.linalg.inv(still_H) if still_H is not None else None
+    claimed = 0
+    for t in tracks:
+        seen = [p for p in t.points if p.kind == "observed" and p.box is not None
+                and np.all(np.isfinite(p.box))]
+        # frames local association already decided (its bridged misses) are left to it: it
+        # weighed those detections with the motion and appearance of the whole window
+        in_view = {p.frame for p in t.points if p.kind in IN_VIEW}
+        new_points: dict[int, TrackPoint] = {}
+        for a, b in itertools.pairwise(seen):
+            gap = b.frame - a.frame - 1
+            if gap < 1 or gap > max_frames:
+                continue
+            wa, wb = np.asarray(a.world, np.float64), np.asarray(b.world, np.float64)
+            sa, sb = np.asarray(a.box, np.float64)[2:], np.asarray(b.box, np.float64)[2:]
+            for f in range(a.frame + 1, b.frame):
+                d = by_frame.get(f)
+                if d is None or f in in_view:
+                    continue
+                if registrations is not None:
+                    reg = registrations.get(f)
+                    if reg is None:
+                        continue
+                    to_frame = np.linalg.inv(reg.H)
+                else:
+                    to_frame = inv_still
+                u = (f - a.frame) / (b.frame - a.frame)
+                w = (1 - u) * wa + u * wb
+                c = w if to_frame is None else apply_homography(to_frame, w[None])[0]
+                size = (1 - u) * sa + u * sb
+                box = np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])
+                iou = _iou(box, np.asarray(d.boxes, np.float64))
+                taken = used.get(f, set())
+                others = np.array([q for tid, q in boxes_at.get(f, []) if tid != t.id]
+                                  ).reshape(-1, 4)
+                for k in np.argsort(-iou):
+                    if iou[k] < min_iou:
+                        break
+                    if int(k) in taken:
+                        continue
+                    if len(others) and _iou(d.boxes[k], others).max() > 0.3:
+                        continue
+                    new_points[f] = TrackPoint(
+                        frame=f, box=np.asarray(d.boxes[k], np.float64).copy(),
+                        world=np.asarray(d.world[k], np.float64).copy(),
+                        conf=float(d.conf[k]), kind="observed", det_index=int(k),
+                        size_world=None if d.size_world is None else
+                        np.asarray(d.size_world[k], np.float64).copy(),
+                        hist=None if d.hist is None else d.hist[k])
+                    used.setdefault(f, set()).add(int(k))
+                    break
+        if new_points:
+            kept = [p for p in t.points if p.frame not in new_points]
+            t.points = sorted(kept + list(new_points.values()), key=lambda p: p.frame)
+            claimed += len(new_points)
+    if claimed:
+        log.debug("regained %d detections inside tracks' gaps", claimed)
+    return claimed
