@@ -401,3 +401,41 @@ def test_blob_rules_judge_each_blob_at_its_own_scale_when_told():
     assert not any(has(plain, b) for b in far)
     kept = drop_small(blobs, area_ratio=0.4, norm=norm)
     assert all(has(kept, b) for b in far + near[:5]) and not has(kept, near[5])
+
+
+def test_separated_pieces_must_be_vehicle_shaped_and_not_a_vehicle_with_its_shadow():
+    from aerotrack.detection.moving import cast_shadow_pieces, separate_pieces
+
+    # two queued cars (30 x 10 px) 3 px apart: each piece is as long and wide as the typical car
+    m = np.zeros((20, 70), np.uint8)
+    m[5:15, 2:32] = 1
+    m[5:15, 35:65] = 1
+    assert len(separate_pieces(m, min_area=100, min_width=5, min_sides=(18, 6))) == 2
+    # a car (30 x 10) with a strip 30 x 6 beside it: long enough but too narrow to be a vehicle
+    # with min_sides at 0.7 of the typical car's (21 x 7); without the shape test it is split
+    s = np.zeros((30, 40), np.uint8)
+    s[2:12, 5:35] = 1
+    s[14:20, 5:35] = 1
+    assert separate_pieces(s, min_area=100, min_width=5) is not None
+    assert separate_pieces(s, min_area=100, min_width=5, min_sides=(21, 7)) is None
+    # a light car beside its (darker than the road, no larger) shadow: not two vehicles
+    bg = np.full((30, 40, 3), 90, np.uint8)
+    frame = bg.copy()
+    frame[2:12, 5:35] = 230  # the white car
+    frame[14:20, 5:35] = 50  # its shadow
+    car, shadow = np.zeros((30, 40), np.uint8), np.zeros((30, 40), np.uint8)
+    car[2:12, 5:35] = 1
+    shadow[14:20, 5:35] = 1
+    assert cast_shadow_pieces([car, shadow], frame, bg)
+    # a larger dark car beside a light one: two vehicles
+    big_dark = np.zeros((30, 40), np.uint8)
+    big_dark[13:27, 3:37] = 1
+    frame2 = bg.copy()
+    frame2[2:12, 5:35] = 230
+    frame2[13:27, 3:37] = 40
+    assert not cast_shadow_pieces([car, big_dark], frame2, bg)
+    # two light cars: two vehicles
+    frame3 = bg.copy()
+    frame3[2:12, 5:35] = 230
+    frame3[14:20, 5:35] = 200
+    assert not cast_shadow_pieces([car, shadow], frame3, bg)

@@ -857,6 +857,7 @@ def check_config(c: DetectionConfig) -> None:
         ("drop_small_near", 0, None, False, False), ("regrow_ratio", 0, 1, False, True),
         ("regrow_ghost_ratio", 0, None, False, False), ("join_cab_ratio", 0, None, False, False),
         ("split_full_ratio", 0, None, False, False), ("split_colour_dist", 0, None, False, False),
+        ("split_full_sides", 0, 1, False, False),
         ("box_edge_level", 0, 1, False, True),
         # (upper bounds on the kernels' sizes: a 5000 px closing ran for hours, a 10^6 px blur
         # failed deep in OpenCV; no vehicle needs more)

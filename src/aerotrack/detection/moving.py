@@ -35,8 +35,10 @@ from .blobs import (
     join_vehicle_parts,
     nearest_seed,
     open2,
+    oriented_sides,
     regrow_small,
     split_blob,
+    typical_sides,
 )
 from .residual import border_fill_mask, gain_normalise, ghost_score, pad0, robust_sigma, smoothed_residual
 from .shadows import remove_shadows, shadow_mask, trim_boxes, trim_shadow_side
@@ -321,9 +323,12 @@ def detect_moving(image: np.ndarray, small: np.ndarray, bg_small: np.ndarray,
             return gates.local((b.box[0] + 0.5 * b.box[2]) / scale,
                                (b.box[1] + 0.5 * b.box[3]) / scale) ** 2
     blobs, faint, typical = model_blobs(res, thr, sigma, config, scale, gates, norm)
+    sides_t = (typical_sides(blobs) if config.split_full_ratio > 0 and config.split_full_sides > 0
+               else None)
     found = [d for b, f in zip(blobs, faint)
              for d in refine_blob(b, image, small, bgn, thr, config, scale, gates,
-                                  typical=typical * (norm(b) if norm else 1.0), faint=f)]
+                                  typical=typical * (norm(b) if norm else 1.0), faint=f,
+                                  sides=sides_t)]
     boxes = np.asarray([d.box for d in found], np.float64).reshape(-1, 4)
     with_growth = [(d.box, d.growth) for d in found if d.growth is not None]
     shadow_samples = np.array([[b[0] + 0.5 * b[2], b[1] + 0.5 * b[3], *g]
@@ -468,7 +473,7 @@ def blob_confidence(contrast: float, fill: float) -> float:
 
 def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, thr: float,
                 config: DetectionConfig, scale: float, gates: SizeGates, *, typical: float,
-                faint: bool) -> list[Refined]:
+                faint: bool, sides: tuple[float, float] | None = None) -> list[Refined]:
     """The detections of one model-resolution blob ``b``, refined at full resolution.
 
     A ghost (:func:`.residual.ghost_score`) gives none. Otherwise the blob's region is
@@ -542,9 +547,15 @@ def refine_blob(b: Blob, image: np.ndarray, small: np.ndarray, bgn: np.ndarray, 
     full_typical = typical / scale ** 2
     if config.split_full_ratio > 0 and typical > 0 \
             and int(np.count_nonzero(fg8)) >= config.split_area_ratio * full_typical:
+        min_sides = None
+        if sides is not None and config.split_full_sides > 0:
+            min_sides = (config.split_full_sides * sides[0] / scale,
+                         config.split_full_sides * sides[1] / scale)
         pieces = separate_pieces(fg8, max(gates.min_area_px,
                                           config.split_full_ratio * full_typical),
-                                 gates.min_width_px)
+                                 gates.min_width_px, min_sides=min_sides)
+    if pieces and config.split_full_shadow and cast_shadow_pieces(pieces, crop, bg_crop):
+        pieces = None
     if pieces is None and config.split_colour_dist > 0 and typical > 0 \
             and int(np.count_nonzero(fg8)) >= config.split_area_ratio * full_typical:
         pieces = split_by_colour(fg8, crop, typical=full_typical,
@@ -644,7 +655,29 @@ def piece_mask(piece: np.ndarray, region: np.ndarray, close_px: float, gates: Si
     return fgm, (x0, y0, x1, y1), area
 
 
-def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list[np.ndarray] | None:
+def cast_shadow_pieces(pieces: list[np.ndarray], crop: np.ndarray, bg_crop: np.ndarray) -> bool:
+    """True when the pieces :func:`separate_pieces` found are a vehicle and its own cast shadow
+    rather than several vehicles: the darkest piece is darker than the ground it covers (mean
+    grey level of the frame minus the background's below 0), the brightest is lighter than its
+    ground, and the dark piece is no larger than the light one (in a nadir view a vehicle's
+    shadow is its footprint moved by the sun's offset, partly hidden under the vehicle, so its
+    visible part is smaller than the vehicle; the rule of ``shadows.remove_shadows``).
+
+    Where the colour test of :func:`.shadows.shadow_mask` misses a shadow (compressed real
+    video: Santiago's shadows, off the vehicle's sun side, stay in the blob), the shadow is
+    a piece of its own one or two pixels from its vehicle, car-long and nearly car-wide, and
+    was reported as a vehicle. Two vehicles, a dark one beside a light one, are told apart
+    only when the dark one is the larger; two light or two dark ones are always split."""
+    g = (cv2.cvtColor(np.ascontiguousarray(crop), cv2.COLOR_BGR2GRAY).astype(np.float32)
+         - cv2.cvtColor(np.ascontiguousarray(bg_crop), cv2.COLOR_BGR2GRAY).astype(np.float32))
+    d = [float(g[pc > 0].mean()) for pc in pieces]
+    dark, light = int(np.argmin(d)), int(np.argmax(d))
+    return (d[dark] < 0 < d[light]
+            and np.count_nonzero(pieces[dark]) <= np.count_nonzero(pieces[light]))
+
+
+def separate_pieces(mask: np.ndarray, min_area: float, min_width: float,
+                    min_sides: tuple[float, float] | None = None) -> list[np.ndarray] | None:
     """Masks of the vehicles in one refined blob, when it holds two or more, else None.
 
     A blob found at the model's resolution can hold two vehicles whose bodies are a few pixels
@@ -663,6 +696,10 @@ def separate_pieces(mask: np.ndarray, min_area: float, min_width: float) -> list
         if min_width > 0:
             dist = cv2.distanceTransform(pad0(comp, 1), cv2.DIST_L2, 3)
             if 2.0 * float(dist.max()) < min_width:
+                continue
+        if min_sides is not None:
+            lo, sh = oriented_sides(Blob((0, 0, comp.shape[1], comp.shape[0]), comp > 0))
+            if lo < min_sides[0] or sh < min_sides[1]:
                 continue
         big.append(k)
     if len(big) < 2:
