@@ -66,3 +66,20 @@ def test_long_gaps_and_a_moving_camera():
                                  registrations=regs) == 18
     p = next(p for p in t.points if p.frame == 17)
     assert np.allclose(p.world, [2.0 * 17, 100.0]) and np.allclose(p.box[0], 2.0 * 17 - 51 - 10)
+
+
+def test_a_track_is_carried_past_its_ends_while_detections_follow_its_path():
+    """Seen at frames 11-20 (x = 2 px a frame); the detector keeps seeing the vehicle at 21-25
+    and from 5 to 10, local association did not: those are claimed at the track's velocity, up
+    to ``end_s``, and not past a frame without a detection on the path."""
+    t = Track(id=1, points=[_point(f, 2.0 * f) for f in range(11, 21)])
+    dets = {f: _dets(f, [2.0 * f]) for f in list(range(5, 11)) + list(range(21, 26))}
+    dets[8] = _dets(8, [2.0 * 8 + 15.0])  # frame 8: off the path (the walk back stops at 9)
+    dets[30] = _dets(30, [60.0])  # after a frame without one: not reached
+    n = regain_gap_detections([t], list(dets.values()), fps=FPS, max_gap_s=4.0, min_iou=0.5,
+                              end_s=0.5)
+    assert [p.frame for p in t.points] == list(range(9, 26)) and n == 7
+    t2 = Track(id=2, points=[_point(f, 2.0 * f) for f in range(11, 21)])
+    assert regain_gap_detections([t2], list(dets.values()), fps=FPS, max_gap_s=4.0,
+                                 min_iou=0.5, end_s=0.1) == 5  # 3 frames each way at most
+    assert [p.frame for p in t2.points] == list(range(9, 24))

@@ -1772,6 +1772,10 @@ class FinishConfig:
         observation of it (:mod:`aerotrack.association.regain`): local association had left it
         out (a run too short for a tracklet). 0 turns it off. Raising it claims detections
         across longer gaps, where a straight path between two sightings is a worse guess.
+    regain_end_s : float
+        Past a track's last in-view frame (and before its first), for up to this long, the track
+        is carried on at the velocity of its last (first) observations and claims, frame by
+        frame, the free detections on that path, until a frame has none. 0 turns it off.
     regain_iou : float
         IoU a detection needs with the interpolated box to be claimed (0-1). Lower claims more,
         and risks taking a neighbour's detection.
@@ -1894,6 +1898,7 @@ class FinishConfig:
     min_size_m: float = 1.5
     min_size_estimated_m: float = 2.0
     regain_gap_s: float = 8.0
+    regain_end_s: float = 1.0
     regain_iou: float = 0.5
     fill_gaps_s: float = 0.5
     stop_hold_s: float = 0.0

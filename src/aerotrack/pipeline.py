@@ -882,6 +882,7 @@ def link(tracklets: list[Track], config: Config, fps: float, *, metres_per_unit:
         TrackFinisher(config.finish, fps)  # its settings checked before they are used
         regain_gap_detections(tracks, detections, fps=fps, max_gap_s=config.finish.regain_gap_s,
                               min_iou=config.finish.regain_iou,
+                              end_s=config.finish.regain_end_s,
                               registrations=registrations or None,
                               still_H=None if registrations else still_H)
     from .association.finish import finish_tracks  # smoothed boxes, static tracks out

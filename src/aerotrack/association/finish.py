@@ -440,8 +440,9 @@ class TrackFinisher:
         if not (self.config.size_outlier_ratio == 0 or self.config.size_outlier_ratio > 1):
             raise ConfigError(f"config finish.size_outlier_ratio: "
                               f"{self.config.size_outlier_ratio} must be 0 (off) or > 1")
-        if not self.config.regain_gap_s >= 0:
-            raise ConfigError("config finish.regain_gap_s: must be >= 0")
+        for name in ("regain_gap_s", "regain_end_s"):
+            if not getattr(self.config, name) >= 0:
+                raise ConfigError(f"config finish.{name}: must be >= 0")
         if not 0.0 < self.config.regain_iou <= 1.0:
             raise ConfigError(f"config finish.regain_iou: {self.config.regain_iou} must be in "
                               "(0, 1]")

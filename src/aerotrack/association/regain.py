@@ -38,8 +38,13 @@ def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
 
 
+#: observed points at a track's end that give its velocity for :func:`regain_gap_detections`'
+#: ``end_s``
+EDGE_POINTS = 5
+
+
 def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections], *,
-                          fps: float, max_gap_s: float, min_iou: float,
+                          fps: float, max_gap_s: float, min_iou: float, end_s: float = 0.0,
                           registrations: dict[int, Registration] | None = None,
                           still_H: np.ndarray | None = None) -> int:
     """Claim, in place, the detections that lie on a track's path through its gaps.
@@ -64,17 +69,22 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
         Frame -> world homographies; without them world is frame pixels, or the map placement
         ``still_H`` (detections alone on a map).
 
+    ``end_s``: past a track's last in-view frame (and before its first), for up to this long,
+    the track is carried on at the velocity of its last (first) :data:`EDGE_POINTS`
+    observations, frame by frame, claiming detections the same way until a frame has none.
+
     Returns
     -------
     int
         Detections claimed.
     """
-    if max_gap_s <= 0 or not tracks:
+    if (max_gap_s <= 0 and end_s <= 0) or not tracks:
         return 0
     by_frame = {int(d.frame): d for d in detections if len(d)}
     if not by_frame:
         return 0
     max_frames = int(round(max_gap_s * fps))
+    end_frames = int(round(end_s * fps))
     used: dict[int, set[int]] = {}
     boxes_at: dict[int, list[tuple[int, np.ndarray]]] = {}
     for t in tracks:
@@ -84,6 +94,41 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
             if p.kind in IN_VIEW and p.box is not None and np.all(np.isfinite(p.box)):
                 boxes_at.setdefault(p.frame, []).append((t.id, np.asarray(p.box, np.float64)))
     inv_still = np.linalg.inv(still_H) if still_H is not None else None
+
+    def to_frame(f: int) -> np.ndarray | None | bool:
+        """World -> frame f pixels (None: identity); False when frame f has no registration."""
+        if registrations is None:
+            return inv_still
+        reg = registrations.get(f)
+        return False if reg is None else np.linalg.inv(reg.H)
+
+    def claim(t: Track, f: int, w: np.ndarray, size: np.ndarray) -> TrackPoint | None:
+        """The best free detection of frame ``f`` on the box of ground point ``w`` and pixel
+        ``size``, as an observed point of ``t`` (marked held), or None."""
+        d = by_frame.get(f)
+        H = to_frame(f)
+        if d is None or H is False:
+            return None
+        c = w if H is None else apply_homography(H, w[None])[0]
+        box = np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])
+        iou = _iou(box, np.asarray(d.boxes, np.float64))
+        taken = used.get(f, set())
+        others = np.array([q for tid, q in boxes_at.get(f, []) if tid != t.id]).reshape(-1, 4)
+        for k in np.argsort(-iou):
+            if iou[k] < min_iou:
+                return None
+            if int(k) in taken or (len(others) and _iou(d.boxes[k], others).max() > 0.3):
+                continue
+            used.setdefault(f, set()).add(int(k))
+            return TrackPoint(
+                frame=f, box=np.asarray(d.boxes[k], np.float64).copy(),
+                world=np.asarray(d.world[k], np.float64).copy(), conf=float(d.conf[k]),
+                kind="observed", det_index=int(k),
+                size_world=None if d.size_world is None else
+                np.asarray(d.size_world[k], np.float64).copy(),
+                hist=None if d.hist is None else d.hist[k])
+        return None
+
     claimed = 0
     for t in tracks:
         seen = [p for p in t.points if p.kind == "observed" and p.box is not None
@@ -99,41 +144,30 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
             wa, wb = np.asarray(a.world, np.float64), np.asarray(b.world, np.float64)
             sa, sb = np.asarray(a.box, np.float64)[2:], np.asarray(b.box, np.float64)[2:]
             for f in range(a.frame + 1, b.frame):
-                d = by_frame.get(f)
-                if d is None or f in in_view:
+                if f in in_view:
                     continue
-                if registrations is not None:
-                    reg = registrations.get(f)
-                    if reg is None:
-                        continue
-                    to_frame = np.linalg.inv(reg.H)
-                else:
-                    to_frame = inv_still
                 u = (f - a.frame) / (b.frame - a.frame)
-                w = (1 - u) * wa + u * wb
-                c = w if to_frame is None else apply_homography(to_frame, w[None])[0]
-                size = (1 - u) * sa + u * sb
-                box = np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])
-                iou = _iou(box, np.asarray(d.boxes, np.float64))
-                taken = used.get(f, set())
-                others = np.array([q for tid, q in boxes_at.get(f, []) if tid != t.id]
-                                  ).reshape(-1, 4)
-                for k in np.argsort(-iou):
-                    if iou[k] < min_iou:
+                p = claim(t, f, (1 - u) * wa + u * wb, (1 - u) * sa + u * sb)
+                if p is not None:
+                    new_points[f] = p
+        if end_frames > 0 and len(seen) >= 2:
+            first = min(p.frame for p in t.points)
+            last = max(p.frame for p in t.points if p.kind in IN_VIEW)
+            for ends, step in ((seen[::-1], 1), (seen, -1)):  # after the end, before the start
+                fr = np.array([p.frame for p in ends[:EDGE_POINTS]], np.float64)
+                xy = np.array([p.world for p in ends[:EDGE_POINTS]], np.float64)
+                if abs(fr[0] - fr[-1]) < 1:
+                    continue
+                v = (xy[0] - xy[-1]) / (fr[0] - fr[-1])  # world units per frame
+                w, f0, size = xy[0], int(fr[0]), np.asarray(ends[0].box, np.float64)[2:]
+                for k in range(1, end_frames + 1):
+                    f = f0 + step * k
+                    if f < 1 or (step > 0 and f <= last) or (step < 0 and f >= first):
+                        break  # (only past the track's in-view ends)
+                    p = claim(t, f, w + v * (f - f0), size)
+                    if p is None:
                         break
-                    if int(k) in taken:
-                        continue
-                    if len(others) and _iou(d.boxes[k], others).max() > 0.3:
-                        continue
-                    new_points[f] = TrackPoint(
-                        frame=f, box=np.asarray(d.boxes[k], np.float64).copy(),
-                        world=np.asarray(d.world[k], np.float64).copy(),
-                        conf=float(d.conf[k]), kind="observed", det_index=int(k),
-                        size_world=None if d.size_world is None else
-                        np.asarray(d.size_world[k], np.float64).copy(),
-                        hist=None if d.hist is None else d.hist[k])
-                    used.setdefault(f, set()).add(int(k))
-                    break
+                    new_points[f] = p
         if new_points:
             kept = [p for p in t.points if p.frame not in new_points]
             t.points = sorted(kept + list(new_points.values()), key=lambda p: p.frame)
