@@ -398,7 +398,8 @@ def evaluate_scene(scene: Path, mode: str, config: Config, fresh: bool, seed: in
         else:
             tracks = link(tl, config if cfg == "roads" else cfg, run["fps"],
                           metres_per_unit=run["mpu"], frame_size=run["frame_size"],
-                          registrations=run["registrations"], roads=roads if cfg == "roads" else None)
+                          registrations=run["registrations"], roads=roads if cfg == "roads" else None,
+                          detections=run.get("detections"))  # (regained as `track` does)
         secs = time.perf_counter() - t0
         rows, pred = rows_of(run, tracks, geomap)
         sc = evaluate(gt, rows)

@@ -207,3 +207,14 @@ def test_report_scores_the_frames_asked(tmp_path, capsys):
     assert "Tracks with false positives" in (run / "report.html").read_text()
     code, _, err = _cli(["report", run, "--frames", "2:3"], capsys)
     assert code == 2 and "--frames" in err
+
+
+def test_eval_errors_is_not_written_when_eval_fails(tmp_path, capsys):
+    """--geo-crs refusing metres as degrees failed after the errors file was written."""
+    gt = _two_targets(3)
+    gt[:, 7:9] = [500000.0, 4000000.0]  # metres, not degrees
+    write_mot(tmp_path / "gt.txt", gt)
+    write_mot(tmp_path / "pred.txt", gt)
+    code, _, err = _cli(["eval", "--gt", tmp_path / "gt.txt", "--pred", tmp_path / "pred.txt",
+                         "--errors", tmp_path / "e.csv", "--geo-crs", "EPSG:4326"], capsys)
+    assert code == 2 and "--geo-crs" in err and not (tmp_path / "e.csv").exists()

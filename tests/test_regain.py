@@ -83,3 +83,27 @@ def test_a_track_is_carried_past_its_ends_while_detections_follow_its_path():
     assert regain_gap_detections([t2], list(dets.values()), fps=FPS, max_gap_s=4.0,
                                  min_iou=0.5, end_s=0.1) == 5  # 3 frames each way at most
     assert [p.frame for p in t2.points] == list(range(9, 24))
+
+
+def test_two_tracks_never_claim_one_detection():
+    """What a track holds is judged by its boxes (a point's det_index may index another list of
+    detections: split blobs, followed vehicles); a box one track claimed is held for the next."""
+    a, b = _track(), _track()
+    b.id = 2
+    for p in b.points:  # another vehicle 1 px below, seen in the same frames
+        p.world = p.world + [0.0, 1.0]
+        if p.box is not None:
+            p.box = p.box + [0.0, 1.0, 0.0, 0.0]
+            p.det_index = 7
+    dets = [_dets(f, [2.0 * f]) for f in range(13, 31)]
+    n = regain_gap_detections([a, b], dets, fps=FPS, max_gap_s=4.0, min_iou=0.5)
+    claimed = [sum(p.kind == "observed" and 13 <= p.frame <= 30 for p in t.points) for t in (a, b)]
+    assert n == 18 and sorted(claimed) == [0, 18]
+    # frame 20 holds the target's detection (row 0) and a far vehicle's (row 1), which a third
+    # track holds with det_index 0 (an index into the detections before a merged blob was
+    # split): the target's own is free
+    t, far = _track(), Track(id=3, points=[_point(20, 300.0)])
+    far.points[0].det_index = 0
+    dets = [_dets(f, [2.0 * f] + ([300.0] if f == 20 else [])) for f in range(13, 31)]
+    regain_gap_detections([t, far], dets, fps=FPS, max_gap_s=4.0, min_iou=0.5)
+    assert next(p for p in t.points if p.frame == 20).kind == "observed"

@@ -1770,8 +1770,9 @@ class FinishConfig:
         Inside a linked track's gaps up to this long, a detection lying on the track's path
         (interpolated between the sightings either side) that no other track holds becomes an
         observation of it (:mod:`aerotrack.association.regain`): local association had left it
-        out (a run too short for a tracklet). 0 turns it off. Raising it claims detections
-        across longer gaps, where a straight path between two sightings is a worse guess.
+        out (a run too short for a tracklet). 0 turns it off, as does ``enabled`` false.
+        Raising it claims detections across longer gaps, where a straight path between two
+        sightings is a worse guess. ``links.csv`` keeps the linked gap as linking made it.
     regain_end_s : float
         Past a track's last in-view frame (and before its first), for up to this long, the track
         is carried on at the velocity of its last (first) observations and claims, frame by

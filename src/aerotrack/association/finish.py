@@ -630,7 +630,7 @@ class TrackFinisher:
             pts[i].box = new[i]
             pts[i].world = xs[i, :2].copy()
             if outside[i]:  # more than half the vehicle past the border: out of view
-                pts[i].kind = "predicted"
+                pts[i].kind, pts[i].conf, pts[i].det_index = "predicted", 0.0, -1
         return True
 
     def _unabsorbed(self, wh, norm, times, valid, vel) -> np.ndarray:

@@ -55,8 +55,8 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
     the two sightings' (world coordinates), seen through that frame's registration, and the
     width and height linearly between theirs (frame pixels). A detection of that frame whose
     box overlaps it at IoU >= ``min_iou`` (the best one) becomes an observed point of the track,
-    unless another track already holds it (its detection index) or has an in-view box on it
-    (IoU > 0.3).
+    unless another track's in-view box of that frame is on it (IoU > 0.3: it holds it, or has
+    claimed it here).
 
     Parameters
     ----------
@@ -85,12 +85,12 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
         return 0
     max_frames = int(round(max_gap_s * fps))
     end_frames = int(round(end_s * fps))
-    used: dict[int, set[int]] = {}
+    # what the tracks hold, by box: a point's ``det_index`` indexes the detections local
+    # association saw, which need not be these (split merged blobs, followed vehicles, an
+    # overlay's or a region's detections dropped after association)
     boxes_at: dict[int, list[tuple[int, np.ndarray]]] = {}
     for t in tracks:
         for p in t.points:
-            if p.kind == "observed" and p.det_index >= 0:
-                used.setdefault(p.frame, set()).add(p.det_index)
             if p.kind in IN_VIEW and p.box is not None and np.all(np.isfinite(p.box)):
                 boxes_at.setdefault(p.frame, []).append((t.id, np.asarray(p.box, np.float64)))
     inv_still = np.linalg.inv(still_H) if still_H is not None else None
@@ -112,14 +112,13 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
         c = w if H is None else apply_homography(H, w[None])[0]
         box = np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])
         iou = _iou(box, np.asarray(d.boxes, np.float64))
-        taken = used.get(f, set())
         others = np.array([q for tid, q in boxes_at.get(f, []) if tid != t.id]).reshape(-1, 4)
         for k in np.argsort(-iou):
             if iou[k] < min_iou:
                 return None
-            if int(k) in taken or (len(others) and _iou(d.boxes[k], others).max() > 0.3):
-                continue
-            used.setdefault(f, set()).add(int(k))
+            if len(others) and _iou(d.boxes[k], others).max() > 0.3:
+                continue  # held by another track (or on its box)
+            boxes_at.setdefault(f, []).append((t.id, np.asarray(d.boxes[k], np.float64)))
             return TrackPoint(
                 frame=f, box=np.asarray(d.boxes[k], np.float64).copy(),
                 world=np.asarray(d.world[k], np.float64).copy(), conf=float(d.conf[k]),

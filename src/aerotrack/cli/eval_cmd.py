@@ -266,7 +266,7 @@ def _table(rows: list[tuple[str, dict]]) -> str:
 def _write_errors(path: Path, seqs: dict, per_seq: dict, iou_threshold: float, by_class: dict,
                   drop_flagged: bool, frame_offset: int) -> None:
     """``eval --errors``: CLEAR's matching of the scored rows, errors to ``path`` (atomic), a
-    line per sequence, and per target at -v."""
+    line per sequence, and per target at -vv."""
     from ..evaluation.errors import KINDS, clear_matching, error_rows_csv, target_summaries
     from ..io.output import atomic_write_text
 
@@ -274,6 +274,7 @@ def _write_errors(path: Path, seqs: dict, per_seq: dict, iou_threshold: float, b
     for name, (g, p, ign) in seqs.items():
         g, p, _, _ = scored_rows(g, p, ignore=ign, frames=per_seq.get(name), name=name,
                                  quiet=True, drop_flagged=drop_flagged, **by_class)
+        name = name or "sequence"  # (one pair's name may be empty)
         matchings[name] = m = clear_matching(g, p, iou_threshold=iou_threshold)
         n = np.bincount(m.kind, minlength=len(KINDS))
         lost = [t for t in target_summaries(m) if t.found < t.frames]
@@ -482,9 +483,6 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
     res = evaluate_sequences(seqs, iou_threshold=iou_threshold, frames=per_seq or None,
                              drop_flagged=drop_flagged, **by_class)
     single = len(seqs) == 1
-    if errors_path is not None:
-        _write_errors(errors_path, seqs, per_seq, iou_threshold, by_class, drop_flagged,
-                      frame_offset=-1 if zero_based else 0)
     geo = None
     if geo_crs is not None:
         from ..evaluation.geo import geo_errors
@@ -536,6 +534,9 @@ def eval_command(gts, preds, ignores, iou_threshold, frames, zero_based, gt_zero
             log.warning("--geo-crs %s: matched boxes lie a median %.0f km apart: are --gt's and "
                         "--pred's x, y in the same CRS? (the ground truth's must be in %s too)",
                         geo_crs, geo["median_m"] / 1000, geo_crs)
+    if errors_path is not None:  # after every check (--geo-crs refused metres as degrees)
+        _write_errors(errors_path, seqs, per_seq, iou_threshold, by_class, drop_flagged,
+                      frame_offset=-1 if zero_based else 0)
     if as_json:
         keys = (*METRIC_KEYS, *EXTRA_KEYS)
         out = {k: _json_number(res["combined"][k]) for k in keys}
