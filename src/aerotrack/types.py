@@ -95,6 +95,20 @@ class Registration:
         return apply_homography(np.linalg.inv(self.H), points)
 
 
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairwise IoU (N, M) of (N, 4) and (M, 4) boxes ``x, y, w, h`` (any one pixel frame); 0
+    where both are empty."""
+    a = np.asarray(a, dtype=np.float64).reshape(-1, 4)
+    b = np.asarray(b, dtype=np.float64).reshape(-1, 4)
+    x0 = np.maximum(a[:, None, 0], b[None, :, 0])
+    y0 = np.maximum(a[:, None, 1], b[None, :, 1])
+    x1 = np.minimum(a[:, None, 0] + a[:, None, 2], b[None, :, 0] + b[None, :, 2])
+    y1 = np.minimum(a[:, None, 1] + a[:, None, 3], b[None, :, 1] + b[None, :, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    union = a[:, None, 2] * a[:, None, 3] + b[None, :, 2] * b[None, :, 3] - inter
+    return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
+
+
 def apply_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 3x3 homography to (N, 2) points; returns (N, 2) float64."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)

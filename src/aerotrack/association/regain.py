@@ -20,22 +20,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from ..types import Detections, Registration, Track, TrackPoint, apply_homography
+from ..types import Detections, Registration, Track, TrackPoint, apply_homography, box_iou
 
 log = logging.getLogger(__name__)
 
 IN_VIEW = ("observed", "bridged", "stationary")
-
-
-def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """IoU of one ``x, y, w, h`` box with (N, 4) boxes."""
-    x0 = np.maximum(box[0], boxes[:, 0])
-    y0 = np.maximum(box[1], boxes[:, 1])
-    x1 = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2])
-    y1 = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    union = box[2] * box[3] + boxes[:, 2] * boxes[:, 3] - inter
-    return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
 
 
 #: observed points at a track's end that give its velocity for :func:`regain_gap_detections`'
@@ -111,12 +100,12 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
             return None
         c = w if H is None else apply_homography(H, w[None])[0]
         box = np.array([c[0] - size[0] / 2, c[1] - size[1] / 2, size[0], size[1]])
-        iou = _iou(box, np.asarray(d.boxes, np.float64))
+        iou = box_iou(box, d.boxes)[0]
         others = np.array([q for tid, q in boxes_at.get(f, []) if tid != t.id]).reshape(-1, 4)
         for k in np.argsort(-iou):
             if iou[k] < min_iou:
                 return None
-            if len(others) and _iou(d.boxes[k], others).max() > 0.3:
+            if len(others) and box_iou(d.boxes[k], others).max() > 0.3:
                 continue  # held by another track (or on its box)
             boxes_at.setdefault(f, []).append((t.id, np.asarray(d.boxes[k], np.float64)))
             return TrackPoint(

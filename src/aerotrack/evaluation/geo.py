@@ -13,16 +13,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..errors import InputError
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x0 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y0 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x1 = np.minimum(a[:, None, 0] + a[:, None, 2], b[None, :, 0] + b[None, :, 2])
-    y1 = np.minimum(a[:, None, 1] + a[:, None, 3], b[None, :, 1] + b[None, :, 3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    union = a[:, None, 2] * a[:, None, 3] + b[None, :, 2] * b[None, :, 3] - inter
-    return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
+from ..types import box_iou
 
 
 def matched_positions(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float = 0.5
@@ -31,7 +22,7 @@ def matched_positions(gt: np.ndarray, pred: np.ndarray, *, iou_threshold: float 
     t, p = [], []
     for f in np.intersect1d(gt[:, 0], pred[:, 0]):
         g, q = gt[gt[:, 0] == f], pred[pred[:, 0] == f]
-        m = _iou(g[:, 2:6], q[:, 2:6])
+        m = box_iou(g[:, 2:6], q[:, 2:6])
         ri, ci = linear_sum_assignment(-m)
         ok = m[ri, ci] >= iou_threshold
         t.append(g[ri[ok], 7:9])
