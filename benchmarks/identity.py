@@ -231,6 +231,13 @@ def oracle_link(tracklets, gt: np.ndarray, config: Config, run: dict):
     linker = GlobalLinker(config.linking, config.context, run["fps"], metres_per_unit=run["mpu"])
     linker.solve(tl)  # the motion context's predictions fill the gaps
     tracks = linker.build_tracks(tl, links, run["registrations"], run["frame_size"])
+    if run.get("detections") is not None:  # as `link` does, so the comparison is like for like
+        from aerotrack.association.regain import regain_gap_detections
+
+        regain_gap_detections(tracks, run["detections"], fps=run["fps"],
+                              max_gap_s=config.finish.regain_gap_s,
+                              min_iou=config.finish.regain_iou, end_s=config.finish.regain_end_s,
+                              registrations=run["registrations"] or None)
     return _renumber(finish_tracks(tracks, config.finish, run["fps"], metres_per_unit=run["mpu"],
                                    registrations=run["registrations"], frame_size=run["frame_size"]))
 

@@ -73,7 +73,8 @@ def test_a_track_is_carried_past_its_ends_while_detections_follow_its_path():
     and from 5 to 10, local association did not: those are claimed at the track's velocity, up
     to ``end_s``, and not past a frame without a detection on the path."""
     t = Track(id=1, points=[_point(f, 2.0 * f) for f in range(11, 21)])
-    dets = {f: _dets(f, [2.0 * f]) for f in list(range(5, 11)) + list(range(21, 26))}
+    dets = {f: _dets(f, []) for f in range(1, 41)}  # every frame processed, most with none
+    dets.update({f: _dets(f, [2.0 * f]) for f in list(range(5, 11)) + list(range(21, 26))})
     dets[8] = _dets(8, [2.0 * 8 + 15.0])  # frame 8: off the path (the walk back stops at 9)
     dets[30] = _dets(30, [60.0])  # after a frame without one: not reached
     n = regain_gap_detections([t], list(dets.values()), fps=FPS, max_gap_s=4.0, min_iou=0.5,
@@ -107,3 +108,17 @@ def test_two_tracks_never_claim_one_detection():
     dets = [_dets(f, [2.0 * f] + ([300.0] if f == 20 else [])) for f in range(13, 31)]
     regain_gap_detections([t, far], dets, fps=FPS, max_gap_s=4.0, min_iou=0.5)
     assert next(p for p in t.points if p.frame == 20).kind == "observed"
+
+
+def test_end_extension_with_a_stride_and_a_tail_that_follows():
+    """--stride 2 processes every other frame: the extension walks those (it stopped at the
+    first unprocessed frame); the predicted tail after the new end moves with it."""
+    pts = [_point(f, 2.0 * f) for f in range(11, 31, 2)]
+    pts += [_point(f, 2.0 * f, "predicted") for f in range(31, 61, 2)]
+    t = Track(id=1, points=pts)
+    dets = [_dets(f, [2.0 * f + (3.0 if f > 30 else 0.0)] if 31 <= f <= 39 else [])
+            for f in range(1, 61, 2)]  # the vehicle drifts 3 px off the old prediction
+    assert regain_gap_detections([t], dets, fps=FPS, max_gap_s=4.0, min_iou=0.5,
+                                 end_s=1.0) == 5
+    p41 = next(p for p in t.points if p.frame == 41)
+    assert p41.kind == "predicted" and abs(p41.world[0] - (2.0 * 41 + 3.0)) < 0.5

@@ -1774,9 +1774,12 @@ class FinishConfig:
         Raising it claims detections across longer gaps, where a straight path between two
         sightings is a worse guess. ``links.csv`` keeps the linked gap as linking made it.
     regain_end_s : float
-        Past a track's last in-view frame (and before its first), for up to this long, the track
-        is carried on at the velocity of its last (first) observations and claims, frame by
-        frame, the free detections on that path, until a frame has none. 0 turns it off.
+        Past a track's last in-view frame (and before its first) when that frame is observed,
+        for up to this long, the track is carried on at the velocity fitted to its last (first)
+        observations (up to five, without a gap), frame by frame over the frames the run
+        processed, each claim the new start, claiming free detections on that path until a frame
+        has none. 0 turns it off, as does ``enabled`` false. A detection is free when no other
+        track's in-view box of that frame is on it (IoU > 0.3).
     regain_iou : float
         IoU a detection needs with the interpolated box to be claimed (0-1). Lower claims more,
         and risks taking a neighbour's detection.

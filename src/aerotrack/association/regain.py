@@ -30,6 +30,8 @@ IN_VIEW = ("observed", "bridged", "stationary")
 #: observed points at a track's end that give its velocity for :func:`regain_gap_detections`'
 #: ``end_s``
 EDGE_POINTS = 5
+#: a larger step between two of them ends the run the velocity is fitted over (processed frames)
+END_RUN_GAP = 3
 
 
 def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections], *,
@@ -69,9 +71,12 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
     """
     if (max_gap_s <= 0 and end_s <= 0) or not tracks:
         return 0
+    detections = list(detections)
     by_frame = {int(d.frame): d for d in detections if len(d)}
     if not by_frame:
         return 0
+    frames_run = sorted({int(d.frame) for d in detections})  # (with --stride, every N-th)
+    stride = max(1, int(np.median(np.diff(frames_run)))) if len(frames_run) > 1 else 1
     max_frames = int(round(max_gap_s * fps))
     end_frames = int(round(end_s * fps))
     # what the tracks hold, by box: a point's ``det_index`` indexes the detections local
@@ -139,27 +144,61 @@ def regain_gap_detections(tracks: list[Track], detections: Iterable[Detections],
                 if p is not None:
                     new_points[f] = p
         if end_frames > 0 and len(seen) >= 2:
-            first = min(p.frame for p in t.points)
+            first = min(p.frame for p in t.points if p.kind in IN_VIEW)
             last = max(p.frame for p in t.points if p.kind in IN_VIEW)
             for ends, step in ((seen[::-1], 1), (seen, -1)):  # after the end, before the start
-                fr = np.array([p.frame for p in ends[:EDGE_POINTS]], np.float64)
-                xy = np.array([p.world for p in ends[:EDGE_POINTS]], np.float64)
-                if abs(fr[0] - fr[-1]) < 1:
+                if ends[0].frame != (last if step > 0 else first):
+                    continue  # the track ends bridged or standing: not where it was seen going
+                run = _end_run(ends, stride)
+                if len(run) < 2:
                     continue
-                v = (xy[0] - xy[-1]) / (fr[0] - fr[-1])  # world units per frame
-                w, f0, size = xy[0], int(fr[0]), np.asarray(ends[0].box, np.float64)[2:]
-                for k in range(1, end_frames + 1):
-                    f = f0 + step * k
-                    if f < 1 or (step > 0 and f <= last) or (step < 0 and f >= first):
-                        break  # (only past the track's in-view ends)
+                fr = np.array([p.frame for p in run], np.float64)
+                xy = np.array([p.world for p in run], np.float64)
+                tt = fr - fr.mean()
+                v = tt @ (xy - xy.mean(axis=0)) / float(tt @ tt)  # world units per frame
+                w = xy.mean(axis=0) + v * (fr[0] - fr.mean())  # the fitted line at the end
+                f0, size = int(fr[0]), np.asarray(ends[0].box, np.float64)[2:]
+                ahead = [f for f in frames_run if 0 < (f - f0) * step <= end_frames]
+                for f in (ahead if step > 0 else ahead[::-1]):  # the frames the run processed
                     p = claim(t, f, w + v * (f - f0), size)
                     if p is None:
                         break
                     new_points[f] = p
+                    w, f0 = np.asarray(p.world, np.float64), f  # on from what it saw
+                if step > 0 and f0 != int(fr[0]):
+                    _shift_tail(t, f0, w)
         if new_points:
             kept = [p for p in t.points if p.frame not in new_points]
             t.points = sorted(kept + list(new_points.values()), key=lambda p: p.frame)
             claimed += len(new_points)
     if claimed:
-        log.debug("regained %d detections inside tracks' gaps", claimed)
+        log.debug("regained %d detections in tracks' gaps and past their ends", claimed)
     return claimed
+
+
+def _end_run(ends: list[TrackPoint], stride: int = 1) -> list[TrackPoint]:
+    """The first :data:`EDGE_POINTS` of ``ends`` (observed points from a track's end inwards)
+    that follow one another without a gap of more than :data:`END_RUN_GAP` processed frames
+    (``stride`` frames each): a velocity across a linked gap averaged a wait and a drive."""
+    run = ends[:1]
+    for p in ends[1:EDGE_POINTS]:
+        if abs(p.frame - run[-1].frame) > END_RUN_GAP * stride:
+            break
+        run.append(p)
+    return run
+
+
+def _shift_tail(t: Track, frame: int, world: np.ndarray) -> None:
+    """Move the predicted points after ``frame`` (the track's new end) by where it now ends
+    against where the old prediction had it at that frame (in place): the tail was predicted
+    from the old end, and jumped where the claimed detections ended."""
+    ref = next((p for p in t.points if p.frame == frame and p.kind == "predicted"), None)
+    if ref is None:
+        return
+    offset = np.asarray(world, np.float64) - np.asarray(ref.world, np.float64)
+    if not np.all(np.isfinite(offset)):
+        return
+    for p in t.points:
+        if p.frame > frame and p.kind == "predicted":
+            p.world = np.asarray(p.world, np.float64) + offset
+            p.box = np.full(4, np.nan)  # rebuilt around the moved ground point (outputs)
